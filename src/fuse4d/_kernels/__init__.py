@@ -1,0 +1,1 @@
+"""Private numba kernels. They only fill buffers: no validation, no allocation of results."""

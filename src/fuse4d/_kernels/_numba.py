@@ -1,0 +1,40 @@
+"""The single numba policy of fuse4d: every kernel is compiled through these decorators.
+
+``cache=True`` everywhere (CI and the CLI reuse compiled code across processes).
+fastmath is limited to flags that keep NaN/inf semantics intact, because NaN marks invalid
+depth throughout fuse4d; ``nnan``/``ninf`` would silently break ``np.isnan`` tests.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numba
+
+__all__ = ["FASTMATH", "njit", "njit_parallel", "prange"]
+
+#: fastmath flags allowed in kernels (no 'nnan', 'ninf': NaN = invalid depth).
+FASTMATH = frozenset({"contract", "arcp", "nsz"})
+
+#: Set FUSE4D_NUMBA_PARALLEL=0 to compile "parallel" kernels serially (debugging, profiling).
+PARALLEL = os.environ.get("FUSE4D_NUMBA_PARALLEL", "1") != "0"
+
+prange = numba.prange
+
+
+def njit(func=None, **kwargs):
+    """``numba.njit`` with the project policy (cache, fastmath). Serial kernels."""
+    opts = {"cache": True, "fastmath": set(FASTMATH), "nogil": True}
+    opts.update(kwargs)
+    if func is None:
+        return numba.njit(**opts)
+    return numba.njit(**opts)(func)
+
+
+def njit_parallel(func=None, **kwargs):
+    """``numba.njit(parallel=True)`` with the project policy; ``prange`` over rows or frames."""
+    opts = {"cache": True, "fastmath": set(FASTMATH), "nogil": True, "parallel": PARALLEL}
+    opts.update(kwargs)
+    if func is None:
+        return numba.njit(**opts)
+    return numba.njit(**opts)(func)

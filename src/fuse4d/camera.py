@@ -1,0 +1,208 @@
+"""Pinhole camera model: intrinsics, back-projection (paper Eq. 2) and projection.
+
+Conventions: pixel centres at integer coordinates, 0-based; ``u`` = column, ``v`` = row;
+camera frame X right, Y down, Z forward; lengths in millimetres.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ._validation import as_float32, check_shape
+
+__all__ = ["Intrinsics", "depth_to_points", "points_to_depth", "project_points"]
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics (immutable).
+
+    Parameters
+    ----------
+    fx, fy : float
+        Focal lengths in pixels (paper :math:`f_x, f_y`). Must be finite and > 0.
+    cx, cy : float
+        Principal point in pixels (paper :math:`u_0, v_0`); ``cx`` is a column, ``cy`` a row.
+    width, height : int
+        Image size in pixels.
+
+    Examples
+    --------
+    >>> K = Intrinsics(fx=1000.0, fy=1000.0, cx=299.5, cy=299.5, width=600, height=600)
+    >>> K.matrix[0, 2]
+    299.5
+    >>> K.scaled(0.5).fx
+    500.0
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        for name in ("fx", "fy", "cx", "cy"):
+            value = getattr(self, name)
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                raise TypeError(f"Intrinsics.{name} must be a number, got {value!r}") from None
+            if not math.isfinite(value):
+                raise ValueError(f"Intrinsics.{name} must be finite, got {value}")
+            object.__setattr__(self, name, value)
+        for name in ("fx", "fy"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"Intrinsics.{name} must be > 0 pixels, got {getattr(self, name)}")
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or int(value) != value or int(value) < 1:
+                raise ValueError(f"Intrinsics.{name} must be a positive integer, got {value!r}")
+            object.__setattr__(self, name, int(value))
+
+    @classmethod
+    def from_array(cls, values: ArrayLike, *, width: int, height: int) -> Intrinsics:
+        """Build from ``[fx, fy, cx, cy]`` (the npz ``intrinsics`` key).
+
+        Raises
+        ------
+        ValueError
+            If ``values`` does not hold exactly 4 numbers.
+        """
+        arr = np.asarray(values, dtype=np.float64).ravel()
+        if arr.size != 4:
+            raise ValueError(
+                f"intrinsics must be [fx, fy, cx, cy] (4 numbers), got {arr.size} values"
+            )
+        return cls(*(float(x) for x in arr), width=width, height=height)
+
+    @classmethod
+    def from_matrix(cls, matrix: ArrayLike, *, width: int, height: int) -> Intrinsics:
+        """Build from a 3x3 camera matrix ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``."""
+        mat = np.asarray(matrix, dtype=np.float64)
+        if mat.shape != (3, 3):
+            raise ValueError(f"camera matrix must be 3x3, got shape {mat.shape}")
+        return cls(mat[0, 0], mat[1, 1], mat[0, 2], mat[1, 2], width=width, height=height)
+
+    def as_array(self) -> NDArray[np.float64]:
+        """``[fx, fy, cx, cy]`` as float64."""
+        return np.array([self.fx, self.fy, self.cx, self.cy], dtype=np.float64)
+
+    @property
+    def matrix(self) -> NDArray[np.float64]:
+        """The 3x3 camera matrix K."""
+        return np.array(
+            [[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]], dtype=np.float64
+        )
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Image shape ``(height, width)``."""
+        return (self.height, self.width)
+
+    def scaled(self, factor: float) -> Intrinsics:
+        """Intrinsics of the image resized by ``factor`` (pixel-centre convention kept)."""
+        if not factor > 0:
+            raise ValueError(f"factor must be > 0, got {factor}")
+        return Intrinsics(
+            fx=self.fx * factor,
+            fy=self.fy * factor,
+            cx=(self.cx + 0.5) * factor - 0.5,
+            cy=(self.cy + 0.5) * factor - 0.5,
+            width=max(1, round(self.width * factor)),
+            height=max(1, round(self.height * factor)),
+        )
+
+    def to_dict(self) -> dict[str, float | int]:
+        """Plain-dict form (JSON/TOML friendly)."""
+        return {
+            "fx": self.fx,
+            "fy": self.fy,
+            "cx": self.cx,
+            "cy": self.cy,
+            "width": self.width,
+            "height": self.height,
+        }
+
+
+def depth_to_points(depth: ArrayLike, intrinsics: Intrinsics) -> NDArray[np.float32]:
+    """Back-project depth to 3D points (paper Eq. 2).
+
+    ``P[v, u] = D[v, u] * ((u - cx) / fx, (v - cy) / fy, 1)``.
+
+    Parameters
+    ----------
+    depth : (..., H, W) ndarray
+        Depth in mm along the optical axis; NaN (or <= 0, inf) = invalid.
+    intrinsics : Intrinsics
+        Camera; its ``width``/``height`` must match the last two axes.
+
+    Returns
+    -------
+    points : (..., H, W, 3) ndarray of float32
+        X, Y, Z in mm; NaN where depth is invalid.
+
+    Examples
+    --------
+    >>> K = Intrinsics(fx=100.0, fy=100.0, cx=1.0, cy=1.0, width=3, height=3)
+    >>> p = depth_to_points(np.full((3, 3), 500.0), K)
+    >>> p[1, 2].tolist()
+    [5.0, 0.0, 500.0]
+    """
+    d = as_float32(depth, name="depth")
+    check_shape(
+        d,
+        ("*", intrinsics.height, intrinsics.width),
+        name="depth",
+        hint=f"the intrinsics say the image is {intrinsics.height}x{intrinsics.width} (HxW)",
+    )
+    d = np.where(np.isfinite(d) & (d > 0), d, np.float32(np.nan))
+    u = (np.arange(intrinsics.width, dtype=np.float32) - np.float32(intrinsics.cx)) / np.float32(
+        intrinsics.fx
+    )
+    v = (np.arange(intrinsics.height, dtype=np.float32) - np.float32(intrinsics.cy)) / np.float32(
+        intrinsics.fy
+    )
+    points = np.empty((*d.shape, 3), dtype=np.float32)
+    points[..., 0] = d * u[None, :]
+    points[..., 1] = d * v[:, None]
+    points[..., 2] = d
+    return points
+
+
+def points_to_depth(points: ArrayLike) -> NDArray[np.float32]:
+    """Depth (Z component, mm) of a ``(..., 3)`` point map; NaN stays NaN."""
+    p = as_float32(points, name="points")
+    check_shape(p, ("*", 3), name="points")
+    return np.ascontiguousarray(p[..., 2])
+
+
+def project_points(
+    points: ArrayLike, intrinsics: Intrinsics
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Project 3D points (mm) to continuous pixel coordinates.
+
+    Parameters
+    ----------
+    points : (..., 3) ndarray
+        X, Y, Z in mm, camera frame.
+    intrinsics : Intrinsics
+
+    Returns
+    -------
+    u, v : (...) ndarray of float32
+        Column and row coordinates in pixels; NaN where Z is not > 0.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    check_shape(p, ("*", 3), name="points")
+    z = p[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        good = z > 0
+        u = np.where(good, intrinsics.fx * p[..., 0] / z + intrinsics.cx, np.nan)
+        v = np.where(good, intrinsics.fy * p[..., 1] / z + intrinsics.cy, np.nan)
+    return u.astype(np.float32), v.astype(np.float32)

@@ -1,0 +1,56 @@
+"""Command-line interface: ``fuse4d COMMAND ...`` (``fuse4d --help`` lists the commands).
+
+Every error caused by the input (bad file, bad value) ends the program with exit code 2 and a
+single ``fuse4d: error: ...`` line on stderr, never a traceback. Set ``FUSE4D_DEBUG=1`` to see
+the traceback.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Sequence
+
+import click
+import typer
+
+from ._app import CliError, app
+
+# Command modules register their commands on `app` when imported (one line each, sorted).
+from . import (  # noqa: F401  isort: skip
+    cmd_io,  # info, export-ply
+)
+
+__all__ = ["app", "main"]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the CLI; returns the exit code (also used as the console-script entry point)."""
+    command = typer.main.get_command(app)
+    args = list(sys.argv[1:] if argv is None else argv)
+    try:
+        result = command.main(args=args, prog_name="fuse4d", standalone_mode=False)
+    except click.exceptions.Exit as exc:
+        return _finish(exc.exit_code, argv)
+    except click.exceptions.Abort:
+        print("fuse4d: aborted", file=sys.stderr)
+        return _finish(130, argv)
+    except click.ClickException as exc:
+        exc.show(file=sys.stderr)
+        return _finish(exc.exit_code, argv)
+    except (CliError, ValueError, OSError, KeyError) as exc:
+        if os.environ.get("FUSE4D_DEBUG"):
+            raise
+        message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in message:
+            message = f"{exc.filename}: {message}"
+        print(f"fuse4d: error: {message}", file=sys.stderr)
+        return _finish(2, argv)
+    code = result if isinstance(result, int) else 0
+    return _finish(code, argv)
+
+
+def _finish(code: int, argv: Sequence[str] | None) -> int:
+    if argv is None:  # console-script use
+        sys.exit(code)
+    return code

@@ -1,0 +1,3 @@
+"""CLI commands: ``info``, ``export-ply`` (placeholder module, filled by the I/O work)."""
+
+from __future__ import annotations

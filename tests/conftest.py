@@ -1,0 +1,49 @@
+"""Shared fixtures: seeded RNG, tiny synthetic sequences, location of ../shared/data."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fuse4d import Intrinsics, Sequence
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def shared_data_dir() -> Path:
+    """``$FUSE4D_DATA`` or ``<repo>/../shared/data`` (read in place, never copied)."""
+    env = os.environ.get("FUSE4D_DATA")
+    return Path(env) if env else REPO_ROOT.parent / "shared" / "data"
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(0)
+
+
+@pytest.fixture
+def shared_data() -> Path:
+    """The shared real-data folder; skips the test (with the reason) when it is absent."""
+    path = shared_data_dir()
+    if not path.is_dir():
+        pytest.skip(f"real data folder not found: {path} (set FUSE4D_DATA to its location)")
+    return path
+
+
+@pytest.fixture
+def small_intrinsics() -> Intrinsics:
+    return Intrinsics(fx=80.0, fy=80.0, cx=15.5, cy=11.5, width=32, height=24)
+
+
+@pytest.fixture
+def small_sequence(small_intrinsics: Intrinsics, rng: np.random.Generator) -> Sequence:
+    """4 frames of a noisy textured plane at ~500 mm, 24x32 px."""
+    t, h, w = 4, small_intrinsics.height, small_intrinsics.width
+    yy, xx = np.mgrid[0:h, 0:w]
+    depth = 500.0 + 0.5 * xx + rng.normal(0.0, 0.2, (t, h, w))
+    intensity = np.clip(0.5 + 0.3 * np.sin(xx / 3.0) * np.cos(yy / 4.0), 0, 1)
+    intensity = np.broadcast_to(intensity, (t, h, w)).copy()
+    return Sequence(depth.astype(np.float32), intensity.astype(np.float32), small_intrinsics)

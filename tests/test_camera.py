@@ -1,0 +1,74 @@
+"""Tests of Intrinsics and the Eq. 2 back-projection / projection."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fuse4d import Intrinsics, ShapeError, depth_to_points, points_to_depth, project_points
+
+
+def test_intrinsics_matrix_and_array():
+    k = Intrinsics(fx=500, fy=510, cx=319.5, cy=239.5, width=640, height=480)
+    np.testing.assert_array_equal(k.matrix, [[500, 0, 319.5], [0, 510, 239.5], [0, 0, 1]])
+    assert Intrinsics.from_array(k.as_array(), width=640, height=480) == k
+    assert Intrinsics.from_matrix(k.matrix, width=640, height=480) == k
+    assert k.shape == (480, 640)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"fx": float("nan")}, "Intrinsics.fx must be finite, got nan"),
+        ({"fy": 0.0}, "Intrinsics.fy must be > 0 pixels, got 0.0"),
+        ({"cx": float("inf")}, "Intrinsics.cx must be finite, got inf"),
+        ({"width": 0}, "Intrinsics.width must be a positive integer, got 0"),
+        ({"height": 2.5}, "Intrinsics.height must be a positive integer, got 2.5"),
+    ],
+)
+def test_intrinsics_rejects_bad_values(kwargs, message):
+    base = {"fx": 100.0, "fy": 100.0, "cx": 1.0, "cy": 1.0, "width": 4, "height": 3}
+    base.update(kwargs)
+    with pytest.raises(ValueError, match="^" + message.replace(".", r"\.") + "$"):
+        Intrinsics(**base)
+
+
+def test_intrinsics_from_array_wrong_size():
+    with pytest.raises(
+        ValueError, match=r"intrinsics must be \[fx, fy, cx, cy\] \(4 numbers\), got 3"
+    ):
+        Intrinsics.from_array([1.0, 2.0, 3.0], width=4, height=4)
+
+
+def test_scaled_keeps_pixel_centre_convention():
+    k = Intrinsics(fx=100, fy=100, cx=1.5, cy=1.5, width=4, height=4)
+    s = k.scaled(0.5)
+    assert (s.fx, s.cx, s.width) == (50.0, 0.5, 2)
+
+
+def test_backprojection_eq2_and_roundtrip(rng):
+    k = Intrinsics(fx=300.0, fy=310.0, cx=9.7, cy=6.2, width=20, height=12)
+    depth = rng.uniform(400, 900, (3, 12, 20)).astype(np.float32)
+    depth[0, 2, 3] = np.nan
+    depth[1, 0, 0] = 0.0
+    p = depth_to_points(depth, k)
+    assert p.shape == (3, 12, 20, 3)
+    assert p.dtype == np.float32
+    v, u = 5, 17
+    expected = depth[2, v, u] * np.array([(u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0])
+    np.testing.assert_allclose(p[2, v, u], expected, rtol=1e-6)
+    assert np.isnan(p[0, 2, 3]).all()
+    assert np.isnan(p[1, 0, 0]).all()
+    uu, vv = project_points(p, k)
+    grid_v, grid_u = np.mgrid[0:12, 0:20]
+    ok = np.isfinite(uu)
+    np.testing.assert_allclose(uu[ok], np.broadcast_to(grid_u, uu.shape)[ok], atol=1e-3)
+    np.testing.assert_allclose(vv[ok], np.broadcast_to(grid_v, vv.shape)[ok], atol=1e-3)
+    z = points_to_depth(p)
+    np.testing.assert_array_equal(np.isnan(z), ~(np.isfinite(depth) & (depth > 0)))
+
+
+def test_backprojection_shape_mismatch_message():
+    k = Intrinsics(fx=300.0, fy=300.0, cx=1, cy=1, width=5, height=4)
+    with pytest.raises(ShapeError, match=r"depth must have shape \(\*, 4, 5\), got \(4, 6\)"):
+        depth_to_points(np.ones((4, 6)), k)

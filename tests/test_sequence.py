@@ -1,0 +1,87 @@
+"""Tests of the Sequence data model and its validation messages."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fuse4d import GroundTruth, Intrinsics, Sequence, ShapeError, normalize_intensity
+
+
+@pytest.fixture
+def k():
+    return Intrinsics(fx=100.0, fy=100.0, cx=2.0, cy=1.5, width=5, height=4)
+
+
+def test_sequence_converts_and_marks_invalid(k):
+    depth = np.full((2, 4, 5), 500, dtype=np.uint16)
+    depth[0, 0, 0] = 0
+    inten = np.full((2, 4, 5), 255, dtype=np.uint8)
+    seq = Sequence(depth, inten, k)
+    assert seq.depth.dtype == np.float32
+    assert seq.intensity.dtype == np.float32
+    assert np.isnan(seq.depth[0, 0, 0])
+    assert seq.intensity.max() == 1.0
+    assert seq.num_frames == 2
+    assert seq.shape == (4, 5)
+    assert seq.points().shape == (2, 4, 5, 3)
+
+
+def test_sequence_rejects_shape_mismatch(k):
+    with pytest.raises(ShapeError, match=r"intensity must have shape \(2, 4, 5\), got \(3, 4, 5\)"):
+        Sequence(np.ones((2, 4, 5)), np.zeros((3, 4, 5)), k)
+
+
+def test_sequence_rejects_intrinsics_mismatch(k):
+    with pytest.raises(ShapeError, match=r"the intrinsics give an image of 4x5"):
+        Sequence(np.ones((1, 5, 5)), np.zeros((1, 5, 5)), k)
+
+
+def test_sequence_rejects_empty_and_2d(k):
+    with pytest.raises(ValueError, match=r"at least one frame \(T >= 1\), got T = 0"):
+        Sequence(np.ones((0, 4, 5)), np.zeros((0, 4, 5)), k)
+    with pytest.raises(ShapeError, match=r"For a single frame use depth\[None\]"):
+        Sequence(np.ones((4, 5)), np.zeros((4, 5)), k)
+
+
+def test_sequence_rejects_intensity_out_of_range(k):
+    with pytest.raises(ValueError, match=r"intensity must lie in \[0, 1\], got range \[0, 2\]"):
+        Sequence(np.ones((1, 4, 5)), np.linspace(0, 2, 20).reshape(1, 4, 5), k)
+
+
+def test_sequence_rejects_wrong_intrinsics_type():
+    with pytest.raises(TypeError, match=r"intrinsics must be a fuse4d\.Intrinsics, got list"):
+        Sequence(np.ones((1, 4, 5)), np.zeros((1, 4, 5)), [1, 2, 3, 4])
+
+
+def test_sequence_warns_mostly_invalid(k):
+    depth = np.full((1, 4, 5), np.nan)
+    with pytest.warns(UserWarning, match=r"only 0.0 % of depth pixels are valid"):
+        Sequence(depth, np.zeros((1, 4, 5)), k)
+
+
+def test_sequence_timestamps_and_fps(k):
+    with pytest.raises(ValueError, match="timestamps must be strictly increasing"):
+        Sequence(np.ones((2, 4, 5)), np.zeros((2, 4, 5)), k, timestamps=[1.0, 1.0])
+    with pytest.raises(ValueError, match="fps must be a positive number, got -3"):
+        Sequence(np.ones((2, 4, 5)), np.zeros((2, 4, 5)), k, fps=-3)
+
+
+def test_frames_slices_ground_truth(k):
+    gt = GroundTruth(
+        depth=np.ones((3, 4, 5), np.float32),
+        flow=np.zeros((2, 4, 5, 2), np.float32),
+        extra={"center_row": np.arange(3.0), "radius_mm": 140.0},
+    )
+    seq = Sequence(np.ones((3, 4, 5)), np.zeros((3, 4, 5)), k, ground_truth=gt)
+    sub = seq.frames(1, 3)
+    assert sub.num_frames == 2
+    assert sub.ground_truth.flow.shape == (1, 4, 5, 2)
+    np.testing.assert_array_equal(sub.ground_truth.extra["center_row"], [1.0, 2.0])
+    with pytest.raises(ValueError, match="selects no frame"):
+        seq.frames(5, 9)
+
+
+def test_normalize_intensity():
+    np.testing.assert_allclose(normalize_intensity(np.array([0, 65535], np.uint16)), [0, 1])
+    np.testing.assert_allclose(normalize_intensity(np.array([0.0, 50.0, 200.0])), [0, 0.25, 1])
