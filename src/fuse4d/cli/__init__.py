@@ -11,17 +11,23 @@ import os
 import sys
 from collections.abc import Sequence
 
-import click
 import typer
 
 from ._app import CliError, app
 
 # Command modules register their commands on `app` when imported (one line each, sorted).
 from . import (  # noqa: F401  isort: skip
+    cmd_baseline,  # baseline
+    cmd_flow,  # flow, bench-flow
+    cmd_eval,  # synth, metrics
     cmd_io,  # info, export-ply
 )
 
 __all__ = ["app", "main"]
+
+# typer >= 0.2x vendors click (typer._click); older typer uses the click package. Take the
+# exception classes from typer's own public ones so both work.
+_ClickException = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -30,12 +36,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     try:
         result = command.main(args=args, prog_name="fuse4d", standalone_mode=False)
-    except click.exceptions.Exit as exc:
+    except typer.Exit as exc:
         return _finish(exc.exit_code, argv)
-    except click.exceptions.Abort:
+    except typer.Abort:
         print("fuse4d: aborted", file=sys.stderr)
         return _finish(130, argv)
-    except click.ClickException as exc:
+    except _ClickException as exc:
         exc.show(file=sys.stderr)
         return _finish(exc.exit_code, argv)
     except (CliError, ValueError, OSError, KeyError) as exc:

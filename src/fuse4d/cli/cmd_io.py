@@ -1,3 +1,151 @@
-"""CLI commands: ``info``, ``export-ply`` (placeholder module, filled by the I/O work)."""
+"""CLI commands ``info`` (describe a recording) and ``export-ply`` (one frame as a point cloud)."""
 
 from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+
+from ..camera import depth_to_points
+from ..io import CAMERA_PRESETS, check_output, open_frames, write_ply
+from ._app import app, fail, out_console, track
+
+__all__ = ["export_ply_command", "info_command"]
+
+_INTRINSICS_HELP = (
+    "Camera override: a preset (" + ", ".join(CAMERA_PRESETS) + "), 'fx,fy,cx,cy' in px, "
+    "or a camera.json path. Required for TUM folders without camera.json."
+)
+
+InputArg = Annotated[
+    Path,
+    typer.Argument(
+        metavar="INPUT",
+        help="A .npz file or a sequence folder (frame folder, TUM, cv2-xml, frames-json).",
+        show_default=False,
+    ),
+]
+IntrinsicsOpt = Annotated[str | None, typer.Option("--intrinsics", help=_INTRINSICS_HELP)]
+UnitOpt = Annotated[
+    float | None,
+    typer.Option("--depth-unit-mm", help="Millimetres per stored depth unit (overrides the file)."),
+]
+FormatOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--format", help="Force the input layout: npz, folder, tum, cv2-xml, frames-json."
+    ),
+]
+
+
+@app.command("info")
+def info_command(
+    input_path: InputArg,
+    intrinsics: IntrinsicsOpt = None,
+    depth_unit_mm: UnitOpt = None,
+    input_format: FormatOpt = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Describe a recording: layout, frames, size, valid fraction, depth range, camera, GT."""
+    reader = open_frames(
+        input_path, format=input_format, depth_unit_mm=depth_unit_mm, intrinsics=intrinsics
+    )
+    with reader:
+        n_valid = 0
+        lo, hi = math.inf, -math.inf
+        for frame in track(reader, "reading frames", total=len(reader)):
+            valid = np.isfinite(frame.depth)
+            count = int(valid.sum())
+            if count:
+                n_valid += count
+                lo = min(lo, float(np.nanmin(frame.depth)))
+                hi = max(hi, float(np.nanmax(frame.depth)))
+        k = reader.intrinsics
+        total = len(reader) * k.width * k.height
+        ts = reader.timestamps
+        summary = {
+            "input": str(input_path),
+            "format": reader.format,
+            "frames": len(reader),
+            "width": k.width,
+            "height": k.height,
+            "intrinsics": {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy},
+            "depth_unit_mm": reader.depth_unit_mm,
+            "fps": reader.fps,
+            "duration_s": None if ts is None else float(ts[-1] - ts[0]),
+            "valid_fraction": n_valid / total,
+            "depth_min_mm": lo if n_valid else None,
+            "depth_max_mm": hi if n_valid else None,
+            "ground_truth": list(reader.ground_truth_keys),
+            "notes": list(reader.notes),
+        }
+    if as_json:
+        print(json.dumps(summary))
+        return
+    rows = [
+        ("input", summary["input"]),
+        ("format", summary["format"]),
+        ("frames", str(summary["frames"])),
+        ("size", f"{k.width} x {k.height} px (W x H)"),
+        ("intrinsics", f"fx={k.fx:g} fy={k.fy:g} cx={k.cx:g} cy={k.cy:g} px"),
+        (
+            "depth unit",
+            "float mm"
+            if reader.depth_unit_mm is None
+            else f"{reader.depth_unit_mm:g} mm per stored unit",
+        ),
+        ("fps", "not stored" if reader.fps is None else f"{reader.fps:g}"),
+        (
+            "timestamps",
+            "not stored" if ts is None else f"{ts[0]:.6f} .. {ts[-1]:.6f} s ({len(ts)} values)",
+        ),
+        ("valid pixels", f"{100.0 * summary['valid_fraction']:.1f} %"),
+        (
+            "depth range",
+            "no valid depth" if not n_valid else f"{lo:.1f} .. {hi:.1f} mm",
+        ),
+        ("ground truth", ", ".join(summary["ground_truth"]) or "none"),
+    ]
+    rows += [("note", note) for note in summary["notes"]]
+    for key, value in rows:
+        out_console.print(f"{key + ':':<14}{value}", highlight=False, markup=False, soft_wrap=True)
+
+
+@app.command("export-ply")
+def export_ply_command(
+    input_path: InputArg,
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="Output .ply file.", show_default=False)
+    ],
+    frame: Annotated[
+        int, typer.Option("--frame", help="0-based frame index (negative: from end).")
+    ] = 0,
+    force: Annotated[bool, typer.Option("--force", help="Overwrite an existing output.")] = False,
+    no_color: Annotated[
+        bool, typer.Option("--no-color", help="Do not store intensity as gray colour.")
+    ] = False,
+    intrinsics: IntrinsicsOpt = None,
+    depth_unit_mm: UnitOpt = None,
+    input_format: FormatOpt = None,
+) -> None:
+    """Write one frame as a binary PLY point cloud (mm, camera frame; intensity as gray)."""
+    check_output(output, overwrite=force, inputs=[input_path])
+    with open_frames(
+        input_path, format=input_format, depth_unit_mm=depth_unit_mm, intrinsics=intrinsics
+    ) as reader:
+        n = len(reader)
+        if not -n <= frame < n:
+            fail(f"--frame {frame} is out of range: {input_path} has {n} frames (0..{n - 1})")
+        data = reader.read_frame(frame)
+        points = depth_to_points(data.depth, reader.intrinsics)
+    count = write_ply(points, output, colors=None if no_color else data.intensity, overwrite=force)
+    out_console.print(
+        f"wrote {count} points (frame {data.index}) to {output}",
+        highlight=False,
+        markup=False,
+        soft_wrap=True,
+    )

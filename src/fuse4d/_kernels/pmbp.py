@@ -1,0 +1,552 @@
+"""numba kernels of PatchMatch Belief Propagation (METHOD.md §2).
+
+State of one solve (all float32, C-contiguous, allocated by ``fuse4d.pmbp``):
+
+- ``lab``   (H, W, K, 2): particles s_p^k = (du, dv) in px;
+- ``una``   (H, W, K):    cached unary ψ1_p(s_p^k) (a particle's unary never changes);
+- ``dis``   (H, W, K):    disbelief B_p^k = ψ1 + Σ incoming messages, as of p's last visit;
+- ``found`` (H, W, 4, K): foundations F_{p\\q}^k of p toward its neighbour q in direction d
+  (d = 0 up (r-1), 1 down (r+1), 2 left (c-1), 3 right (c+1); the opposite of d is d ^ 1).
+
+The message from q = nbr_d(p) into p at label s is
+``min_k λ·min(|s - s_q^k|², T) + found[q, d ^ 1, k]``.
+
+Images: ``src`` = I^t (the grid the flow lives on), ``tgt`` = I^{t+1} (sampled bilinearly),
+``sgu/sgv`` and ``tgu/tgv`` their central-difference gradients (only read when α > 0), ``asw``
+(H, W, (2ρ+1)²) the adaptive-support weights of each pixel's patch (0 outside the image).
+
+``cfg`` (float64 array) packs the scalar knobs, see ``_CFG_*``; ``roi`` (int64[4]) =
+(row0, row1, col0, col1), half-open: only pixels inside are solved, and neighbours outside it do
+not exist for the MRF.
+
+Randomness: a counter-based generator (splitmix64) keyed by (seed, level, iteration, phase,
+pixel index), so every pixel draws the same numbers whatever the thread schedule.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._numba import njit, njit_parallel, prange
+
+# indices into the packed ``cfg`` vector
+_CFG_ALPHA = 0  # gradient weight α
+_CFG_TAU1 = 1  # intensity truncation τ1
+_CFG_TAU2 = 2  # gradient truncation τ2
+_CFG_BORDER = 3  # border cost β((1-α)τ1 + ατ2)
+_CFG_LAMBDA = 4  # pairwise weight λ (per px²)
+_CFG_TRUNC = 5  # pairwise truncation T_pw (px²)
+_CFG_MAXMOT = 6  # max motion M (px)
+_CFG_R0 = 7  # initial random-search radius (px)
+_CFG_RMIN = 8  # minimal random-search radius (px)
+_CFG_EARLY = 9  # 1.0: early termination of the patch cost
+_CFG_INIT_RADIUS = 10  # random initial particles: uniform within this radius (px) ...
+_CFG_INIT_CENTRED = 11  # ... of seeds[0] if 1.0, else of zero
+_CFG_SIZE = 12
+
+_INF = np.inf
+_DUP2 = 1e-6  # two labels closer than 1e-3 px are duplicates
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_MIX1 = np.uint64(0xBF58476D1CE4E5B9)
+_MIX2 = np.uint64(0x94D049BB133111EB)
+_S30 = np.uint64(30)
+_S27 = np.uint64(27)
+_S31 = np.uint64(31)
+_S11 = np.uint64(11)
+_TO_UNIT = 1.0 / 9007199254740992.0  # 2**-53
+
+
+# --------------------------------------------------------------------------------------------
+# random numbers
+
+
+@njit
+def _mix64(z):
+    """splitmix64 finaliser (uint64 -> uint64)."""
+    z = (z ^ (z >> _S30)) * _MIX1
+    z = (z ^ (z >> _S27)) * _MIX2
+    return z ^ (z >> _S31)
+
+
+@njit
+def _rng_key(seed, level, it, phase, pixel):
+    """Per-pixel stream key from (seed, pyramid level, iteration, phase, pixel index)."""
+    z = _mix64(np.uint64(seed) + _GOLDEN)
+    z = _mix64(z ^ (np.uint64(level) * np.uint64(0x100000001B3) + np.uint64(it)))
+    z = _mix64(z ^ (np.uint64(phase) * _GOLDEN))
+    return _mix64(z ^ np.uint64(pixel))
+
+
+@njit
+def _uniform(state):
+    """Next (state, u) with u uniform in [-1, 1)."""
+    state = state + _GOLDEN
+    z = _mix64(state)
+    u = float(z >> _S11) * _TO_UNIT
+    return state, 2.0 * u - 1.0
+
+
+# --------------------------------------------------------------------------------------------
+# energy terms
+
+
+@njit
+def _patch_cost(src, sgu, sgv, tgt, tgu, tgv, asw, r, c, su, sv, rho, cfg, bound):
+    """ψ1_p(s): ASW-weighted truncated patch dissimilarity (METHOD §2.1).
+
+    Accumulated row by row; returns as soon as the partial sum exceeds ``bound`` (early
+    termination, METHOD §2.5.3; pass ``inf`` for the full value). ``s`` is constant over the
+    patch, so the bilinear weights are computed once.
+    """
+    h, w = src.shape
+    alpha = cfg[_CFG_ALPHA]
+    tau1 = cfg[_CFG_TAU1]
+    tau2 = cfg[_CFG_TAU2]
+    border = cfg[_CFG_BORDER]
+    a_int = 1.0 - alpha
+    x = c + su
+    y = r + sv
+    fx = math.floor(x)
+    fy = math.floor(y)
+    ix = int(fx)
+    iy = int(fy)
+    ax = x - fx
+    ay = y - fy
+    w00 = (1.0 - ax) * (1.0 - ay)
+    w01 = ax * (1.0 - ay)
+    w10 = (1.0 - ax) * ay
+    w11 = ax * ay
+    side = 2 * rho + 1
+    acc = 0.0
+    if (
+        r - rho >= 0
+        and r + rho < h
+        and c - rho >= 0
+        and c + rho < w
+        and iy - rho >= 0
+        and iy + rho + 1 < h
+        and ix - rho >= 0
+        and ix + rho + 1 < w
+    ):
+        # fast path: patch and its bilinear footprint inside both images, no bounds checks
+        by = 1.0 - ay
+        bx = 1.0 - ax
+        j = 0
+        if alpha > 0.0:
+            for dy in range(-rho, rho + 1):
+                ty = iy + dy
+                qr = r + dy
+                for dx in range(-rho, rho + 1):
+                    tx = ix + dx
+                    qc = c + dx
+                    val = w00 * tgt[ty, tx] + w01 * tgt[ty, tx + 1]
+                    val += w10 * tgt[ty + 1, tx] + w11 * tgt[ty + 1, tx + 1]
+                    gu = w00 * tgu[ty, tx] + w01 * tgu[ty, tx + 1]
+                    gu += w10 * tgu[ty + 1, tx] + w11 * tgu[ty + 1, tx + 1]
+                    gv = w00 * tgv[ty, tx] + w01 * tgv[ty, tx + 1]
+                    gv += w10 * tgv[ty + 1, tx] + w11 * tgv[ty + 1, tx + 1]
+                    gd = abs(sgu[qr, qc] - gu) + abs(sgv[qr, qc] - gv)
+                    cost = a_int * min(abs(src[qr, qc] - val), tau1) + alpha * min(gd, tau2)
+                    acc += asw[r, c, j] * cost
+                    j += 1
+                if acc > bound:
+                    return acc
+            return acc
+        # intensity only: separable interpolation (vertical blend of 2ρ+2 columns, then
+        # horizontal)
+        for dy in range(-rho, rho + 1):
+            ty = iy + dy
+            qr = r + dy
+            prev = by * tgt[ty, ix - rho] + ay * tgt[ty + 1, ix - rho]
+            for dx in range(-rho, rho + 1):
+                tx = ix + dx + 1
+                cur = by * tgt[ty, tx] + ay * tgt[ty + 1, tx]
+                val = bx * prev + ax * cur
+                prev = cur
+                acc += asw[r, c, j] * min(abs(src[qr, c + dx] - val), tau1)
+                j += 1
+            if acc > bound:
+                return acc
+        return acc * a_int
+    for dy in range(-rho, rho + 1):
+        qr = r + dy
+        if qr < 0 or qr >= h:
+            continue
+        ty = iy + dy
+        row_out = ty < 0 or ty > h - 1 or (ty == h - 1 and ay > 0.0)
+        ty1 = min(ty + 1, h - 1)
+        base = (dy + rho) * side + rho
+        for dx in range(-rho, rho + 1):
+            qc = c + dx
+            if qc < 0 or qc >= w:
+                continue
+            wq = asw[r, c, base + dx]
+            tx = ix + dx
+            if row_out or tx < 0 or tx > w - 1 or (tx == w - 1 and ax > 0.0):
+                acc += wq * border
+                continue
+            tx1 = min(tx + 1, w - 1)
+            val = w00 * tgt[ty, tx] + w01 * tgt[ty, tx1] + w10 * tgt[ty1, tx] + w11 * tgt[ty1, tx1]
+            cost = a_int * min(abs(src[qr, qc] - val), tau1)
+            if alpha > 0.0:
+                gu = w00 * tgu[ty, tx] + w01 * tgu[ty, tx1] + w10 * tgu[ty1, tx] + w11 * tgu[ty1, tx1]
+                gv = w00 * tgv[ty, tx] + w01 * tgv[ty, tx1] + w10 * tgv[ty1, tx] + w11 * tgv[ty1, tx1]
+                gd = abs(sgu[qr, qc] - gu) + abs(sgv[qr, qc] - gv)
+                cost += alpha * min(gd, tau2)
+            acc += wq * cost
+        if acc > bound:
+            return acc
+    return acc
+
+
+@njit
+def _message(lab, found, qr, qc, dq, su, sv, lam, trunc):
+    """m_{q→p}(s) = min_k λ·min(|s - s_q^k|², T) + F_{q\\p}^k, p = nbr_dq(q)."""
+    best = _INF
+    for k in range(lab.shape[2]):
+        du = su - lab[qr, qc, k, 0]
+        dv = sv - lab[qr, qc, k, 1]
+        v = lam * min(du * du + dv * dv, trunc) + found[qr, qc, dq, k]
+        if v < best:
+            best = v
+    return best
+
+
+@njit
+def _message_sum(lab, found, r, c, su, sv, lam, trunc, roi):
+    """Σ_{q ∈ N4(p) ∩ roi} m_{q→p}(s)."""
+    acc = 0.0
+    if r > roi[0]:
+        acc += _message(lab, found, r - 1, c, 1, su, sv, lam, trunc)
+    if r < roi[1] - 1:
+        acc += _message(lab, found, r + 1, c, 0, su, sv, lam, trunc)
+    if c > roi[2]:
+        acc += _message(lab, found, r, c - 1, 3, su, sv, lam, trunc)
+    if c < roi[3] - 1:
+        acc += _message(lab, found, r, c + 1, 2, su, sv, lam, trunc)
+    return acc
+
+
+@njit
+def _neighbour(r, c, d, roi):
+    """(exists, row, col) of the neighbour of (r, c) in direction d inside ``roi``."""
+    if d == 0:
+        return r > roi[0], r - 1, c
+    if d == 1:
+        return r < roi[1] - 1, r + 1, c
+    if d == 2:
+        return c > roi[2], r, c - 1
+    return c < roi[3] - 1, r, c + 1
+
+
+@njit
+def _refresh(lab, una, dis, found, r, c, lam, trunc, roi):
+    """Step 1: B_p^k = ψ1 (cached) + current messages, for every particle."""
+    for k in range(lab.shape[2]):
+        dis[r, c, k] = una[r, c, k] + _message_sum(
+            lab, found, r, c, lab[r, c, k, 0], lab[r, c, k, 1], lam, trunc, roi
+        )
+
+
+@njit
+def _cache_foundations(lab, dis, found, r, c, lam, trunc, roi):
+    """Step 4: F_{p\\q}^k = B_p^k − m_{q→p}(s_p^k), shifted to min 0, for every neighbour q."""
+    nk = lab.shape[2]
+    for d in range(4):
+        ok, qr, qc = _neighbour(r, c, d, roi)
+        if not ok:
+            continue
+        lo = _INF
+        for k in range(nk):
+            f = dis[r, c, k] - _message(
+                lab, found, qr, qc, d ^ 1, lab[r, c, k, 0], lab[r, c, k, 1], lam, trunc
+            )
+            found[r, c, d, k] = f
+            if found[r, c, d, k] < lo:
+                lo = found[r, c, d, k]  # the stored float32 value: the minimum becomes exactly 0
+        for k in range(nk):
+            found[r, c, d, k] -= lo
+
+
+@njit
+def _label_valid(r, c, su, sv, h, w, maxmot):
+    if su * su + sv * sv > maxmot * maxmot:
+        return False
+    x = c + su
+    y = r + sv
+    return 0.0 <= x <= w - 1.0 and 0.0 <= y <= h - 1.0
+
+
+@njit
+def _try_candidate(
+    src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, su, sv, rho, cfg, roi
+):
+    """Evaluate candidate label s' at p; replace the worst particle if B_p(s') is lower."""
+    h, w = src.shape
+    if not _label_valid(r, c, su, sv, h, w, cfg[_CFG_MAXMOT]):
+        return False
+    nk = lab.shape[2]
+    worst_k = 0
+    worst = -_INF
+    for k in range(nk):
+        du = lab[r, c, k, 0] - su
+        dv = lab[r, c, k, 1] - sv
+        if du * du + dv * dv < _DUP2:
+            return False
+        if dis[r, c, k] > worst:
+            worst = dis[r, c, k]
+            worst_k = k
+    lam = cfg[_CFG_LAMBDA]
+    trunc = cfg[_CFG_TRUNC]
+    ms = _message_sum(lab, found, r, c, su, sv, lam, trunc, roi)
+    bound = worst - ms
+    if bound <= 0.0:
+        return False
+    if cfg[_CFG_EARLY] == 0.0:
+        bound = _INF
+    u = _patch_cost(src, sgu, sgv, tgt, tgu, tgv, asw, r, c, su, sv, rho, cfg, bound)
+    if u + ms < worst:
+        lab[r, c, worst_k, 0] = su
+        lab[r, c, worst_k, 1] = sv
+        una[r, c, worst_k] = u
+        dis[r, c, worst_k] = u + ms
+        return True
+    return False
+
+
+@njit
+def _best_particle(dis, r, c):
+    best_k = 0
+    for k in range(1, dis.shape[2]):
+        if dis[r, c, k] < dis[r, c, best_k]:
+            best_k = k
+    return best_k
+
+
+@njit
+def _propagate_from(
+    src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, qr, qc, rho, cfg, roi
+):
+    kq = _best_particle(dis, qr, qc)
+    _try_candidate(
+        src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c,
+        lab[qr, qc, kq, 0], lab[qr, qc, kq, 1], rho, cfg, roi,
+    )  # fmt: skip
+
+
+@njit
+def _random_search(
+    src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, rho, cfg, roi, state, centres
+):
+    """Step 3: draws s_p^k + rad·U(−1,1)², rad = r0, r0/2, … ≥ r_min, around frozen centres."""
+    nk = lab.shape[2]
+    for k in range(nk):
+        centres[k, 0] = lab[r, c, k, 0]
+        centres[k, 1] = lab[r, c, k, 1]
+    r0 = cfg[_CFG_R0]
+    rmin = cfg[_CFG_RMIN]
+    for k in range(nk):
+        rad = r0
+        while rad >= rmin:
+            state, u1 = _uniform(state)
+            state, u2 = _uniform(state)
+            _try_candidate(
+                src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c,
+                centres[k, 0] + rad * u1, centres[k, 1] + rad * u2, rho, cfg, roi,
+            )  # fmt: skip
+            rad *= 0.5
+    return state
+
+
+# --------------------------------------------------------------------------------------------
+# sweeps
+
+
+@njit
+def _sweep_sequential_kernel(
+    src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, rho, cfg, roi, seed, level, it
+):
+    """One reference sweep (METHOD §2.3): raster order by ``it % 4``, neighbours visited earlier
+    in this sweep propagate."""
+    lam = cfg[_CFG_LAMBDA]
+    trunc = cfg[_CFG_TRUNC]
+    w = src.shape[1]
+    direction = it % 4
+    rows_up = direction == 0 or direction == 3  # rows increasing
+    cols_up = direction == 0 or direction == 2  # cols increasing
+    nr = roi[1] - roi[0]
+    nc = roi[3] - roi[2]
+    centres = np.empty((lab.shape[2], 2), dtype=np.float64)
+    for ii in range(nr):
+        r = roi[0] + ii if rows_up else roi[1] - 1 - ii
+        rp = r - 1 if rows_up else r + 1  # previous row in scan order
+        for jj in range(nc):
+            c = roi[2] + jj if cols_up else roi[3] - 1 - jj
+            cp = c - 1 if cols_up else c + 1
+            _refresh(lab, una, dis, found, r, c, lam, trunc, roi)
+            if ii > 0:
+                _propagate_from(
+                    src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, rp, c, rho,
+                    cfg, roi,
+                )  # fmt: skip
+            if jj > 0:
+                _propagate_from(
+                    src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, r, cp, rho,
+                    cfg, roi,
+                )  # fmt: skip
+            state = _rng_key(seed, level, it, 0, r * w + c)
+            _random_search(
+                src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, rho, cfg, roi,
+                state, centres,
+            )  # fmt: skip
+            _cache_foundations(lab, dis, found, r, c, lam, trunc, roi)
+
+
+@njit_parallel
+def _sweep_checkerboard_kernel(
+    src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, rho, cfg, roi, seed, level, it,
+    colour,
+):  # fmt: skip
+    """Half a parallel sweep: every pixel with (r + c) % 2 == colour, rows in parallel.
+
+    Pixels of one colour read only the other colour's particles and foundations, so the result
+    does not depend on the thread schedule. Each pixel propagates from all four neighbours.
+    """
+    lam = cfg[_CFG_LAMBDA]
+    trunc = cfg[_CFG_TRUNC]
+    w = src.shape[1]
+    nk = lab.shape[2]
+    for ii in prange(roi[1] - roi[0]):
+        r = roi[0] + ii
+        centres = np.empty((nk, 2), dtype=np.float64)
+        c = roi[2] if (r + roi[2]) % 2 == colour else roi[2] + 1
+        while c < roi[3]:
+            _refresh(lab, una, dis, found, r, c, lam, trunc, roi)
+            for d in range(4):
+                ok, qr, qc = _neighbour(r, c, d, roi)
+                if ok:
+                    _propagate_from(
+                        src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, qr, qc,
+                        rho, cfg, roi,
+                    )  # fmt: skip
+            state = _rng_key(seed, level, it, 1 + colour, r * w + c)
+            _random_search(
+                src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, rho, cfg, roi,
+                state, centres,
+            )  # fmt: skip
+            _cache_foundations(lab, dis, found, r, c, lam, trunc, roi)
+            c += 2
+
+
+# --------------------------------------------------------------------------------------------
+# set-up and read-out
+
+
+@njit_parallel
+def _asw_kernel(guide, rho, gamma, roi, out):
+    """out[p, j] = exp(−|Ī(p) − Ī(q_j)| / γ) for the (2ρ+1)² patch offsets q_j; 0 off-image."""
+    h, w = guide.shape
+    side = 2 * rho + 1
+    inv = 1.0 / gamma
+    for r in prange(roi[0], roi[1]):
+        for c in range(roi[2], roi[3]):
+            g = guide[r, c]
+            for dy in range(-rho, rho + 1):
+                qr = r + dy
+                for dx in range(-rho, rho + 1):
+                    qc = c + dx
+                    j = (dy + rho) * side + dx + rho
+                    if qr < 0 or qr >= h or qc < 0 or qc >= w:
+                        out[r, c, j] = 0.0
+                    else:
+                        out[r, c, j] = math.exp(-abs(g - guide[qr, qc]) * inv)
+
+
+@njit_parallel
+def _init_kernel(
+    src, sgu, sgv, tgt, tgu, tgv, asw, seeds, lab, una, dis, found, rho, cfg, roi, seed, level
+):
+    """Initial particles: the seed labels ``seeds`` (S, H, W, 2) first (invalid and duplicate ones
+    dropped; if more than K remain, the K with the lowest unary are kept), then uniform random
+    labels in the box ±``cfg[_CFG_INIT_RADIUS]`` around zero (or around ``seeds[0]``),
+    redrawn until valid. B = ψ1, foundations 0."""
+    h, w = src.shape
+    nk = lab.shape[2]
+    maxmot = cfg[_CFG_MAXMOT]
+    for r in prange(roi[0], roi[1]):
+        for c in range(roi[2], roi[3]):
+            for d in range(4):
+                for k in range(nk):
+                    found[r, c, d, k] = 0.0
+            n = 0
+            for s in range(seeds.shape[0]):
+                su = seeds[s, r, c, 0]
+                sv = seeds[s, r, c, 1]
+                if not _label_valid(r, c, su, sv, h, w, maxmot):
+                    continue
+                dup = False
+                for k in range(n):
+                    du = lab[r, c, k, 0] - su
+                    dv = lab[r, c, k, 1] - sv
+                    if du * du + dv * dv < _DUP2:
+                        dup = True
+                if dup:
+                    continue
+                u = _patch_cost(src, sgu, sgv, tgt, tgu, tgv, asw, r, c, su, sv, rho, cfg, _INF)
+                slot = n
+                if n == nk:
+                    slot = 0
+                    for k in range(1, nk):
+                        if una[r, c, k] > una[r, c, slot]:
+                            slot = k
+                    if u >= una[r, c, slot]:
+                        continue
+                else:
+                    n += 1
+                lab[r, c, slot, 0] = su
+                lab[r, c, slot, 1] = sv
+                una[r, c, slot] = u
+            state = _rng_key(seed, level, 0, 3, r * w + c)
+            rad = cfg[_CFG_INIT_RADIUS]
+            cu = 0.0
+            cv = 0.0
+            if cfg[_CFG_INIT_CENTRED] != 0.0:
+                cu = seeds[0, r, c, 0]
+                cv = seeds[0, r, c, 1]
+            lo_u = max(max(-maxmot, cu - rad), -float(c))
+            hi_u = max(min(min(maxmot, cu + rad), w - 1.0 - c), lo_u)
+            lo_v = max(max(-maxmot, cv - rad), -float(r))
+            hi_v = max(min(min(maxmot, cv + rad), h - 1.0 - r), lo_v)
+            tries = 0
+            while n < nk:
+                state, a = _uniform(state)
+                state, b = _uniform(state)
+                su = lo_u + 0.5 * (a + 1.0) * (hi_u - lo_u)
+                sv = lo_v + 0.5 * (b + 1.0) * (hi_v - lo_v)
+                tries += 1
+                if not _label_valid(r, c, su, sv, h, w, maxmot) and tries < 1000:
+                    continue
+                if tries >= 1000:
+                    su = 0.0
+                    sv = 0.0
+                lab[r, c, n, 0] = su
+                lab[r, c, n, 1] = sv
+                una[r, c, n] = _patch_cost(
+                    src, sgu, sgv, tgt, tgu, tgv, asw, r, c, su, sv, rho, cfg, _INF
+                )
+                n += 1
+            for k in range(nk):
+                dis[r, c, k] = una[r, c, k]
+
+
+@njit_parallel
+def _best_label_kernel(lab, dis, roi, out):
+    """out[p] = the min-disbelief particle inside ``roi``; ``out`` is pre-filled outside."""
+    for r in prange(roi[0], roi[1]):
+        for c in range(roi[2], roi[3]):
+            k = _best_particle(dis, r, c)
+            out[r, c, 0] = lab[r, c, k, 0]
+            out[r, c, 1] = lab[r, c, k, 1]

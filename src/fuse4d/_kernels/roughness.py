@@ -1,0 +1,159 @@
+"""Numba kernels of the roughness metric (paper Eq. 7, EVALUATION §1). Private.
+
+The public wrappers live in :mod:`fuse4d.metrics`; these only fill preallocated buffers.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._numba import njit, njit_parallel, prange
+
+
+@njit
+def _smallest_eigvec_kernel(a00, a01, a02, a11, a12, a22):
+    """Unit eigenvector of the smallest eigenvalue of a symmetric PSD 3x3 matrix.
+
+    Closed form: eigenvalues by the trigonometric method, the eigenvector as the largest
+    cross product of two rows of ``A - lambda_min I``. Returns ``(nx, ny, nz, lambda_min)``.
+    """
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    q = (a00 + a11 + a22) / 3.0
+    b00 = a00 - q
+    b11 = a11 - q
+    b22 = a22 - q
+    p2 = b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * p1
+    if p2 <= 0.0:  # A = q I: any direction; take Z
+        return 0.0, 0.0, 1.0, q
+    p = math.sqrt(p2 / 6.0)
+    inv = 1.0 / p
+    c00 = b00 * inv
+    c11 = b11 * inv
+    c22 = b22 * inv
+    c01 = a01 * inv
+    c02 = a02 * inv
+    c12 = a12 * inv
+    det = (
+        c00 * (c11 * c22 - c12 * c12)
+        - c01 * (c01 * c22 - c12 * c02)
+        + c02 * (c01 * c12 - c11 * c02)
+    )
+    r = det / 2.0
+    r = min(1.0, max(-1.0, r))
+    phi = math.acos(r) / 3.0
+    lam = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)  # smallest eigenvalue
+    # rows of M = A - lam I
+    m00 = a00 - lam
+    m11 = a11 - lam
+    m22 = a22 - lam
+    # cross products r0 x r1, r0 x r2, r1 x r2
+    x0 = a01 * a12 - a02 * m11
+    y0 = a02 * a01 - m00 * a12
+    z0 = m00 * m11 - a01 * a01
+    x1 = a01 * m22 - a02 * a12
+    y1 = a02 * a02 - m00 * m22
+    z1 = m00 * a12 - a01 * a02
+    x2 = m11 * m22 - a12 * a12
+    y2 = a12 * a02 - a01 * m22
+    z2 = a01 * a12 - m11 * a02
+    n0 = x0 * x0 + y0 * y0 + z0 * z0
+    n1 = x1 * x1 + y1 * y1 + z1 * z1
+    n2 = x2 * x2 + y2 * y2 + z2 * z2
+    if n0 >= n1 and n0 >= n2:
+        nx, ny, nz, nn = x0, y0, z0, n0
+    elif n1 >= n2:
+        nx, ny, nz, nn = x1, y1, z1, n1
+    else:
+        nx, ny, nz, nn = x2, y2, z2, n2
+    if nn <= 0.0:  # two or three equal smallest eigenvalues: degenerate, pick Z
+        return 0.0, 0.0, 1.0, lam
+    s = 1.0 / math.sqrt(nn)
+    return nx * s, ny * s, nz * s, lam
+
+
+@njit_parallel
+def _roughness_kernel(points, radius, min_count, out_sum, out_rms):
+    """Per-pixel roughness Pi (Eq. 7) and RMS plane residual on point maps.
+
+    Parameters
+    ----------
+    points : (T, H, W, 3) float32
+        Point maps in mm, NaN = invalid.
+    radius : int
+        Window half-size (window n = 2 radius + 1); pixels outside the image count as invalid.
+    min_count : int
+        Minimum number of valid window points (the centre must be valid too).
+    out_sum, out_rms : (T, H, W) float32
+        Filled with ``N |(p_i - c) . n|`` and ``sqrt(n^T S n / N)`` (mm); NaN where undefined.
+    """
+    # float() promotes the float32 samples to float64 (identically with and without JIT)
+    num_t, h, w = points.shape[0], points.shape[1], points.shape[2]
+    for tr in prange(num_t * h):
+        t = tr // h
+        i = tr % h
+        for j in range(w):
+            px = float(points[t, i, j, 0])
+            py = float(points[t, i, j, 1])
+            pz = float(points[t, i, j, 2])
+            if math.isnan(px) or math.isnan(py) or math.isnan(pz):
+                out_sum[t, i, j] = np.nan
+                out_rms[t, i, j] = np.nan
+                continue
+            # first pass: centroid relative to the centre point (better conditioning)
+            cnt = 0
+            sx = 0.0
+            sy = 0.0
+            sz = 0.0
+            for di in range(max(0, i - radius), min(h, i + radius + 1)):
+                for dj in range(max(0, j - radius), min(w, j + radius + 1)):
+                    qx = float(points[t, di, dj, 0])
+                    qy = float(points[t, di, dj, 1])
+                    qz = float(points[t, di, dj, 2])
+                    if math.isnan(qx) or math.isnan(qy) or math.isnan(qz):
+                        continue
+                    cnt += 1
+                    sx += qx - px
+                    sy += qy - py
+                    sz += qz - pz
+            if cnt < min_count:
+                out_sum[t, i, j] = np.nan
+                out_rms[t, i, j] = np.nan
+                continue
+            mx = sx / cnt
+            my = sy / cnt
+            mz = sz / cnt
+            a00 = 0.0
+            a01 = 0.0
+            a02 = 0.0
+            a11 = 0.0
+            a12 = 0.0
+            a22 = 0.0
+            for di in range(max(0, i - radius), min(h, i + radius + 1)):
+                for dj in range(max(0, j - radius), min(w, j + radius + 1)):
+                    qx = float(points[t, di, dj, 0])
+                    qy = float(points[t, di, dj, 1])
+                    qz = float(points[t, di, dj, 2])
+                    if math.isnan(qx) or math.isnan(qy) or math.isnan(qz):
+                        continue
+                    dx = qx - px - mx
+                    dy = qy - py - my
+                    dz = qz - pz - mz
+                    a00 += dx * dx
+                    a01 += dx * dy
+                    a02 += dx * dz
+                    a11 += dy * dy
+                    a12 += dy * dz
+                    a22 += dz * dz
+            nx, ny, nz, _ = _smallest_eigvec_kernel(a00, a01, a02, a11, a12, a22)
+            # centre minus centroid is (-mx, -my, -mz)
+            dist = -(mx * nx + my * ny + mz * nz)
+            out_sum[t, i, j] = cnt * abs(dist)
+            quad = (
+                a00 * nx * nx
+                + a11 * ny * ny
+                + a22 * nz * nz
+                + 2.0 * (a01 * nx * ny + a02 * nx * nz + a12 * ny * nz)
+            )
+            out_rms[t, i, j] = math.sqrt(max(quad, 0.0) / cnt)

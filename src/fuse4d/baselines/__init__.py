@@ -1,0 +1,285 @@
+"""The comparison methods of the paper behind one interface (BASELINES.md).
+
+Every method has the signature::
+
+    method(depth (T, H, W) mm, intensity (T, H, W) [0, 1], intrinsics, *, size=..., iterations=...,
+           **params) -> depth (T, H, W) mm            # or points (T, H, W, 3) mm for 6D methods
+
+and is registered by name. Enumerate them with :func:`available_baselines`, run one with
+:func:`run_baseline`.
+
+Examples
+--------
+>>> import numpy as np
+>>> from fuse4d import Intrinsics
+>>> K = Intrinsics(fx=500.0, fy=500.0, cx=15.5, cy=11.5, width=32, height=24)
+>>> rng = np.random.default_rng(0)
+>>> depth = 500 + rng.normal(0, 0.2, (3, 24, 32))
+>>> out = run_baseline("adjbf", depth, np.full((3, 24, 32), 0.5), K)
+>>> bool(np.std(out) < np.std(depth))
+True
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..camera import Intrinsics
+from ._common import estimate_noise_sigma
+from .bilateral import adaptive_bilateral, adaptive_gaussian, adaptive_joint_bilateral, dnbf
+from .ed import embedded_deformation
+from .guided import guided
+from .realsense import have_pyrealsense2, realsense_chain
+from .rigid import have_open3d, kinectfusion
+from .stmf import spatio_temporal_median
+from .temporal import temporal_average, temporal_mean
+
+__all__ = [
+    "BaselineInfo",
+    "adaptive_bilateral",
+    "adaptive_gaussian",
+    "adaptive_joint_bilateral",
+    "available_baselines",
+    "dnbf",
+    "embedded_deformation",
+    "estimate_noise_sigma",
+    "get_baseline",
+    "guided",
+    "kinectfusion",
+    "realsense_chain",
+    "run_baseline",
+    "spatio_temporal_median",
+    "temporal_average",
+    "temporal_mean",
+]
+
+
+@dataclass(frozen=True)
+class BaselineInfo:
+    """Registry entry of one comparison method.
+
+    Attributes
+    ----------
+    name : str
+        Registry / CLI name.
+    function : callable
+        ``function(depth, intensity, intrinsics, *, size, iterations, **params)``.
+    description : str
+        One line (paper, what it does).
+    returns_points : bool
+        True for the 6D methods (output (T, H, W, 3) points in mm).
+    needs : str or None
+        Optional extra whose package the method requires ("6d", "realsense"), or None.
+    default_size, default_iterations : float, int
+        The defaults of the two sweep knobs.
+    size_sweep, iterations_sweep : tuple
+        Sweep lists (BASELINES.md / EVALUATION.md E3).
+    size_meaning : str
+        What ``size`` is for this method.
+    reference : str
+        Citation.
+    """
+
+    name: str
+    function: Callable[..., NDArray[np.float32]]
+    description: str
+    returns_points: bool = False
+    needs: str | None = None
+    default_size: float = 1
+    default_iterations: int = 1
+    size_sweep: tuple[float, ...] = ()
+    iterations_sweep: tuple[int, ...] = (1, 2, 3, 4, 5)
+    size_meaning: str = ""
+    reference: str = ""
+    fills_holes: bool = False
+    _available: Callable[[], bool] = field(default=lambda: True, repr=False, compare=False)
+
+    @property
+    def available(self) -> bool:
+        """True when the optional package this method needs is importable."""
+        return self._available()
+
+
+_REGISTRY: dict[str, BaselineInfo] = {
+    info.name: info
+    for info in (
+        BaselineInfo(
+            "adgf",
+            adaptive_gaussian,
+            "Ad-GF: adaptive Gaussian from the Kinect noise model (normal-angle sigmas)",
+            default_size=1.0,
+            size_sweep=(1, 1.5, 2, 3, 4, 6),
+            size_meaning="kernel scale s (sigma_s = s * sigma_L(theta))",
+            reference="Nguyen, Izadi, Lovell, 3DIMPVT 2012",
+        ),
+        BaselineInfo(
+            "adbf",
+            adaptive_bilateral,
+            "Ad-BF: region-growing hole repair + depth-adaptive bilateral filter",
+            default_size=4,
+            size_sweep=(1, 2, 3, 4, 6, 8, 12),
+            size_meaning="window radius r px (sigma_s = r/2)",
+            reference="Chen, Lin, Li, ICPR 2012",
+            fills_holes=True,
+        ),
+        BaselineInfo(
+            "guided",
+            guided,
+            "Guided filter of depth with the intensity guide (cv2.ximgproc.guidedFilter)",
+            default_size=4,
+            size_sweep=(2, 4, 8, 12, 16),
+            size_meaning="box radius r px",
+            reference="He, Sun, Tang, TPAMI 2013",
+        ),
+        BaselineInfo(
+            "dnbf",
+            dnbf,
+            "DNBF: causal spatio-temporal bilateral, divisively normalised depth range",
+            default_size=3,
+            size_sweep=(1, 2, 3, 4, 6, 8, 12),
+            size_meaning="spatial radius r px (sigma_s = 2r/3)",
+            reference="Fu, Wang, Lu, Li, Zeng, ISCAS 2012",
+        ),
+        BaselineInfo(
+            "ta",
+            temporal_average,
+            "TA: causal per-pixel temporal average with a depth-range constraint",
+            default_size=5,
+            size_sweep=(2, 3, 4, 5, 6, 7, 8, 9),
+            size_meaning="number of frames N",
+            reference="Wasza, Bauer, Hornegger, ICCV Workshops 2011",
+        ),
+        BaselineInfo(
+            "adjbf",
+            adaptive_joint_bilateral,
+            "Ad-JBF: joint bilateral (intensity + depth-adaptive range kernel)",
+            default_size=4,
+            size_sweep=(1, 2, 3, 4, 6, 8, 12),
+            size_meaning="window radius r px (sigma_s = r/2)",
+            reference="Camplani, Mantecon, Salgado, IEEE T-Cybernetics 2013",
+        ),
+        BaselineInfo(
+            "stmf",
+            spatio_temporal_median,
+            "ST-MF: block-matching motion-compensated spatio-temporal median (non-causal)",
+            default_size=2,
+            size_sweep=(1, 2, 3, 4),
+            iterations_sweep=(1, 2, 3),
+            size_meaning="temporal half window k (2k+1 frames)",
+            reference="Matyunin, Vatolin, Berdnikov, Smirnov, 3DTV-CON 2011",
+            fills_holes=True,
+        ),
+        BaselineInfo(
+            "kinectfusion",
+            kinectfusion,
+            "6D rigid: ICP + TSDF fusion of 9 frames, ray cast (Open3D; NumPy fallback)",
+            returns_points=True,
+            needs="6d",
+            default_size=4,
+            size_sweep=(1, 2, 3, 4),
+            iterations_sweep=(1, 2, 3),
+            size_meaning="temporal radius (2*size+1 frames)",
+            reference="Newcombe et al., ISMAR 2011 / Izadi et al., UIST 2011",
+            fills_holes=True,
+            _available=have_open3d,
+        ),
+        BaselineInfo(
+            "ed",
+            embedded_deformation,
+            "6D non-rigid: embedded-deformation warps + fusion of 9 frames",
+            returns_points=True,
+            default_size=4,
+            size_sweep=(1, 2, 3, 4),
+            iterations_sweep=(1, 2, 3),
+            size_meaning="temporal radius (2*size+1 frames)",
+            reference="Dou, Taylor, Fuchs, Fitzgibbon, Izadi, CVPR 2015; Sumner et al. 2007",
+            fills_holes=True,
+        ),
+        BaselineInfo(
+            "temporal-mean",
+            temporal_mean,
+            "Plain per-pixel mean over a centred window (no motion compensation)",
+            default_size=9,
+            size_sweep=(2, 3, 4, 5, 6, 7, 8, 9),
+            size_meaning="number of frames n",
+            reference="reference practice",
+        ),
+        BaselineInfo(
+            "realsense",
+            realsense_chain,
+            "RealSense SDK chain: spatial + temporal + hole filling (pyrealsense2)",
+            needs="realsense",
+            default_size=2,
+            size_sweep=(1, 2, 3, 4, 5),
+            iterations_sweep=(1, 2, 3),
+            size_meaning="spatial filter magnitude (passes)",
+            reference="Intel RealSense SDK 2.0 post-processing filters",
+            fills_holes=True,
+            _available=have_pyrealsense2,
+        ),
+    )
+}
+
+
+def available_baselines() -> dict[str, BaselineInfo]:
+    """All registered baselines by name (including those whose optional package is absent).
+
+    Returns
+    -------
+    dict of str to BaselineInfo
+        In the order of BASELINES.md, then the two references.
+    """
+    return dict(_REGISTRY)
+
+
+def get_baseline(name: str) -> BaselineInfo:
+    """The registry entry ``name``; ``ValueError`` listing the valid names otherwise."""
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise ValueError(
+            f"unknown baseline {name!r}; choose one of: {', '.join(_REGISTRY)}"
+        ) from None
+
+
+def run_baseline(
+    name: str,
+    depth: ArrayLike,
+    intensity: ArrayLike | None,
+    intrinsics: Intrinsics,
+    **params: Any,
+) -> NDArray[np.float32]:
+    """Run the baseline ``name`` (see :func:`available_baselines`).
+
+    Parameters
+    ----------
+    name : str
+        Registry name, e.g. ``"adjbf"``.
+    depth : (T, H, W) ndarray
+        Depth in mm, NaN = invalid.
+    intensity : (T, H, W) ndarray or None
+        Intensity in [0, 1] (None only for methods that do not use it).
+    intrinsics : Intrinsics
+        Camera.
+    **params
+        ``size``, ``iterations`` and method-specific knobs (``noise_sigma`` etc.).
+
+    Returns
+    -------
+    ndarray of float32
+        (T, H, W) depth in mm, or (T, H, W, 3) points in mm when ``returns_points``.
+
+    Raises
+    ------
+    ValueError
+        Unknown name or bad parameters.
+    ImportError
+        When the optional package of the method is missing.
+    """
+    info = get_baseline(name)
+    return info.function(depth, intensity, intrinsics, **params)

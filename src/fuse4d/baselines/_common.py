@@ -1,0 +1,149 @@
+"""Helpers shared by every baseline: input checks, the noise scale, NaN fill, iterations."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .._validation import as_float32, check_same_shape, check_shape
+from ..camera import Intrinsics
+
+__all__ = [
+    "check_inputs",
+    "check_positive_int",
+    "estimate_noise_sigma",
+    "frame_median_depth",
+    "iterate",
+    "normalized_convolution_fill",
+    "resolve_noise_sigma",
+]
+
+#: MAD → σ for a Gaussian, and the variance factor of r = D − mean(4-neighbours): 1 + 4/16.
+_MAD_TO_SIGMA = 1.4826
+_NEIGHBOUR_FACTOR = np.sqrt(1.25)
+
+
+def check_inputs(
+    depth: ArrayLike, intensity: ArrayLike | None, intrinsics: Intrinsics
+) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
+    """Validate ``(T, H, W)`` depth (mm) / intensity ([0, 1]) against ``intrinsics``.
+
+    Returns contiguous float32 arrays; depth values <= 0 or non-finite become NaN (copy).
+    """
+    if not isinstance(intrinsics, Intrinsics):
+        raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics).__name__}")
+    d = as_float32(depth, name="depth")
+    check_shape(d, ("T", "H", "W"), name="depth", hint="Pass a (frames, rows, columns) array.")
+    if d.shape[1:] != (intrinsics.height, intrinsics.width):
+        raise ValueError(
+            f"depth frames are {d.shape[1]}x{d.shape[2]} (HxW) but intrinsics describe "
+            f"{intrinsics.height}x{intrinsics.width}"
+        )
+    bad = ~(np.isfinite(d) & (d > 0))
+    if bad.any():
+        d = d.copy()
+        d[bad] = np.nan
+    if intensity is None:
+        return d, None
+    i = as_float32(intensity, name="intensity")
+    check_same_shape(d, i, names=("depth", "intensity"))
+    return d, i
+
+
+def check_positive_int(value: object, *, name: str, minimum: int = 1) -> int:
+    """Return ``value`` as int, raising ``ValueError`` naming ``name`` if it is < ``minimum``."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def estimate_noise_sigma(depth: ArrayLike) -> float:
+    """Estimate the depth noise σ̂_d (mm) of a sequence (BASELINES.md, common conventions).
+
+    ``r(x) = D(x) − mean of the 4-neighbours`` over pixels whose 4 neighbours are valid and
+    ``|r| < 10 mm``; ``σ̂_d = 1.4826 · MAD(r) / √1.25``.
+
+    Parameters
+    ----------
+    depth : (T, H, W) or (H, W) ndarray
+        Depth in mm, NaN = invalid.
+
+    Returns
+    -------
+    float
+        σ̂_d in mm (0.0 if no pixel qualifies).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> d = 500 + rng.normal(0, 0.2, (4, 64, 64))
+    >>> round(estimate_noise_sigma(d), 1)
+    0.2
+    """
+    d = np.asarray(depth, dtype=np.float64)
+    if d.ndim == 2:
+        d = d[None]
+    c = d[:, 1:-1, 1:-1]
+    nb = (d[:, :-2, 1:-1] + d[:, 2:, 1:-1] + d[:, 1:-1, :-2] + d[:, 1:-1, 2:]) / 4.0
+    r = c - nb
+    r = r[np.isfinite(r) & (np.abs(r) < 10.0)]
+    if r.size == 0:
+        return 0.0
+    mad = np.median(np.abs(r - np.median(r)))
+    return float(_MAD_TO_SIGMA * mad / _NEIGHBOUR_FACTOR)
+
+
+def resolve_noise_sigma(depth: NDArray[np.float32], noise_sigma: float | None) -> float:
+    """``noise_sigma`` if given (oracle mode, mm), else :func:`estimate_noise_sigma`; > 0."""
+    if noise_sigma is None:
+        sigma = estimate_noise_sigma(depth)
+        # A noise-free input estimates 0: keep a tiny positive scale so range kernels exist.
+        return max(sigma, 1e-3)
+    sigma = float(noise_sigma)
+    if not sigma > 0:
+        raise ValueError(f"noise_sigma must be > 0 mm, got {noise_sigma!r}")
+    return sigma
+
+
+def frame_median_depth(frame: NDArray[np.float32]) -> float:
+    """Median valid depth (mm) of one frame (``D_med``); NaN if the frame has no valid pixel."""
+    valid = frame[np.isfinite(frame)]
+    return float(np.median(valid)) if valid.size else float("nan")
+
+
+def normalized_convolution_fill(frame: NDArray[np.float32], *, sigma: float = 3.0) -> NDArray:
+    """Fill NaNs of one depth frame by normalised convolution (Gaussian σ px over valid pixels).
+
+    Valid pixels keep their value. Pixels with no valid support within the Gaussian's reach
+    are filled with the frame's median (so that filters that cannot skip NaN never see one).
+    """
+    valid = np.isfinite(frame)
+    if valid.all():
+        return frame.copy()
+    if not valid.any():
+        return np.zeros_like(frame)
+    data = np.where(valid, frame, 0).astype(np.float32)
+    weight = valid.astype(np.float32)
+    ksize = (0, 0)
+    num = cv2.GaussianBlur(data, ksize, sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT)
+    den = cv2.GaussianBlur(weight, ksize, sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT)
+    fill = np.full_like(data, np.median(frame[valid]))
+    ok = den > 1e-6
+    fill[ok] = num[ok] / den[ok]
+    return np.where(valid, frame, fill).astype(np.float32)
+
+
+def iterate(
+    step: Callable[[NDArray[np.float32]], NDArray[np.float32]],
+    depth: NDArray[np.float32],
+    iterations: int,
+) -> NDArray[np.float32]:
+    """Apply ``step`` ``iterations`` times to its own output (the E3 ``iterations`` knob)."""
+    iterations = check_positive_int(iterations, name="iterations")
+    out = depth
+    for _ in range(iterations):
+        out = step(out)
+    return out

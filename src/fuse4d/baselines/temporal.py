@@ -1,0 +1,130 @@
+"""Per-pixel temporal baselines: TA (Wasza et al. 2011, BASELINES §5) and the plain mean."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..camera import Intrinsics
+from ._common import check_inputs, check_positive_int, iterate, resolve_noise_sigma
+
+__all__ = ["temporal_average", "temporal_mean"]
+
+
+def temporal_average(
+    depth: ArrayLike,
+    intensity: ArrayLike | None,
+    intrinsics: Intrinsics,
+    *,
+    size: int = 5,
+    iterations: int = 1,
+    noise_sigma: float | None = None,
+    sigma_temporal: float = np.inf,
+) -> NDArray[np.float32]:
+    """TA: causal, range-constrained per-pixel averaging of the last N frames.
+
+    ``D'_t(x) = Σ_k w_k D_{t−k}(x) / Σ_k w_k``, ``w_k = exp(−k²/2σ_t²) ·
+    exp(−(D_{t−k}(x) − D_t(x))²/2σ_r²)``, σ_r = 3 σ̂_d (BASELINES §5, weights [R]).
+
+    Parameters
+    ----------
+    depth : (T, H, W) ndarray
+        Depth in mm, NaN = invalid.
+    intensity : (T, H, W) ndarray or None
+        Unused (common signature).
+    intrinsics : Intrinsics
+        Camera (shape check only).
+    size : int, default 5
+        N, frames in the causal window (truncated at the start). Sweep 2–9.
+    iterations : int, default 1
+        Repeated application to its own output sequence.
+    noise_sigma : float, optional
+        σ_d in mm (oracle); default: estimated from ``depth``.
+    sigma_temporal : float, default inf
+        σ_t in frames (inf = uniform in time).
+
+    Returns
+    -------
+    (T, H, W) ndarray of float32
+        Filtered depth (mm), NaN where the input is NaN.
+    """
+    d, _ = check_inputs(depth, intensity, intrinsics)
+    n = check_positive_int(size, name="size")
+    if not float(sigma_temporal) > 0:
+        raise ValueError(f"sigma_temporal must be > 0 frames, got {sigma_temporal!r}")
+    sigma_r = 3.0 * resolve_noise_sigma(d, noise_sigma)
+    coeff_r = 0.5 / sigma_r**2
+    coeff_t = 0.0 if np.isinf(sigma_temporal) else 0.5 / float(sigma_temporal) ** 2
+
+    def step(cur: NDArray[np.float32]) -> NDArray[np.float32]:
+        acc = np.zeros(cur.shape, np.float64)
+        norm = np.zeros(cur.shape, np.float64)
+        for k in range(n):
+            if k >= cur.shape[0]:
+                break
+            past = cur[: cur.shape[0] - k]  # D_{t-k} for t = k .. T-1
+            now = cur[k:]
+            diff = past.astype(np.float64) - now
+            w = np.exp(-(k * k) * coeff_t - diff * diff * coeff_r)
+            w = np.where(np.isfinite(diff), w, 0.0)
+            acc[k:] += w * np.where(np.isfinite(past), past, 0.0)
+            norm[k:] += w
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out = acc / norm
+        return np.where(np.isfinite(cur), out, np.nan).astype(np.float32)
+
+    return iterate(step, d, iterations)
+
+
+def temporal_mean(
+    depth: ArrayLike,
+    intensity: ArrayLike | None,
+    intrinsics: Intrinsics,
+    *,
+    size: int = 9,
+    iterations: int = 1,
+) -> NDArray[np.float32]:
+    """Plain per-pixel mean over a centred window of ``size`` frames (no motion compensation).
+
+    The reference users run today, over the same window as fuse4d's fusion (9 frames). Invalid
+    samples are skipped; the window is truncated at the sequence ends; output NaN where the
+    centre frame is NaN. Moving objects leave ghosts (that is the point of this reference).
+
+    Parameters
+    ----------
+    depth : (T, H, W) ndarray
+        Depth in mm, NaN = invalid.
+    intensity : (T, H, W) ndarray or None
+        Unused (common signature).
+    intrinsics : Intrinsics
+        Camera (shape check only).
+    size : int, default 9
+        Number of frames n; the window is [t − ⌊(n−1)/2⌋, t + ⌈(n−1)/2⌉]. Sweep 2–9.
+    iterations : int, default 1
+        Repeated application to its own output sequence.
+
+    Returns
+    -------
+    (T, H, W) ndarray of float32
+        Averaged depth (mm).
+    """
+    d, _ = check_inputs(depth, intensity, intrinsics)
+    n = check_positive_int(size, name="size")
+    before = (n - 1) // 2
+    after = n - 1 - before
+
+    def step(cur: NDArray[np.float32]) -> NDArray[np.float32]:
+        valid = np.isfinite(cur)
+        vals = np.where(valid, cur, 0.0).astype(np.float64)
+        csum = np.concatenate([np.zeros((1, *cur.shape[1:])), np.cumsum(vals, axis=0)])
+        ccnt = np.concatenate([np.zeros((1, *cur.shape[1:])), np.cumsum(valid, axis=0)])
+        t = np.arange(cur.shape[0])
+        lo = np.clip(t - before, 0, cur.shape[0])
+        hi = np.clip(t + after + 1, 0, cur.shape[0])
+        total = csum[hi] - csum[lo]
+        count = ccnt[hi] - ccnt[lo]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out = total / count
+        return np.where(valid, out, np.nan).astype(np.float32)
+
+    return iterate(step, d, iterations)

@@ -1,0 +1,336 @@
+"""Parameters of the 4D fusion (METHOD.md §3–§6), presets, and TOML configuration files.
+
+A configuration file looks like::
+
+    preset = "fast"            # optional: start from a preset ("fast" or "paper")
+
+    [fusion]                   # any FusionParams field
+    num_frames = 9
+    spatial_radius = 3
+
+    [flow]
+    method = "dis"             # any registered flow method (fuse4d.flow.available_flow_methods())
+    [flow.params]              # fields of that method's parameter dataclass
+    preset = "medium"
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field, fields
+from os import PathLike
+from pathlib import Path
+from typing import Any, Literal
+
+__all__ = ["PRESETS", "FlowConfig", "FusionParams", "load_config", "preset"]
+
+MotionDepth = Literal["smoothed", "raw"]
+Quantize = Literal["final", "per_step"]
+FillFallback = Literal["bilateral", "nan"]
+Output = Literal["ray", "points"]
+BilateralMode = Literal["residual", "points"]
+
+
+@dataclass(frozen=True)
+class FusionParams:
+    """Knobs of the spatio-temporal fusion (paper Eq. 4–6; METHOD.md §5.3 defaults).
+
+    Parameters
+    ----------
+    num_frames : int
+        Frames fused per output frame, n (paper: 9). Window T in [t - floor((n-1)/2),
+        t + ceil((n-1)/2)] (even n: one extra future frame, A14); truncated at the ends (A13).
+    spatial_radius : int
+        Radius r (px) of the (2r+1)^2 window of the intensity-guided 3D bilateral (inner sum of
+        Eq. 5).
+    sigma_distance : float
+        delta_d (mm) of the 3D-distance kernel d(p_i, p_n).
+    sigma_intensity : float
+        delta_g ([0, 1] intensity units) of the intensity kernel g(I_i, I_n).
+    sigma_temporal : float
+        delta_f (frames) of the temporal kernel f(t, T). ``math.inf`` = uniform.
+    fb_threshold : float
+        theta (px): forward-backward consistency threshold of Eq. 4, checked per step in the
+        image plane (A4).
+    max_depth_step : float
+        tau_jump (mm): largest depth change along one tracking step; also the range gate of the
+        motion-reference smoothing. ``math.inf`` disables the gate (pure paper check).
+    motion_sigma : float
+        sigma_m (px) of the range-gated Gaussian smoothing that gives the motion-reference depth.
+    plane_tolerance : float or None
+        Tangent-plane gate (mm) of the smooth references (A3b, see
+        :func:`fuse4d.motion.motion_reference_depth`); ``None`` gives the plain range-gated
+        Gaussian of METHOD §4.3.
+    reference_sigma : float
+        sigma (px) of the local reference surface used by the residual bilateral (A18) and for
+        the output normals (A17); small, so that it follows strongly curved surfaces.
+    temporal_gate : float
+        Temporal range gate (our A19), in units of the frame's robust depth-noise estimate
+        sigma_noise (mm): a tracked sample whose mapped-back point B^T[x^] - m^{t,T} differs
+        from frame t's own B^t[x] by ``temporal_gate * sigma_noise`` mm or more is rejected
+        like a failed track. It stops mis-tracked samples (flow errors at silhouettes, where
+        depth changes by mm per pixel) from entering Eq. 5. ``math.inf`` disables it.
+    min_gate_mm : float
+        Lower bound (mm) of the temporal gate, for noise-free or quantised depth.
+    motion_depth : {"smoothed", "raw"}
+        Depth used for the 3D motion vectors m (Eq. 3). "smoothed" (default, A3) or "raw"
+        (the literal paper, kept as an ablation).
+    quantize : {"final", "per_step"}
+        "final": sub-pixel accumulation, round only for lookup (A6). "per_step": literal
+        rounding after every step.
+    min_temporal_support : int
+        Pixels with fewer valid tracked frames (other than t) are holes filled by Eq. 6.
+    fill_holes : bool
+        Run the gradient-directed hole filling (Eq. 6).
+    fill_radius : int
+        r_h (px) of the hole-filling window.
+    sigma_fill : float
+        delta_h (mm) of the hole-filling weight.
+    fill_passes : int
+        Maximum onion-peeling passes.
+    fill_fallback : {"bilateral", "nan"}
+        Value of holes left after the passes: the frame's bilateral-only point, or NaN.
+    causal : bool
+        Online mode for live cameras: the window is [t - n + 1, t] (zero look-ahead), so frame
+        t is emitted as soon as it arrives.
+    iterations : int
+        Apply the whole fusion this many times (each pass on the previous output, same flows).
+    bilateral : {"residual", "points"}
+        Inner sum of Eq. 5. "residual" (default, our A18): the intensity-guided 3D bilateral
+        averages the neighbours' residuals from the smooth reference surface P~ (each neighbour
+        moved onto the centre's reference surface), which removes noise without the curvature
+        flattening and lateral drift of a plain weighted mean of 3D points. "points": the
+        literal weighted mean of the neighbours' points (ablation).
+    output : {"ray", "points"}
+        "ray" (default, our A17): each fused point is moved along the local tangent plane of the
+        motion-reference surface onto its own pixel's ray, so the result is a depth image whose
+        Z is the fused surface's depth at that pixel. "points": the literal Eq. 5 points, which
+        may sit off the pixel's ray (their Z then mixes in lateral shifts on slanted surfaces).
+    """
+
+    num_frames: int = 9
+    spatial_radius: int = 3
+    sigma_distance: float = 2.0
+    sigma_intensity: float = 0.1
+    sigma_temporal: float = 3.0
+    fb_threshold: float = 2.0
+    max_depth_step: float = 10.0
+    motion_sigma: float = 3.0
+    reference_sigma: float = 2.0
+    plane_tolerance: float | None = 1.0
+    temporal_gate: float = 3.0
+    min_gate_mm: float = 0.05
+    motion_depth: MotionDepth = "smoothed"
+    quantize: Quantize = "final"
+    min_temporal_support: int = 1
+    fill_holes: bool = True
+    fill_radius: int = 2
+    sigma_fill: float = 2.0
+    fill_passes: int = 10
+    fill_fallback: FillFallback = "bilateral"
+    causal: bool = False
+    iterations: int = 1
+    bilateral: BilateralMode = "residual"
+    output: Output = "ray"
+
+    def __post_init__(self) -> None:
+        _positive_int(self, "num_frames")
+        _positive_int(self, "iterations")
+        for name in ("spatial_radius", "fill_radius", "min_temporal_support", "fill_passes"):
+            _nonnegative_int(self, name)
+        for name in (
+            "sigma_distance",
+            "sigma_intensity",
+            "sigma_temporal",
+            "fb_threshold",
+            "max_depth_step",
+            "motion_sigma",
+            "reference_sigma",
+            "sigma_fill",
+            "temporal_gate",
+            "min_gate_mm",
+        ):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise TypeError(f"FusionParams.{name} must be a number, got {value!r}")
+            if not (value > 0):
+                raise ValueError(f"FusionParams.{name} must be > 0, got {value}")
+            object.__setattr__(self, name, float(value))
+        if self.plane_tolerance is not None:
+            if isinstance(self.plane_tolerance, bool) or not (self.plane_tolerance > 0):
+                raise ValueError(
+                    f"FusionParams.plane_tolerance must be > 0 or None, got {self.plane_tolerance}"
+                )
+            object.__setattr__(self, "plane_tolerance", float(self.plane_tolerance))
+        _choice(self, "motion_depth", ("smoothed", "raw"))
+        _choice(self, "quantize", ("final", "per_step"))
+        _choice(self, "fill_fallback", ("bilateral", "nan"))
+        _choice(self, "output", ("ray", "points"))
+        _choice(self, "bilateral", ("residual", "points"))
+        for name in ("fill_holes", "causal"):
+            if not isinstance(getattr(self, name), bool):
+                raise TypeError(f"FusionParams.{name} must be true or false")
+
+    @property
+    def past_frames(self) -> int:
+        """Frames before t in the window (h_past)."""
+        return self.num_frames - 1 if self.causal else (self.num_frames - 1) // 2
+
+    @property
+    def future_frames(self) -> int:
+        """Frames after t in the window (h_future): the output latency in frames."""
+        return 0 if self.causal else self.num_frames - 1 - (self.num_frames - 1) // 2
+
+    def replace(self, **changes: Any) -> FusionParams:
+        """A copy with some fields changed (validated)."""
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict (TOML/JSON friendly; inf written as the string "inf")."""
+        return {f.name: _jsonable(getattr(self, f.name)) for f in fields(self)}
+
+
+@dataclass(frozen=True)
+class FlowConfig:
+    """Which optical-flow method tracks the intensity video, and its parameters.
+
+    Parameters
+    ----------
+    method : str
+        A registered method name (``fuse4d.flow.available_flow_methods()``).
+    params : dict
+        Keyword arguments for that method's parameter dataclass (empty = its defaults).
+    """
+
+    method: str = "dis"
+    params: dict[str, Any] = field(default_factory=dict)
+
+    def build_params(self) -> Any:
+        """Instantiate the method's parameter dataclass (validates the name and the keys)."""
+        from .flow import available_flow_methods, flow_params_from_mapping
+
+        methods = available_flow_methods()
+        if self.method not in methods:
+            names = ", ".join(sorted(methods))
+            raise ValueError(f"unknown flow method {self.method!r}; available: {names}")
+        return flow_params_from_mapping(self.method, self.params)
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named pair of fusion and flow settings."""
+
+    name: str
+    description: str
+    fusion: FusionParams
+    flow: FlowConfig
+
+
+def _paper_flow() -> FlowConfig:
+    from .flow import available_flow_methods
+
+    return FlowConfig("pmbp") if "pmbp" in available_flow_methods() else FlowConfig("deepflow")
+
+
+PRESETS: dict[str, str] = {
+    "fast": "METHOD defaults with OpenCV DIS flow (medium preset): the quick everyday setting",
+    "paper": "METHOD defaults with the paper's PMBP tracker (DeepFlow while PMBP is unavailable)",
+}
+
+
+def preset(name: str) -> Preset:
+    """Return the preset ``"fast"`` or ``"paper"``."""
+    if name == "fast":
+        return Preset(name, PRESETS[name], FusionParams(), FlowConfig("dis", {"preset": "medium"}))
+    if name == "paper":
+        return Preset(name, PRESETS[name], FusionParams(), _paper_flow())
+    raise ValueError(f"unknown preset {name!r}; choose one of: {', '.join(PRESETS)}")
+
+
+def load_config(path: str | PathLike[str], *, base: str | None = None) -> Preset:
+    """Read a TOML configuration file (format in the module docstring).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The TOML file.
+    base : str, optional
+        Preset to start from when the file names none (default "fast").
+
+    Raises
+    ------
+    InputFileError
+        If the file cannot be read or parsed, or holds unknown keys or bad values.
+    """
+    from .errors import InputFileError
+
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputFileError(p, "configuration file not found") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputFileError(p, f"cannot read TOML: {exc}") from None
+    unknown = set(data) - {"preset", "fusion", "flow"}
+    if unknown:
+        raise InputFileError(
+            p, f"unknown top-level key(s) {sorted(unknown)}; expected preset, [fusion], [flow]"
+        )
+    start = preset(str(data.get("preset", base or "fast")))
+    try:
+        fusion_data = dict(data.get("fusion", {}))
+        known = {f.name for f in fields(FusionParams)}
+        bad = set(fusion_data) - known
+        if bad:
+            raise ValueError(f"unknown [fusion] key(s) {sorted(bad)}")
+        fusion_data = {k: _from_toml(v) for k, v in fusion_data.items()}
+        fusion = start.fusion.replace(**fusion_data)
+        flow_data = dict(data.get("flow", {}))
+        bad = set(flow_data) - {"method", "params"}
+        if bad:
+            raise ValueError(f"unknown [flow] key(s) {sorted(bad)}; expected method, [flow.params]")
+        method = str(flow_data.get("method", start.flow.method))
+        params = dict(
+            flow_data.get("params", start.flow.params if method == start.flow.method else {})
+        )
+        flow = FlowConfig(method, params)
+        flow.build_params()
+    except (TypeError, ValueError) as exc:
+        raise InputFileError(p, str(exc)) from None
+    return Preset(start.name, f"{start.description} (+ {p.name})", fusion, flow)
+
+
+# ----------------------------------------------------------------------------- helpers
+def _positive_int(obj: Any, name: str) -> None:
+    value = getattr(obj, name)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{type(obj).__name__}.{name} must be an integer >= 1, got {value!r}")
+
+
+def _nonnegative_int(obj: Any, name: str) -> None:
+    value = getattr(obj, name)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ValueError(f"{type(obj).__name__}.{name} must be an integer >= 0, got {value!r}")
+
+
+def _choice(obj: Any, name: str, options: tuple[str, ...]) -> None:
+    value = getattr(obj, name)
+    if value not in options:
+        raise ValueError(
+            f"{type(obj).__name__}.{name} must be one of {', '.join(map(repr, options))}, "
+            f"got {value!r}"
+        )
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, float) and math.isinf(value):
+        return "inf"
+    return value
+
+
+def _from_toml(value: Any) -> Any:
+    if isinstance(value, str) and value.lower() in ("inf", "infinity"):
+        return math.inf
+    return value

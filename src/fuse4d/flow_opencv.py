@@ -1,0 +1,422 @@
+"""OpenCV optical-flow trackers behind named, validated parameters (not the paper's method).
+
+Four dense trackers from OpenCV (``opencv-contrib-python-headless``), each wrapped as a
+:data:`fuse4d.flow.FlowFunction` ``(image0, image1, params, init) -> flow``:
+
+========== ====================================== ============ ===================================
+name       OpenCV call                            input        warm start (``init``)
+========== ====================================== ============ ===================================
+dis        ``cv2.DISOpticalFlow``                 uint8        yes: extra "temporal" candidates
+farneback  ``cv2.calcOpticalFlowFarneback``       uint8        yes: ``OPTFLOW_USE_INITIAL_FLOW``
+tvl1       ``cv2.optflow.DualTVL1OpticalFlow``    float [0,1]  yes: ``useInitialFlow``
+deepflow   ``cv2.optflow.createOptFlow_DeepFlow`` float 0-255  no (OpenCV discards the input flow)
+========== ====================================== ============ ===================================
+
+Intensities arrive as float32 in [0, 1]. They are converted inside each wrapper only: rounded
+to uint8 (``round(255 I)``, clipped) where OpenCV demands 8 bit; TV-L1 takes float32 in [0, 1]
+(OpenCV scales it by 255 itself); DeepFlow takes float32 scaled to 0-255 (its parameters are
+tuned for that range; it converts to float without scaling). Output: float32 ``(H, W, 2)``,
+``[..., 0]`` = du (column), ``[..., 1]`` = dv (row), in px, flow from image0 to image1
+(``image0[v, u] ≈ image1[v + dv, u + du]``).
+
+Threads: the wrappers never call ``cv2.setNumThreads``. OpenCV's own default (all cores) is
+left in place, because the thread count is process-global state shared with the caller's
+other OpenCV code; call ``cv2.setNumThreads(n)`` yourself to change it.
+
+A fresh OpenCV object is created per call (≈ 10 µs): DIS keeps the last initial flow in its
+internal buffers, so reusing one object across calls with and without ``init`` would leak a
+stale warm start; fresh objects are also safe to use from several threads.
+
+The DeepFlow variant of OpenCV exposes no parameters to Python (its C++ fields ``sigma``,
+``alpha``, ``delta``, ``gamma``, ``omega``, ... are fixed at their defaults), so
+:class:`DeepFlowParams` has no fields.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Any, ClassVar, Literal
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = [
+    "DISParams",
+    "DeepFlowParams",
+    "FarnebackParams",
+    "TVL1Params",
+    "deepflow_flow",
+    "dis_flow",
+    "farneback_flow",
+    "tvl1_flow",
+]
+
+DISPreset = Literal["ultrafast", "fast", "medium"]
+
+
+def _check_int(name: str, value: Any, minimum: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+
+
+def _check_float(name: str, value: Any, *, minimum: float = 0.0, strict: bool = True) -> None:
+    ok = isinstance(value, int | float | np.floating) and not isinstance(value, bool)
+    ok = ok and np.isfinite(value) and (value > minimum if strict else value >= minimum)
+    if not ok:
+        op = ">" if strict else ">="
+        raise ValueError(f"{name} must be a finite number {op} {minimum}, got {value!r}")
+
+
+def _check_bool(name: str, value: Any) -> None:
+    if not isinstance(value, bool | np.bool_):
+        raise TypeError(f"{name} must be True or False, got {value!r}")
+
+
+def _to_uint8(image: NDArray[np.float32]) -> NDArray[np.uint8]:
+    """[0, 1] float → uint8 with rounding and saturation (like ``Mat.convertTo(CV_8U, 255)``)."""
+    out = np.empty(image.shape, np.uint8)
+    np.clip(image * np.float32(255.0) + np.float32(0.5), 0.0, 255.0, out=out, casting="unsafe")
+    return out
+
+
+def _init_or_none(init: NDArray[np.float32] | None) -> NDArray[np.float32] | None:
+    return None if init is None else np.ascontiguousarray(init, dtype=np.float32).copy()
+
+
+# --------------------------------------------------------------------------------------------
+# DIS
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class DISParams:
+    """Parameters of OpenCV's Dense Inverse Search flow (Kroeger et al., ECCV 2016).
+
+    Defaults are OpenCV 5's ``PRESET_MEDIUM``; :meth:`from_preset` gives the other presets.
+
+    Parameters
+    ----------
+    finest_scale : int
+        Finest pyramid level that is solved (0 = full resolution; the result is upsampled).
+    patch_size : int
+        Side of the square patches, px.
+    patch_stride : int
+        Distance between neighbouring patches, px (smaller = denser, slower).
+    gradient_descent_iterations : int
+        Inverse-search gradient-descent iterations per patch.
+    variational_refinement_iterations : int
+        Fixed-point iterations of the variational refinement per level (0 = off).
+    variational_refinement_alpha : float
+        Smoothness weight of the variational refinement.
+    variational_refinement_gamma : float
+        Gradient-constancy weight of the variational refinement.
+    variational_refinement_delta : float
+        Colour-constancy weight of the variational refinement.
+    variational_refinement_epsilon : float
+        Charbonnier-penalty epsilon of the variational refinement.
+    use_mean_normalization : bool
+        Normalise patch means (robust to illumination change).
+    use_spatial_propagation : bool
+        Propagate good patch matches to neighbours.
+    """
+
+    finest_scale: int = 1
+    patch_size: int = 8
+    patch_stride: int = 3
+    gradient_descent_iterations: int = 25
+    variational_refinement_iterations: int = 5
+    variational_refinement_alpha: float = 20.0
+    variational_refinement_gamma: float = 10.0
+    variational_refinement_delta: float = 5.0
+    variational_refinement_epsilon: float = 0.01
+    use_mean_normalization: bool = True
+    use_spatial_propagation: bool = True
+
+    #: Values that differ between OpenCV 5's presets (the rest are shared).
+    PRESETS: ClassVar[dict[str, dict[str, int]]] = {
+        "ultrafast": {
+            "finest_scale": 2,
+            "patch_stride": 4,
+            "gradient_descent_iterations": 12,
+            "variational_refinement_iterations": 0,
+        },
+        "fast": {
+            "finest_scale": 2,
+            "patch_stride": 4,
+            "gradient_descent_iterations": 16,
+            "variational_refinement_iterations": 5,
+        },
+        "medium": {},
+    }
+
+    def __post_init__(self) -> None:
+        _check_int("finest_scale", self.finest_scale, 0)
+        _check_int("patch_size", self.patch_size, 2)
+        _check_int("patch_stride", self.patch_stride, 1)
+        if self.patch_stride > self.patch_size:
+            raise ValueError(
+                f"patch_stride ({self.patch_stride}) must not exceed patch_size ({self.patch_size})"
+            )
+        _check_int("gradient_descent_iterations", self.gradient_descent_iterations, 1)
+        _check_int("variational_refinement_iterations", self.variational_refinement_iterations, 0)
+        _check_float(
+            "variational_refinement_alpha", self.variational_refinement_alpha, strict=False
+        )
+        _check_float(
+            "variational_refinement_gamma", self.variational_refinement_gamma, strict=False
+        )
+        _check_float(
+            "variational_refinement_delta", self.variational_refinement_delta, strict=False
+        )
+        _check_float("variational_refinement_epsilon", self.variational_refinement_epsilon)
+        _check_bool("use_mean_normalization", self.use_mean_normalization)
+        _check_bool("use_spatial_propagation", self.use_spatial_propagation)
+
+    @classmethod
+    def from_preset(cls, preset: DISPreset, **overrides: Any) -> DISParams:
+        """Parameters of OpenCV's ``ultrafast``, ``fast`` or ``medium`` preset, plus overrides."""
+        if preset not in cls.PRESETS:
+            raise ValueError(
+                f"unknown DIS preset {preset!r}; choose one of {', '.join(cls.PRESETS)}"
+            )
+        return cls(**{**cls.PRESETS[preset], **overrides})
+
+
+def _make_dis(params: DISParams) -> cv2.DISOpticalFlow:
+    dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    dis.setFinestScale(int(params.finest_scale))
+    dis.setPatchSize(int(params.patch_size))
+    dis.setPatchStride(int(params.patch_stride))
+    dis.setGradientDescentIterations(int(params.gradient_descent_iterations))
+    dis.setVariationalRefinementIterations(int(params.variational_refinement_iterations))
+    dis.setVariationalRefinementAlpha(float(params.variational_refinement_alpha))
+    dis.setVariationalRefinementGamma(float(params.variational_refinement_gamma))
+    dis.setVariationalRefinementDelta(float(params.variational_refinement_delta))
+    dis.setVariationalRefinementEpsilon(float(params.variational_refinement_epsilon))
+    dis.setUseMeanNormalization(bool(params.use_mean_normalization))
+    dis.setUseSpatialPropagation(bool(params.use_spatial_propagation))
+    return dis
+
+
+def dis_flow(
+    image0: NDArray[np.float32],
+    image1: NDArray[np.float32],
+    params: DISParams,
+    init: NDArray[np.float32] | None,
+) -> NDArray[np.float32]:
+    """DIS flow from image0 to image1 (px, ``(H, W, 2)`` du, dv).
+
+    ``init`` (a same-size flow) is handed to ``DISOpticalFlow.calc``, which resamples it to
+    every pyramid level and tries it as an extra candidate for each patch (OpenCV's "temporal
+    candidates"); it does not replace the coarse-to-fine search.
+    """
+    dis = _make_dis(params)
+    return dis.calc(_to_uint8(image0), _to_uint8(image1), _init_or_none(init))
+
+
+# --------------------------------------------------------------------------------------------
+# Farneback
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FarnebackParams:
+    """Parameters of Farneback's polynomial-expansion flow (``cv2.calcOpticalFlowFarneback``).
+
+    Parameters
+    ----------
+    pyr_scale : float
+        Scale between pyramid levels, in (0, 1) (0.5 = classical pyramid).
+    levels : int
+        Number of pyramid levels including the full-size image.
+    winsize : int
+        Averaging window side, px (larger = more robust to noise, blurrier flow).
+    iterations : int
+        Iterations per pyramid level.
+    poly_n : int
+        Neighbourhood size of the polynomial expansion (5 or 7 are typical).
+    poly_sigma : float
+        Gaussian sigma of the polynomial expansion, px (1.1 for poly_n=5, 1.5 for 7).
+    gaussian_window : bool
+        Use a Gaussian instead of a box window (``OPTFLOW_FARNEBACK_GAUSSIAN``).
+    """
+
+    pyr_scale: float = 0.5
+    levels: int = 5
+    winsize: int = 15
+    iterations: int = 3
+    poly_n: int = 5
+    poly_sigma: float = 1.1
+    gaussian_window: bool = False
+
+    def __post_init__(self) -> None:
+        _check_float("pyr_scale", self.pyr_scale)
+        if self.pyr_scale >= 1.0:
+            raise ValueError(f"pyr_scale must be in (0, 1), got {self.pyr_scale!r}")
+        _check_int("levels", self.levels, 1)
+        _check_int("winsize", self.winsize, 1)
+        _check_int("iterations", self.iterations, 1)
+        _check_int("poly_n", self.poly_n, 1)
+        _check_float("poly_sigma", self.poly_sigma)
+        _check_bool("gaussian_window", self.gaussian_window)
+
+
+def farneback_flow(
+    image0: NDArray[np.float32],
+    image1: NDArray[np.float32],
+    params: FarnebackParams,
+    init: NDArray[np.float32] | None,
+) -> NDArray[np.float32]:
+    """Farneback flow from image0 to image1 (px, ``(H, W, 2)`` du, dv).
+
+    With ``init`` the flag ``OPTFLOW_USE_INITIAL_FLOW`` is set and the solve starts from it.
+    """
+    flags = cv2.OPTFLOW_FARNEBACK_GAUSSIAN if params.gaussian_window else 0
+    flow = _init_or_none(init)
+    if flow is not None:
+        flags |= cv2.OPTFLOW_USE_INITIAL_FLOW
+    return cv2.calcOpticalFlowFarneback(
+        _to_uint8(image0),
+        _to_uint8(image1),
+        flow,
+        pyr_scale=float(params.pyr_scale),
+        levels=int(params.levels),
+        winsize=int(params.winsize),
+        iterations=int(params.iterations),
+        poly_n=int(params.poly_n),
+        poly_sigma=float(params.poly_sigma),
+        flags=flags,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Dual TV-L1
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TVL1Params:
+    """Parameters of Dual TV-L1 flow (Zach, Pock, Bischof 2007; ``cv2.optflow.DualTVL1``).
+
+    Defaults are OpenCV's. OpenCV's names are given in brackets.
+
+    Parameters
+    ----------
+    tau : float
+        Time step of the numerical scheme [tau].
+    data_weight : float
+        Weight of the data term, λ; smaller = smoother [lambda].
+    theta : float
+        Tightness of the coupling between the two sub-problems [theta].
+    num_scales : int
+        Pyramid levels [nscales].
+    num_warps : int
+        Warpings per level [warps].
+    epsilon : float
+        Stopping threshold per level [epsilon].
+    inner_iterations : int
+        Inner iterations per warping [innnerIterations].
+    outer_iterations : int
+        Outer iterations per warping [outerIterations].
+    scale_step : float
+        Scale between pyramid levels, in (0, 1) [scaleStep].
+    gamma : float
+        Weight of the illumination-change term (0 = off) [gamma].
+    median_filtering : int
+        Median-filter size applied to the flow between warps (odd; 1 = off) [medianFiltering].
+    """
+
+    tau: float = 0.25
+    data_weight: float = 0.15
+    theta: float = 0.3
+    num_scales: int = 5
+    num_warps: int = 5
+    epsilon: float = 0.01
+    inner_iterations: int = 30
+    outer_iterations: int = 10
+    scale_step: float = 0.8
+    gamma: float = 0.0
+    median_filtering: int = 5
+
+    def __post_init__(self) -> None:
+        _check_float("tau", self.tau)
+        _check_float("data_weight", self.data_weight)
+        _check_float("theta", self.theta)
+        _check_int("num_scales", self.num_scales, 1)
+        _check_int("num_warps", self.num_warps, 1)
+        _check_float("epsilon", self.epsilon)
+        _check_int("inner_iterations", self.inner_iterations, 1)
+        _check_int("outer_iterations", self.outer_iterations, 1)
+        _check_float("scale_step", self.scale_step)
+        if self.scale_step >= 1.0:
+            raise ValueError(f"scale_step must be in (0, 1), got {self.scale_step!r}")
+        _check_float("gamma", self.gamma, strict=False)
+        _check_int("median_filtering", self.median_filtering, 1)
+        if self.median_filtering % 2 == 0:
+            raise ValueError(f"median_filtering must be odd, got {self.median_filtering!r}")
+
+
+def tvl1_flow(
+    image0: NDArray[np.float32],
+    image1: NDArray[np.float32],
+    params: TVL1Params,
+    init: NDArray[np.float32] | None,
+) -> NDArray[np.float32]:
+    """Dual TV-L1 flow from image0 to image1 (px, ``(H, W, 2)`` du, dv).
+
+    Images go in as float32 in [0, 1] (no 8-bit quantisation). With ``init`` OpenCV's
+    ``useInitialFlow`` is switched on and the finest level starts from it (coarser levels
+    start from the downsampled init).
+    """
+    flow = _init_or_none(init)
+    tvl1 = cv2.optflow.DualTVL1OpticalFlow_create(
+        tau=float(params.tau),
+        lambda_=float(params.data_weight),
+        theta=float(params.theta),
+        nscales=int(params.num_scales),
+        warps=int(params.num_warps),
+        epsilon=float(params.epsilon),
+        innnerIterations=int(params.inner_iterations),
+        outerIterations=int(params.outer_iterations),
+        scaleStep=float(params.scale_step),
+        gamma=float(params.gamma),
+        medianFiltering=int(params.median_filtering),
+        useInitialFlow=flow is not None,
+    )
+    a = np.ascontiguousarray(image0, dtype=np.float32)
+    b = np.ascontiguousarray(image1, dtype=np.float32)
+    return tvl1.calc(a, b, flow)
+
+
+# --------------------------------------------------------------------------------------------
+# DeepFlow
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class DeepFlowParams:
+    """DeepFlow (Weinzaepfel et al., ICCV 2013, without DeepMatching) — no tunable fields.
+
+    OpenCV's Python binding of ``createOptFlow_DeepFlow`` exposes no setters, so the
+    parameters are OpenCV's fixed defaults (``sigma=0.6``, ``alpha=1``, ``delta=0.5``,
+    ``gamma=5``, ``omega=1.6``, ``fixedPointIterations=5``, ``sorIterations=25``, pyramid
+    factor 0.95 down to 25 px).
+    """
+
+    def __post_init__(self) -> None:
+        if fields(self):  # pragma: no cover - guard against accidental additions
+            raise AssertionError("DeepFlowParams must stay empty")
+
+
+def deepflow_flow(
+    image0: NDArray[np.float32],
+    image1: NDArray[np.float32],
+    params: DeepFlowParams,
+    init: NDArray[np.float32] | None,
+) -> NDArray[np.float32]:
+    """DeepFlow from image0 to image1 (px, ``(H, W, 2)`` du, dv); ``init`` is not supported."""
+    del params, init  # no parameters; OpenCV discards any input flow
+    scale = np.float32(255.0)
+    deep = cv2.optflow.createOptFlow_DeepFlow()
+    return deep.calc(image0 * scale, image1 * scale, None)

@@ -1,0 +1,638 @@
+"""Spatio-temporal 4D fusion (paper Eq. 5) with hole filling (Eq. 6): streaming engine and
+in-memory face.
+
+The engine keeps a ring buffer of ``num_frames`` frames — raw depth, the intensity-guided 3D
+bilateral ``B^T`` (computed once per frame, METHOD §5.1/§7) and the motion-reference points
+``P~^T`` (A3) — plus the forward/backward flows of the pairs inside the window, each computed
+once. Frame t is emitted as soon as frame t + h_future has arrived, so memory does not grow with
+the sequence length. :func:`fuse_sequence` drives the same engine over in-memory arrays.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ._kernels.fusion import (
+    _fill_holes_kernel,
+    _fuse_kernel,
+    _pair_diagnostics_kernel,
+    _project_to_rays_kernel,
+    _track_kernel,
+)
+from ._validation import as_float32, check_shape
+from .bilateral import bilateral_filter_points
+from .camera import Intrinsics, depth_to_points
+from .config import FlowConfig, FusionParams, preset
+from .errors import ShapeError
+from .motion import estimate_depth_noise, motion_reference_depth
+from .sequence import normalize_intensity
+
+__all__ = [
+    "FusedFrame",
+    "FusionEngine",
+    "FusionResult",
+    "PrecomputedFlow",
+    "fuse_sequence",
+    "fuse_stream",
+]
+
+STAGES = ("flow", "bilateral", "motion_reference", "tracking", "fusion", "fill")
+
+
+@dataclass(frozen=True)
+class PrecomputedFlow:
+    """Flows computed elsewhere (e.g. exact ground-truth flows, or a cached run).
+
+    Attributes
+    ----------
+    forward : (T-1, H, W, 2) ndarray of float32
+        s^{t,t+1} in px on frame t's grid, ``[..., 0]`` = du (column).
+    backward : (T-1, H, W, 2) ndarray of float32
+        s^{t+1,t} in px on frame t+1's grid.
+    """
+
+    forward: NDArray[np.float32]
+    backward: NDArray[np.float32]
+
+
+@dataclass
+class FusedFrame:
+    """One output frame of the engine.
+
+    Attributes
+    ----------
+    index : int
+        Frame index t.
+    points : (H, W, 3) ndarray of float32
+        Fused 3D points p^_i^t in mm (NaN where the raw depth was invalid).
+    support : (H, W) ndarray of uint8
+        Number of other frames whose track passed all checks (temporal support).
+    filled : (H, W) ndarray of bool
+        Pixels without temporal support whose value comes from hole filling (Eq. 6).
+    unfilled : (H, W) ndarray of bool
+        Holes that hole filling could not reach (they hold the fallback value).
+    """
+
+    index: int
+    points: NDArray[np.float32]
+    support: NDArray[np.uint8]
+    filled: NDArray[np.bool_]
+    unfilled: NDArray[np.bool_]
+
+    @property
+    def depth(self) -> NDArray[np.float32]:
+        """Fused depth (Z of the fused points) in mm."""
+        return self.points[..., 2]
+
+
+@dataclass
+class _PairOutput:
+    index: int  # pair (index, index + 1)
+    forward: NDArray[np.float32]
+    backward: NDArray[np.float32]
+    motion: NDArray[np.float32]
+    fb_error: NDArray[np.float32]
+
+
+class FusionEngine:
+    """Streaming 4D fusion over a ring buffer (METHOD §7).
+
+    Push frames in order with :meth:`push`; each call returns the frames that became complete.
+    Call :meth:`flush` at the end of the stream for the last ``h_future`` frames (truncated
+    windows, A13). In ``causal`` mode (``FusionParams(causal=True)``) every frame is emitted
+    as soon as it is pushed, fused with the n - 1 previous frames only.
+
+    Parameters
+    ----------
+    intrinsics : Intrinsics
+        Camera (its size fixes the frame shape).
+    fusion : FusionParams, optional
+        Fusion knobs (defaults: METHOD §5.3). ``iterations`` > 1 is handled by
+        :func:`fuse_sequence`, not by a single engine.
+    flow : FlowConfig or str, optional
+        Tracker and its parameters (default: the "fast" preset's). Ignored for pairs whose
+        flows are passed to :meth:`push`.
+    ring_size : int, optional
+        Frames kept; at least ``num_frames`` (default). Larger values only cost memory.
+    warm_start : bool
+        Initialise each pair's flow with the previous pair's (methods that accept it).
+    on_pair : callable, optional
+        ``on_pair(pair)`` receives each pair's flows, 3D motion and FB error as computed.
+    timings : dict, optional
+        Accumulates seconds per stage (keys ``STAGES``).
+    """
+
+    def __init__(
+        self,
+        intrinsics: Intrinsics,
+        *,
+        fusion: FusionParams | None = None,
+        flow: FlowConfig | str | None = None,
+        ring_size: int | None = None,
+        warm_start: bool = True,
+        on_pair: Callable[[_PairOutput], None] | None = None,
+        timings: dict[str, float] | None = None,
+    ) -> None:
+        self.intrinsics = intrinsics
+        self.params = fusion or FusionParams()
+        if self.params.num_frames > 256:
+            raise ValueError("num_frames must be <= 256 (support is stored as uint8)")
+        if isinstance(flow, str):
+            flow = FlowConfig(flow)
+        self.flow_config = flow or preset("fast").flow
+        self._flow_params: Any = None
+        self._flow_supports_init = False
+        self.warm_start = warm_start
+        self.on_pair = on_pair
+        self.timings = timings if timings is not None else dict.fromkeys(STAGES, 0.0)
+        for stage in STAGES:
+            self.timings.setdefault(stage, 0.0)
+        p = self.params
+        self.past = p.past_frames
+        self.future = p.future_frames
+        self.ring = max(ring_size or 0, p.num_frames)
+        h, w = intrinsics.height, intrinsics.width
+        s = self.ring
+        self._depth = np.full((s, h, w), np.nan, np.float32)
+        self._noise = np.zeros(s, np.float64)  # robust depth-noise estimate per frame, mm
+        self._intensity = np.zeros((s, h, w), np.float32)
+        self._bilateral = np.full((s, h, w, 3), np.nan, np.float32)
+        # local reference surface (A17, A18) and motion reference P~ (A3)
+        self._smooth = np.full((s, h, w, 3), np.nan, np.float32)
+        self._reference = np.full((s, h, w, 3), np.nan, np.float32)
+        self._fwd = np.zeros((s, h, w, 2), np.float32)
+        self._bwd = np.zeros((s, h, w, 2), np.float32)
+        tw = np.arange(max(self.past, self.future) + 1, dtype=np.float64)
+        if math.isinf(p.sigma_temporal):
+            self._temporal_weight = np.ones_like(tw)
+        else:
+            self._temporal_weight = np.exp(-(tw**2) / (2.0 * p.sigma_temporal**2))
+        self._pushed = 0  # frames received
+        self._emitted = 0  # frames emitted
+        self._closed = False
+
+    # ------------------------------------------------------------------ public
+    @property
+    def latency(self) -> int:
+        """Frames of look-ahead: frame t is emitted after frame t + latency arrives."""
+        return self.future
+
+    def push(
+        self,
+        depth: ArrayLike,
+        intensity: ArrayLike,
+        *,
+        points: ArrayLike | None = None,
+        pair_flow: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> list[FusedFrame]:
+        """Add the next frame; return the frames completed by it (oldest first).
+
+        Parameters
+        ----------
+        depth : (H, W) ndarray
+            Depth in mm, NaN (or 0) = invalid.
+        intensity : (H, W) ndarray
+            Registered intensity, [0, 1] (integers are divided by their dtype maximum).
+        points : (H, W, 3) ndarray, optional
+            Use these 3D points (mm) instead of back-projecting ``depth`` (fusion iterations).
+        pair_flow : (forward, backward), optional
+            Flows of the pair (previous frame, this frame), each (H, W, 2) px; computed with the
+            engine's tracker when omitted.
+        """
+        if self._closed:
+            raise RuntimeError("engine was flushed; create a new FusionEngine for a new stream")
+        h, w = self.intrinsics.height, self.intrinsics.width
+        index = self._pushed
+        d = as_float32(depth, name="depth")
+        check_shape(d, (h, w), name=f"depth (frame {index})")
+        d = np.where(np.isfinite(d) & (d > 0), d, np.float32(np.nan))
+        inten = np.asarray(intensity)
+        check_shape(inten, (h, w), name=f"intensity (frame {index})")
+        inten = (
+            normalize_intensity(inten)
+            if inten.dtype.kind != "f"
+            else as_float32(inten, name="intensity")
+        )
+        slot = index % self.ring
+        p = self.params
+        t0 = time.perf_counter()
+        if points is None:
+            pts = depth_to_points(d, self.intrinsics)
+        else:
+            pts = as_float32(points, name="points")
+            check_shape(pts, (h, w, 3), name=f"points (frame {index})")
+            d = np.ascontiguousarray(pts[..., 2])
+        # local reference (A18) for the residual bilateral and the output normals (A17)
+        self._smooth[slot] = self._smoothed_points(d, pts, points is not None, p.reference_sigma)
+        if p.motion_depth == "raw":
+            self._reference[slot] = pts  # literal Eq. 3 (ablation)
+        else:  # motion reference P~ (A3)
+            self._reference[slot] = self._smoothed_points(
+                d, pts, points is not None, p.motion_sigma
+            )
+        smooth = self._smooth[slot]
+        t1 = time.perf_counter()
+        bilateral_filter_points(
+            pts,
+            inten,
+            radius=p.spatial_radius,
+            sigma_distance=p.sigma_distance,
+            sigma_intensity=p.sigma_intensity,
+            reference=smooth if p.bilateral == "residual" else None,
+            out=self._bilateral[slot],
+        )
+        t2 = time.perf_counter()
+        self.timings["motion_reference"] += t1 - t0
+        self.timings["bilateral"] += t2 - t1
+        self._depth[slot] = d
+        self._noise[slot] = estimate_depth_noise(d)
+        self._intensity[slot] = inten
+        if index > 0:
+            self._add_pair(index, pair_flow)
+        self._pushed += 1
+        out = []
+        while self._emitted + self.future < self._pushed:
+            out.append(self._emit(self._emitted, last=self._emitted + self.future))
+        return out
+
+    def flush(self) -> list[FusedFrame]:
+        """End of stream: emit the remaining frames with truncated windows."""
+        out = []
+        while self._emitted < self._pushed:
+            out.append(self._emit(self._emitted, last=self._pushed - 1))
+        self._closed = True
+        return out
+
+    # ------------------------------------------------------------------ internals
+    def _smoothed_points(self, depth, points, given: bool, sigma: float) -> np.ndarray:
+        """Back-projected range-gated Gaussian smoothing of ``depth`` (METHOD §4.3)."""
+        smooth_depth = motion_reference_depth(
+            depth,
+            sigma=sigma,
+            max_step=self.params.max_depth_step,
+            plane_tolerance=self.params.plane_tolerance,
+        )
+        if not given:
+            return depth_to_points(smooth_depth, self.intrinsics)
+        # keep the lateral position of given points (fusion iterations)
+        return points * np.where(np.isfinite(depth), smooth_depth / depth, np.nan)[..., None]
+
+    def _flow_pair(self, image0: np.ndarray, image1: np.ndarray, init: np.ndarray | None):
+        from .flow import available_flow_methods, estimate_flow_pair
+
+        if self._flow_params is None:
+            self._flow_params = self.flow_config.build_params()
+            method = available_flow_methods()[self.flow_config.method]
+            self._flow_supports_init = bool(method.supports_init)
+        if not (self.warm_start and self._flow_supports_init):
+            init = None
+        return estimate_flow_pair(
+            image0,
+            image1,
+            method=self.flow_config.method,
+            params=self._flow_params,
+            init_forward=init,
+        )
+
+    def _add_pair(self, index: int, pair_flow) -> None:
+        """Flows, FB error and one-step motion of the pair (index-1, index)."""
+        h, w = self.intrinsics.height, self.intrinsics.width
+        slot = index % self.ring
+        prev = (index - 1) % self.ring
+        t0 = time.perf_counter()
+        if pair_flow is None:
+            init = self._fwd[prev] if index >= 2 else None
+            fwd, bwd = self._flow_pair(self._intensity[prev], self._intensity[slot], init)
+        else:
+            fwd, bwd = pair_flow
+        fwd = as_float32(fwd, name="forward flow")
+        bwd = as_float32(bwd, name="backward flow")
+        for name, f in (("forward flow", fwd), ("backward flow", bwd)):
+            if f.shape != (h, w, 2):
+                raise ShapeError(f"{name} (pair {index - 1}->{index})", (h, w, 2), f.shape)
+        self._fwd[slot] = fwd
+        self._bwd[slot] = bwd
+        self.timings["flow"] += time.perf_counter() - t0
+        if self.on_pair is not None:
+            p = self.params
+            motion = np.empty((h, w, 3), np.float32)
+            fb = np.empty((h, w), np.float32)
+            _pair_diagnostics_kernel(
+                self._fwd[slot],
+                self._bwd[slot],
+                self._reference[prev],
+                self._reference[slot],
+                self._depth[prev],
+                self._depth[slot],
+                p.fb_threshold,
+                p.max_depth_step,
+                p.quantize == "per_step",
+                fb,
+                motion,
+            )
+            self.on_pair(
+                _PairOutput(index - 1, self._fwd[slot].copy(), self._bwd[slot].copy(), motion, fb)
+            )
+
+    def _emit(self, t: int, *, last: int) -> FusedFrame:
+        p = self.params
+        h, w = self.intrinsics.height, self.intrinsics.width
+        first = max(0, t - self.past)
+        k = last - first
+        t0 = time.perf_counter()
+        rows = np.empty((k, h, w), np.int32)
+        cols = np.empty((k, h, w), np.int32)
+        ok = np.empty((k, h, w), np.bool_)
+        _track_kernel(
+            self._fwd,
+            self._bwd,
+            self._depth,
+            t,
+            first,
+            last,
+            p.fb_threshold,
+            p.max_depth_step,
+            p.quantize == "per_step",
+            rows,
+            cols,
+            ok,
+        )
+        t1 = time.perf_counter()
+        points = np.empty((h, w, 3), np.float32)
+        support = np.empty((h, w), np.uint8)
+        hole = np.empty((h, w), np.bool_)
+        gate = max(p.temporal_gate * self._noise[t % self.ring], p.min_gate_mm)
+        _fuse_kernel(
+            self._bilateral,
+            self._reference,
+            t,
+            first,
+            rows,
+            cols,
+            ok,
+            self._temporal_weight,
+            p.min_temporal_support,
+            gate,
+            points,
+            support,
+            hole,
+        )
+        t2 = time.perf_counter()
+        filled = np.zeros((h, w), np.bool_)
+        if p.fill_holes and hole.any():
+            raw = depth_to_points(self._depth[t % self.ring], self.intrinsics)
+            _fill_holes_kernel(
+                points,
+                raw,
+                hole,
+                p.fill_radius,
+                1.0 / (2.0 * p.sigma_fill**2),
+                p.fill_passes,
+                3,
+                gate,
+                filled,
+            )
+        if p.fill_fallback == "nan":
+            points[hole] = np.nan
+        if p.output == "ray":
+            k = self.intrinsics
+            on_ray = np.empty_like(points)
+            _project_to_rays_kernel(
+                points,
+                self._smooth[t % self.ring],
+                k.fx,
+                k.fy,
+                k.cx,
+                k.cy,
+                p.max_depth_step,
+                on_ray,
+            )
+            points = on_ray
+        t3 = time.perf_counter()
+        self.timings["tracking"] += t1 - t0
+        self.timings["fusion"] += t2 - t1
+        self.timings["fill"] += t3 - t2
+        self._emitted += 1
+        return FusedFrame(index=t, points=points, support=support, filled=filled, unfilled=hole)
+
+
+@dataclass
+class FusionResult:
+    """Output of :func:`fuse_sequence` (METHOD §8).
+
+    Attributes
+    ----------
+    points : (T, H, W, 3) ndarray of float32
+        Fused 3D points in mm (paper p^_i^t); NaN where the raw depth was invalid.
+    depth : (T, H, W) ndarray of float32
+        Z of ``points`` in mm.
+    support : (T, H, W) ndarray of uint8
+        Temporal support: other frames whose track passed every check.
+    filled : (T, H, W) ndarray of bool
+        Pixels filled by Eq. 6 (valid raw depth, no temporal support).
+    flow_forward, flow_backward : (T-1, H, W, 2) ndarray of float32
+        The flows used (px).
+    motion : (T-1, H, W, 3) ndarray of float32
+        One-step 3D motion field (scene flow) m^{t,t+1} in mm; NaN where the step is invalid.
+    fb_error : (T-1, H, W) ndarray of float32
+        Forward-backward error of each forward flow vector, px.
+    timings : dict
+        Seconds spent per stage.
+    params : FusionParams
+    flow_method : str
+        Name of the tracker ("precomputed" for given flows).
+    """
+
+    points: NDArray[np.float32]
+    depth: NDArray[np.float32]
+    support: NDArray[np.uint8]
+    filled: NDArray[np.bool_]
+    flow_forward: NDArray[np.float32]
+    flow_backward: NDArray[np.float32]
+    motion: NDArray[np.float32]
+    fb_error: NDArray[np.float32]
+    timings: dict[str, float] = field(default_factory=dict)
+    params: FusionParams = field(default_factory=FusionParams)
+    flow_method: str = ""
+
+    @property
+    def support_fraction(self) -> float:
+        """Fraction of valid output pixels with temporal support >= 1 (tracked into another frame)."""
+        valid = np.isfinite(self.depth)
+        return float((self.support[valid] > 0).mean()) if valid.any() else 0.0
+
+
+def fuse_sequence(
+    depth: ArrayLike,
+    intensity: ArrayLike,
+    intrinsics: Intrinsics,
+    *,
+    fusion: FusionParams | None = None,
+    flow: FlowConfig | str | PrecomputedFlow | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> FusionResult:
+    """Denoise a 3D video by intensity-guided 4D fusion (paper Eq. 2–6).
+
+    Parameters
+    ----------
+    depth : (T, H, W) ndarray
+        Depth in mm, NaN (or 0) = invalid.
+    intensity : (T, H, W) ndarray
+        Registered intensity in [0, 1] (integers are divided by their dtype maximum).
+    intrinsics : Intrinsics
+        Pinhole camera (px).
+    fusion : FusionParams, optional
+        Fusion knobs; ``None`` = METHOD.md §5.3 defaults (9 frames).
+    flow : FlowConfig, str, or PrecomputedFlow, optional
+        Tracker (method name or config; default: the "fast" preset, OpenCV DIS) or precomputed
+        forward/backward flows.
+    progress : callable, optional
+        ``progress(done, total)`` after every output frame.
+
+    Returns
+    -------
+    FusionResult
+
+    Raises
+    ------
+    ShapeError
+        If depth, intensity, intrinsics or flows disagree in shape.
+    ValueError
+        If T < 1 or a frame has no valid depth at all (all-NaN frames are allowed but warned
+        about by :class:`fuse4d.Sequence`; here they simply stay NaN).
+
+    Examples
+    --------
+    >>> from fuse4d.synthetic import make_falling_ball
+    >>> seq = make_falling_ball(small=True, num_frames=4)
+    >>> res = fuse_sequence(seq.depth, seq.intensity, seq.intrinsics)
+    >>> res.points.shape
+    (4, 150, 150, 3)
+    """
+    params = fusion or FusionParams()
+    d = as_float32(depth, name="depth")
+    check_shape(d, ("T", "H", "W"), name="depth")
+    inten = np.asarray(intensity)
+    if inten.shape != d.shape:
+        raise ShapeError("intensity", d.shape, inten.shape, "it must match depth frame for frame")
+    n, h, w = d.shape
+    if n < 1:
+        raise ValueError("fuse_sequence needs at least one frame, got T = 0")
+    if (h, w) != (intrinsics.height, intrinsics.width):
+        raise ShapeError(
+            "depth",
+            ("T", intrinsics.height, intrinsics.width),
+            d.shape,
+            "the intrinsics describe another image size",
+        )
+    precomputed = flow if isinstance(flow, PrecomputedFlow) else None
+    if precomputed is not None:
+        for name, f in (
+            ("flow.forward", precomputed.forward),
+            ("flow.backward", precomputed.backward),
+        ):
+            check_shape(np.asarray(f), (n - 1, h, w, 2), name=name)
+    flow_cfg = None if precomputed is not None else flow
+    fwd_all = np.zeros((max(n - 1, 0), h, w, 2), np.float32)
+    bwd_all = np.zeros_like(fwd_all)
+    motion_all = np.full((max(n - 1, 0), h, w, 3), np.nan, np.float32)
+    fb_all = np.full((max(n - 1, 0), h, w), np.nan, np.float32)
+    timings = dict.fromkeys(STAGES, 0.0)
+    total = n * params.iterations
+    done = 0
+    current_points: NDArray[np.float32] | None = None
+    support = np.zeros((n, h, w), np.uint8)
+    filled = np.zeros((n, h, w), np.bool_)
+    flow_method = "precomputed" if precomputed is not None else ""
+    for iteration in range(params.iterations):
+
+        def on_pair(pair: _PairOutput) -> None:
+            fwd_all[pair.index] = pair.forward
+            bwd_all[pair.index] = pair.backward
+            motion_all[pair.index] = pair.motion
+            fb_all[pair.index] = pair.fb_error
+
+        engine = FusionEngine(
+            intrinsics,
+            fusion=params,
+            flow=flow_cfg,
+            ring_size=n,
+            on_pair=on_pair if iteration == 0 else None,
+            timings=timings,
+        )
+        if not flow_method:
+            flow_method = engine.flow_config.method
+        out_points = np.empty((n, h, w, 3), np.float32)
+        for t in range(n):
+            if (iteration == 0 and precomputed is None) or t == 0:
+                pair = None
+            elif iteration == 0:
+                pair = (precomputed.forward[t - 1], precomputed.backward[t - 1])
+            else:
+                pair = (fwd_all[t - 1], bwd_all[t - 1])
+            frames = engine.push(
+                d[t],
+                inten[t],
+                pair_flow=pair,
+                points=None if current_points is None else current_points[t],
+            )
+            for fr in frames:
+                out_points[fr.index] = fr.points
+                support[fr.index] = fr.support
+                filled[fr.index] |= fr.filled
+                done += 1
+                if progress is not None:
+                    progress(done, total)
+        for fr in engine.flush():
+            out_points[fr.index] = fr.points
+            support[fr.index] = fr.support
+            filled[fr.index] |= fr.filled
+            done += 1
+            if progress is not None:
+                progress(done, total)
+        current_points = out_points
+    assert current_points is not None
+    return FusionResult(
+        points=current_points,
+        depth=np.ascontiguousarray(current_points[..., 2]),
+        support=support,
+        filled=filled,
+        flow_forward=fwd_all,
+        flow_backward=bwd_all,
+        motion=motion_all,
+        fb_error=fb_all,
+        timings=timings,
+        params=params,
+        flow_method=flow_method,
+    )
+
+
+def fuse_stream(
+    frames: Iterable[tuple[np.ndarray, np.ndarray]],
+    intrinsics: Intrinsics,
+    *,
+    fusion: FusionParams | None = None,
+    flow: FlowConfig | str | None = None,
+    timings: dict[str, float] | None = None,
+) -> Iterator[FusedFrame]:
+    """Fuse a stream of ``(depth, intensity)`` frames with bounded memory.
+
+    Yields :class:`FusedFrame` objects in frame order, each as soon as its window is complete
+    (``fusion.future_frames`` frames of latency; zero with ``causal=True``). Memory holds
+    ``num_frames`` frames whatever the stream length. ``iterations`` > 1 is not supported in
+    streaming (use :func:`fuse_sequence`).
+    """
+    params = fusion or FusionParams()
+    if params.iterations != 1:
+        raise ValueError("fuse_stream supports iterations=1 only; use fuse_sequence for more")
+    engine = FusionEngine(intrinsics, fusion=params, flow=flow, timings=timings)
+    for depth, intensity in frames:
+        yield from engine.push(depth, intensity)
+    yield from engine.flush()

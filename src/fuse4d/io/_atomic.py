@@ -1,0 +1,151 @@
+"""Atomic output: write to a temporary name in the destination folder, then rename into place.
+
+Every fuse4d writer goes through :func:`atomic_file` (single files) or :func:`atomic_dir`
+(frame folders). A reader of the destination therefore sees either the old content (or
+nothing) or the complete new content, never a half-written file; on any error the temporary
+is removed and the destination is left untouched.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from os import PathLike
+from pathlib import Path
+
+from ..errors import OutputExistsError
+
+__all__ = ["atomic_dir", "atomic_file", "check_output"]
+
+
+def check_output(
+    path: str | PathLike[str],
+    *,
+    overwrite: bool = False,
+    inputs: Iterable[str | PathLike[str]] = (),
+) -> Path:
+    """Validate an output path before anything is written.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The output file or folder.
+    overwrite : bool, optional
+        Allow replacing an existing output. Default False.
+    inputs : iterable of path, optional
+        Paths the caller reads from; writing onto any of them (or into a folder input) is
+        refused even with ``overwrite=True``.
+
+    Returns
+    -------
+    Path
+        The output path.
+
+    Raises
+    ------
+    OutputExistsError
+        If ``path`` exists and ``overwrite`` is False.
+    ValueError
+        If ``path`` is one of ``inputs`` or lies inside an input folder, or if its parent
+        folder does not exist.
+    """
+    out = Path(path)
+    resolved = out.resolve()
+    for inp in inputs:
+        src = Path(inp).resolve()
+        if resolved == src or src in resolved.parents or resolved in src.parents:
+            raise ValueError(f"{out}: output would overwrite the input {inp}; choose another path")
+    if not resolved.parent.is_dir():
+        raise ValueError(f"{out}: output folder {out.parent} does not exist")
+    if out.exists() and not overwrite:
+        raise OutputExistsError(out)
+    return out
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _set_default_mode(path: Path, *, directory: bool) -> None:
+    """mkstemp/mkdtemp create private (0600/0700) entries; give outputs the usual mode."""
+    path.chmod((0o777 if directory else 0o666) & ~_umask())
+
+
+def _temp_name(dest: Path, *, directory: bool) -> Path:
+    prefix = f".{dest.name}.tmp-"
+    if directory:
+        return Path(tempfile.mkdtemp(prefix=prefix, dir=dest.parent))
+    fd, name = tempfile.mkstemp(prefix=prefix, dir=dest.parent)
+    os.close(fd)
+    return Path(name)
+
+
+@contextmanager
+def atomic_file(path: str | PathLike[str], *, overwrite: bool = False) -> Iterator[Path]:
+    """Yield a temporary path next to ``path``; rename it onto ``path`` on success.
+
+    Raises
+    ------
+    OutputExistsError
+        If ``path`` exists and ``overwrite`` is False (checked before and after writing).
+    """
+    dest = check_output(path, overwrite=overwrite)
+    tmp = _temp_name(dest, directory=False)
+    try:
+        yield tmp
+        if dest.exists() and not overwrite:  # appeared while we were writing
+            raise OutputExistsError(dest)
+        if dest.is_dir():
+            raise ValueError(f"{dest}: is a folder; cannot replace it with a file")
+        _set_default_mode(tmp, directory=False)
+        tmp.replace(dest)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+@contextmanager
+def atomic_dir(path: str | PathLike[str], *, overwrite: bool = False) -> Iterator[Path]:
+    """Yield a temporary folder next to ``path``; rename it onto ``path`` on success.
+
+    Notes
+    -----
+    POSIX cannot atomically replace a non-empty folder. With ``overwrite=True`` an existing
+    destination is first renamed aside, the new folder renamed into place, then the old one
+    deleted; if the second rename fails the old folder is moved back.
+    """
+    dest = check_output(path, overwrite=overwrite)
+    tmp = _temp_name(dest, directory=True)
+    try:
+        yield tmp
+        _set_default_mode(tmp, directory=True)
+        if dest.exists():
+            if not overwrite:
+                raise OutputExistsError(dest)
+            _replace_existing(tmp, dest)
+        else:
+            tmp.replace(dest)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _replace_existing(tmp: Path, dest: Path) -> None:
+    if not dest.is_dir():
+        dest.unlink()
+        tmp.replace(dest)
+        return
+    old = Path(tempfile.mkdtemp(prefix=f".{dest.name}.old-", dir=dest.parent))
+    old.rmdir()
+    dest.replace(old)
+    try:
+        tmp.replace(dest)
+    except BaseException:
+        old.replace(dest)
+        raise
+    shutil.rmtree(old, ignore_errors=True)

@@ -1,0 +1,365 @@
+"""The streaming reader interface shared by every sequence layout, and argument helpers.
+
+A :class:`FrameReader` opens a recording, reads its metadata (intrinsics, frame count,
+timestamps) eagerly and its frames lazily, one at a time, so that memory does not grow with
+the length of the recording.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from os import PathLike
+from pathlib import Path
+from typing import Any, ClassVar, Self
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..camera import Intrinsics
+from ..errors import InputFileError
+from ..sequence import GroundTruth, Sequence
+
+__all__ = [
+    "CAMERA_PRESETS",
+    "Frame",
+    "FrameReader",
+    "FrameSelection",
+    "IntrinsicsLike",
+    "ProgressCallback",
+    "read_camera_json",
+    "resolve_frames",
+    "resolve_intrinsics",
+]
+
+#: Intrinsics ``(fx, fy, cx, cy)`` in px of well-known 640x480 RGB-D cameras, selectable by
+#: name (``intrinsics="freiburg1"``). The TUM values are the ones published with the TUM RGB-D
+#: benchmark; ``"kinect-v1"`` is the OpenNI/ROS default used when no calibration exists.
+CAMERA_PRESETS: dict[str, tuple[float, float, float, float]] = {
+    "freiburg1": (517.3, 516.5, 318.6, 255.3),
+    "freiburg2": (520.9, 521.0, 325.1, 249.7),
+    "freiburg3": (535.4, 539.2, 320.1, 247.6),
+    "kinect-v1": (525.0, 525.0, 319.5, 239.5),
+}
+
+#: ``Intrinsics``, ``[fx, fy, cx, cy]``, a preset name from :data:`CAMERA_PRESETS`, the path of
+#: a ``camera.json``, or a string ``"fx,fy,cx,cy"``.
+IntrinsicsLike = Intrinsics | ArrayLike | str | PathLike[str]
+
+#: ``None`` (all), a ``slice``/``range`` with step 1, ``(start, stop)`` or ``"start:stop"``.
+FrameSelection = slice | range | tuple[int | None, int | None] | str | None
+
+#: ``callback(done, total)`` called after each frame read or written.
+ProgressCallback = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One frame of a recording.
+
+    Attributes
+    ----------
+    index : int
+        0-based frame index in the recording.
+    depth : (H, W) ndarray of float32
+        Depth in mm, NaN = invalid.
+    intensity : (H, W) ndarray of float32
+        Gray intensity in [0, 1].
+    timestamp : float or None
+        Capture time in seconds, if the layout stores one.
+    mask : (H, W) ndarray of bool or None
+        Object mask (e.g. the person in a ``cv2-xml`` recording), if the layout stores one.
+    """
+
+    index: int
+    depth: NDArray[np.float32]
+    intensity: NDArray[np.float32]
+    timestamp: float | None = None
+    mask: NDArray[np.bool_] | None = None
+
+
+class FrameReader(ABC):
+    """Lazy, random-access reader of one recording (abstract base).
+
+    Subclasses set :attr:`format`, :attr:`path`, :attr:`intrinsics`, :attr:`timestamps`,
+    :attr:`fps`, :attr:`depth_unit_mm` and implement :meth:`__len__` and :meth:`read_frame`.
+    ``len(reader)``, ``reader[k]`` and ``for frame in reader`` work on every layout.
+    """
+
+    #: Layout name (``"npz"``, ``"folder"``, ``"tum"``, ``"cv2-xml"``, ``"frames-json"``).
+    format: ClassVar[str] = ""
+    path: Path
+    intrinsics: Intrinsics
+    timestamps: NDArray[np.float64] | None = None
+    fps: float | None = None
+    #: Millimetres per stored depth unit (None for float formats such as npz).
+    depth_unit_mm: float | None = None
+    #: Names of the ground-truth arrays available (``"depth"``, ``"mask"``, ``"flow"``, ...).
+    ground_truth_keys: tuple[str, ...] = ()
+    #: Human-readable notes about how the input was interpreted (shown by ``fuse4d info``).
+    notes: tuple[str, ...] = ()
+
+    @abstractmethod
+    def __len__(self) -> int:
+        """Number of frames."""
+
+    @abstractmethod
+    def read_frame(self, index: int) -> Frame:
+        """Read frame ``index`` (0-based; negative counts from the end)."""
+
+    @property
+    def num_frames(self) -> int:
+        """Number of frames T."""
+        return len(self)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Frame shape ``(H, W)``."""
+        return self.intrinsics.shape
+
+    def __getitem__(self, index: int) -> Frame:
+        return self.read_frame(index)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for k in range(len(self)):
+            yield self.read_frame(k)
+
+    def iter_frames(self, frames: FrameSelection = None) -> Iterator[Frame]:
+        """Yield the selected frames one at a time."""
+        for k in resolve_frames(frames, len(self)):
+            yield self.read_frame(k)
+
+    def close(self) -> None:  # noqa: B027 - optional hook, no-op by default
+        """Release open files (no-op for most layouts)."""
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _index(self, index: int) -> int:
+        n = len(self)
+        k = int(index)
+        if k < 0:
+            k += n
+        if not 0 <= k < n:
+            raise IndexError(f"{self.path}: frame {index} out of range (the recording has {n})")
+        return k
+
+    def _ground_truth(self, selection: range) -> GroundTruth | None:
+        """Ground truth for the selected frames (layouts with GT override this)."""
+        return None
+
+    def read_sequence(
+        self, frames: FrameSelection = None, *, progress: ProgressCallback | None = None
+    ) -> Sequence:
+        """Read the selected frames into an in-memory :class:`~fuse4d.Sequence`.
+
+        Arrays are preallocated and filled frame by frame (no list of frames is kept).
+        """
+        sel = resolve_frames(frames, len(self))
+        h, w = self.shape
+        depth = np.empty((len(sel), h, w), dtype=np.float32)
+        intensity = np.empty((len(sel), h, w), dtype=np.float32)
+        masks: NDArray[np.bool_] | None = None
+        for j, k in enumerate(sel):
+            frame = self.read_frame(k)
+            depth[j] = frame.depth
+            intensity[j] = frame.intensity
+            if frame.mask is not None:
+                if masks is None:
+                    masks = np.zeros((len(sel), h, w), dtype=bool)
+                masks[j] = frame.mask
+            if progress is not None:
+                progress(j + 1, len(sel))
+        gt = self._ground_truth(sel)
+        if masks is not None:
+            gt = GroundTruth(mask=masks) if gt is None else _with_mask(gt, masks)
+        ts = None if self.timestamps is None else self.timestamps[sel.start : sel.stop]
+        try:
+            return Sequence(
+                depth,
+                intensity,
+                self.intrinsics,
+                timestamps=ts,
+                fps=self.fps,
+                ground_truth=gt,
+                name=self.path.name,
+            )
+        except (TypeError, ValueError) as exc:
+            raise InputFileError(self.path, str(exc)) from None
+
+
+def _with_mask(gt: GroundTruth, mask: NDArray[np.bool_]) -> GroundTruth:
+    return GroundTruth(depth=gt.depth, mask=mask, flow=gt.flow, extra=gt.extra)
+
+
+def resolve_frames(frames: FrameSelection, total: int) -> range:
+    """Turn a frame selection into a ``range`` of valid indices (step 1).
+
+    Parameters
+    ----------
+    frames : slice, range, (start, stop), "start:stop" or None
+        Python slice semantics (negative indices count from the end; ``None`` = all).
+    total : int
+        Number of frames in the recording.
+
+    Raises
+    ------
+    ValueError
+        If the selection is malformed, has a step other than 1, or selects no frame.
+    """
+    if frames is None:
+        sel = slice(None)
+    elif isinstance(frames, slice):
+        sel = frames
+    elif isinstance(frames, range):
+        sel = slice(frames.start, frames.stop, frames.step)
+    elif isinstance(frames, str):
+        sel = _parse_frame_string(frames)
+    elif isinstance(frames, tuple) and len(frames) == 2:
+        sel = slice(*frames)
+    else:
+        raise ValueError(
+            f"frames must be None, a slice, a range, (start, stop) or 'start:stop', got {frames!r}"
+        )
+    if sel.step not in (None, 1):
+        raise ValueError(f"frames must be a contiguous range (step 1), got step {sel.step}")
+    idx = range(total)[sel]
+    if len(idx) < 1:
+        raise ValueError(f"frames {_show(sel)} selects no frame of a {total}-frame sequence")
+    return idx
+
+
+def _show(sel: slice) -> str:
+    a = "" if sel.start is None else sel.start
+    b = "" if sel.stop is None else sel.stop
+    return f"{a}:{b}"
+
+
+def _parse_frame_string(text: str) -> slice:
+    parts = text.strip().split(":")
+    try:
+        if len(parts) == 1:
+            k = int(parts[0])
+            return slice(k, k + 1 if k != -1 else None)
+        if len(parts) == 2:
+            return slice(*(int(p) if p.strip() else None for p in parts))
+    except ValueError:
+        pass
+    raise ValueError(f"frames must look like 'A:B', 'A:', ':B' or 'K', got {text!r}")
+
+
+def _number(value: Any, key: str, path: Path) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise InputFileError(path, f"key '{key}' must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise InputFileError(path, f"key '{key}' must be finite, got {value!r}")
+    return float(value)
+
+
+def read_camera_json(
+    path: str | PathLike[str], *, require_unit: bool = True
+) -> dict[str, float | None]:
+    """Read a ``camera.json``: ``fx, fy, cx, cy`` (px), ``depth_unit_mm``, optional ``fps``.
+
+    Optional ``width``/``height`` (px) are returned too (and checked by the readers).
+
+    Returns
+    -------
+    dict
+        Keys ``fx, fy, cx, cy, depth_unit_mm, fps, width, height`` (absent optional values are
+        None; ``depth_unit_mm`` is None when absent and ``require_unit`` is False).
+
+    Raises
+    ------
+    InputFileError
+        If the file is missing, not valid JSON, or a required key is missing or not a number.
+    """
+    p = Path(path)
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputFileError(p, "file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFileError(p, f"cannot read file ({exc})") from None
+    except json.JSONDecodeError as exc:
+        raise InputFileError(p, f"not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(data, dict):
+        raise InputFileError(p, "must hold a JSON object with keys fx, fy, cx, cy, depth_unit_mm")
+    required = ["fx", "fy", "cx", "cy"] + (["depth_unit_mm"] if require_unit else [])
+    for key in required:
+        if key not in data:
+            raise InputFileError(p, f"missing key '{key}'")
+    out: dict[str, float | None] = {k: _number(data[k], k, p) for k in ("fx", "fy", "cx", "cy")}
+    for key in ("depth_unit_mm", "fps", "width", "height"):
+        out[key] = _number(data[key], key, p) if data.get(key) is not None else None
+    for key in ("fx", "fy", "depth_unit_mm", "fps", "width", "height"):
+        value = out[key]
+        if value is not None and value <= 0:
+            raise InputFileError(p, f"key '{key}' must be > 0, got {value:g}")
+    return out
+
+
+def resolve_intrinsics(
+    spec: IntrinsicsLike, *, width: int, height: int, source: str = "intrinsics"
+) -> Intrinsics:
+    """Build :class:`~fuse4d.Intrinsics` for an image of ``width`` x ``height`` px.
+
+    Parameters
+    ----------
+    spec : Intrinsics, [fx, fy, cx, cy], preset name, "fx,fy,cx,cy" or path of a camera.json
+        See :data:`CAMERA_PRESETS` for the names.
+    width, height : int
+        Image size in px (from the depth images).
+    source : str, optional
+        Name used in error messages.
+
+    Raises
+    ------
+    ValueError
+        If ``spec`` cannot be interpreted or an :class:`Intrinsics` has another image size.
+    """
+    if isinstance(spec, Intrinsics):
+        if spec.shape != (height, width):
+            raise ValueError(
+                f"{source} are for a {spec.width}x{spec.height} image but the frames are "
+                f"{width}x{height} (WxH)"
+            )
+        return spec
+    if isinstance(spec, str) and spec.strip().lower() in CAMERA_PRESETS:
+        return Intrinsics(*CAMERA_PRESETS[spec.strip().lower()], width=width, height=height)
+    if isinstance(spec, str) and "," in spec and not Path(spec).exists():
+        try:
+            values = [float(v) for v in spec.split(",")]
+        except ValueError:
+            raise ValueError(
+                f"{source} string must be 'fx,fy,cx,cy' numbers, got {spec!r}"
+            ) from None
+        return Intrinsics.from_array(values, width=width, height=height)
+    if isinstance(spec, str | PathLike):
+        p = Path(spec)
+        if p.suffix.lower() != ".json" and not p.exists():
+            names = ", ".join(CAMERA_PRESETS)
+            raise ValueError(
+                f"{source} {str(spec)!r} is neither a preset ({names}), 'fx,fy,cx,cy', "
+                "nor an existing camera.json"
+            )
+        cam = read_camera_json(p, require_unit=False)
+        _check_size(cam, width, height, p)
+        return Intrinsics(cam["fx"], cam["fy"], cam["cx"], cam["cy"], width=width, height=height)
+    return Intrinsics.from_array(spec, width=width, height=height)
+
+
+def _check_size(cam: dict[str, float | None], width: int, height: int, path: Path) -> None:
+    w, h = cam.get("width"), cam.get("height")
+    if (w is not None and int(w) != width) or (h is not None and int(h) != height):
+        raise InputFileError(
+            path,
+            f"camera size {w and int(w)}x{h and int(h)} does not match the "
+            f"{width}x{height} frames (WxH)",
+        )

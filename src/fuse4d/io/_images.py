@@ -1,0 +1,263 @@
+"""Decoding and encoding of single image files (PNG/JPEG) with explicit failure checks.
+
+Files are read into memory by Python (so a missing file gives a clear error) and decoded with
+``cv2.imdecode`` (``IMREAD_UNCHANGED`` keeps 16-bit PNGs); ``None`` from OpenCV, a missing PNG
+end chunk or a missing JPEG end marker is reported as a truncated or corrupt file.
+"""
+
+from __future__ import annotations
+
+import warnings
+from os import PathLike
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import InputFileError
+
+__all__ = [
+    "QuantizationReport",
+    "check_frame_shape",
+    "decode_image",
+    "depth_to_units",
+    "encode_png",
+    "intensity_to_uint",
+    "read_depth_png",
+    "read_intensity_image",
+    "read_mask_image",
+]
+
+_PNG_END = b"IEND\xaeB`\x82"
+_JPEG_END = b"\xff\xd9"
+
+
+def decode_image(path: str | PathLike[str], *, frame: int | None = None) -> np.ndarray:
+    """Decode a PNG/JPEG/TIFF file unchanged (bit depth and channels kept).
+
+    Raises
+    ------
+    InputFileError
+        If the file is missing, unreadable, truncated or not a decodable image.
+    """
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except FileNotFoundError:
+        raise InputFileError(p, "file not found", frame=frame) from None
+    except OSError as exc:
+        raise InputFileError(p, f"cannot read file ({exc.strerror})", frame=frame) from None
+    if not data:
+        raise InputFileError(p, "file is empty", frame=frame)
+    kind = "PNG" if data[:8] == b"\x89PNG\r\n\x1a\n" else "JPEG" if data[:2] == b"\xff\xd8" else ""
+    truncated = (kind == "PNG" and _PNG_END not in data[-64:]) or (
+        kind == "JPEG" and _JPEG_END not in data[-64:]
+    )
+    image = None if truncated else cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        what = kind or "image"
+        raise InputFileError(p, f"cannot decode {what} (truncated or corrupt file)", frame=frame)
+    return image
+
+
+def _size(image: np.ndarray) -> str:
+    return f"{image.shape[1]}x{image.shape[0]}"
+
+
+def read_depth_png(
+    path: str | PathLike[str], *, frame: int | None = None, unit_mm: float = 1.0
+) -> NDArray[np.float32]:
+    """Read a 16-bit single-channel depth PNG as float32 mm (0 → NaN).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The PNG file.
+    frame : int, optional
+        Frame index, for error messages.
+    unit_mm : float, optional
+        Millimetres per stored unit (``value * unit_mm`` = mm).
+
+    Returns
+    -------
+    depth : (H, W) ndarray of float32
+        Depth in mm, NaN where the file holds 0.
+
+    Raises
+    ------
+    InputFileError
+        If the file cannot be decoded, has colour channels, or is not 16-bit.
+    """
+    image = decode_image(path, frame=frame)
+    if image.ndim != 2:
+        raise InputFileError(
+            path,
+            f"depth image must have one channel, got {image.shape[2]} channels",
+            frame=frame,
+        )
+    if image.dtype != np.uint16:
+        bits = image.dtype.itemsize * 8
+        raise InputFileError(
+            path,
+            f"depth PNG must be 16-bit (uint16), got {bits}-bit {image.dtype}; "
+            "8-bit depth loses too much precision",
+            frame=frame,
+        )
+    depth = image.astype(np.float32)
+    if unit_mm != 1.0:
+        depth *= np.float32(unit_mm)
+    depth[image == 0] = np.nan
+    return depth
+
+
+def read_intensity_image(
+    path: str | PathLike[str], *, frame: int | None = None
+) -> NDArray[np.float32]:
+    """Read an 8- or 16-bit gray or colour image as float32 gray in [0, 1].
+
+    Colour (BGR/BGRA as decoded by OpenCV) is converted with ``cv2.COLOR_BGR2GRAY``
+    (ITU-R BT.601 luma); integers are divided by their dtype maximum (255 or 65535).
+
+    Raises
+    ------
+    InputFileError
+        If the file cannot be decoded or has an unsupported dtype/channel count.
+    """
+    image = decode_image(path, frame=frame)
+    if image.dtype not in (np.uint8, np.uint16):
+        raise InputFileError(
+            path, f"intensity image must be 8- or 16-bit, got {image.dtype}", frame=frame
+        )
+    if image.ndim == 3:
+        channels = image.shape[2]
+        if channels == 1:
+            image = image[:, :, 0]
+        elif channels == 3:
+            image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        elif channels == 4:
+            image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
+        else:
+            raise InputFileError(
+                path, f"intensity image has {channels} channels (expected 1, 3 or 4)", frame=frame
+            )
+    scale = np.float32(1.0 / np.iinfo(image.dtype).max)
+    return image.astype(np.float32) * scale
+
+
+def read_mask_image(path: str | PathLike[str], *, frame: int | None = None) -> NDArray[np.bool_]:
+    """Read a mask image (PNG or JPEG, any bit depth): True where gray >= half the dtype max.
+
+    The threshold at 50 % (128 for 8-bit) makes JPEG ringing near the edges harmless.
+    """
+    gray = read_intensity_image(path, frame=frame)
+    return gray >= np.float32(0.5)
+
+
+class QuantizationReport:
+    """Accumulates what was lost when depth was rounded to integer units (warned once)."""
+
+    def __init__(self, unit_mm: float) -> None:
+        self.unit_mm = float(unit_mm)
+        self.valid = 0
+        self.clipped_high = 0
+        self.clipped_low = 0
+        self.off_grid = False
+        self.noise_estimates: list[float] = []
+
+    def add(self, depth: np.ndarray, stored: np.ndarray) -> None:
+        """Record one frame: ``depth`` (H, W) mm float, ``stored`` the unit values before clip."""
+        valid = np.isfinite(depth)
+        n_valid = int(valid.sum())
+        self.valid += n_valid
+        if not n_valid:
+            return
+        s = stored[valid]
+        self.clipped_high += int((s > 65535).sum())
+        self.clipped_low += int((s < 1).sum())
+        units = depth[valid] / self.unit_mm
+        if not self.off_grid and np.abs(units - np.round(units)).max() > 1e-3:
+            self.off_grid = True
+        if self.off_grid and len(self.noise_estimates) < 8:
+            diffs = np.abs(np.diff(depth, axis=1))
+            diffs = diffs[np.isfinite(diffs)]
+            if diffs.size >= 100:
+                # robust per-pixel noise from horizontal neighbour differences (MAD, sqrt 2)
+                self.noise_estimates.append(float(np.median(diffs)) * 1.4826 / np.sqrt(2.0))
+
+    def warn(self, where: str) -> None:
+        """Emit one ``UserWarning`` if values were clipped or precision was badly lost."""
+        problems = []
+        if self.clipped_high:
+            problems.append(
+                f"{self.clipped_high} depth values above {65535 * self.unit_mm:g} mm were clipped "
+                f"to the 16-bit maximum (use a larger depth_unit_mm)"
+            )
+        if self.clipped_low:
+            problems.append(
+                f"{self.clipped_low} valid depth values below {0.5 * self.unit_mm:g} mm were "
+                f"raised to 1 unit ({self.unit_mm:g} mm) so that they stay valid"
+            )
+        if self.off_grid and self.noise_estimates:
+            noise = float(np.median(self.noise_estimates))
+            rms = self.unit_mm / np.sqrt(12.0)
+            if rms > 0.5 * noise:
+                problems.append(
+                    f"depth_unit_mm={self.unit_mm:g} is coarse for this data: rounding adds "
+                    f"{rms:.3g} mm RMS error against an estimated pixel noise of {noise:.3g} mm "
+                    f"(use a smaller depth_unit_mm or the .npz format)"
+                )
+        if problems:
+            warnings.warn(f"{where}: " + "; ".join(problems), UserWarning, stacklevel=4)
+
+
+def depth_to_units(
+    depth: np.ndarray, unit_mm: float, report: QuantizationReport | None = None
+) -> NDArray[np.uint16]:
+    """Depth (H, W) mm (NaN/<=0 invalid) → uint16 units, rounded and clipped to [1, 65535].
+
+    Invalid pixels become 0. Clipping and precision loss are recorded in ``report``.
+    """
+    d = np.asarray(depth, dtype=np.float64)
+    valid = np.isfinite(d) & (d > 0)
+    d = np.where(valid, d, np.nan)
+    stored = np.round(d / unit_mm)
+    if report is not None:
+        report.add(d, stored)
+    out = np.zeros(d.shape, dtype=np.uint16)
+    out[valid] = np.clip(stored[valid], 1, 65535).astype(np.uint16)
+    return out
+
+
+def intensity_to_uint(intensity: np.ndarray, bits: int) -> np.ndarray:
+    """Intensity (H, W) in [0, 1] → uint8 or uint16 (rounded, clipped)."""
+    top = 255 if bits == 8 else 65535
+    dtype = np.uint8 if bits == 8 else np.uint16
+    i = np.nan_to_num(np.asarray(intensity, dtype=np.float64), nan=0.0)
+    return np.clip(np.round(i * top), 0, top).astype(dtype)
+
+
+def encode_png(image: np.ndarray, path: str | PathLike[str]) -> None:
+    """Write ``image`` (uint8/uint16, 2-D) as PNG to exactly ``path`` (no atomicity here)."""
+    ok, buf = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:  # pragma: no cover - OpenCV only fails on unsupported dtypes
+        raise ValueError(f"{path}: OpenCV could not encode the image as PNG")
+    Path(path).write_bytes(buf.tobytes())
+
+
+def check_frame_shape(
+    image: np.ndarray,
+    expected: tuple[int, int],
+    path: str | PathLike[str],
+    frame: int,
+    *,
+    against: str,
+) -> None:
+    """Raise :class:`InputFileError` unless ``image.shape[:2] == expected`` (H, W)."""
+    shape = image.shape[:2]
+    if shape != tuple(expected):
+        raise InputFileError(
+            path,
+            f"image is {shape[1]}x{shape[0]} but {against} is {expected[1]}x{expected[0]} (WxH)",
+            frame=frame,
+        )

@@ -1,0 +1,241 @@
+"""Format detection and the format-independent entry points (``load_sequence`` & co.)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from os import PathLike
+from pathlib import Path
+
+from ..camera import Intrinsics
+from ..errors import InputFileError
+from ..sequence import Sequence
+from ._base import Frame, FrameReader, FrameSelection, IntrinsicsLike, ProgressCallback
+from .cv2xml import Cv2XmlReader, is_cv2_xml_folder
+from .folder import FolderReader, write_frame_folder
+from .framesjson import FramesJsonReader
+from .npz import NpzReader, write_npz
+from .tum import TumReader
+
+__all__ = [
+    "READ_FORMATS",
+    "WRITE_FORMATS",
+    "count_frames",
+    "detect_format",
+    "iter_frames",
+    "load_sequence",
+    "open_frames",
+    "read_intrinsics",
+    "save_sequence",
+]
+
+#: Layouts :func:`load_sequence` reads, with their reader classes.
+READ_FORMATS: dict[str, type[FrameReader]] = {
+    "npz": NpzReader,
+    "folder": FolderReader,
+    "tum": TumReader,
+    "cv2-xml": Cv2XmlReader,
+    "frames-json": FramesJsonReader,
+}
+#: Formats :func:`save_sequence` writes.
+WRITE_FORMATS = ("npz", "folder")
+
+
+def detect_format(path: str | PathLike[str]) -> str:
+    """Name the layout of ``path`` (one of :data:`READ_FORMATS`).
+
+    Rules, in order: a ``*.npz`` file → ``npz``; a ``frames.json`` file or a folder holding
+    one → ``frames-json``; a folder with ``rgb.txt`` and ``depth.txt`` → ``tum``; a folder
+    with a ``depth/`` subfolder → ``folder``; a folder with ``NNNN_depth.png`` next to
+    ``NNNN_camera.xml`` → ``cv2-xml``.
+
+    Raises
+    ------
+    InputFileError
+        If ``path`` does not exist or matches no layout.
+    """
+    p = Path(path)
+    if p.is_file():
+        if p.suffix.lower() == ".npz":
+            return "npz"
+        if p.name == "frames.json":
+            return "frames-json"
+        raise InputFileError(p, "unknown file type (expected a .npz file or a sequence folder)")
+    if not p.is_dir():
+        raise InputFileError(p, "file or folder not found")
+    if (p / "frames.json").is_file():
+        return "frames-json"
+    if (p / "rgb.txt").is_file() and (p / "depth.txt").is_file():
+        return "tum"
+    if (p / "depth").is_dir():
+        return "folder"
+    if is_cv2_xml_folder(p):
+        return "cv2-xml"
+    raise InputFileError(
+        p,
+        "no depth frames found (expected depth/000000.png ... with camera.json, a TUM "
+        "rgb.txt/depth.txt, a frames.json, or NNNN_depth.png + NNNN_camera.xml)",
+    )
+
+
+def open_frames(
+    path: str | PathLike[str],
+    *,
+    format: str | None = None,
+    depth_unit_mm: float | None = None,
+    intrinsics: IntrinsicsLike | None = None,
+) -> FrameReader:
+    """Open a recording for lazy, frame-by-frame reading (memory independent of its length).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        A ``.npz`` file or a sequence folder.
+    format : str, optional
+        Force a layout (see :data:`READ_FORMATS`); default: :func:`detect_format`.
+    depth_unit_mm : float, optional
+        Millimetres per stored depth unit; overrides the layout's own value (``camera.json``,
+        ``depth_scale``, TUM's 0.2 mm). Not allowed for ``npz`` (already mm).
+    intrinsics : IntrinsicsLike, optional
+        Overrides the stored camera; required for TUM folders without ``camera.json``.
+
+    Returns
+    -------
+    FrameReader
+        ``len(reader)``, ``reader[k]``, ``for frame in reader``, ``reader.intrinsics``,
+        ``reader.read_sequence(frames)``.
+
+    Examples
+    --------
+    >>> with open_frames("recording/") as reader:  # doctest: +SKIP
+    ...     for frame in reader:
+    ...         process(frame.depth, frame.intensity)
+    """
+    fmt = format or detect_format(path)
+    if fmt not in READ_FORMATS:
+        raise ValueError(f"format must be one of {', '.join(READ_FORMATS)}, got {fmt!r}")
+    if fmt == "npz":
+        if depth_unit_mm is not None:
+            raise ValueError("depth_unit_mm does not apply to .npz files (depth is stored in mm)")
+        if intrinsics is not None:
+            raise ValueError(".npz files store their intrinsics; intrinsics= is not allowed")
+        return NpzReader(path)
+    cls = READ_FORMATS[fmt]
+    return cls(path, depth_unit_mm=depth_unit_mm, intrinsics=intrinsics)  # type: ignore[call-arg]
+
+
+def load_sequence(
+    path: str | PathLike[str],
+    *,
+    frames: FrameSelection = None,
+    depth_unit_mm: float | None = None,
+    intrinsics: IntrinsicsLike | None = None,
+    format: str | None = None,
+    progress: ProgressCallback | None = None,
+) -> Sequence:
+    """Load a recording in any supported layout into a :class:`~fuse4d.Sequence`.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        A ``.npz`` file or a sequence folder (``folder``, ``tum``, ``cv2-xml``,
+        ``frames-json``; see ``docs/formats.md``).
+    frames : slice, range, (start, stop), "A:B" or None, optional
+        Contiguous frame range (default: all).
+    depth_unit_mm, intrinsics, format
+        See :func:`open_frames`.
+    progress : callable, optional
+        ``callback(done, total)`` after each frame.
+
+    Returns
+    -------
+    Sequence
+        Depth (T, H, W) float32 mm with NaN = invalid, intensity (T, H, W) float32 in [0, 1],
+        intrinsics, timestamps (s) where the layout stores them, fps, and ground truth
+        (``mask`` for layouts with object masks; depth/mask/flow GT from npz).
+
+    Raises
+    ------
+    InputFileError
+        Missing, corrupt or inconsistent input, naming the file and frame.
+    """
+    reader = open_frames(path, format=format, depth_unit_mm=depth_unit_mm, intrinsics=intrinsics)
+    with reader:
+        return reader.read_sequence(frames, progress=progress)
+
+
+def iter_frames(
+    path: str | PathLike[str],
+    *,
+    frames: FrameSelection = None,
+    depth_unit_mm: float | None = None,
+    intrinsics: IntrinsicsLike | None = None,
+    format: str | None = None,
+) -> Iterator[Frame]:
+    """Yield the frames of a recording one at a time (see :class:`~fuse4d.io.Frame`)."""
+    with open_frames(
+        path, format=format, depth_unit_mm=depth_unit_mm, intrinsics=intrinsics
+    ) as reader:
+        yield from reader.iter_frames(frames)
+
+
+def read_intrinsics(
+    path: str | PathLike[str],
+    *,
+    intrinsics: IntrinsicsLike | None = None,
+    format: str | None = None,
+) -> Intrinsics:
+    """The camera of a recording, without reading its frames (beyond the first's size)."""
+    with open_frames(path, format=format, intrinsics=intrinsics) as reader:
+        return reader.intrinsics
+
+
+def count_frames(
+    path: str | PathLike[str],
+    *,
+    intrinsics: IntrinsicsLike | None = None,
+    format: str | None = None,
+) -> int:
+    """Number of frames of a recording, without reading them."""
+    with open_frames(path, format=format, intrinsics=intrinsics) as reader:
+        return len(reader)
+
+
+def save_sequence(
+    seq: Sequence,
+    path: str | PathLike[str],
+    *,
+    format: str | None = None,
+    overwrite: bool = False,
+    depth_unit_mm: float = 1.0,
+    progress: ProgressCallback | None = None,
+) -> Path:
+    """Write a sequence atomically as ``.npz`` (lossless, keeps ground truth) or a frame folder.
+
+    Parameters
+    ----------
+    seq : Sequence
+        The sequence.
+    path : str or PathLike
+        Output; ``format`` defaults to ``npz`` for a ``.npz`` suffix and ``folder`` otherwise.
+    format : {"npz", "folder"}, optional
+    overwrite : bool, optional
+        Replace an existing output. Default False (:class:`~fuse4d.OutputExistsError`).
+    depth_unit_mm : float, optional
+        Folder format only: millimetres per stored unit (default 1.0). Values are rounded and
+        clipped to 16 bit with a ``UserWarning`` on clipping or coarse rounding.
+    progress : callable, optional
+        ``callback(done, total)`` (folder format).
+
+    Returns
+    -------
+    Path
+        The written file or folder.
+    """
+    fmt = format or ("npz" if Path(path).suffix.lower() == ".npz" else "folder")
+    if fmt == "npz":
+        return write_npz(seq, path, overwrite=overwrite)
+    if fmt == "folder":
+        return write_frame_folder(
+            seq, path, depth_unit_mm=depth_unit_mm, overwrite=overwrite, progress=progress
+        )
+    raise ValueError(f"format must be one of {', '.join(WRITE_FORMATS)}, got {fmt!r}")

@@ -1,0 +1,458 @@
+"""The frame-folder sequence format: one 16-bit depth PNG and one intensity image per frame.
+
+Layout::
+
+    SEQ/
+      camera.json          {"fx": 525.0, "fy": 525.0, "cx": 319.5, "cy": 239.5,
+                            "depth_unit_mm": 1.0, "fps": 30.0}      (fps optional)
+      depth/000000.png     uint16; value * depth_unit_mm = depth in mm; 0 = invalid
+      intensity/000000.png 8- or 16-bit, gray or colour (converted to gray); .jpg allowed
+      mask/000000.png      optional object mask (>= 50 % of max = True) -> GroundTruth.mask
+      timestamps.txt       optional, one time in seconds per line
+
+Frames are numbered 0, 1, 2, ... without gaps (any number of digits; the writer uses 6).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import warnings
+from contextlib import ExitStack
+from os import PathLike
+from pathlib import Path
+from types import TracebackType
+from typing import Self
+
+import numpy as np
+
+from ..camera import Intrinsics
+from ..errors import InputFileError
+from ..sequence import Sequence
+from ._atomic import atomic_dir, check_output
+from ._base import (
+    Frame,
+    FrameReader,
+    IntrinsicsLike,
+    ProgressCallback,
+    _check_size,
+    read_camera_json,
+    resolve_intrinsics,
+)
+from ._images import (
+    QuantizationReport,
+    check_frame_shape,
+    decode_image,
+    depth_to_units,
+    encode_png,
+    intensity_to_uint,
+    read_depth_png,
+    read_intensity_image,
+    read_mask_image,
+)
+
+__all__ = ["FolderReader", "FrameFolderWriter", "read_frame_folder", "write_frame_folder"]
+
+_NUMBERED = re.compile(r"^(\d+)$")
+_INTENSITY_EXT = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
+
+
+def _numbered_files(folder: Path, extensions: tuple[str, ...]) -> dict[int, Path]:
+    if not folder.is_dir():
+        return {}
+    found: dict[int, Path] = {}
+    for p in folder.iterdir():
+        m = _NUMBERED.match(p.stem)
+        if m and p.suffix.lower() in extensions and p.is_file():
+            found[int(m.group(1))] = p
+    return found
+
+
+def _check_contiguous(files: dict[int, Path], folder: Path, ext: str) -> None:
+    for k in range(len(files)):
+        if k not in files:
+            width = len(next(iter(files.values())).stem)
+            raise InputFileError(
+                folder / f"{k:0{width}d}{ext}",
+                "file not found (frames must be numbered 0, 1, 2, ... without gaps)",
+                frame=k,
+            )
+
+
+class FolderReader(FrameReader):
+    """Frame reader for a frame folder (see the module docstring for the layout).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The sequence folder.
+    depth_unit_mm : float, optional
+        Overrides ``depth_unit_mm`` of ``camera.json``.
+    intrinsics : IntrinsicsLike, optional
+        Overrides ``fx, fy, cx, cy`` of ``camera.json`` (which may then be absent, if
+        ``depth_unit_mm`` is given as well).
+
+    Raises
+    ------
+    InputFileError
+        Empty/missing ``depth/``, gaps in the numbering, intensity/mask counts differing from
+        depth, missing or incomplete ``camera.json``, unreadable first frame.
+    """
+
+    format = "folder"
+
+    def __init__(
+        self,
+        path: str | PathLike[str],
+        *,
+        depth_unit_mm: float | None = None,
+        intrinsics: IntrinsicsLike | None = None,
+    ) -> None:
+        self.path = root = Path(path)
+        if not root.is_dir():
+            raise InputFileError(root, "folder not found")
+        self._depth = _numbered_files(root / "depth", (".png",))
+        if not self._depth:
+            raise InputFileError(
+                root, "no depth frames found (expected depth/000000.png, depth/000001.png, ...)"
+            )
+        _check_contiguous(self._depth, root / "depth", ".png")
+        n = len(self._depth)
+        self._intensity = _numbered_files(root / "intensity", _INTENSITY_EXT)
+        if not self._intensity:
+            raise InputFileError(
+                root, "no intensity frames found (expected intensity/000000.png, ...)"
+            )
+        _check_contiguous(self._intensity, root / "intensity", ".png")
+        if len(self._intensity) != n:
+            raise InputFileError(
+                root / "intensity",
+                f"{len(self._intensity)} intensity frames but {n} depth frames; "
+                "every depth frame needs an intensity frame",
+            )
+        self._mask = _numbered_files(root / "mask", _INTENSITY_EXT)
+        if self._mask:
+            _check_contiguous(self._mask, root / "mask", ".png")
+            if len(self._mask) != n:
+                raise InputFileError(
+                    root / "mask", f"{len(self._mask)} mask frames but {n} depth frames"
+                )
+            self.ground_truth_keys = ("mask",)
+        first = decode_image(self._depth[0], frame=0)
+        h, w = first.shape[:2]
+        cam_path = root / "camera.json"
+        cam: dict[str, float | None] = {}
+        if intrinsics is None or depth_unit_mm is None or cam_path.exists():
+            if not cam_path.exists():
+                raise InputFileError(
+                    cam_path,
+                    "file not found (a frame folder needs camera.json with fx, fy, cx, cy, "
+                    "depth_unit_mm)",
+                )
+            cam = read_camera_json(cam_path, require_unit=depth_unit_mm is None)
+            _check_size(cam, w, h, cam_path)
+        unit = depth_unit_mm if depth_unit_mm is not None else cam["depth_unit_mm"]
+        if unit is None or not unit > 0:
+            raise ValueError(f"depth_unit_mm must be > 0, got {unit!r}")
+        self.depth_unit_mm = float(unit)
+        if intrinsics is not None:
+            self.intrinsics = resolve_intrinsics(intrinsics, width=w, height=h)
+        else:
+            self.intrinsics = Intrinsics(
+                cam["fx"], cam["fy"], cam["cx"], cam["cy"], width=w, height=h
+            )
+        self.fps = cam.get("fps")
+        ts_path = root / "timestamps.txt"
+        if ts_path.exists():
+            self.timestamps = _read_timestamps(ts_path, n)
+
+    def __len__(self) -> int:
+        return len(self._depth)
+
+    def read_frame(self, index: int) -> Frame:
+        """Frame ``index``: depth (H, W) mm float32 (NaN invalid), intensity (H, W) [0, 1]."""
+        k = self._index(index)
+        depth = read_depth_png(self._depth[k], frame=k, unit_mm=self.depth_unit_mm or 1.0)
+        check_frame_shape(depth, self.shape, self._depth[k], k, against="frame 0")
+        intensity = read_intensity_image(self._intensity[k], frame=k)
+        check_frame_shape(intensity, self.shape, self._intensity[k], k, against="the depth frame")
+        mask = None
+        if self._mask:
+            mask = read_mask_image(self._mask[k], frame=k)
+            check_frame_shape(mask, self.shape, self._mask[k], k, against="the depth frame")
+        ts = None if self.timestamps is None else float(self.timestamps[k])
+        return Frame(k, depth, intensity, ts, mask)
+
+
+def _read_timestamps(path: Path, n: int) -> np.ndarray:
+    try:
+        values = [
+            float(line.split()[0])
+            for line in path.read_text(encoding="utf-8").splitlines()
+            if line.strip() and not line.lstrip().startswith("#")
+        ]
+    except ValueError as exc:
+        raise InputFileError(path, f"cannot parse timestamps ({exc})") from None
+    if len(values) != n:
+        raise InputFileError(path, f"{len(values)} timestamps for {n} frames")
+    ts = np.asarray(values, dtype=np.float64)
+    if n > 1 and not np.all(np.diff(ts) > 0):
+        raise InputFileError(path, "timestamps must be strictly increasing")
+    return ts
+
+
+def read_frame_folder(
+    path: str | PathLike[str],
+    *,
+    frames: slice | range | tuple[int | None, int | None] | str | None = None,
+    depth_unit_mm: float | None = None,
+    intrinsics: IntrinsicsLike | None = None,
+    progress: ProgressCallback | None = None,
+) -> Sequence:
+    """Read a frame folder into a :class:`~fuse4d.Sequence` (depth mm, NaN = invalid).
+
+    See :class:`FolderReader` for the parameters and errors; ``frames`` selects a contiguous
+    range. A ``mask/`` folder becomes ``ground_truth.mask``.
+    """
+    reader = FolderReader(path, depth_unit_mm=depth_unit_mm, intrinsics=intrinsics)
+    return reader.read_sequence(frames, progress=progress)
+
+
+class FrameFolderWriter:
+    """Write a frame folder frame by frame; the folder appears at ``path`` only when complete.
+
+    Frames are written into a hidden temporary folder next to ``path``; :meth:`close` (or
+    leaving the ``with`` block without error) writes ``camera.json`` and renames the folder
+    into place. If an exception escapes the ``with`` block, the temporary folder is deleted
+    and ``path`` is left as it was.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        Destination folder.
+    intrinsics : Intrinsics
+        Camera; frames must be ``(intrinsics.height, intrinsics.width)``.
+    depth_unit_mm : float, optional
+        Millimetres per stored unit (default 1.0: 1 mm steps, range up to 65.535 m). Depth is
+        rounded to the unit and clipped to [1, 65535] units; one ``UserWarning`` at close
+        reports clipped values and a unit that is coarse compared with the data's noise.
+    fps : float, optional
+        Stored in ``camera.json``.
+    intensity_bits : {8, 16} or None, optional
+        Bit depth of the intensity PNGs; None (default) picks 8 when a frame is exactly
+        representable in 8 bits and 16 otherwise.
+    overwrite : bool, optional
+        Replace an existing ``path``. Default False (raises :class:`OutputExistsError`).
+
+    Examples
+    --------
+    >>> with FrameFolderWriter(out, seq.intrinsics) as writer:  # doctest: +SKIP
+    ...     for depth, intensity in zip(seq.depth, seq.intensity):
+    ...         writer.write(depth, intensity)
+    """
+
+    def __init__(
+        self,
+        path: str | PathLike[str],
+        intrinsics: Intrinsics,
+        *,
+        depth_unit_mm: float = 1.0,
+        fps: float | None = None,
+        intensity_bits: int | None = None,
+        overwrite: bool = False,
+    ) -> None:
+        if not isinstance(intrinsics, Intrinsics):
+            raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics)}")
+        if not (np.isfinite(depth_unit_mm) and depth_unit_mm > 0):
+            raise ValueError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
+        if intensity_bits not in (None, 8, 16):
+            raise ValueError(f"intensity_bits must be 8, 16 or None, got {intensity_bits!r}")
+        if fps is not None and not (np.isfinite(fps) and fps > 0):
+            raise ValueError(f"fps must be > 0, got {fps!r}")
+        self.path = check_output(path, overwrite=overwrite)
+        self.intrinsics = intrinsics
+        self.depth_unit_mm = float(depth_unit_mm)
+        self.fps = fps
+        self.intensity_bits = intensity_bits
+        self.overwrite = overwrite
+        self.num_written = 0
+        self._timestamps: list[float | None] = []
+        self._has_mask: bool | None = None
+        self._report = QuantizationReport(self.depth_unit_mm)
+        self._stack: ExitStack | None = None
+        self._tmp: Path | None = None
+
+    def __enter__(self) -> Self:
+        self.open()
+        return self
+
+    def open(self) -> None:
+        """Create the temporary folder (called by ``with``)."""
+        if self._stack is not None:
+            raise RuntimeError("FrameFolderWriter is already open")
+        stack = ExitStack()
+        self._tmp = stack.enter_context(atomic_dir(self.path, overwrite=self.overwrite))
+        self._stack = stack
+        (self._tmp / "depth").mkdir()
+        (self._tmp / "intensity").mkdir()
+
+    def write(
+        self,
+        depth: np.ndarray,
+        intensity: np.ndarray,
+        *,
+        mask: np.ndarray | None = None,
+        timestamp: float | None = None,
+    ) -> None:
+        """Append one frame.
+
+        Parameters
+        ----------
+        depth : (H, W) ndarray
+            Depth in mm; NaN, inf and values <= 0 are stored as 0 (invalid).
+        intensity : (H, W) ndarray of float
+            Intensity in [0, 1] (values outside are clipped).
+        mask : (H, W) ndarray of bool, optional
+            Object mask (all frames or none).
+        timestamp : float, optional
+            Capture time in seconds (all frames or none).
+        """
+        if self._tmp is None:
+            raise RuntimeError("FrameFolderWriter is not open; use it in a `with` block")
+        shape = self.intrinsics.shape
+        for name, arr in (("depth", depth), ("intensity", intensity), ("mask", mask)):
+            if arr is not None and np.shape(arr) != shape:
+                raise ValueError(
+                    f"{name} of frame {self.num_written} has shape {np.shape(arr)}, expected "
+                    f"{shape} (the intrinsics' height x width)"
+                )
+        if self._has_mask is None:
+            self._has_mask = mask is not None
+            if self._has_mask:
+                (self._tmp / "mask").mkdir()
+        elif self._has_mask != (mask is not None):
+            raise ValueError(f"frame {self.num_written}: give a mask for every frame or for none")
+        k = self.num_written
+        name = f"{k:06d}.png"
+        encode_png(
+            depth_to_units(depth, self.depth_unit_mm, self._report), self._tmp / "depth" / name
+        )
+        encode_png(self._intensity_image(intensity), self._tmp / "intensity" / name)
+        if mask is not None:
+            encode_png(np.where(np.asarray(mask, bool), 255, 0).astype(np.uint8),
+                       self._tmp / "mask" / name)  # fmt: skip
+        self._timestamps.append(None if timestamp is None else float(timestamp))
+        self.num_written += 1
+
+    def _intensity_image(self, intensity: np.ndarray) -> np.ndarray:
+        bits = self.intensity_bits
+        if bits is None:
+            i8 = intensity_to_uint(intensity, 8)
+            exact = np.allclose(i8 / 255.0, np.nan_to_num(intensity), rtol=0, atol=1e-6)
+            return i8 if exact else intensity_to_uint(intensity, 16)
+        return intensity_to_uint(intensity, bits)
+
+    def close(self) -> None:
+        """Finish: write ``camera.json`` (+ ``timestamps.txt``) and move the folder into place."""
+        if self._stack is None or self._tmp is None:
+            return
+        stack, self._stack = self._stack, None
+        try:
+            if self.num_written == 0:
+                raise ValueError(f"{self.path}: no frame was written")
+            cam: dict[str, float | int] = {
+                "fx": self.intrinsics.fx,
+                "fy": self.intrinsics.fy,
+                "cx": self.intrinsics.cx,
+                "cy": self.intrinsics.cy,
+                "width": self.intrinsics.width,
+                "height": self.intrinsics.height,
+                "depth_unit_mm": self.depth_unit_mm,
+            }
+            if self.fps is not None:
+                cam["fps"] = float(self.fps)
+            (self._tmp / "camera.json").write_text(json.dumps(cam, indent=2) + "\n")
+            stamps = self._timestamps
+            if any(t is not None for t in stamps):
+                if any(t is None for t in stamps):
+                    raise ValueError("give a timestamp for every frame or for none")
+                text = "".join(f"{t:.6f}\n" for t in stamps)
+                (self._tmp / "timestamps.txt").write_text(text)
+        except BaseException as exc:
+            stack.__exit__(type(exc), exc, exc.__traceback__)
+            raise
+        stack.close()
+        self._tmp = None
+        self._report.warn(str(self.path))
+
+    def abort(self) -> None:
+        """Discard everything written so far; ``path`` is left untouched."""
+        if self._stack is None:
+            return
+        stack, self._stack, self._tmp = self._stack, None, None
+        err = RuntimeError("aborted")
+        stack.__exit__(RuntimeError, err, None)
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+def write_frame_folder(
+    seq: Sequence,
+    path: str | PathLike[str],
+    *,
+    depth_unit_mm: float = 1.0,
+    intensity_bits: int | None = None,
+    overwrite: bool = False,
+    progress: ProgressCallback | None = None,
+) -> Path:
+    """Write a sequence as a frame folder, atomically (see :class:`FrameFolderWriter`).
+
+    ``ground_truth.mask`` is written to ``mask/``; ground-truth depth, flow and extras cannot
+    be stored in this format (a ``UserWarning`` says so; use :func:`write_npz` to keep them).
+
+    Returns
+    -------
+    Path
+        The written folder.
+    """
+    gt = seq.ground_truth
+    if gt is not None:
+        dropped = [n for n, v in (("depth", gt.depth), ("flow", gt.flow)) if v is not None]
+        dropped += [f"extra[{k!r}]" for k in gt.extra]
+        if dropped:
+            warnings.warn(
+                f"{path}: the frame-folder format does not store ground-truth "
+                f"{', '.join(dropped)}; use .npz to keep them",
+                UserWarning,
+                stacklevel=2,
+            )
+    masks = None if gt is None else gt.mask
+    stamps = seq.timestamps
+    writer = FrameFolderWriter(
+        path,
+        seq.intrinsics,
+        depth_unit_mm=depth_unit_mm,
+        fps=seq.fps,
+        intensity_bits=intensity_bits,
+        overwrite=overwrite,
+    )
+    with writer:
+        for t in range(seq.num_frames):
+            writer.write(
+                seq.depth[t],
+                seq.intensity[t],
+                mask=None if masks is None else masks[t],
+                timestamp=None if stamps is None else float(stamps[t]),
+            )
+            if progress is not None:
+                progress(t + 1, seq.num_frames)
+    return Path(path)

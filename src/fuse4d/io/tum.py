@@ -1,0 +1,220 @@
+"""The TUM RGB-D benchmark layout: ``rgb.txt``/``depth.txt`` lists associated by timestamp.
+
+Layout::
+
+    SEQ/rgb.txt       "# comment" lines, then "timestamp filename" (seconds, path relative to SEQ)
+    SEQ/depth.txt     same, for the 16-bit depth PNGs (value / 5000 = metres, 0 = invalid)
+    SEQ/camera.json   optional: fx, fy, cx, cy (px) [, depth_unit_mm]
+
+Association follows TUM's ``associate.py``: every (depth, rgb) pair whose timestamps differ by
+at most ``max_difference`` seconds is a candidate, candidates are taken greedily in order of
+increasing difference, each image used at most once; frames are ordered by depth timestamp and
+carry the depth timestamp. TUM folders carry no intrinsics: give ``intrinsics=`` (a preset
+such as ``"freiburg1"``, see :data:`~fuse4d.io.CAMERA_PRESETS`) or a ``camera.json``; fuse4d
+never guesses them.
+"""
+
+from __future__ import annotations
+
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import Intrinsics
+from ..errors import InputFileError
+from ..sequence import Sequence
+from ._base import (
+    CAMERA_PRESETS,
+    Frame,
+    FrameReader,
+    FrameSelection,
+    IntrinsicsLike,
+    ProgressCallback,
+    _check_size,
+    read_camera_json,
+    resolve_intrinsics,
+)
+from ._images import check_frame_shape, decode_image, read_depth_png, read_intensity_image
+
+__all__ = ["TUM_DEPTH_UNIT_MM", "TumReader", "associate_timestamps", "read_tum"]
+
+#: TUM depth PNGs store 5000 units per metre: one unit = 0.2 mm.
+TUM_DEPTH_UNIT_MM = 0.2
+
+
+def _read_list(path: Path) -> tuple[np.ndarray, list[str]]:
+    if not path.is_file():
+        raise InputFileError(path, "file not found (a TUM folder needs rgb.txt and depth.txt)")
+    stamps: list[float] = []
+    names: list[str] = []
+    for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        parts = text.replace(",", " ").split()
+        try:
+            if len(parts) < 2:
+                raise ValueError
+            stamps.append(float(parts[0]))
+        except ValueError:
+            raise InputFileError(
+                path, f"line {lineno}: expected 'timestamp filename', got {text!r}"
+            ) from None
+        names.append(parts[1])
+    if not names:
+        raise InputFileError(path, "lists no image")
+    return np.asarray(stamps, dtype=np.float64), names
+
+
+def associate_timestamps(
+    first: np.ndarray, second: np.ndarray, *, max_difference: float = 0.02
+) -> list[tuple[int, int]]:
+    """Match two timestamp lists (seconds) like TUM's ``associate.py``.
+
+    Returns
+    -------
+    list of (i, j)
+        Index pairs with ``|first[i] - second[j]| <= max_difference``, each index used once,
+        chosen greedily by increasing difference, sorted by ``i``.
+    """
+    a = np.asarray(first, dtype=np.float64)
+    b = np.asarray(second, dtype=np.float64)
+    order = np.argsort(b, kind="stable")
+    bs = b[order]
+    lo = np.searchsorted(bs, a - max_difference, side="left")
+    hi = np.searchsorted(bs, a + max_difference, side="right")
+    candidates = [
+        (abs(a[i] - bs[j]), i, int(order[j]))
+        for i in range(a.size)
+        for j in range(lo[i], hi[i])
+        if abs(a[i] - bs[j]) <= max_difference
+    ]
+    candidates.sort()
+    used_a: set[int] = set()
+    used_b: set[int] = set()
+    pairs = []
+    for _, i, j in candidates:
+        if i not in used_a and j not in used_b:
+            used_a.add(i)
+            used_b.add(j)
+            pairs.append((i, j))
+    pairs.sort()
+    return pairs
+
+
+class TumReader(FrameReader):
+    """Frame reader for a TUM RGB-D folder (see the module docstring).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The sequence folder (holding ``rgb.txt`` and ``depth.txt``).
+    depth_unit_mm : float, optional
+        Default: ``camera.json``'s ``depth_unit_mm`` if present, else 0.2 (factor 5000).
+    intrinsics : IntrinsicsLike, optional
+        Required unless the folder has a ``camera.json``.
+    max_difference : float, optional
+        Largest accepted depth/rgb time difference in seconds (default 0.02).
+
+    Raises
+    ------
+    InputFileError
+        Missing lists, unparsable lines, no associated pair, missing intrinsics.
+    """
+
+    format = "tum"
+
+    def __init__(
+        self,
+        path: str | PathLike[str],
+        *,
+        depth_unit_mm: float | None = None,
+        intrinsics: IntrinsicsLike | None = None,
+        max_difference: float = 0.02,
+    ) -> None:
+        self.path = root = Path(path)
+        if not root.is_dir():
+            raise InputFileError(root, "folder not found")
+        if not max_difference >= 0:
+            raise ValueError(f"max_difference must be >= 0 seconds, got {max_difference!r}")
+        depth_ts, depth_names = _read_list(root / "depth.txt")
+        rgb_ts, rgb_names = _read_list(root / "rgb.txt")
+        pairs = associate_timestamps(depth_ts, rgb_ts, max_difference=max_difference)
+        if not pairs:
+            raise InputFileError(
+                root,
+                f"no depth/rgb pair within {max_difference:g} s "
+                "(check rgb.txt and depth.txt, or raise max_difference)",
+            )
+        self._files = [(root / depth_names[i], root / rgb_names[j]) for i, j in pairs]
+        self.timestamps = np.asarray([depth_ts[i] for i, _ in pairs], dtype=np.float64)
+        if len(pairs) > 1 and not np.all(np.diff(self.timestamps) > 0):
+            raise InputFileError(root / "depth.txt", "timestamps must be strictly increasing")
+        notes = []
+        if len(pairs) < len(depth_names):
+            notes.append(
+                f"{len(depth_names) - len(pairs)} of {len(depth_names)} depth frames had no rgb "
+                f"frame within {max_difference:g} s and were skipped"
+            )
+        cam_path = root / "camera.json"
+        cam = read_camera_json(cam_path, require_unit=False) if cam_path.exists() else None
+        unit = depth_unit_mm
+        if unit is None:
+            unit = cam["depth_unit_mm"] if cam and cam["depth_unit_mm"] else TUM_DEPTH_UNIT_MM
+        if not unit > 0:
+            raise ValueError(f"depth_unit_mm must be > 0, got {unit!r}")
+        self.depth_unit_mm = float(unit)
+        image = decode_image(self._files[0][0], frame=0)
+        h, w = image.shape[:2]
+        if intrinsics is not None:
+            self.intrinsics = resolve_intrinsics(intrinsics, width=w, height=h)
+        elif cam is not None:
+            _check_size(cam, w, h, cam_path)
+            self.intrinsics = Intrinsics(
+                cam["fx"], cam["fy"], cam["cx"], cam["cy"], width=w, height=h
+            )
+            if cam.get("fps"):
+                self.fps = cam["fps"]
+        else:
+            hint = next((f" (the folder name suggests '{n}')" for n in CAMERA_PRESETS
+                         if n in root.resolve().name.lower()), "")  # fmt: skip
+            raise InputFileError(
+                root,
+                "no intrinsics: TUM folders do not store them; add camera.json with fx, fy, "
+                f"cx, cy or pass intrinsics= (one of {', '.join(CAMERA_PRESETS)}){hint}",
+            )
+        self.notes = tuple(notes)
+
+    def __len__(self) -> int:
+        return len(self._files)
+
+    def read_frame(self, index: int) -> Frame:
+        """Frame ``index``: depth (H, W) mm float32 (NaN invalid), intensity (H, W) [0, 1]."""
+        k = self._index(index)
+        depth_path, rgb_path = self._files[k]
+        depth = read_depth_png(depth_path, frame=k, unit_mm=self.depth_unit_mm or 1.0)
+        check_frame_shape(depth, self.shape, depth_path, k, against="frame 0")
+        intensity = read_intensity_image(rgb_path, frame=k)
+        check_frame_shape(intensity, self.shape, rgb_path, k, against="the depth frame")
+        ts = float(self.timestamps[k]) if self.timestamps is not None else None
+        return Frame(k, depth, intensity, ts, None)
+
+
+def read_tum(
+    path: str | PathLike[str],
+    *,
+    intrinsics: IntrinsicsLike | None = None,
+    frames: FrameSelection = None,
+    depth_unit_mm: float | None = None,
+    max_difference: float = 0.02,
+    progress: ProgressCallback | None = None,
+) -> Sequence:
+    """Read a TUM RGB-D folder into a :class:`~fuse4d.Sequence` (depth mm, NaN = invalid).
+
+    See :class:`TumReader` for the parameters; ``timestamps`` are the depth timestamps (s).
+    """
+    reader = TumReader(
+        path, depth_unit_mm=depth_unit_mm, intrinsics=intrinsics, max_difference=max_difference
+    )
+    return reader.read_sequence(frames, progress=progress)

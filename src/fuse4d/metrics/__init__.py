@@ -1,0 +1,51 @@
+"""Evaluation metrics of fuse4d (EVALUATION.md §1, §2).
+
+* roughness (paper Eq. 7) per pixel, its RMS-residual variant, and per-sequence statistics;
+* regions of interest (default edge-aware ROI, the synthetic scenes' ROIs);
+* shape correctness (paper Eq. 8) with MLESAC sphere fits;
+* depth RMSE, bad-pixel fraction, temporal flicker, flow end-point and angular errors.
+"""
+
+from __future__ import annotations
+
+from .accuracy import (
+    FlickerStats,
+    bad_pixel_fraction,
+    depth_rmse,
+    flow_angular_error,
+    flow_endpoint_error,
+    temporal_flicker,
+)
+from .roi import ball_roi, central_roi, default_roi, scene_roi, static_mask_from_ground_truth
+from .roughness import RoughnessStats, roughness, roughness_maps, roughness_rms, roughness_stats
+from .shape import (
+    ShapeCorrectness,
+    SphereFit,
+    circle_fit_mlesac,
+    shape_correctness,
+    sphere_fit_mlesac,
+)
+
+__all__ = [
+    "FlickerStats",
+    "RoughnessStats",
+    "ShapeCorrectness",
+    "SphereFit",
+    "bad_pixel_fraction",
+    "ball_roi",
+    "central_roi",
+    "circle_fit_mlesac",
+    "default_roi",
+    "depth_rmse",
+    "flow_angular_error",
+    "flow_endpoint_error",
+    "roughness",
+    "roughness_maps",
+    "roughness_rms",
+    "roughness_stats",
+    "scene_roi",
+    "shape_correctness",
+    "sphere_fit_mlesac",
+    "static_mask_from_ground_truth",
+    "temporal_flicker",
+]

@@ -1,0 +1,263 @@
+"""Accuracy against ground truth (depth RMSE, bad pixels, flow errors) and temporal flicker."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .._validation import as_float32, check_same_shape, check_shape
+from ..errors import ShapeError
+
+__all__ = [
+    "FlickerStats",
+    "bad_pixel_fraction",
+    "depth_rmse",
+    "flow_angular_error",
+    "flow_endpoint_error",
+    "temporal_flicker",
+]
+
+
+def _pair(
+    true: ArrayLike, test: ArrayLike, mask: ArrayLike | None, names: tuple[str, str]
+) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.bool_]]:
+    a = as_float32(true, name=names[0])
+    b = as_float32(test, name=names[1])
+    check_same_shape(a, b, names=names)
+    if mask is None:
+        m = np.ones(a.shape, dtype=bool)
+    else:
+        m = np.asarray(mask)
+        if m.dtype != np.bool_:
+            raise TypeError(f"mask must be a boolean array, got dtype {m.dtype}")
+    return a, b, m
+
+
+def _broadcast_mask(mask: NDArray[np.bool_], shape: tuple[int, ...]) -> NDArray[np.bool_]:
+    try:
+        return np.broadcast_to(mask, shape)
+    except ValueError:
+        raise ShapeError("mask", shape, mask.shape, "it must broadcast to the data") from None
+
+
+def depth_rmse(
+    depth_true: ArrayLike, depth_test: ArrayLike, *, mask: ArrayLike | None = None
+) -> float:
+    """Root-mean-square depth error (mm) over pixels valid in both maps (and in ``mask``).
+
+    Parameters
+    ----------
+    depth_true, depth_test : (..., H, W) ndarray
+        Ground-truth and estimated depth in mm, NaN = invalid.
+    mask : array of bool, optional
+        Pixels to evaluate (broadcast to the depth shape).
+
+    Returns
+    -------
+    float
+        RMSE in mm; NaN if no pixel qualifies. Missing test depth is *not* counted here (see
+        :func:`bad_pixel_fraction`, which counts it as bad).
+
+    Examples
+    --------
+    >>> depth_rmse(np.array([1.0, 2.0, np.nan]), np.array([1.0, 4.0, 3.0]))
+    1.4142135623730951
+    """
+    a, b, m = _pair(depth_true, depth_test, mask, ("depth_true", "depth_test"))
+    use = _broadcast_mask(m, a.shape) & np.isfinite(a) & np.isfinite(b)
+    if not use.any():
+        return math.nan
+    diff = a[use].astype(np.float64) - b[use]
+    return float(np.sqrt(np.mean(diff**2)))
+
+
+def bad_pixel_fraction(
+    depth_true: ArrayLike,
+    depth_test: ArrayLike,
+    *,
+    threshold: float = 1.0,
+    mask: ArrayLike | None = None,
+) -> float:
+    """Fraction of GT-valid pixels whose depth error exceeds ``threshold`` mm.
+
+    Pixels where the truth is valid but the test depth is NaN count as bad.
+
+    Parameters
+    ----------
+    depth_true, depth_test : (..., H, W) ndarray
+        Depth in mm, NaN = invalid.
+    threshold : float, optional
+        Error threshold in mm (``bad_1mm`` uses 1.0).
+    mask : array of bool, optional
+        Pixels to evaluate.
+
+    Returns
+    -------
+    float
+        In [0, 1]; NaN if no GT-valid pixel.
+
+    Examples
+    --------
+    >>> bad_pixel_fraction(np.array([1.0, 2.0, 3.0, 4.0]), np.array([1.5, 4.0, np.nan, 4.0]))
+    0.5
+    """
+    if not (math.isfinite(threshold) and threshold >= 0):
+        raise ValueError(f"threshold must be a finite number >= 0 (mm), got {threshold!r}")
+    a, b, m = _pair(depth_true, depth_test, mask, ("depth_true", "depth_test"))
+    use = _broadcast_mask(m, a.shape) & np.isfinite(a)
+    total = int(use.sum())
+    if total == 0:
+        return math.nan
+    with np.errstate(invalid="ignore"):
+        good = np.abs(a[use] - b[use]) <= np.float32(threshold)
+    return float(1.0 - good.sum() / total)
+
+
+@dataclass(frozen=True)
+class FlickerStats:
+    """Temporal flicker: per-pixel std over time (ddof = 0) of static pixels, mm.
+
+    Attributes
+    ----------
+    median : float
+        Median over pixels: the headline value (robust to a few pixels that are not truly
+        static on real data, e.g. an unmasked moving person).
+    mean : float
+        Mean over pixels.
+    num_pixels : int
+        Number of pixels evaluated (valid in every frame and in the static mask).
+    std_map : (H, W) ndarray of float32
+        The per-pixel std (NaN where not evaluated).
+    """
+
+    median: float
+    mean: float
+    num_pixels: int
+    std_map: NDArray[np.float32]
+
+
+def temporal_flicker(depth: ArrayLike, *, static_mask: ArrayLike | None = None) -> FlickerStats:
+    """Temporal flicker of a depth video: per-pixel std over time on static pixels.
+
+    Parameters
+    ----------
+    depth : (T, H, W) ndarray
+        Depth in mm, NaN = invalid; T >= 2.
+    static_mask : (H, W) array of bool, optional
+        Pixels known to see a static surface (e.g.
+        :func:`~fuse4d.metrics.static_mask_from_ground_truth`). Default: all pixels.
+        Only pixels valid in *every* frame are used in any case.
+
+    Returns
+    -------
+    FlickerStats
+        ``median`` (headline) and ``mean`` of the per-pixel std, mm; NaN if no pixel.
+
+    Examples
+    --------
+    >>> d = np.stack([np.full((2, 2), 500.0), np.full((2, 2), 502.0)])
+    >>> temporal_flicker(d).median
+    1.0
+    """
+    d = as_float32(depth, name="depth")
+    check_shape(d, ("T", "H", "W"), name="depth")
+    if d.shape[0] < 2:
+        raise ValueError(f"temporal_flicker needs at least 2 frames, got {d.shape[0]}")
+    use = np.all(np.isfinite(d), axis=0)
+    if static_mask is not None:
+        sm = np.asarray(static_mask)
+        if sm.dtype != np.bool_:
+            raise TypeError(f"static_mask must be a boolean array, got dtype {sm.dtype}")
+        if sm.shape != d.shape[1:]:
+            raise ShapeError("static_mask", d.shape[1:], sm.shape, "one (H, W) mask")
+        use &= sm
+    std_map = np.full(d.shape[1:], np.nan, dtype=np.float32)
+    if use.any():
+        vals = d[:, use].astype(np.float64)
+        std_map[use] = vals.std(axis=0)
+        per = std_map[use].astype(np.float64)
+        return FlickerStats(float(np.median(per)), float(per.mean()), int(use.sum()), std_map)
+    return FlickerStats(math.nan, math.nan, 0, std_map)
+
+
+def _flow_pair(
+    flow_true: ArrayLike, flow_test: ArrayLike, mask: ArrayLike | None
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    a = as_float32(flow_true, name="flow_true")
+    b = as_float32(flow_test, name="flow_test")
+    check_shape(a, ("*", "H", "W", 2), name="flow_true")
+    check_same_shape(a, b, names=("flow_true", "flow_test"))
+    use = np.all(np.isfinite(a), axis=-1) & np.all(np.isfinite(b), axis=-1)
+    if mask is not None:
+        m = np.asarray(mask)
+        if m.dtype != np.bool_:
+            raise TypeError(f"mask must be a boolean array, got dtype {m.dtype}")
+        use &= _broadcast_mask(m, use.shape)
+    return a[use].astype(np.float64), b[use].astype(np.float64)
+
+
+def flow_endpoint_error(
+    flow_true: ArrayLike, flow_test: ArrayLike, *, mask: ArrayLike | None = None
+) -> float:
+    """Mean end-point error ``|f_test - f_true|`` in px.
+
+    Parameters
+    ----------
+    flow_true, flow_test : (..., H, W, 2) ndarray
+        Flows in px, ``[..., 0]`` = du (column), ``[..., 1]`` = dv (row).
+    mask : array of bool, optional
+        Pixels to evaluate (broadcast to ``(..., H, W)``).
+
+    Returns
+    -------
+    float
+        Mean EPE (px) over pixels where both flows are finite (unknown GT, e.g. NaN or the
+        Middlebury "unknown" value converted to NaN, is excluded); NaN if none.
+
+    Examples
+    --------
+    >>> f0 = np.zeros((1, 2, 2, 2)); f1 = f0.copy(); f1[..., 0] = 3.0; f1[..., 1] = 4.0
+    >>> flow_endpoint_error(f0, f1)
+    5.0
+    """
+    a, b = _flow_pair(flow_true, flow_test, mask)
+    if a.shape[0] == 0:
+        return math.nan
+    return float(np.mean(np.hypot(*(b - a).T)))
+
+
+def flow_angular_error(
+    flow_true: ArrayLike, flow_test: ArrayLike, *, mask: ArrayLike | None = None
+) -> float:
+    """Mean angular error (degrees), Middlebury definition (Baker et al., IJCV 2011).
+
+    The angle between the space-time vectors ``(u, v, 1)`` of the two flows:
+    ``arccos((1 + u u_t + v v_t) / (sqrt(1 + u^2 + v^2) sqrt(1 + u_t^2 + v_t^2)))``.
+
+    Parameters
+    ----------
+    flow_true, flow_test : (..., H, W, 2) ndarray
+        Flows in px.
+    mask : array of bool, optional
+        Pixels to evaluate.
+
+    Returns
+    -------
+    float
+        Mean AAE in degrees; NaN if no pixel.
+
+    Examples
+    --------
+    >>> f0 = np.zeros((1, 1, 1, 2)); f1 = np.ones((1, 1, 1, 2))
+    >>> round(flow_angular_error(f0, f1), 4)
+    54.7356
+    """
+    a, b = _flow_pair(flow_true, flow_test, mask)
+    if a.shape[0] == 0:
+        return math.nan
+    num = 1.0 + np.sum(a * b, axis=1)
+    den = np.sqrt(1.0 + np.sum(a * a, axis=1)) * np.sqrt(1.0 + np.sum(b * b, axis=1))
+    return float(np.degrees(np.mean(np.arccos(np.clip(num / den, -1.0, 1.0)))))

@@ -1,0 +1,346 @@
+"""fuse4d.baselines: shared kernel vs oracles/OpenCV, and the per-method behaviour contract."""
+
+from __future__ import annotations
+
+import warnings
+
+import cv2
+import numpy as np
+import pytest
+
+from fuse4d import Intrinsics
+from fuse4d._kernels.joint_bilateral import (
+    EXP_TABLE_SCALE,
+    _joint_bilateral_kernel,
+    make_exp_table,
+)
+from fuse4d.baselines import available_baselines, estimate_noise_sigma, run_baseline
+from fuse4d.baselines._common import normalized_convolution_fill
+from fuse4d.baselines.bilateral import joint_bilateral_frame
+from fuse4d.baselines.stmf import block_match
+from naive.baselines import block_match as naive_block_match
+from naive.baselines import guided_filter as naive_guided
+from naive.baselines import joint_bilateral as naive_joint_bilateral
+
+T, H, W = 6, 48, 64
+HOLE = (slice(None), slice(18, 23), slice(28, 34))
+MARGIN = 12  # interior used for "unchanged" checks (border effects differ per method)
+
+NAMES = (
+    "adgf", "adbf", "guided", "dnbf", "ta", "adjbf", "stmf",
+    "kinectfusion", "ed", "temporal-mean", "realsense",
+)  # fmt: skip
+SLOW = {"ed", "kinectfusion"}
+#: Max |out − GT| (mm) in the interior for a noise-free tilted plane (σ_d passed as 0.2 mm).
+CLEAN_TOL = {"guided": 0.3, "adjbf": 0.1, "realsense": 0.25, "kinectfusion": 0.6}
+
+
+@pytest.fixture
+def intrinsics() -> Intrinsics:
+    # pixel footprint 0.6 mm at 300 mm, like the 1000 fps rig (TSDF voxel 0.5 mm fits)
+    return Intrinsics(fx=500.0, fy=500.0, cx=31.5, cy=23.5, width=W, height=H)
+
+
+@pytest.fixture
+def plane() -> tuple[np.ndarray, np.ndarray]:
+    """Static tilted plane (mm) and a textured intensity, (T, H, W)."""
+    yy, xx = np.mgrid[0:H, 0:W]
+    depth = np.broadcast_to(300.0 + 0.05 * xx + 0.03 * yy, (T, H, W)).astype(np.float32)
+    tex = np.clip(0.5 + 0.3 * np.sin(xx / 3.0) * np.cos(yy / 4.0), 0, 1)
+    return depth, np.broadcast_to(tex, (T, H, W)).astype(np.float32)
+
+
+def _call(name: str, depth, intensity, intrinsics, **params):
+    info = available_baselines()[name]
+    if info.needs == "realsense" and not info.available:
+        pytest.skip("pyrealsense2 not installed (pip install 'fuse4d[realsense]')")
+    if name == "kinectfusion":
+        if not info.available:
+            pytest.skip("open3d not installed (pip install 'fuse4d[6d]')")
+        params.setdefault("backend", "open3d")
+    if info.returns_points:
+        params.setdefault("size", 1)
+    out = run_baseline(name, depth, intensity, intrinsics, **params)
+    return out[..., 2] if info.returns_points else out
+
+
+def _params(names):
+    return [pytest.param(n, marks=pytest.mark.slow) if n in SLOW else n for n in names]
+
+
+def _rms(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.sqrt(np.nanmean((a - b) ** 2)))
+
+
+# --------------------------------------------------------------------------------- registry
+
+
+def test_registry_names_and_fields():
+    infos = available_baselines()
+    assert tuple(infos) == NAMES
+    for name, info in infos.items():
+        assert info.name == name
+        assert info.size_sweep
+        assert info.iterations_sweep[0] == 1
+        assert info.returns_points == (name in ("kinectfusion", "ed"))
+        assert info.default_size in info.size_sweep
+
+
+def test_run_baseline_unknown_name(plane, intrinsics):
+    with pytest.raises(ValueError, match=r"unknown baseline 'nope'.*adgf"):
+        run_baseline("nope", *plane, intrinsics)
+
+
+def test_bad_inputs_name_the_parameter(plane, intrinsics):
+    depth, tex = plane
+    with pytest.raises(ValueError, match="depth"):
+        run_baseline("adjbf", depth[0], tex[0], intrinsics)
+    with pytest.raises(ValueError, match="intensity"):
+        run_baseline("adjbf", depth, tex[:3], intrinsics)
+    with pytest.raises(ValueError, match="size"):
+        run_baseline("adbf", depth, tex, intrinsics, size=0)
+    with pytest.raises(ValueError, match="iterations"):
+        run_baseline("ta", depth, tex, intrinsics, iterations=0)
+
+
+# ------------------------------------------------------------------------- shared helpers
+
+
+def test_noise_estimate_recovers_sigma(rng):
+    yy, xx = np.mgrid[0:64, 0:80]
+    for sigma in (0.1, 0.4):
+        depth = 600 + 0.2 * xx + 0.1 * yy + rng.normal(0, sigma, (4, 64, 80))
+        depth[:, 10:20, 10:20] = np.nan
+        assert estimate_noise_sigma(depth) == pytest.approx(sigma, rel=0.05)
+
+
+def test_normalized_convolution_fill_keeps_valid_and_fills_holes():
+    frame = np.full((20, 20), 100.0, np.float32)
+    frame[5:9, 5:9] = np.nan
+    filled = normalized_convolution_fill(frame, sigma=3.0)
+    assert np.all(np.isfinite(filled))
+    np.testing.assert_allclose(filled, 100.0, atol=1e-4)
+
+
+# -------------------------------------------------------------------------- shared kernel
+
+
+def test_kernel_matches_naive_oracle_adaptive_temporal_nan(rng):
+    k, h, w = 3, 14, 17
+    depth = (500 + rng.normal(0, 1.0, (k, h, w))).astype(np.float32)
+    depth[1, 3:6, 4:8] = np.nan
+    depth[2, 7, 9] = np.nan
+    intensity = rng.uniform(0, 1, (k, h, w)).astype(np.float32)
+    radius = rng.integers(1, 4, (h, w)).astype(np.int32)
+    s_s = rng.uniform(0.8, 2.5, (h, w)).astype(np.float32)
+    s_r = rng.uniform(0.5, 3.0, (h, w)).astype(np.float32)
+    tw = np.array([0.3, 0.7, 1.0], np.float32)
+    for relative, s_range in ((False, s_r), (True, (s_r / 500).astype(np.float32))):
+        out = np.empty((h, w), np.float32)
+        _joint_bilateral_kernel(
+            depth, intensity, 2, tw, radius, 0.5 / s_s**2, 0.5 / 0.2**2, 0.5 / s_range**2,
+            relative, make_exp_table(), EXP_TABLE_SCALE, out,
+        )  # fmt: skip
+        ref = naive_joint_bilateral(depth, intensity, 2, tw, radius, s_s, 0.2, s_range, relative)
+        np.testing.assert_array_equal(np.isnan(out), np.isnan(depth[2]))
+        # float32 coefficients and the interpolated exp table (relative weight error ~3e-5)
+        np.testing.assert_allclose(out, ref, rtol=0, atol=2e-3)
+
+
+def test_kernel_golden_cv2_bilateral(rng):
+    """Constant σ_r, no NaN: equals cv2.bilateralFilter away from the border."""
+    _yy, xx = np.mgrid[0:40, 0:50]
+    depth = (400 + 0.3 * xx + 5.0 * (xx > 25) + rng.normal(0, 0.5, (40, 50))).astype(np.float32)
+    r, s_s, s_r = 4, 2.0, 1.5
+    ours = joint_bilateral_frame(depth, radius=r, sigma_spatial=s_s, sigma_depth=s_r)
+    ref = cv2.bilateralFilter(depth, d=2 * r + 1, sigmaColor=s_r, sigmaSpace=s_s)
+    inner = (slice(r, -r), slice(r, -r))
+    # OpenCV interpolates its float range kernel from a lookup table: ~1e-3 mm differences.
+    np.testing.assert_allclose(ours[inner], ref[inner], atol=5e-3)
+    assert np.abs(ours[inner] - depth[inner]).mean() > 0.2  # it really filtered
+
+
+def test_kernel_golden_cv2_joint_bilateral(rng):
+    """σ_D = ∞ (no range kernel): equals cv2.ximgproc.jointBilateralFilter in the interior."""
+    yy, xx = np.mgrid[0:40, 0:50]
+    depth = (400 + 0.3 * xx + rng.normal(0, 0.5, (40, 50))).astype(np.float32)
+    guide = np.clip(0.5 + 0.3 * np.sin(xx / 3.0) + 0.2 * (yy > 20), 0, 1).astype(np.float32)
+    r, s_s, s_i = 4, 2.0, 0.1
+    ours = joint_bilateral_frame(depth, guide, radius=r, sigma_spatial=s_s, sigma_intensity=s_i)
+    ref = cv2.ximgproc.jointBilateralFilter(
+        joint=guide, src=depth, d=2 * r + 1, sigmaColor=s_i, sigmaSpace=s_s
+    )
+    inner = (slice(r, -r), slice(r, -r))
+    np.testing.assert_allclose(ours[inner], ref[inner], atol=5e-3)
+
+
+def test_guided_matches_naive_formulas(plane, intrinsics, rng):
+    depth, tex = plane
+    noisy = depth + rng.normal(0, 0.2, depth.shape).astype(np.float32)
+    out = run_baseline("guided", noisy, tex, intrinsics, size=3, eps=0.05**2)
+    ref = naive_guided(tex[0], noisy[0], 3, 0.05**2)
+    inner = (slice(8, -8), slice(8, -8))
+    np.testing.assert_allclose(out[0][inner], ref[inner], atol=2e-3)
+
+
+def test_block_matching_matches_oracle_and_finds_shift(rng):
+    tex = cv2.GaussianBlur(rng.uniform(0, 1, (48, 64)).astype(np.float32), (0, 0), 1.5)
+    moved = np.roll(tex, (2, -3), axis=(0, 1))  # content moves down 2, left 3
+    from fuse4d._kernels.baselines import _block_match_kernel
+
+    raw = np.empty((6, 8, 2), np.int32)
+    _block_match_kernel(tex, moved, 8, 8, raw)
+    np.testing.assert_array_equal(raw, naive_block_match(tex, moved, 8, 8))
+    full = block_match(tex, moved)
+    assert np.all(full[8:-8, 8:-8] == (-3, 2))
+
+
+# ----------------------------------------------------------------- per-method contract
+
+
+@pytest.mark.parametrize("name", _params(NAMES))
+def test_reduces_noise_on_noisy_plane(name, plane, intrinsics, rng):
+    depth, tex = plane
+    # Open3D's ray cast has a ≈0.2 mm floor at 0.5 mm voxels (measured), so KinectFusion is
+    # checked at 1 mm noise.
+    sigma = 1.0 if name == "kinectfusion" else 0.2
+    noisy = depth + rng.normal(0, sigma, depth.shape).astype(np.float32)
+    out = _call(name, noisy, tex, intrinsics)
+    inner = (slice(None), slice(MARGIN, -MARGIN), slice(MARGIN, -MARGIN))
+    raw_err = _rms(noisy[inner], depth[inner])
+    out_err = _rms(out[inner], depth[inner])
+    assert out_err < 0.8 * raw_err, f"{name}: rms {out_err:.3f} vs raw {raw_err:.3f} mm"
+
+
+@pytest.mark.parametrize("name", _params(NAMES))
+def test_noise_free_plane_unchanged(name, plane, intrinsics):
+    depth, tex = plane
+    params = {"noise_sigma": 0.2} if name in ("adgf", "adbf", "dnbf", "ta", "adjbf") else {}
+    out = _call(name, depth, tex, intrinsics, **params)
+    inner = (slice(None), slice(MARGIN, -MARGIN), slice(MARGIN, -MARGIN))
+    err = np.abs(out[inner] - depth[inner])
+    assert np.all(np.isfinite(err))
+    assert err.max() <= CLEAN_TOL.get(name, 0.02), f"{name}: max error {err.max():.3f} mm"
+
+
+@pytest.mark.parametrize("name", _params(NAMES))
+def test_nan_holes_do_not_spread(name, plane, intrinsics, rng):
+    depth, tex = plane
+    noisy = depth + rng.normal(0, 0.2, depth.shape).astype(np.float32)
+    noisy[HOLE] = np.nan
+    out = _call(name, noisy, tex, intrinsics)
+    hole = np.zeros(depth.shape, bool)
+    hole[HOLE] = True
+    ring = np.zeros_like(hole)
+    ring[:, 14:27, 24:38] = True
+    ring &= ~hole
+    if name == "kinectfusion":  # isolated ray-cast misses are not NaN spreading
+        assert np.mean(np.isnan(out[ring])) < 0.05
+    else:
+        assert np.all(np.isfinite(out[ring])), f"{name}: NaN spread around the hole"
+    assert np.nanmax(np.abs(out[ring] - depth[ring])) < 1.0
+    if not available_baselines()[name].fills_holes:
+        np.testing.assert_array_equal(np.isnan(out), hole)
+
+
+@pytest.mark.parametrize("name", _params(NAMES))
+def test_knobs_change_the_result(name, plane, intrinsics, rng):
+    depth, tex = plane
+    noisy = depth + rng.normal(0, 0.2, depth.shape).astype(np.float32)
+    info = available_baselines()[name]
+    base = _call(name, noisy, tex, intrinsics, iterations=1)
+    other_size = next(
+        s for s in info.size_sweep if s != (1 if info.returns_points else info.default_size)
+    )
+    sized = _call(name, noisy, tex, intrinsics, size=other_size)
+    iterated = _call(name, noisy, tex, intrinsics, iterations=2)
+    assert not np.allclose(base, sized, equal_nan=True, atol=1e-4), f"{name}: size has no effect"
+    assert not np.allclose(base, iterated, equal_nan=True, atol=1e-4), (
+        f"{name}: iterations no effect"
+    )
+
+
+# ------------------------------------------------------------------------ method details
+
+
+def test_temporal_mean_ghosts_on_moving_step(intrinsics):
+    """A step moving 2 px/frame: the plain mean smears it, TA's range gate does not."""
+    depth = np.full((T, H, W), 300.0, np.float32)
+    for t in range(T):
+        depth[t, :, 20 + 2 * t :] = 320.0
+    mean = run_baseline("temporal-mean", depth, None, intrinsics, size=5)
+    ta = run_baseline("ta", depth, None, intrinsics, size=5, noise_sigma=0.2)
+    assert np.abs(mean - depth).max() > 5.0
+    np.testing.assert_allclose(ta, depth, atol=1e-3)
+
+
+def test_adjbf_temporal_kalman_reduces_noise(plane, intrinsics, rng):
+    depth, tex = plane
+    noisy = depth + rng.normal(0, 0.2, depth.shape).astype(np.float32)
+    plain = run_baseline("adjbf", noisy, tex, intrinsics)
+    kalman = run_baseline("adjbf", noisy, tex, intrinsics, temporal=True)
+    assert _rms(kalman[-1], depth[-1]) < _rms(plain[-1], depth[-1])
+
+
+def test_kinectfusion_fallback_is_labelled_and_exact_on_plane(plane, intrinsics):
+    depth, tex = plane
+    pts = run_baseline("kinectfusion", depth, tex, intrinsics, backend="projective", size=1)
+    assert pts.shape == (*depth.shape, 3)
+    np.testing.assert_allclose(pts[..., 2], depth, atol=1e-3)
+
+
+def test_kinectfusion_auto_warns_without_open3d(plane, intrinsics, monkeypatch):
+    from fuse4d.baselines import rigid
+
+    monkeypatch.setattr(rigid, "have_open3d", lambda: False)
+    depth, _tex = plane
+    with pytest.warns(RuntimeWarning, match="fallback"):
+        rigid.kinectfusion(depth[:2], None, intrinsics, size=1)
+
+
+def test_ed_tracks_a_translating_plane(intrinsics, rng):
+    """ED fusion of a plane moving 0.5 mm/frame along Z must not average the motion away."""
+    _yy, xx = np.mgrid[0:H, 0:W]
+    depth = np.stack([300.0 + 0.05 * xx + 0.5 * t for t in range(4)]).astype(np.float32)
+    pts = run_baseline("ed", depth, None, intrinsics, size=1)
+    inner = (slice(None), slice(MARGIN, -MARGIN), slice(MARGIN, -MARGIN))
+    np.testing.assert_allclose(pts[..., 2][inner], depth[inner], atol=0.05)
+
+
+def test_no_warnings_on_clean_call(plane, intrinsics):
+    depth, tex = plane
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for name in ("adgf", "adbf", "guided", "dnbf", "ta", "adjbf", "stmf", "temporal-mean"):
+            run_baseline(name, depth, tex, intrinsics)
+
+
+# ------------------------------------------------------------------------------------- CLI
+
+
+def test_cli_list(capsys):
+    from fuse4d.cli import main
+
+    assert main(["baseline", "--list"]) == 0
+    out = capsys.readouterr().out
+    for name in ("adgf", "temporal-mean", "kinectfusion", "realsense"):
+        assert name in out
+
+
+def test_cli_runs_baseline_and_refuses_overwrite(tmp_path, plane, intrinsics, rng, capsys):
+    from fuse4d import Sequence
+    from fuse4d.cli import main
+    from fuse4d.io import load_sequence, save_sequence
+
+    depth, tex = plane
+    noisy = depth + rng.normal(0, 0.2, depth.shape).astype(np.float32)
+    src = save_sequence(Sequence(noisy, tex, intrinsics), tmp_path / "in.npz")
+    out = tmp_path / "out.npz"
+    assert main(["baseline", "adjbf", str(src), "-o", str(out), "--size", "2"]) == 0
+    result = load_sequence(out)
+    expected = run_baseline("adjbf", noisy, tex, intrinsics, size=2)
+    np.testing.assert_allclose(result.depth, expected, atol=1e-5)
+    assert main(["baseline", "adjbf", str(src), "-o", str(out)]) == 2
+    assert "exists" in capsys.readouterr().err
+    assert main(["baseline", "nope", str(src), "-o", str(tmp_path / "x.npz")]) == 2
+    assert "unknown baseline" in capsys.readouterr().err

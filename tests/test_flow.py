@@ -1,0 +1,582 @@
+"""Tests of the optical-flow stage: registry, OpenCV wrappers, pair/sequence driver, cache, ROI,
+colour wheel, and the ``flow`` / ``bench-flow`` CLI commands."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+
+import fuse4d.flow as flow_mod
+from fuse4d.cli import main
+from fuse4d.errors import ShapeError
+from fuse4d.flow import (
+    DeepFlowParams,
+    DISParams,
+    FarnebackParams,
+    FlowCache,
+    FlowMethod,
+    SequenceFlowEstimator,
+    TVL1Params,
+    available_flow_methods,
+    default_flow_for_preset,
+    estimate_flow,
+    estimate_flow_pair,
+    estimate_sequence_flow,
+    flow_params_from_mapping,
+    register_flow_method,
+    resolve_flow_params,
+    warp_image,
+)
+from fuse4d.flow_vis import flow_to_color, make_color_wheel
+from fuse4d.io import read_flo
+
+OPENCV_METHODS = ("dis", "farneback", "tvl1", "deepflow")
+BORDER = 12  # px excluded from "interior" checks (OpenCV methods are unreliable at the border)
+
+
+def texture(shape=(96, 112), *, seed=0, sigma=2.0) -> np.ndarray:
+    """Smooth random texture, float32 in [0, 1] (full range)."""
+    rng = np.random.default_rng(seed)
+    image = cv2.GaussianBlur(rng.random(shape).astype(np.float32), (0, 0), sigma)
+    return ((image - image.min()) / (image.max() - image.min())).astype(np.float32)
+
+
+def shifted(image: np.ndarray, du: float, dv: float) -> np.ndarray:
+    """``image`` moved by (du, dv) px: result(x) = image(x - (du, dv)); flow image→result = (du, dv)."""
+    h, w = image.shape
+    m = np.float32([[1, 0, du], [0, 1, dv]])
+    return cv2.warpAffine(image, m, (w, h), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+
+
+def interior(flow: np.ndarray) -> np.ndarray:
+    return flow[BORDER:-BORDER, BORDER:-BORDER]
+
+
+def epe(flow: np.ndarray, du: float, dv: float) -> float:
+    return float(np.hypot(flow[..., 0] - du, flow[..., 1] - dv).mean())
+
+
+@pytest.fixture
+def recorder(monkeypatch):
+    """A registered fake method that records its calls and returns a constant (du, dv) field."""
+    calls = []
+
+    def fake(image0, image1, params, init):
+        calls.append({"shape": image0.shape, "init": None if init is None else init.copy()})
+        out = np.empty((*image0.shape, 2), np.float32)
+        out[..., 0] = params.du + float(image1.mean() - image0.mean())
+        out[..., 1] = params.dv
+        return out
+
+    from dataclasses import dataclass
+
+    @dataclass(frozen=True)
+    class FakeParams:
+        du: float = 1.5
+        dv: float = -0.5
+
+    method = FlowMethod("recorder", fake, FakeParams, "test double", True, False)
+    monkeypatch.setitem(flow_mod._REGISTRY, "recorder", method)
+    return calls
+
+
+# ---------------------------------------------------------------------------------------------
+# registry and parameters
+# ---------------------------------------------------------------------------------------------
+
+
+def test_registry_lists_opencv_methods():
+    methods = available_flow_methods()
+    for name in OPENCV_METHODS:
+        assert name in methods
+        assert not methods[name].paper_method
+    assert methods["deepflow"].supports_init is False
+    assert methods["dis"].params_type is DISParams
+
+
+def test_unknown_method_lists_available():
+    with pytest.raises(ValueError, match=r"unknown flow method 'nope'; available methods: .*dis"):
+        estimate_flow(texture(), texture(), method="nope")
+
+
+def test_register_conflict_and_replace(monkeypatch):
+    monkeypatch.setattr(flow_mod, "_REGISTRY", dict(flow_mod._REGISTRY))
+    other = replace(available_flow_methods()["dis"], description="other")
+    with pytest.raises(ValueError, match="already registered"):
+        register_flow_method(other)
+    register_flow_method(other, replace=True)
+    assert available_flow_methods()["dis"].description == "other"
+    register_flow_method(other)  # the same object again: no-op
+
+
+def test_flow_method_validates_name():
+    with pytest.raises(ValueError, match="lower-case"):
+        FlowMethod("My Method", estimate_flow, DISParams, "", True, False)
+
+
+def test_dis_presets_match_opencv():
+    presets = {
+        "ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
+        "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
+        "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM,
+    }
+    for name, code in presets.items():
+        ours = DISParams.from_preset(name)
+        dis = cv2.DISOpticalFlow.create(code)
+        assert ours.finest_scale == dis.getFinestScale()
+        assert ours.patch_size == dis.getPatchSize()
+        assert ours.patch_stride == dis.getPatchStride()
+        assert ours.gradient_descent_iterations == dis.getGradientDescentIterations()
+        assert ours.variational_refinement_iterations == dis.getVariationalRefinementIterations()
+        assert ours.variational_refinement_alpha == pytest.approx(
+            dis.getVariationalRefinementAlpha()
+        )
+        assert ours.use_spatial_propagation == dis.getUseSpatialPropagation()
+    assert DISParams() == DISParams.from_preset("medium")
+
+
+@pytest.mark.parametrize(
+    ("factory", "message"),
+    [
+        (lambda: DISParams(patch_size=0), "patch_size"),
+        (lambda: DISParams(patch_stride=9), "patch_stride"),
+        (lambda: DISParams.from_preset("slow"), "unknown DIS preset"),
+        (lambda: FarnebackParams(pyr_scale=1.5), "pyr_scale"),
+        (lambda: FarnebackParams(levels=0), "levels"),
+        (lambda: TVL1Params(median_filtering=4), "median_filtering"),
+        (lambda: TVL1Params(data_weight=-1.0), "data_weight"),
+    ],
+)
+def test_params_validation(factory, message):
+    with pytest.raises(ValueError, match=message):
+        factory()
+
+
+def test_params_bool_type_checked():
+    with pytest.raises(TypeError, match="use_mean_normalization must be True or False"):
+        DISParams(use_mean_normalization=1)
+
+
+def test_params_from_mapping_coerces_strings():
+    p = flow_params_from_mapping(
+        "dis", {"preset": "fast", "patch_size": "12", "use_mean_normalization": "false"}
+    )
+    assert p == DISParams.from_preset("fast", patch_size=12, use_mean_normalization=False)
+    assert flow_params_from_mapping("tvl1", {"data_weight": 1}).data_weight == 1.0
+    with pytest.raises(ValueError, match="cannot read 'x' as int"):
+        flow_params_from_mapping("farneback", {"levels": "x"})
+    with pytest.raises(ValueError, match=r"unknown parameter\(s\) bogus .*valid: pyr_scale"):
+        flow_params_from_mapping("farneback", {"bogus": 1})
+    with pytest.raises(ValueError, match="has no presets"):
+        flow_params_from_mapping("farneback", {"preset": "fast"})
+
+
+def test_resolve_params_types():
+    assert resolve_flow_params("farneback") == FarnebackParams()
+    assert resolve_flow_params("dis", {"patch_stride": 2}).patch_stride == 2
+    with pytest.raises(TypeError, match="must be a DISParams"):
+        resolve_flow_params("dis", FarnebackParams())
+
+
+def test_default_flow_for_preset(monkeypatch):
+    method, params = default_flow_for_preset("fast")
+    assert method == "dis"
+    assert params == DISParams.from_preset("medium")
+    registry = {k: v for k, v in flow_mod._REGISTRY.items() if not k.startswith("pmbp")}
+    monkeypatch.setattr(flow_mod, "_REGISTRY", registry)
+    assert default_flow_for_preset("paper") == ("deepflow", DeepFlowParams())
+    with pytest.raises(ValueError, match="unknown fusion preset"):
+        default_flow_for_preset("slow")
+
+
+def test_paper_preset_uses_pmbp_when_registered():
+    if "pmbp" not in available_flow_methods():
+        pytest.skip("pmbp not registered")
+    method, params = default_flow_for_preset("paper")
+    assert method == "pmbp"
+    assert isinstance(params, available_flow_methods()["pmbp"].params_type)
+
+
+# ---------------------------------------------------------------------------------------------
+# OpenCV methods on known motion
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("method", OPENCV_METHODS)
+def test_zero_motion_gives_zero_flow(method):
+    image = texture()
+    flow = estimate_flow(image, image, method=method)
+    assert flow.dtype == np.float32
+    assert flow.shape == (*image.shape, 2)
+    assert np.abs(interior(flow)).max() < 0.02
+
+
+@pytest.mark.parametrize(
+    ("method", "params", "tolerance"),
+    [
+        ("dis", DISParams.from_preset("medium"), 0.1),
+        ("deepflow", None, 0.1),
+        ("tvl1", None, 0.1),
+        ("farneback", None, 0.15),
+    ],
+)
+def test_subpixel_translation_recovered(method, params, tolerance):
+    image = texture((120, 140))
+    du, dv = 1.3, -0.6
+    flow = estimate_flow(image, shifted(image, du, dv), method=method, params=params)
+    assert epe(interior(flow), du, dv) < tolerance
+
+
+def test_sign_convention_pure_horizontal_shift():
+    """Content moving right by 2 px: du = +2 (column), dv = 0; backward = -2."""
+    image = texture()
+    moved = np.roll(image, 2, axis=1)  # moved[v, u] = image[v, u - 2]
+    forward, backward = estimate_flow_pair(image, moved, method="dis")
+    f, b = interior(forward), interior(backward)
+    assert np.median(f[..., 0]) == pytest.approx(2.0, abs=0.05)
+    assert np.abs(np.median(f[..., 1])) < 0.05
+    assert np.median(b[..., 0]) == pytest.approx(-2.0, abs=0.05)
+    # backward warping of frame t+1 with the forward flow reproduces frame t
+    warped = warp_image(moved, forward)
+    assert np.abs(interior(warped) - interior(image)).mean() < 0.01
+
+
+def test_vertical_shift_is_dv():
+    image = texture()
+    moved = np.roll(image, 3, axis=0)  # rows: content moves down
+    flow = estimate_flow(image, moved, method="dis")
+    assert np.median(interior(flow)[..., 1]) == pytest.approx(3.0, abs=0.05)
+    assert np.abs(np.median(interior(flow)[..., 0])) < 0.05
+
+
+@pytest.mark.parametrize(
+    ("method", "params"),
+    [("dis", None), ("farneback", FarnebackParams(levels=1)), ("tvl1", TVL1Params(num_scales=1))],
+)
+def test_init_is_used(method, params):
+    """A 20 px motion is out of reach cold, but found from a correct initial flow."""
+    image = texture((120, 140), sigma=1.5)
+    du, dv = 20.4, 0.0
+    moved = shifted(image, du, dv)
+    init = np.zeros((*image.shape, 2), np.float32)
+    init[..., 0] = du
+    cold = estimate_flow(image, moved, method=method, params=params)
+    warm = estimate_flow(image, moved, method=method, params=params, init=init)
+    assert epe(interior(cold), du, dv) > 5.0
+    assert epe(interior(warm), du, dv) < 0.2
+
+
+def test_dis_does_not_keep_a_stale_init():
+    image = texture()
+    moved = shifted(image, 1.0, 0.5)
+    cold = estimate_flow(image, moved, method="dis")
+    estimate_flow(image, moved, method="dis", init=np.full((*image.shape, 2), 5, np.float32))
+    again = estimate_flow(image, moved, method="dis")
+    np.testing.assert_array_equal(cold, again)
+
+
+def test_init_ignored_for_deepflow():
+    image = texture()
+    init = np.full((*image.shape, 2), 3.0, np.float32)
+    a = estimate_flow(image, image, method="deepflow", init=init)
+    b = estimate_flow(image, image, method="deepflow")
+    np.testing.assert_array_equal(a, b)
+
+
+# ---------------------------------------------------------------------------------------------
+# input validation
+# ---------------------------------------------------------------------------------------------
+
+
+def test_bad_inputs_have_clear_errors():
+    image = texture()
+    with pytest.raises(ShapeError, match="image1 must have shape"):
+        estimate_flow(image, image[:-1])
+    with pytest.raises(ShapeError, match="image0 must have shape"):
+        estimate_flow(np.stack([image, image]), image)
+    bad = image.copy()
+    bad[3, 4] = np.nan
+    with pytest.raises(ValueError, match="image1 contains NaN"):
+        estimate_flow(image, bad)
+    with pytest.raises(ShapeError, match="init must have shape"):
+        estimate_flow(image, image, init=np.zeros((4, 4, 2)))
+    with pytest.raises(ValueError, match="roi"):
+        estimate_flow(image, image, roi=(10, 5, 0, 20))
+    with pytest.raises(ValueError, match="at least 2 frames"):
+        estimate_sequence_flow(image[None])
+
+
+def test_method_returning_wrong_shape_is_reported(monkeypatch):
+    broken = FlowMethod(
+        "broken", lambda a, b, p, i: np.zeros((2, 2, 2)), DeepFlowParams, "", False, False
+    )
+    monkeypatch.setitem(flow_mod._REGISTRY, "broken", broken)
+    with pytest.raises(RuntimeError, match="'broken' returned shape"):
+        estimate_flow(texture(), texture(), method="broken")
+
+
+# ---------------------------------------------------------------------------------------------
+# pairs, sequences, warm starts, ROI, cache
+# ---------------------------------------------------------------------------------------------
+
+
+def test_sequence_shapes_warm_starts_and_single_solve(recorder):
+    video = np.stack([texture(seed=s) for s in range(4)])
+    result = estimate_sequence_flow(video, method="recorder")
+    assert result.forward.shape == (3, *video.shape[1:], 2)
+    assert result.backward.shape == (3, *video.shape[1:], 2)
+    assert result.method == "recorder"
+    assert result.paper_method is False
+    assert result.num_pairs == 3
+    assert len(recorder) == 6  # each pair solved once per direction
+    forward_calls, backward_calls = recorder[0::2], recorder[1::2]
+    assert forward_calls[0]["init"] is None
+    for t in range(3):
+        # backward of pair t starts from -forward[t]
+        np.testing.assert_array_equal(backward_calls[t]["init"], -result.forward[t])
+        if t:
+            # forward of pair t starts from forward[t-1]
+            np.testing.assert_array_equal(forward_calls[t]["init"], result.forward[t - 1])
+
+
+def test_sequence_without_warm_start(recorder):
+    video = np.stack([texture(seed=s) for s in range(3)])
+    estimate_sequence_flow(video, method="recorder", warm_start=False)
+    assert recorder[0]["init"] is None
+    assert recorder[2]["init"] is None
+    assert recorder[1]["init"] is not None  # backward always starts from -forward
+
+
+def test_sequence_flow_matches_pairwise_directions():
+    image = texture((80, 96))
+    video = np.stack([image, np.roll(image, 1, axis=1), np.roll(image, 2, axis=1)])
+    calls = []
+    result = estimate_sequence_flow(video, method="dis", progress=lambda d, t: calls.append((d, t)))
+    assert calls == [(1, 2), (2, 2)]
+    for t in range(2):
+        assert np.median(interior(result.forward[t])[..., 0]) == pytest.approx(1.0, abs=0.05)
+        assert np.median(interior(result.backward[t])[..., 0]) == pytest.approx(-1.0, abs=0.05)
+
+
+def test_estimator_checks_continuity(recorder):
+    a, b, c = (texture(seed=s) for s in range(3))
+    estimator = SequenceFlowEstimator(method="recorder")
+    estimator(a, b)
+    estimator(b, c)
+    assert estimator.warm_starts == 1
+    estimator(a, c)  # not a continuation of (b, c): cold start
+    assert estimator.warm_starts == 1
+    assert recorder[4]["init"] is None
+    estimator.reset()
+    estimator(c, a)
+    assert recorder[6]["init"] is None
+
+
+def test_roi_solves_only_inside(recorder):
+    image = texture((60, 70))
+    roi = (10, 40, 5, 50)
+    forward, backward = estimate_flow_pair(image, image, method="recorder", roi=roi)
+    assert recorder[0]["shape"] == (30, 45)
+    inside = np.zeros(image.shape, bool)
+    inside[10:40, 5:50] = True
+    assert np.all(forward[~inside] == 0)
+    assert np.all(backward[~inside] == 0)
+    np.testing.assert_allclose(forward[inside], np.broadcast_to([1.5, -0.5], (1350, 2)))
+
+
+def test_roi_with_opencv():
+    image = texture((100, 120))
+    moved = np.roll(image, 2, axis=1)
+    flow = estimate_flow(image, moved, method="dis", roi=(20, 80, 20, 100))
+    assert np.all(flow[:20] == 0)
+    assert np.median(flow[35:65, 35:85, 0]) == pytest.approx(2.0, abs=0.05)
+
+
+def test_cache_hits_and_misses(tmp_path, recorder):
+    cache = FlowCache(tmp_path / "flows")
+    a, b = texture(seed=1), texture(seed=2)
+    first = estimate_flow_pair(a, b, method="recorder", cache=cache)
+    assert (cache.hits, cache.misses, len(recorder)) == (0, 1, 2)
+    second = estimate_flow_pair(a, b, method="recorder", cache=cache)
+    assert (cache.hits, cache.misses, len(recorder)) == (1, 1, 2)  # nothing recomputed
+    np.testing.assert_array_equal(first[0], second[0])
+    np.testing.assert_array_equal(first[1], second[1])
+    params = flow_mod._REGISTRY["recorder"].params_type(du=2.0)
+    third = estimate_flow_pair(a, b, method="recorder", params=params, cache=cache)
+    assert (cache.hits, cache.misses) == (1, 2)
+    assert not np.array_equal(third[0], first[0])
+    estimate_flow_pair(a, b, method="recorder", roi=(0, 50, 0, 50), cache=cache)
+    estimate_flow_pair(b, a, method="recorder", cache=cache)
+    assert (cache.hits, cache.misses) == (1, 4)
+    assert len(list((tmp_path / "flows").glob("??/*.npy"))) == 4
+    assert not list((tmp_path / "flows").glob("??/.tmp-*"))
+
+
+def test_cache_sequence_roundtrip(tmp_path):
+    video = np.stack([np.roll(texture((64, 80)), k, axis=1) for k in range(3)])
+    cache = FlowCache(tmp_path)
+    cold = estimate_sequence_flow(video, method="dis", cache=cache)
+    warm = estimate_sequence_flow(video, method="dis", cache=cache)
+    assert cache.hits == 2
+    np.testing.assert_array_equal(cold.forward, warm.forward)
+    np.testing.assert_array_equal(cold.backward, warm.backward)
+
+
+def test_cache_corrupt_entry_is_a_miss(tmp_path):
+    cache = FlowCache(tmp_path)
+    key = "ab" + "0" * 62
+    cache.store(key, np.ones((2, 3, 4, 2), np.float32))
+    cache.path(key).write_bytes(b"garbage")
+    assert cache.load(key) is None
+    assert cache.misses == 1
+    assert cache.clear() == 1
+    with pytest.raises(ValueError, match="hex"):
+        cache.path("../etc")
+
+
+# ---------------------------------------------------------------------------------------------
+# helpers: warp and colour wheel
+# ---------------------------------------------------------------------------------------------
+
+
+def test_warp_image_integer_shift_and_nan_border():
+    image = texture((20, 30))
+    flow = np.zeros((20, 30, 2), np.float32)
+    flow[..., 0] = 2.0
+    warped = warp_image(image, flow, border="nan")
+    np.testing.assert_allclose(warped[:, :-2], image[:, 2:], atol=1e-6)
+    assert np.isnan(warped[:, -1]).all()
+    with pytest.raises(ShapeError, match="flow must have shape"):
+        warp_image(image, flow[:, :-1])
+
+
+def test_color_wheel_known_colours():
+    wheel = make_color_wheel()
+    assert wheel.shape == (55, 3)
+    assert wheel[0].tolist() == [255, 0, 0]
+    assert wheel[15].tolist() == [255, 255, 0]  # yellow starts the YG segment
+    assert wheel[21].tolist() == [0, 255, 0]  # green starts GC
+    flow = np.array([[[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1], [2, 0], [1e10, 0]]], np.float32)
+    rgb = flow_to_color(flow, max_magnitude=1.0)[0].astype(int)
+    assert rgb[0].tolist() == [255, 255, 255]  # no motion: white
+    assert rgb[1].tolist() == [255, 0, 0]  # right: red
+    assert rgb[2].tolist() == [0, 209, 255]  # left: cyan-blue
+    np.testing.assert_allclose(rgb[3], [255, 229, 0], atol=1)  # down: orange-yellow
+    np.testing.assert_allclose(rgb[4], [88, 0, 255], atol=1)  # up: blue-violet
+    assert rgb[5].tolist() == [191, 0, 0]  # beyond max: darkened to 75 %
+    assert rgb[6].tolist() == [0, 0, 0]  # unknown: black
+    half = flow_to_color(np.array([[[0.5, 0]]], np.float32), max_magnitude=1.0)[0, 0]
+    assert half.tolist() == [255, 127, 127]  # half saturation
+
+
+def test_color_default_scale_and_errors():
+    flow = np.zeros((2, 2, 2), np.float32)
+    flow[0, 0] = (4.0, 0.0)
+    assert flow_to_color(flow)[0, 0].tolist() == [255, 0, 0]
+    assert flow_to_color(np.zeros((2, 2, 2), np.float32)).min() == 255
+    with pytest.raises(ValueError, match="max_magnitude"):
+        flow_to_color(flow, max_magnitude=0.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# CLI
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def png_pair(tmp_path):
+    image = (texture((90, 110)) * 255).round().astype(np.uint8)
+    moved = np.roll(image, 2, axis=1)
+    p0, p1 = tmp_path / "a.png", tmp_path / "b.png"
+    cv2.imwrite(str(p0), image)
+    cv2.imwrite(str(p1), cv2.cvtColor(moved, cv2.COLOR_GRAY2BGR))  # colour → gray
+    return p0, p1
+
+
+def test_cli_flow_writes_flo_and_vis(png_pair, tmp_path, capsys):
+    out, vis = tmp_path / "f.flo", tmp_path / "f.png"
+    code = main(["flow", str(png_pair[0]), str(png_pair[1]), "-o", str(out), "--vis", str(vis)])
+    assert code == 0
+    assert "not the paper's tracker" in capsys.readouterr().err
+    flow = read_flo(out)
+    assert flow.shape == (90, 110, 2)
+    assert np.median(interior(flow)[..., 0]) == pytest.approx(2.0, abs=0.05)
+    picture = cv2.imread(str(vis))
+    assert picture.shape == (90, 110, 3)
+
+
+def test_cli_flow_refuses_to_overwrite(png_pair, tmp_path, capsys):
+    out = tmp_path / "f.flo"
+    out.write_bytes(b"x")
+    args = ["flow", str(png_pair[0]), str(png_pair[1]), "-o", str(out)]
+    assert main(args) == 2
+    assert "pass --force" in capsys.readouterr().err
+    assert main([*args, "--force", "-m", "farneback", "-p", "levels=3"]) == 0
+    assert read_flo(out).shape == (90, 110, 2)
+
+
+def test_cli_flow_unknown_method(png_pair, tmp_path, capsys):
+    args = ["flow", str(png_pair[0]), str(png_pair[1]), "-o", str(tmp_path / "f.flo")]
+    assert main([*args, "--method", "hornschunck"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("fuse4d: error: unknown flow method 'hornschunck'")
+    for name in ("deepflow", "dis", "farneback", "tvl1"):
+        assert name in err
+    assert not (tmp_path / "f.flo").exists()
+
+
+def test_cli_flow_size_mismatch(png_pair, tmp_path, capsys):
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), np.zeros((10, 10), np.uint8))
+    code = main(["flow", str(png_pair[0]), str(small), "-o", str(tmp_path / "f.flo")])
+    assert code == 2
+    assert "differs from" in capsys.readouterr().err
+
+
+def test_cli_bench_flow_small_ball_json(capsys):
+    code = main(
+        ["bench-flow", "--small", "--no-middlebury", "--methods", "dis-medium,farneback", "--json"]
+    )
+    assert code == 0
+    report = json.loads(capsys.readouterr().out)
+    labels = {r["label"] for r in report["summary"]}
+    assert labels == {"dis-medium", "farneback"}
+    datasets = {r["dataset"] for r in report["summary"]}
+    assert datasets == {"ball 2%", "ball 10%"}
+    dis = next(r for r in report["summary"] if r["label"] == "dis-medium" and "2%" in r["dataset"])
+    assert dis["epe_px"] < 0.12  # vs the exact ball motion (0, 0.5 Z_c / Z) px
+    assert len(report["pairs"]) == 8
+
+
+def test_cli_bench_flow_unknown_method(capsys):
+    assert main(["bench-flow", "--methods", "nope", "--no-middlebury", "--small"]) == 2
+    assert "unknown flow method(s) nope" in capsys.readouterr().err
+
+
+@pytest.mark.realdata
+def test_cli_bench_flow_middlebury_table(shared_data, capsys):
+    code = main(
+        ["bench-flow", "--data", str(shared_data), "--no-ball", "--methods", "dis-ultrafast"]
+    )
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "middlebury" in out
+    assert "dis-ultrafast" in out
+
+
+@pytest.mark.realdata
+def test_middlebury_pairs_mask_unknown(shared_data):
+    from fuse4d.flow_bench import middlebury_pairs
+
+    pairs, reason = middlebury_pairs(shared_data / "middlebury_flow")
+    assert reason == ""
+    assert [p.name for p in pairs] == ["Dimetrodon", "Hydrangea", "RubberWhale", "Venus"]
+    venus = pairs[-1]
+    assert venus.image0.shape == (380, 420)
+    assert venus.mask.all()  # Venus has no unknown GT
+    assert 0.9 < pairs[0].mask.mean() < 0.99  # Dimetrodon: 4.8 % unknown
+    assert np.abs(pairs[0].flow_true).max() < 10

@@ -1,0 +1,503 @@
+"""fuse4d.io: round trips of every writer, layouts, streaming, atomicity, PLY and .flo."""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from fuse4d import (
+    GroundTruth,
+    InputFileError,
+    OutputExistsError,
+    Sequence,
+    depth_to_points,
+)
+from fuse4d.io import (
+    CAMERA_PRESETS,
+    FrameFolderWriter,
+    NpzReader,
+    associate_timestamps,
+    check_output,
+    count_frames,
+    detect_format,
+    iter_frames,
+    load_sequence,
+    open_frames,
+    read_flo,
+    read_frame_folder,
+    read_intrinsics,
+    read_mask,
+    read_npz,
+    read_npz_extra,
+    read_ply,
+    read_tum,
+    resolve_frames,
+    save_sequence,
+    write_flo,
+    write_frame_folder,
+    write_npz,
+    write_ply,
+)
+
+
+# ----------------------------------------------------------------------------- helpers
+def _sequence_with_gt(seq: Sequence, rng: np.random.Generator) -> Sequence:
+    t, h, w = seq.depth.shape
+    depth = seq.depth.copy()
+    depth[:, 0, 0] = np.nan  # some invalid pixels
+    gt = GroundTruth(
+        depth=np.full((t, h, w), 500.0, np.float32),
+        mask=rng.random((t, h, w)) > 0.5,
+        flow=rng.normal(0, 1, (t - 1, h, w, 2)).astype(np.float32),
+        extra={"center_row": np.arange(t, dtype=np.float64), "radius": 140.0},
+    )
+    return Sequence(
+        depth,
+        seq.intensity,
+        seq.intrinsics,
+        timestamps=np.arange(t) / 30.0,
+        fps=30.0,
+        ground_truth=gt,
+        name="ball",
+    )
+
+
+def _listing(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir())
+
+
+def _write_cv2_xml(folder: Path, seq: Sequence, *, masks: bool = True) -> None:
+    folder.mkdir()
+    for t in range(seq.num_frames):
+        stem = f"{t:010d}"
+        units = np.nan_to_num(np.round(seq.depth[t]), nan=0).astype(np.uint16)
+        cv2.imwrite(str(folder / f"{stem}_depth.png"), units)
+        gray = np.round(seq.intensity[t] * 255).astype(np.uint8)
+        cv2.imwrite(str(folder / f"{stem}.png"), cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR))
+        if masks:
+            cv2.imwrite(str(folder / f"{stem}_mask.png"), np.full_like(gray, 255 * (t % 2)))
+        fs = cv2.FileStorage(str(folder / f"{stem}_camera.xml"), cv2.FILE_STORAGE_WRITE)
+        fs.write("intrinsic", seq.intrinsics.matrix.astype(np.float32))
+        fs.write("R", np.eye(3, dtype=np.float32))
+        fs.release()
+
+
+def _write_tum(folder: Path, seq: Sequence, *, rgb_offset: float = 0.01) -> None:
+    (folder / "rgb").mkdir(parents=True)
+    (folder / "depth").mkdir()
+    rgb_lines, depth_lines = ["# color images", "# timestamp filename"], ["# depth maps"]
+    for t in range(seq.num_frames):
+        ts = 1305031102.0 + t / 30.0
+        units = np.nan_to_num(np.round(seq.depth[t] * 5.0), nan=0).astype(np.uint16)
+        cv2.imwrite(str(folder / f"depth/{ts:.6f}.png"), units)
+        cv2.imwrite(
+            str(folder / f"rgb/{ts + rgb_offset:.6f}.png"),
+            np.round(seq.intensity[t] * 255).astype(np.uint8),
+        )
+        rgb_lines.append(f"{ts + rgb_offset:.6f} rgb/{ts + rgb_offset:.6f}.png")
+        depth_lines.append(f"{ts:.6f} depth/{ts:.6f}.png")
+    rgb_lines.append(f"{ts + 1.0:.6f} rgb/unmatched.png")  # no depth partner: ignored
+    (folder / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
+    (folder / "depth.txt").write_text("\n".join(depth_lines) + "\n")
+
+
+def _write_frames_json(folder: Path, seq: Sequence, *, extra_entries: int = 0) -> None:
+    folder.mkdir()
+    k = seq.intrinsics
+    entries = []
+    for t in range(seq.num_frames + extra_entries):
+        if t < seq.num_frames:
+            units = np.nan_to_num(np.round(seq.depth[t] / 0.2), nan=0).astype(np.uint16)
+            cv2.imwrite(str(folder / f"frame_{t:05d}_depth.png"), units)
+            gray = np.round(seq.intensity[t] * 255).astype(np.uint8)
+            cv2.imwrite(
+                str(folder / f"frame_{t:05d}_rgb.png"), cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
+            )
+        entries.append(
+            {
+                "info": {
+                    "kcam": {"matrix": k.matrix.tolist(), "image_size": [k.width, k.height]},
+                    "depth_scale": 0.0002,
+                    "depth_bias": 0.0,
+                    "timestamp": 33333 * t,
+                },
+                "depth_image": f"frame_{t:05d}_depth.png",
+                "rgb_image": f"frame_{t:05d}_rgb.png",
+            }
+        )
+    (folder / "frames.json").write_text(json.dumps({"root": entries}))
+
+
+# ----------------------------------------------------------------------------- npz
+def test_npz_round_trip_keeps_everything(tmp_path, small_sequence, rng):
+    seq = _sequence_with_gt(small_sequence, rng)
+    support = rng.random(seq.depth.shape).astype(np.float32)
+    out = write_npz(seq, tmp_path / "s.npz", extra={"support": support})
+    back = read_npz(out)
+    np.testing.assert_array_equal(back.depth, seq.depth)  # NaN positions included
+    np.testing.assert_array_equal(back.intensity, seq.intensity)
+    assert back.intrinsics == seq.intrinsics
+    np.testing.assert_array_equal(back.timestamps, seq.timestamps)
+    assert back.fps == 30.0
+    assert back.name == "ball"
+    gt = back.ground_truth
+    np.testing.assert_array_equal(gt.depth, seq.ground_truth.depth)
+    np.testing.assert_array_equal(gt.mask, seq.ground_truth.mask)
+    np.testing.assert_array_equal(gt.flow, seq.ground_truth.flow)
+    np.testing.assert_array_equal(gt.extra["center_row"], np.arange(4.0))
+    assert gt.extra["radius"] == 140.0
+    np.testing.assert_array_equal(read_npz_extra(out)["support"], support)
+
+
+def test_npz_frame_selection_slices_ground_truth(tmp_path, small_sequence, rng):
+    seq = _sequence_with_gt(small_sequence, rng)
+    path = write_npz(seq, tmp_path / "s.npz")
+    part = load_sequence(path, frames="1:3")
+    assert part.num_frames == 2
+    np.testing.assert_array_equal(part.depth, seq.depth[1:3])
+    assert part.ground_truth.flow.shape[0] == 1
+    np.testing.assert_array_equal(part.ground_truth.flow, seq.ground_truth.flow[1:2])
+    np.testing.assert_array_equal(part.ground_truth.extra["center_row"], [1.0, 2.0])
+    np.testing.assert_array_equal(part.timestamps, seq.timestamps[1:3])
+
+
+def test_npz_streaming_memmaps_uncompressed_and_matches_compressed(tmp_path, small_sequence):
+    plain = write_npz(small_sequence, tmp_path / "a.npz")
+    packed = write_npz(small_sequence, tmp_path / "b.npz", compress=True)
+    with NpzReader(plain) as reader:
+        assert isinstance(reader._array("depth"), np.memmap)
+        frames = list(reader)
+    assert [f.index for f in frames] == [0, 1, 2, 3]
+    np.testing.assert_array_equal(np.stack([f.depth for f in frames]), small_sequence.depth)
+    np.testing.assert_array_equal(read_npz(packed).depth, small_sequence.depth)
+    assert packed.stat().st_size < plain.stat().st_size
+
+
+def test_npz_extra_key_reserved(tmp_path, small_sequence):
+    with pytest.raises(ValueError, match="extra key 'depth' is reserved"):
+        write_npz(small_sequence, tmp_path / "s.npz", extra={"depth": small_sequence.depth})
+    assert not (tmp_path / "s.npz").exists()
+
+
+# ----------------------------------------------------------------------------- frame folder
+def test_folder_round_trip_fine_unit(tmp_path, small_sequence, rng):
+    seq = _sequence_with_gt(small_sequence, rng)
+    with pytest.warns(UserWarning, match=r"does not store ground-truth depth, flow"):
+        out = write_frame_folder(seq, tmp_path / "seq", depth_unit_mm=0.01)
+    assert _listing(out) == ["camera.json", "depth", "intensity", "mask", "timestamps.txt"]
+    assert _listing(out / "depth")[:2] == ["000000.png", "000001.png"]
+    cam = json.loads((out / "camera.json").read_text())
+    assert cam["depth_unit_mm"] == 0.01
+    assert cam["fx"] == 80.0
+    assert cam["fps"] == 30.0
+    back = read_frame_folder(out)
+    assert np.array_equal(np.isnan(back.depth), np.isnan(seq.depth))
+    np.testing.assert_allclose(back.depth, seq.depth, atol=0.005 + 1e-4)
+    np.testing.assert_allclose(back.intensity, seq.intensity, atol=0.5 / 65535 + 1e-7)
+    np.testing.assert_array_equal(back.ground_truth.mask, seq.ground_truth.mask)
+    np.testing.assert_allclose(back.timestamps, seq.timestamps, atol=1e-6)
+    assert back.fps == 30.0
+    assert back.intrinsics == seq.intrinsics
+    raw = cv2.imread(str(out / "depth/000000.png"), cv2.IMREAD_UNCHANGED)
+    assert raw.dtype == np.uint16
+    assert raw[0, 0] == 0
+
+
+def test_folder_intensity_bits_auto(tmp_path, small_intrinsics):
+    levels = np.arange(4 * 24 * 32).reshape(4, 24, 32) % 256 / 255.0
+    seq = Sequence(np.full((4, 24, 32), 700.0), levels, small_intrinsics)
+    write_frame_folder(seq, tmp_path / "s")
+    raw = cv2.imread(str(tmp_path / "s/intensity/000000.png"), cv2.IMREAD_UNCHANGED)
+    assert raw.dtype == np.uint8  # exactly representable in 8 bits
+    np.testing.assert_allclose(
+        read_frame_folder(tmp_path / "s").intensity, seq.intensity, atol=1e-7
+    )
+
+
+def test_folder_warns_on_coarse_unit_and_clipping(tmp_path, small_sequence):
+    with pytest.warns(UserWarning, match=r"depth_unit_mm=1 is coarse for this data") as rec:
+        write_frame_folder(small_sequence, tmp_path / "a")
+    assert len(rec) == 1  # one warning for the whole sequence
+    far = small_sequence.with_depth(small_sequence.depth + 70000.0)
+    with pytest.warns(UserWarning, match=r"3072 depth values above 65535 mm were clipped"):
+        write_frame_folder(far, tmp_path / "b")
+    assert read_frame_folder(tmp_path / "b").depth.max() == 65535.0
+    near = small_sequence.with_depth(np.full(small_sequence.depth.shape, 0.3))
+    with pytest.warns(UserWarning, match=r"3072 valid depth values below 0.5 mm were raised"):
+        write_frame_folder(near, tmp_path / "c")
+    assert np.all(read_frame_folder(tmp_path / "c").depth == 1.0)  # still valid
+
+
+def test_folder_no_warning_when_data_on_grid(tmp_path, small_sequence):
+    whole = small_sequence.with_depth(np.round(small_sequence.depth))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        write_frame_folder(whole, tmp_path / "s")
+    np.testing.assert_array_equal(read_frame_folder(tmp_path / "s").depth, whole.depth)
+
+
+def test_folder_colour_intensity_converted_to_gray(tmp_path, small_sequence):
+    write_frame_folder(small_sequence, tmp_path / "s", depth_unit_mm=0.01)
+    bgr = np.zeros((24, 32, 3), np.uint8)
+    bgr[..., 0], bgr[..., 1], bgr[..., 2] = 10, 100, 200
+    for t in range(4):
+        cv2.imwrite(str(tmp_path / f"s/intensity/{t:06d}.png"), bgr)
+    back = read_frame_folder(tmp_path / "s")
+    expected = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY) / 255.0
+    np.testing.assert_allclose(back.intensity[2], expected, atol=1e-6)
+
+
+def test_folder_overrides_and_camera_presets(tmp_path, small_sequence):
+    write_frame_folder(small_sequence, tmp_path / "s", depth_unit_mm=0.01)
+    seq = load_sequence(tmp_path / "s", depth_unit_mm=0.02, intrinsics="70,71,15,11")
+    np.testing.assert_allclose(seq.depth, 2 * read_frame_folder(tmp_path / "s").depth)
+    assert (seq.intrinsics.fx, seq.intrinsics.fy, seq.intrinsics.cx) == (70.0, 71.0, 15.0)
+    k = load_sequence(tmp_path / "s", intrinsics="freiburg1").intrinsics
+    assert (k.fx, k.fy, k.cx, k.cy) == CAMERA_PRESETS["freiburg1"]
+    assert (k.width, k.height) == (32, 24)
+
+
+def test_frame_folder_writer_streams(tmp_path, small_sequence):
+    k = small_sequence.intrinsics
+    with FrameFolderWriter(tmp_path / "s", k, depth_unit_mm=0.01, fps=25.0) as writer:
+        assert not (tmp_path / "s").exists()  # only the temporary folder exists while writing
+        for frame in small_sequence.depth:
+            writer.write(frame, np.full(k.shape, 0.5))
+    assert writer.num_written == 4
+    assert count_frames(tmp_path / "s") == 4
+    assert [f.index for f in iter_frames(tmp_path / "s", frames="2:")] == [2, 3]
+    assert read_intrinsics(tmp_path / "s") == k
+    assert _listing(tmp_path) == ["s"]
+
+
+def test_frame_folder_writer_error_leaves_nothing(tmp_path, small_sequence):
+    k = small_sequence.intrinsics
+
+    def write_then_fail() -> None:
+        with FrameFolderWriter(tmp_path / "s", k) as w:
+            w.write(np.full(k.shape, 500.0), np.zeros(k.shape))
+            raise RuntimeError("boom")
+
+    with pytest.raises(RuntimeError, match="boom"):
+        write_then_fail()
+    assert _listing(tmp_path) == []  # no destination, no temporary left behind
+    with (
+        pytest.raises(
+            ValueError, match=r"depth of frame 0 has shape \(3, 3\), expected \(24, 32\)"
+        ),
+        FrameFolderWriter(tmp_path / "s", k) as w,
+    ):
+        w.write(np.ones((3, 3)), np.zeros((3, 3)))
+    assert _listing(tmp_path) == []
+
+
+def test_frame_folder_writer_overwrite(tmp_path, small_sequence):
+    dest = tmp_path / "s"
+    write_frame_folder(small_sequence, dest, depth_unit_mm=0.01)
+    (dest / "stale.txt").write_text("old")
+    with pytest.raises(OutputExistsError, match="output exists; pass overwrite=True"):
+        write_frame_folder(small_sequence, dest, depth_unit_mm=0.01)
+    assert (dest / "stale.txt").exists()
+    two = small_sequence.frames(0, 2)
+    write_frame_folder(two, dest, depth_unit_mm=0.01, overwrite=True)
+    assert not (dest / "stale.txt").exists()
+    assert count_frames(dest) == 2
+    assert _listing(tmp_path) == ["s"]
+    # a failing overwrite keeps the old folder intact
+    with pytest.raises(RuntimeError), FrameFolderWriter(dest, two.intrinsics, overwrite=True):
+        raise RuntimeError("fail")
+    assert count_frames(dest) == 2
+
+
+# ----------------------------------------------------------------------------- save/load
+def test_save_sequence_infers_format(tmp_path, small_sequence):
+    assert save_sequence(small_sequence, tmp_path / "a.npz").is_file()
+    assert save_sequence(small_sequence, tmp_path / "b", depth_unit_mm=0.01).is_dir()
+    assert detect_format(tmp_path / "a.npz") == "npz"
+    assert detect_format(tmp_path / "b") == "folder"
+    with pytest.raises(ValueError, match="format must be one of npz, folder, got 'tum'"):
+        save_sequence(small_sequence, tmp_path / "c", format="tum")
+    with pytest.raises(OutputExistsError):
+        save_sequence(small_sequence, tmp_path / "a.npz")
+    save_sequence(small_sequence, tmp_path / "a.npz", overwrite=True)
+
+
+def test_resolve_frames():
+    assert resolve_frames(None, 5) == range(5)
+    assert resolve_frames("1:3", 5) == range(1, 3)
+    assert resolve_frames("-2:", 5) == range(3, 5)
+    assert resolve_frames("4", 5) == range(4, 5)
+    assert resolve_frames((None, 2), 5) == range(2)
+    assert resolve_frames(range(1, 4), 5) == range(1, 4)
+    with pytest.raises(ValueError, match="frames must be a contiguous range"):
+        resolve_frames(slice(0, 4, 2), 5)
+    with pytest.raises(ValueError, match="frames 7:9 selects no frame of a 5-frame sequence"):
+        resolve_frames("7:9", 5)
+    with pytest.raises(ValueError, match="frames must look like 'A:B'"):
+        resolve_frames("a:b", 5)
+
+
+def test_npz_rejects_depth_unit(tmp_path, small_sequence):
+    path = write_npz(small_sequence, tmp_path / "s.npz")
+    with pytest.raises(ValueError, match=r"depth_unit_mm does not apply to \.npz files"):
+        load_sequence(path, depth_unit_mm=1.0)
+
+
+# ----------------------------------------------------------------------------- TUM
+def test_tum_layout(tmp_path, small_sequence):
+    _write_tum(tmp_path / "tum", small_sequence)
+    assert detect_format(tmp_path / "tum") == "tum"
+    seq = read_tum(tmp_path / "tum", intrinsics="freiburg2")
+    assert seq.num_frames == 4
+    # 1/5 mm units: quantisation step 0.2 mm
+    np.testing.assert_allclose(seq.depth, small_sequence.depth, atol=0.1 + 1e-3)
+    np.testing.assert_allclose(seq.timestamps - seq.timestamps[0], np.arange(4) / 30, atol=1e-6)
+    assert seq.intrinsics.fx == CAMERA_PRESETS["freiburg2"][0]
+    (tmp_path / "tum/camera.json").write_text('{"fx": 90, "fy": 91, "cx": 15, "cy": 11}')
+    assert load_sequence(tmp_path / "tum").intrinsics.fy == 91.0
+    # rgb 0.5 s after every depth frame: nothing associates
+    _write_tum(tmp_path / "far", small_sequence, rgb_offset=0.5)
+    with pytest.raises(InputFileError, match=r"no depth/rgb pair within 0.02 s"):
+        read_tum(tmp_path / "far", intrinsics="freiburg1")
+    reader = open_frames(tmp_path / "tum", intrinsics="freiburg1")
+    assert reader.notes == ()  # the unmatched rgb line is simply unused
+
+
+def test_associate_timestamps_greedy_unique():
+    depth = np.array([0.0, 0.033, 0.066, 0.5])
+    rgb = np.array([0.010, 0.020, 0.070, 0.9])
+    # 0.020 is nearest to both 0.0 (0.02) and 0.033 (0.013): 0.033 wins it, 0.0 takes 0.010
+    assert associate_timestamps(depth, rgb) == [(0, 0), (1, 1), (2, 2)]
+
+
+# ----------------------------------------------------------------------------- cv2-xml
+def test_cv2_xml_layout(tmp_path, small_sequence):
+    _write_cv2_xml(tmp_path / "uva", small_sequence)
+    assert detect_format(tmp_path / "uva") == "cv2-xml"
+    seq = load_sequence(tmp_path / "uva")
+    assert seq.intrinsics == small_sequence.intrinsics
+    np.testing.assert_allclose(seq.depth, np.round(small_sequence.depth))
+    np.testing.assert_allclose(seq.intensity, small_sequence.intensity, atol=0.5 / 255 + 1e-6)
+    assert seq.ground_truth.mask.dtype == bool
+    np.testing.assert_array_equal(seq.ground_truth.mask.mean(axis=(1, 2)), [0, 1, 0, 1])
+    assert seq.timestamps is None
+    assert seq.fps is None
+
+
+# ----------------------------------------------------------------------------- frames-json
+def test_frames_json_layout_and_missing_tail(tmp_path, small_sequence):
+    _write_frames_json(tmp_path / "fj", small_sequence, extra_entries=3)
+    assert detect_format(tmp_path / "fj") == "frames-json"
+    reader = open_frames(tmp_path / "fj")
+    assert len(reader) == 4
+    assert reader.depth_unit_mm == pytest.approx(0.2)
+    assert reader.notes[0] == "frames.json lists 7 frames; the last 3 (files absent) were skipped"
+    seq = reader.read_sequence()
+    np.testing.assert_allclose(seq.depth, small_sequence.depth, atol=0.1 + 1e-3)
+    np.testing.assert_allclose(seq.timestamps, np.arange(4) * 0.033333)
+    assert seq.intrinsics == small_sequence.intrinsics
+
+
+# ----------------------------------------------------------------------------- atomic writes
+def test_check_output_refuses_input(tmp_path):
+    src = tmp_path / "in.npz"
+    src.write_bytes(b"x")
+    with pytest.raises(ValueError, match=r"output would overwrite the input"):
+        check_output(src, overwrite=True, inputs=[src])
+    with pytest.raises(ValueError, match=r"output would overwrite the input"):
+        check_output(tmp_path / "folder" / "x.png", overwrite=True, inputs=[tmp_path / "folder"])
+    with pytest.raises(ValueError, match=r"output folder .*missing does not exist"):
+        check_output(tmp_path / "missing" / "x.npz")
+
+
+def test_failed_write_keeps_old_file_and_leaves_no_temp(tmp_path, small_sequence, monkeypatch):
+    out = write_npz(small_sequence, tmp_path / "s.npz")
+    before = out.read_bytes()
+
+    def broken_savez(file, **arrays):
+        file.write(b"PK partial")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(np, "savez", broken_savez)
+    with pytest.raises(OSError, match="disk full"):
+        write_npz(small_sequence, out, overwrite=True)
+    assert out.read_bytes() == before
+    assert _listing(tmp_path) == ["s.npz"]
+
+
+def test_written_files_have_normal_permissions(tmp_path, small_sequence):
+    out = write_npz(small_sequence, tmp_path / "s.npz")
+    assert out.stat().st_mode & 0o044  # readable by group/others (not mkstemp's 0600)
+
+
+# ----------------------------------------------------------------------------- PLY
+def test_ply_round_trip(tmp_path, small_sequence):
+    depth = small_sequence.depth[0].copy()
+    depth[:3] = np.nan
+    points = depth_to_points(depth, small_sequence.intrinsics)
+    n = write_ply(points, tmp_path / "f.ply", colors=small_sequence.intensity[0])
+    assert n == 21 * 32
+    xyz, rgb = read_ply(tmp_path / "f.ply")
+    np.testing.assert_array_equal(xyz, points[3:].reshape(-1, 3))
+    expected = np.round(small_sequence.intensity[0, 3:].ravel() * 255).astype(np.uint8)
+    np.testing.assert_array_equal(rgb[:, 0], expected)
+    np.testing.assert_array_equal(rgb[:, 0], rgb[:, 2])
+    header = (tmp_path / "f.ply").read_bytes()[:200]
+    assert b"format binary_little_endian 1.0" in header
+    assert b"element vertex 672" in header
+    with pytest.raises(OutputExistsError):
+        write_ply(points, tmp_path / "f.ply")
+    write_ply(points, tmp_path / "f.ply", overwrite=True)
+    assert read_ply(tmp_path / "f.ply")[1] is None
+    with pytest.raises(ValueError, match=r"colors must have shape \(24, 32\)"):
+        write_ply(points, tmp_path / "g.ply", colors=np.zeros(3))
+
+
+# ----------------------------------------------------------------------------- .flo
+def test_flo_round_trip_and_unknown(tmp_path, rng):
+    flow = rng.normal(0, 3, (5, 7, 2)).astype(np.float32)
+    flow[1, 2] = np.nan
+    write_flo(flow, tmp_path / "f.flo")
+    data = (tmp_path / "f.flo").read_bytes()
+    assert data[:4] == b"PIEH"
+    assert len(data) == 12 + 5 * 7 * 2 * 4
+    back = read_flo(tmp_path / "f.flo")
+    assert back.shape == (5, 7, 2)
+    assert back.dtype == np.float32
+    np.testing.assert_array_equal(back, flow)  # NaN where unknown
+    raw = np.frombuffer(data, "<f4", 70, 12).copy().reshape(5, 7, 2)
+    assert raw[1, 2, 0] == np.float32(1e10)
+    with pytest.raises(OutputExistsError):
+        write_flo(flow, tmp_path / "f.flo")
+    with pytest.raises(ValueError, match=r"flow must have shape \(H, W, 2\), got \(5, 7\)"):
+        write_flo(flow[..., 0], tmp_path / "g.flo")
+
+
+# ----------------------------------------------------------------------------- masks
+def test_read_mask_sources(tmp_path, small_sequence, rng):
+    roi = rng.random((24, 32)) > 0.5
+    cv2.imwrite(str(tmp_path / "roi.png"), (roi * 255).astype(np.uint8))
+    np.testing.assert_array_equal(read_mask(tmp_path / "roi.png"), roi)
+    np.savez(tmp_path / "roi.npz", roi=roi.astype(np.uint8))
+    np.testing.assert_array_equal(read_mask(tmp_path / "roi.npz"), roi)
+    seq = _sequence_with_gt(small_sequence, rng)
+    write_npz(seq, tmp_path / "s.npz")
+    np.testing.assert_array_equal(
+        read_mask(tmp_path / "s.npz", frames="1:3"), seq.ground_truth.mask[1:3]
+    )
+    _write_cv2_xml(tmp_path / "uva", small_sequence)
+    assert read_mask(tmp_path / "uva").shape == (4, 24, 32)
+    with pytest.warns(UserWarning, match="ground-truth"):
+        write_frame_folder(seq, tmp_path / "f", depth_unit_mm=0.01)
+    np.testing.assert_array_equal(read_mask(tmp_path / "f"), seq.ground_truth.mask)
+    write_frame_folder(small_sequence, tmp_path / "nomask", depth_unit_mm=0.01)
+    with pytest.raises(InputFileError, match="this recording stores no masks"):
+        read_mask(tmp_path / "nomask")
+    np.savez(tmp_path / "other.npz", x=roi)
+    with pytest.raises(InputFileError, match="no mask key"):
+        read_mask(tmp_path / "other.npz")

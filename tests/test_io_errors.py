@@ -1,0 +1,446 @@
+"""fuse4d.io readers on bad input: one InputFileError naming the file and frame (exact text)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from fuse4d import InputFileError, Sequence
+from fuse4d.io import (
+    load_sequence,
+    open_frames,
+    read_flo,
+    read_frame_folder,
+    read_npz,
+    read_ply,
+    read_tum,
+    write_frame_folder,
+    write_npz,
+)
+from test_io import _write_cv2_xml, _write_frames_json, _write_tum
+
+
+def _message(excinfo: pytest.ExceptionInfo) -> str:
+    return str(excinfo.value)
+
+
+@pytest.fixture
+def folder(tmp_path: Path, small_sequence: Sequence) -> Path:
+    return write_frame_folder(small_sequence, tmp_path / "seq", depth_unit_mm=0.01)
+
+
+def _truncate(path: Path) -> None:
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+
+
+# ----------------------------------------------------------------------------- frame folder
+def test_truncated_depth_png(folder):
+    _truncate(folder / "depth/000003.png")
+    reader = open_frames(folder)  # metadata still fine
+    reader.read_frame(2)
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(folder)
+    assert _message(exc) == (
+        f"{folder}/depth/000003.png (frame 3): cannot decode PNG (truncated or corrupt file)"
+    )
+    assert exc.value.frame == 3
+
+
+def test_corrupt_intensity_png(folder):
+    (folder / "intensity/000001.png").write_bytes(b"\x89PNG\r\n\x1a\n garbage")
+    with pytest.raises(InputFileError) as exc:
+        read_frame_folder(folder)
+    assert _message(exc) == (
+        f"{folder}/intensity/000001.png (frame 1): cannot decode PNG (truncated or corrupt file)"
+    )
+
+
+def test_missing_intrinsics_key(folder):
+    cam = json.loads((folder / "camera.json").read_text())
+    del cam["fx"]
+    (folder / "camera.json").write_text(json.dumps(cam))
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(folder)
+    assert _message(exc) == f"{folder}/camera.json: missing key 'fx'"
+
+
+def test_missing_depth_unit_key(folder):
+    cam = json.loads((folder / "camera.json").read_text())
+    del cam["depth_unit_mm"]
+    (folder / "camera.json").write_text(json.dumps(cam))
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(folder)
+    assert _message(exc) == f"{folder}/camera.json: missing key 'depth_unit_mm'"
+    assert load_sequence(folder, depth_unit_mm=0.01).num_frames == 4  # explicit unit is fine
+
+
+def test_missing_camera_json(folder):
+    (folder / "camera.json").unlink()
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(folder)
+    assert _message(exc) == (
+        f"{folder}/camera.json: file not found (a frame folder needs camera.json with "
+        "fx, fy, cx, cy, depth_unit_mm)"
+    )
+
+
+def test_camera_json_bad_value_and_bad_json(folder):
+    (folder / "camera.json").write_text(
+        '{"fx": "525", "fy": 1, "cx": 1, "cy": 1, "depth_unit_mm": 1}'
+    )
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(folder)
+    assert _message(exc) == f"{folder}/camera.json: key 'fx' must be a number, got '525'"
+    (folder / "camera.json").write_text('{"fx": 525,')
+    with pytest.raises(InputFileError, match=r"camera.json: not valid JSON \(Expecting"):
+        load_sequence(folder)
+
+
+def test_camera_json_size_mismatch(folder):
+    cam = json.loads((folder / "camera.json").read_text())
+    cam["width"] = 640
+    (folder / "camera.json").write_text(json.dumps(cam))
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(folder)
+    assert _message(exc) == (
+        f"{folder}/camera.json: camera size 640x24 does not match the 32x24 frames (WxH)"
+    )
+
+
+def test_intensity_shape_mismatch(folder):
+    cv2.imwrite(str(folder / "intensity/000002.png"), np.zeros((12, 16), np.uint8))
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(folder)
+    assert _message(exc) == (
+        f"{folder}/intensity/000002.png (frame 2): image is 16x12 but the depth frame is "
+        "32x24 (WxH)"
+    )
+
+
+def test_depth_shape_differs_from_first_frame(folder):
+    cv2.imwrite(str(folder / "depth/000001.png"), np.ones((12, 16), np.uint16))
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(folder)
+    assert _message(exc) == (
+        f"{folder}/depth/000001.png (frame 1): image is 16x12 but frame 0 is 32x24 (WxH)"
+    )
+
+
+def test_depth_png_not_16_bit(folder):
+    cv2.imwrite(str(folder / "depth/000000.png"), np.ones((24, 32), np.uint8))
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(folder)
+    assert _message(exc) == (
+        f"{folder}/depth/000000.png (frame 0): depth PNG must be 16-bit (uint16), got 8-bit "
+        "uint8; 8-bit depth loses too much precision"
+    )
+
+
+def test_depth_png_with_colour_channels(folder):
+    cv2.imwrite(str(folder / "depth/000001.png"), np.ones((24, 32, 3), np.uint16))
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(folder)
+    assert _message(exc) == (
+        f"{folder}/depth/000001.png (frame 1): depth image must have one channel, got 3 channels"
+    )
+
+
+def test_frame_count_mismatch(folder):
+    (folder / "intensity/000003.png").unlink()
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(folder)
+    assert _message(exc) == (
+        f"{folder}/intensity: 3 intensity frames but 4 depth frames; every depth frame needs "
+        "an intensity frame"
+    )
+
+
+def test_gap_in_numbering(folder):
+    (folder / "depth/000002.png").unlink()
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(folder)
+    assert _message(exc) == (
+        f"{folder}/depth/000002.png (frame 2): file not found (frames must be numbered "
+        "0, 1, 2, ... without gaps)"
+    )
+
+
+def test_empty_folder(tmp_path):
+    (tmp_path / "empty" / "depth").mkdir(parents=True)
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(tmp_path / "empty")
+    assert _message(exc) == (
+        f"{tmp_path}/empty: no depth frames found (expected depth/000000.png, "
+        "depth/000001.png, ...)"
+    )
+
+
+def test_empty_folder_without_layout(tmp_path):
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(tmp_path)
+    assert _message(exc) == (
+        f"{tmp_path}: no depth frames found (expected depth/000000.png ... with camera.json, "
+        "a TUM rgb.txt/depth.txt, a frames.json, or NNNN_depth.png + NNNN_camera.xml)"
+    )
+
+
+def test_missing_path(tmp_path):
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(tmp_path / "nope")
+    assert _message(exc) == f"{tmp_path}/nope: file or folder not found"
+
+
+def test_missing_intensity_folder(folder):
+    for p in (folder / "intensity").iterdir():
+        p.unlink()
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(folder)
+    assert _message(exc) == (
+        f"{folder}: no intensity frames found (expected intensity/000000.png, ...)"
+    )
+
+
+# ----------------------------------------------------------------------------- npz
+def test_corrupt_npz(tmp_path):
+    path = tmp_path / "bad.npz"
+    path.write_bytes(b"this is not a zip archive")
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(path)
+    assert _message(exc) == (
+        f"{path}: not a valid .npz file (truncated or corrupt: File is not a zip file)"
+    )
+
+
+def test_truncated_npz(tmp_path, small_sequence):
+    path = write_npz(small_sequence, tmp_path / "s.npz")
+    _truncate(path)
+    with pytest.raises(InputFileError) as exc:
+        read_npz(path)
+    assert _message(exc).startswith(f"{path}: not a valid .npz file (truncated or corrupt")
+
+
+def test_npz_missing_key(tmp_path, small_sequence):
+    path = tmp_path / "s.npz"
+    np.savez(path, depth=small_sequence.depth, intensity=small_sequence.intensity)
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(path)
+    assert _message(exc) == (
+        f"{path}: missing key 'intrinsics' (a fuse4d .npz needs depth, intensity, intrinsics)"
+    )
+
+
+def test_npz_shape_mismatch(tmp_path, small_sequence):
+    path = tmp_path / "s.npz"
+    np.savez(
+        path,
+        depth=small_sequence.depth,
+        intensity=small_sequence.intensity[:, :, :31],
+        intrinsics=small_sequence.intrinsics.as_array(),
+    )
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(path)
+    assert _message(exc) == (
+        f"{path}: key 'intensity' has shape (4, 24, 31) but 'depth' has (4, 24, 32)"
+    )
+
+
+def test_npz_bad_intrinsics_and_values(tmp_path, small_sequence):
+    path = tmp_path / "s.npz"
+    np.savez(path, depth=small_sequence.depth, intensity=small_sequence.intensity,
+             intrinsics=np.array([80.0, 80.0, 15.5]))  # fmt: skip
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(path)
+    assert _message(exc) == (
+        f"{path}: key 'intrinsics' must hold [fx, fy, cx, cy], got float64 of shape (3,)"
+    )
+    np.savez(path, depth=small_sequence.depth, intensity=small_sequence.intensity * 2,
+             intrinsics=small_sequence.intrinsics.as_array())  # fmt: skip
+    with pytest.raises(InputFileError, match=rf"^{path}: intensity must lie in \[0, 1\]"):
+        load_sequence(path)
+
+
+def test_npz_truncated_member_detected(tmp_path, small_sequence):
+    """A member whose bytes are cut (zip directory intact) is reported, not memory-mapped."""
+    path = write_npz(small_sequence, tmp_path / "s.npz")
+    import zipfile
+
+    with zipfile.ZipFile(path) as zf:
+        info = zf.getinfo("depth.npy")
+    data = bytearray(path.read_bytes())
+    # shrink the header's shape so the descriptor still parses, then claim a huge array
+    start = info.header_offset + 30 + len(info.filename) + len(info.extra)
+    header = bytes(data[start : start + 128])
+    bad = header.replace(b"(4, 24, 32)", b"(9, 99, 99)")
+    data[start : start + 128] = bad
+    path.write_bytes(bytes(data))
+    with pytest.raises(InputFileError) as exc:
+        read_npz(path)
+    assert _message(exc).startswith(f"{path}: key 'depth': cannot read array (truncated or corrupt")
+
+
+# ----------------------------------------------------------------------------- TUM
+def test_tum_without_intrinsics(tmp_path, small_sequence):
+    _write_tum(tmp_path / "rgbd_dataset_freiburg1_xyz", small_sequence)
+    with pytest.raises(InputFileError) as exc:
+        read_tum(tmp_path / "rgbd_dataset_freiburg1_xyz")
+    assert _message(exc) == (
+        f"{tmp_path}/rgbd_dataset_freiburg1_xyz: no intrinsics: TUM folders do not store them; "
+        "add camera.json with fx, fy, cx, cy or pass intrinsics= (one of freiburg1, "
+        "freiburg2, freiburg3, kinect-v1) (the folder name suggests 'freiburg1')"
+    )
+
+
+def test_tum_truncated_and_bad_list(tmp_path, small_sequence):
+    root = tmp_path / "tum"
+    _write_tum(root, small_sequence)
+    depth_files = sorted((root / "depth").iterdir())
+    _truncate(depth_files[1])
+    with pytest.raises(InputFileError) as exc:
+        read_tum(root, intrinsics="freiburg1")
+    assert _message(exc) == (
+        f"{depth_files[1]} (frame 1): cannot decode PNG (truncated or corrupt file)"
+    )
+    (root / "depth.txt").write_text("# header\n1305031102.0\n")
+    with pytest.raises(InputFileError) as exc:
+        read_tum(root, intrinsics="freiburg1")
+    assert _message(exc) == (
+        f"{root}/depth.txt: line 2: expected 'timestamp filename', got '1305031102.0'"
+    )
+    (root / "depth.txt").unlink()
+    with pytest.raises(InputFileError) as exc:
+        read_tum(root, intrinsics="freiburg1")
+    assert _message(exc) == (
+        f"{root}/depth.txt: file not found (a TUM folder needs rgb.txt and depth.txt)"
+    )
+
+
+def test_bad_intrinsics_argument(tmp_path, small_sequence):
+    root = tmp_path / "tum"
+    _write_tum(root, small_sequence)
+    with pytest.raises(ValueError, match=r"intrinsics 'freiburg9' is neither a preset"):
+        read_tum(root, intrinsics="freiburg9")
+    with pytest.raises(ValueError, match=r"intrinsics must be \[fx, fy, cx, cy\] \(4 numbers\)"):
+        read_tum(root, intrinsics=[500.0, 500.0])
+
+
+# ----------------------------------------------------------------------------- cv2-xml
+def test_cv2_xml_missing_intrinsic_node(tmp_path, small_sequence):
+    root = tmp_path / "uva"
+    _write_cv2_xml(root, small_sequence)
+    fs = cv2.FileStorage(str(root / "0000000000_camera.xml"), cv2.FILE_STORAGE_WRITE)
+    fs.write("R", np.eye(3))
+    fs.release()
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(root)
+    assert _message(exc) == (
+        f"{root}/0000000000_camera.xml (frame 0): missing node 'intrinsic' (3x3 camera matrix)"
+    )
+
+
+def test_cv2_xml_camera_changes(tmp_path, small_sequence):
+    root = tmp_path / "uva"
+    _write_cv2_xml(root, small_sequence)
+    fs = cv2.FileStorage(str(root / "0000000002_camera.xml"), cv2.FILE_STORAGE_WRITE)
+    fs.write("intrinsic", small_sequence.intrinsics.scaled(2.0).matrix)
+    fs.release()
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(root)
+    assert _message(exc) == (
+        f"{root}/0000000002_camera.xml (frame 2): camera differs from frame 0's; fuse4d needs "
+        "one fixed camera (pass intrinsics= to override)"
+    )
+
+
+def test_cv2_xml_missing_colour_mask_and_gap(tmp_path, small_sequence):
+    root = tmp_path / "uva"
+    _write_cv2_xml(root, small_sequence)
+    (root / "0000000001_mask.png").unlink()
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(root)
+    assert _message(exc) == (
+        f"{root}/0000000001_mask.jpg (frame 1): file not found (other frames have masks; "
+        "give all or none)"
+    )
+    (root / "0000000003.png").unlink()
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(root)
+    assert _message(exc) == (
+        f"{root}/0000000003.jpg (frame 3): file not found (colour image for 0000000003_depth.png)"
+    )
+    (root / "0000000002_depth.png").unlink()
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(root)
+    assert _message(exc) == (
+        f"{root}/0000000002_depth.png (frame 2): file not found (frame numbers must be consecutive)"
+    )
+
+
+def test_cv2_xml_truncated_jpeg(tmp_path, small_sequence):
+    root = tmp_path / "uva"
+    _write_cv2_xml(root, small_sequence, masks=False)
+    image = np.round(small_sequence.intensity[1] * 255).astype(np.uint8)
+    (root / "0000000001.png").unlink()
+    cv2.imwrite(str(root / "0000000001.jpg"), image)
+    _truncate(root / "0000000001.jpg")
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(root)
+    assert _message(exc) == (
+        f"{root}/0000000001.jpg (frame 1): cannot decode JPEG (truncated or corrupt file)"
+    )
+
+
+# ----------------------------------------------------------------------------- frames-json
+def test_frames_json_missing_middle_file(tmp_path, small_sequence):
+    root = tmp_path / "fj"
+    _write_frames_json(root, small_sequence)
+    (root / "frame_00001_rgb.png").unlink()
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(root)
+    assert _message(exc) == f"{root}/frame_00001_rgb.png (frame 1): file not found"
+
+
+def test_frames_json_missing_key_and_bad_timestamps(tmp_path, small_sequence):
+    root = tmp_path / "fj"
+    _write_frames_json(root, small_sequence)
+    data = json.loads((root / "frames.json").read_text())
+    del data["root"][2]["info"]["depth_scale"]
+    (root / "frames.json").write_text(json.dumps(data))
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(root)
+    assert _message(exc) == f"{root}/frames.json: entry 2: missing key 'info.depth_scale'"
+    data["root"][2]["info"]["depth_scale"] = 0.0002
+    data["root"][2]["info"]["timestamp"] = 0
+    (root / "frames.json").write_text(json.dumps(data))
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(root)
+    assert _message(exc) == f"{root}/frames.json: timestamps must be strictly increasing"
+
+
+# ----------------------------------------------------------------------------- PLY / flo
+def test_read_ply_bad(tmp_path):
+    path = tmp_path / "x.ply"
+    path.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 1\nend_header\n0 0 0\n")
+    with pytest.raises(InputFileError) as exc:
+        read_ply(path)
+    assert _message(exc) == f"{path}: only binary_little_endian PLY is supported"
+
+
+def test_read_flo_bad(tmp_path):
+    path = tmp_path / "x.flo"
+    path.write_bytes(np.array([1.0], "<f4").tobytes() + np.array([2, 2], "<i4").tobytes())
+    with pytest.raises(InputFileError) as exc:
+        read_flo(path)
+    assert _message(exc) == f"{path}: not a Middlebury .flo file (tag 1.0, expected 202021.25)"
+    good = np.array([202021.25], "<f4").tobytes() + np.array([2, 2], "<i4").tobytes()
+    path.write_bytes(good + b"\0" * 20)
+    with pytest.raises(InputFileError) as exc:
+        read_flo(path)
+    assert _message(exc) == f"{path}: truncated: 2x2 flow needs 32 bytes, got 20"
+    with pytest.raises(InputFileError) as exc:
+        read_flo(tmp_path / "none.flo")
+    assert _message(exc) == f"{tmp_path}/none.flo: file not found"

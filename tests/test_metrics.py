@@ -1,0 +1,396 @@
+"""Tests of fuse4d.metrics: kernels vs naive oracles, analytic cases, errors, CLI."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from fuse4d import Intrinsics, ShapeError, depth_to_points
+from fuse4d._kernels.sphere_fit import _mlesac_score_kernel
+from fuse4d.cli import main
+from fuse4d.metrics import (
+    bad_pixel_fraction,
+    ball_roi,
+    central_roi,
+    circle_fit_mlesac,
+    default_roi,
+    depth_rmse,
+    flow_angular_error,
+    flow_endpoint_error,
+    roughness,
+    roughness_maps,
+    roughness_rms,
+    roughness_stats,
+    scene_roi,
+    shape_correctness,
+    sphere_fit_mlesac,
+    static_mask_from_ground_truth,
+    temporal_flicker,
+)
+from fuse4d.synthetic import make_deforming_sheet, make_falling_ball, make_static_plane
+from naive.metrics import naive_mlesac_score, naive_roughness
+
+K = Intrinsics(fx=500.0, fy=500.0, cx=15.5, cy=11.5, width=32, height=24)
+
+
+def _bumpy_points(rng, nan_fraction=0.1):
+    yy, xx = np.mgrid[0:24, 0:32]
+    depth = (
+        600.0 + 0.3 * xx + 5 * np.sin(xx / 4.0) * np.cos(yy / 5.0) + rng.normal(0, 0.3, xx.shape)
+    )
+    depth[rng.random(depth.shape) < nan_fraction] = np.nan
+    return depth_to_points(depth, K)
+
+
+# ---------------------------------------------------------------------------- roughness
+@pytest.mark.parametrize("window", [3, 5, 7])
+def test_roughness_matches_naive_oracle(rng, window):
+    pts = _bumpy_points(rng)
+    pi, rms = roughness_maps(pts, window=window)
+    pi_ref, rms_ref = naive_roughness(pts, window=window)
+    np.testing.assert_array_equal(np.isnan(pi), np.isnan(pi_ref))
+    assert np.isfinite(pi).sum() > 300
+    np.testing.assert_allclose(pi, pi_ref, rtol=1e-3, atol=2e-4, equal_nan=True)
+    np.testing.assert_allclose(rms, rms_ref, rtol=1e-3, atol=2e-5, equal_nan=True)
+
+
+def test_roughness_sequence_axis_and_wrappers(rng):
+    pts = np.stack([_bumpy_points(rng), _bumpy_points(rng)])
+    pi = roughness(pts)
+    assert pi.shape == (2, 24, 32)
+    assert pi.dtype == np.float32
+    np.testing.assert_array_equal(pi[1], roughness(pts[1]))
+    np.testing.assert_array_equal(roughness_rms(pts), roughness_maps(pts)[1])
+
+
+def test_exact_tilted_plane_has_zero_roughness():
+    yy, xx = np.mgrid[0:24, 0:32]
+    # a plane Z = a + b X + c Y in camera space is 1/Z linear in (u, v)
+    inv = (1.0 / 500.0) * (1.0 - 0.3 * (xx - K.cx) / K.fx + 0.2 * (yy - K.cy) / K.fy)
+    pi, rms = roughness_maps(depth_to_points(1.0 / inv, K))
+    assert np.isfinite(pi[2:-2, 2:-2]).all()
+    assert np.nanmax(pi) < 2e-3  # float32 points at ~500 mm
+    assert np.nanmax(rms) < 1e-4
+
+
+def test_noisy_plane_expectation():
+    """E|Pi| = N sigma sqrt(1 - 1/N) sqrt(2/pi) for a fronto-parallel plane, N = n^2."""
+    rng = np.random.default_rng(1)
+    big = Intrinsics(fx=1000.0, fy=1000.0, cx=99.5, cy=99.5, width=200, height=200)
+    sigma = 0.2
+    depth = 700.0 + rng.normal(0.0, sigma, (3, 200, 200))
+    pi, rms = roughness_maps(depth_to_points(depth, big), window=5)
+    n = 25
+    expected = n * sigma * math.sqrt(1 - 1 / n) * math.sqrt(2 / math.pi)
+    assert np.nanmean(pi) == pytest.approx(expected, rel=0.02)
+    # RMS residual: E R^2 = sigma^2 (N - 3) / N
+    assert np.nanmean(rms**2) == pytest.approx(sigma**2 * (n - 3) / n, rel=0.03)
+
+
+def test_roughness_validity_rules():
+    depth = np.full((24, 32), 500.0)
+    depth[10, 10] = np.nan  # invalid centre
+    depth[3:6, 20:25] = np.nan  # 15 missing points around (4, 22)
+    pi = roughness(depth_to_points(depth, K))
+    assert np.isnan(pi[10, 10])
+    assert np.isfinite(pi[10, 11])  # 24/25 valid
+    assert np.isnan(pi[6, 22])  # 25 - 10 = 15 valid < 20
+    assert np.isnan(pi[0, 0])
+    assert np.isnan(pi[0, 15])
+    assert np.isfinite(pi[1, 15])  # 20/25 at the border: exactly 80 %
+
+
+@pytest.mark.parametrize("window", [4, 1, 2.5])
+def test_roughness_rejects_bad_window(window):
+    with pytest.raises(ValueError, match="window must be an odd integer >= 3"):
+        roughness(np.zeros((8, 8, 3)), window=window)
+
+
+def test_roughness_rejects_bad_shape():
+    with pytest.raises(ShapeError, match=r"points must have shape \(T, H, W, 3\)"):
+        roughness(np.zeros((2, 8, 8, 2)))
+
+
+def test_roughness_stats_over_frames(rng):
+    pts = np.stack([_bumpy_points(rng, 0.0) for _ in range(4)])
+    roi = np.zeros((24, 32), dtype=bool)
+    roi[5:15, 5:20] = True
+    stats = roughness_stats(pts, roi=roi)
+    pi = roughness(pts)
+    expect = np.array([pi[t][roi].mean() for t in range(4)])
+    np.testing.assert_allclose(stats.frame_means, expect, rtol=1e-6)
+    assert stats.mean == pytest.approx(expect.mean())
+    assert stats.std == pytest.approx(expect.std(ddof=0))
+    assert stats.num_pixels.tolist() == [150] * 4
+    assert stats.interior(1) == pytest.approx((expect[1:3].mean(), expect[1:3].std()))
+    with pytest.raises(ValueError, match="margin must be in"):
+        stats.interior(2)
+
+
+def test_roughness_stats_empty_frame_is_nan_and_skipped(rng):
+    pts = np.stack([_bumpy_points(rng, 0.0), np.full((24, 32, 3), np.nan, np.float32)])
+    stats = roughness_stats(pts)
+    assert np.isnan(stats.frame_means[1])
+    assert stats.num_pixels[1] == 0
+    assert stats.mean == pytest.approx(stats.frame_means[0])
+
+
+def test_roughness_stats_rejects_bad_roi(rng):
+    with pytest.raises(ShapeError, match="roi must have shape"):
+        roughness_stats(_bumpy_points(rng), roi=np.ones((3, 3), bool))
+    with pytest.raises(TypeError, match="roi must be a boolean mask"):
+        roughness_stats(_bumpy_points(rng), roi=np.ones((24, 32)))
+
+
+# ---------------------------------------------------------------------------- ROIs
+def test_default_roi_excludes_edges_borders_and_holes():
+    d = np.full((12, 12), 500.0)
+    d[:, 7:] = 520.0  # a 20 mm step between columns 6 and 7
+    d[2, 2] = np.nan
+    roi = default_roi(d, window=3, edge_mm=10.0)
+    assert not roi[0].any()
+    assert not roi[:, 0].any()
+    assert not roi[5, 6]
+    assert not roi[5, 7]
+    assert roi[5, 5]
+    assert roi[5, 8]
+    assert not roi[1:4, 1:4].any()
+    assert roi[5, 4]
+    assert default_roi(d, window=3, edge_mm=30.0)[5, 6]
+
+
+def test_ball_roi_small():
+    seq = make_falling_ball(small=True, num_frames=3, depth_noise=0.0)
+    roi = ball_roi(seq)
+    gt = seq.ground_truth
+    assert roi.shape == (3, 150, 150)
+    assert not (roi & ~gt.mask).any()
+    vv, uu = np.nonzero(roi[2])
+    dist = np.hypot(uu - gt.extra["center_col"], vv - gt.extra["center_row"][2])
+    assert dist.max() <= 25.0
+    assert dist.max() > 24.0
+    assert roi[0].sum() == roi[2].sum()  # pure translation, same ROI size
+
+
+def test_central_roi_plane_and_sheet():
+    plane = make_static_plane(small=True, num_frames=2)
+    roi, desc = scene_roi(plane)
+    assert "central 80 %" in desc
+    frac = roi[0].sum() / plane.ground_truth.mask[0].sum()
+    assert 0.5 < frac < 0.7  # 0.8 x 0.8 of the area, minus the window margin
+    sheet = make_deforming_sheet(small=True, num_frames=3)
+    roi_s = central_roi(sheet)
+    assert roi_s.any()
+    assert not (roi_s & ~sheet.ground_truth.mask).any()
+
+
+def test_static_mask_from_ground_truth():
+    seq = make_falling_ball(small=True, num_frames=4)
+    static = static_mask_from_ground_truth(seq.ground_truth)
+    assert not (static & seq.ground_truth.mask.any(axis=0)).any()
+    assert static.mean() > 0.5
+
+
+# ---------------------------------------------------------------------------- shape
+def _sphere_points(rng, n=2000, radius=140.0, centre=(0.0, 20.0, 700.0)):
+    d = rng.normal(size=(n, 3))
+    return radius * d / np.linalg.norm(d, axis=1, keepdims=True) + np.asarray(centre)
+
+
+def test_sphere_fit_exact_sphere(rng):
+    fit = sphere_fit_mlesac(_sphere_points(rng))
+    assert fit.radius == pytest.approx(140.0, abs=1e-6)
+    assert fit.minimal_radius == pytest.approx(140.0, abs=1e-6)
+    np.testing.assert_allclose(fit.center, [0.0, 20.0, 700.0], atol=1e-6)
+    assert fit.num_inliers == 2000
+
+
+def test_sphere_fit_robust_to_outliers(rng):
+    pts = _sphere_points(rng) + rng.normal(0, 0.2, (2000, 3))
+    pts[:600] = rng.uniform(-150, 150, (600, 3)) + np.array([0.0, 0.0, 700.0])
+    fit = sphere_fit_mlesac(pts, rng=3)
+    assert fit.radius == pytest.approx(140.0, abs=0.1)
+    assert 0.6 < fit.inlier_fraction < 0.8
+
+
+def test_circle_fit(rng):
+    a = rng.uniform(0, np.pi, 300)
+    pts = np.stack([50 * np.cos(a) + 3, 50 * np.sin(a) - 7], 1)
+    assert circle_fit_mlesac(pts).radius == pytest.approx(50.0, abs=1e-6)
+
+
+def test_mlesac_kernel_matches_oracle(rng):
+    pts = _sphere_points(rng, 500) + rng.normal(0, 0.5, (500, 3))
+    centres = np.array([[0.0, 20.0, 700.0], [1.0, 18.0, 702.0], [0.0, 0.0, 0.0]])
+    radii = np.array([140.0, 139.0, 5.0])
+    nll, gamma = np.empty(3), np.empty(3)
+    usable = np.array([True, True, False])
+    _mlesac_score_kernel(pts, centres, radii, usable, 0.5, 50.0, 5, nll, gamma)
+    for m in range(2):
+        ref_nll, ref_gamma = naive_mlesac_score(pts, centres[m], radii[m])
+        assert nll[m] == pytest.approx(ref_nll, rel=1e-9)
+        assert gamma[m] == pytest.approx(ref_gamma, rel=1e-9)
+    assert nll[2] == np.inf
+
+
+def test_sphere_fit_errors():
+    with pytest.raises(ValueError, match="needs at least 4 finite points, got 3"):
+        sphere_fit_mlesac(np.ones((3, 3)))
+    with pytest.raises(ShapeError, match=r"points must have shape \(N, 3\)"):
+        sphere_fit_mlesac(np.ones((10, 2)))
+    with pytest.raises(ValueError, match="sigma must be > 0"):
+        sphere_fit_mlesac(np.ones((10, 3)), sigma=0)
+
+
+def test_shape_correctness_noise_free_ball_is_one():
+    seq = make_falling_ball(small=True, num_frames=2, depth_noise=0.0)
+    sc = shape_correctness(seq.points(), seq)
+    np.testing.assert_allclose(sc.c_3d, 1.0, atol=1e-4)
+    np.testing.assert_allclose(sc.c_profile, 1.0, atol=2e-3)
+    assert (sc.num_points > 3000).all()
+    # a scaled ball (radius 140 * 1.01) gives C = 0.99
+    sc2 = shape_correctness(seq.points() * 1.01, seq)
+    np.testing.assert_allclose(sc2.c_3d, 0.99, atol=2e-4)
+
+
+def test_shape_correctness_needs_ball_ground_truth():
+    plane = make_static_plane(small=True, num_frames=2)
+    with pytest.raises(ValueError, match="needs the falling-ball ground truth"):
+        shape_correctness(plane.points(), plane)
+
+
+# ---------------------------------------------------------------------------- accuracy
+def test_depth_rmse_and_bad_pixels():
+    truth = np.array([[500.0, 500.0], [500.0, np.nan]])
+    test = np.array([[500.0, 503.0], [np.nan, 1.0]])
+    assert depth_rmse(truth, test) == pytest.approx(math.sqrt(9 / 2))
+    assert bad_pixel_fraction(truth, test) == pytest.approx(2 / 3)  # NaN counts as bad
+    assert bad_pixel_fraction(truth, test, threshold=5.0) == pytest.approx(1 / 3)
+    mask = np.array([[True, False], [True, True]])
+    assert depth_rmse(truth, test, mask=mask) == 0.0
+    assert math.isnan(depth_rmse(truth, test, mask=np.zeros((2, 2), bool)))
+    with pytest.raises(ShapeError, match="depth_test must have shape"):
+        depth_rmse(truth, np.zeros((3, 2)))
+
+
+def test_temporal_flicker_matches_std(rng):
+    depth = 500.0 + rng.normal(0, 0.3, (20, 6, 7))
+    depth[3, 0, 0] = np.nan
+    static = np.ones((6, 7), bool)
+    static[5] = False
+    f = temporal_flicker(depth, static_mask=static)
+    ref = depth[:, :5].std(axis=0).ravel()[1:]
+    assert f.num_pixels == 34
+    assert f.median == pytest.approx(np.median(ref), rel=1e-5)
+    assert f.mean == pytest.approx(ref.mean(), rel=1e-5)
+    assert np.isnan(f.std_map[0, 0])
+    assert np.isnan(f.std_map[5, 3])
+    with pytest.raises(ValueError, match="at least 2 frames"):
+        temporal_flicker(depth[:1])
+
+
+def test_flow_errors():
+    truth = np.zeros((1, 2, 3, 2))
+    test = np.zeros((1, 2, 3, 2))
+    test[..., 0] = 3.0
+    test[..., 1] = 4.0
+    truth[0, 0, 0] = np.nan  # unknown GT excluded
+    assert flow_endpoint_error(truth, test) == pytest.approx(5.0)
+    assert flow_angular_error(truth, truth) == pytest.approx(0.0, abs=1e-5)
+    # (1, 0) vs (0, 0): angle between (1, 0, 1) and (0, 0, 1) = 45 degrees
+    one = np.zeros((1, 1, 1, 2))
+    one[..., 0] = 1.0
+    assert flow_angular_error(np.zeros((1, 1, 1, 2)), one) == pytest.approx(45.0)
+    mask = np.zeros((1, 2, 3), bool)
+    assert math.isnan(flow_endpoint_error(truth, test, mask=mask))
+
+
+# ---------------------------------------------------------------------------- acceptance
+def test_small_ball_roughness_grows_with_noise():
+    means = []
+    for sd in (0.0, 0.1, 0.2):
+        seq = make_falling_ball(small=True, num_frames=3, depth_noise=sd)
+        means.append(roughness_stats(seq.points(), roi=ball_roi(seq)).mean)
+    # curvature floor: 4x coarser sampling than full size -> 16 x 0.12 mm (EVALUATION §1)
+    assert means[0] == pytest.approx(16 * 0.1226, rel=0.05)
+    assert means[0] < means[1] < means[2]
+
+
+@pytest.mark.slow
+def test_full_ball_matches_spec_simulation():
+    """EVALUATION §1: raw Pi = 3.62 mm at sigma_d = 0.2 mm (tolerance 5 %), paper 3.75."""
+    seq = make_falling_ball(num_frames=10)
+    stats = roughness_stats(seq.points(), roi=ball_roi(seq))
+    assert stats.mean == pytest.approx(3.62, rel=0.05)
+    assert stats.rms_mean == pytest.approx(0.17, rel=0.05)
+
+
+# ---------------------------------------------------------------------------- CLI
+def test_cli_metrics_json_on_synthetic_ball(tmp_path, capsys):
+    out = tmp_path / "ball.npz"
+    assert main(["synth", "ball", "-o", str(out), "--small", "--frames", "4"]) == 0
+    capsys.readouterr()
+    assert main(["metrics", str(out), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["roi"]["description"].startswith("ball ROI")
+    assert res["roi"]["pixels"] > 4000
+    assert 3.0 < res["roughness_mean"] < 5.0
+    assert 0.15 < res["rms_residual"] < 0.21
+    assert res["rmse"] == pytest.approx(0.2, rel=0.05)
+    assert res["bad_1mm"] < 1e-3
+    assert 0.1 < res["flicker"] < 0.25
+    assert res["shape"]["c_3d_mean"] > 0.999
+
+
+def test_cli_metrics_default_and_file_roi(tmp_path, capsys):
+    seq = make_static_plane(small=True, num_frames=3)
+    from fuse4d.io import write_npz
+
+    path = tmp_path / "plain.npz"
+    write_npz(seq.with_depth(seq.depth).__class__(seq.depth, seq.intensity, seq.intrinsics), path)
+    assert main(["metrics", str(path), "--json", "--frames", "1:3"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["roi"]["description"].startswith("default")
+    assert res["frames"] == [1, 3]
+    assert "rmse" not in res
+    roi = np.zeros((150, 150), bool)
+    roi[70:80, 70:80] = True
+    np.savez(tmp_path / "roi.npz", mask=roi)
+    assert main(["metrics", str(path), "--json", "--roi", str(tmp_path / "roi.npz")]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["roi"]["pixels"] == 300
+    assert main(["metrics", str(path), "--gt", str(path), "--json", "--window", "3"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["rmse"] == 0.0
+    assert res["bad_1mm"] == 0.0
+
+
+def test_cli_metrics_bad_input(tmp_path, capsys):
+    assert main(["metrics", str(tmp_path / "missing.npz"), "--json"]) == 2
+    assert "fuse4d: error:" in capsys.readouterr().err
+    np.savez(tmp_path / "roi.npz", other=np.ones(3))
+    out = tmp_path / "b.npz"
+    main(["synth", "ball", "-o", str(out), "--small", "--frames", "2"])
+    capsys.readouterr()
+    assert main(["metrics", str(out), "--roi", str(tmp_path / "roi.npz")]) == 2
+    assert "needs a key 'mask' or 'roi'" in capsys.readouterr().err
+    assert main(["metrics", str(out), "--window", "4"]) == 2
+    assert "--window must be an odd integer" in capsys.readouterr().err
+
+
+def test_plot_roughness_map_and_save_figure(tmp_path):
+    from fuse4d.errors import OutputExistsError
+    from fuse4d.plot import plot_roughness_map, save_figure
+
+    seq = make_falling_ball(small=True, num_frames=2)
+    fig = plot_roughness_map(roughness(seq.points()[0]), vmax=8.0, title="raw")
+    out = save_figure(fig, tmp_path / "map.png")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["map.png"]  # no temporary left
+    with pytest.raises(OutputExistsError, match="output exists"):
+        save_figure(fig, out)
+    with pytest.raises(ValueError, match="vmax must exceed vmin"):
+        plot_roughness_map(np.zeros((4, 4)), vmax=0.0)

@@ -1,0 +1,323 @@
+"""PMBP flow: kernels vs the NumPy oracle, known motions, determinism, schedules, params."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numba
+import numpy as np
+import pytest
+from naive import pmbp as naive
+
+from fuse4d import ShapeError
+from fuse4d._kernels import pmbp as K
+from fuse4d.pmbp import (
+    PMBP_FAST,
+    PMBPFastParams,
+    PMBPParams,
+    _asw_weights,
+    _config,
+    pmbp_flow,
+    pmbp_flow_fast,
+)
+
+
+def _texture(h, w, shift=(0.0, 0.0), seed=0):
+    """Analytic sum-of-sinusoids texture in [0, 1], sampled at (col − du, row − dv).
+
+    ``_texture(..., shift=d)`` is image1 of a pair whose true flow is ``d`` everywhere:
+    image0(p) = image1(p + d).
+    """
+    rng = np.random.default_rng(seed)
+    rows, cols = np.mgrid[0:h, 0:w].astype(np.float64)
+    x, y = cols - shift[0], rows - shift[1]
+    img = np.zeros((h, w))
+    for _ in range(12):
+        ang = rng.uniform(0, np.pi)
+        lam = rng.uniform(8.0, 24.0)  # smooth enough for bilinear sampling
+        k = 2 * np.pi / lam
+        img += np.sin(k * (np.cos(ang) * x + np.sin(ang) * y) + rng.uniform(0, 2 * np.pi))
+    img = 0.5 + 0.15 * img / img.std()
+    return np.clip(img, 0, 1).astype(np.float32)
+
+
+def _pair(h, w, d, noise=0.0, seed=0):
+    a, b = _texture(h, w, seed=seed), _texture(h, w, shift=d, seed=seed)
+    if noise:
+        rng = np.random.default_rng(seed + 100)
+        a = np.clip(a + rng.normal(0, noise, a.shape), 0, 1).astype(np.float32)
+        b = np.clip(b + rng.normal(0, noise, b.shape), 0, 1).astype(np.float32)
+    return a, b
+
+
+def _epe(flow, d, margin):
+    e = np.hypot(flow[..., 0] - d[0], flow[..., 1] - d[1])
+    return float(e[margin:-margin, margin:-margin].mean())
+
+
+SMALL = PMBPParams(num_particles=2, num_iter=3, pyramid_levels=2)
+
+
+# ------------------------------------------------------------------------------------------
+# kernels vs the naive oracle
+
+
+@pytest.fixture
+def tiny():
+    """A 9x11 random grid with random particles, foundations and weights."""
+    rng = np.random.default_rng(3)
+    h, w, k = 9, 11, 3
+    src = cv2.GaussianBlur(rng.random((h, w)).astype(np.float32), (0, 0), 1.0)
+    tgt = cv2.GaussianBlur(rng.random((h, w)).astype(np.float32), (0, 0), 1.0)
+    lab = rng.uniform(-2, 2, (h, w, k, 2)).astype(np.float32)
+    found = rng.uniform(0, 1, (h, w, 4, k)).astype(np.float32)
+    dis = rng.uniform(0, 3, (h, w, k)).astype(np.float32)
+    return src, tgt, lab, found, dis
+
+
+def test_asw_weights_match_oracle(tiny):
+    src = tiny[0]
+    p = PMBPParams(patch_radius=2, asw_gamma=0.1)
+    roi = np.array([0, src.shape[0], 0, src.shape[1]], np.int64)
+    got = _asw_weights(src, p, roi)
+    guide = cv2.medianBlur(src, 3)
+    np.testing.assert_allclose(got, naive.asw_weights(guide, 2, 0.1), rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize("alpha", [0.0, 0.4])
+@pytest.mark.parametrize(
+    ("r", "c", "s"),
+    [(4, 5, (0.3, -0.7)), (1, 1, (1.5, 0.25)), (8, 10, (-0.5, -2.0)), (4, 5, (4.6, 0.0))],
+)
+def test_patch_cost_matches_oracle(tiny, alpha, r, c, s):
+    src, tgt = tiny[0], tiny[1]
+    p = PMBPParams(gradient_weight=alpha, trunc_intensity=0.1, trunc_gradient=0.05)
+    roi = np.array([0, src.shape[0], 0, src.shape[1]], np.int64)
+    asw = _asw_weights(src, p, roi)
+    cfg = _config(p, 1.0, True)
+    gv0, gu0 = np.gradient(src)
+    gv1, gu1 = np.gradient(tgt)
+    grads = [np.ascontiguousarray(g, np.float32) for g in (gu0, gv0, gu1, gv1)]
+    got = K._patch_cost(src, grads[0], grads[1], tgt, grads[2], grads[3], asw, r, c, *s, 2, cfg, np.inf)
+    border = cfg[K._CFG_BORDER]
+    want = naive.patch_cost(
+        src, tgt, asw, r, c, s, rho=2, tau1=0.1, tau2=0.05, border=border, alpha=alpha, grads=grads
+    )
+    assert got == pytest.approx(want, rel=1e-5, abs=1e-7)
+    # early termination returns a value above the bound, never below the true cost
+    bounded = K._patch_cost(
+        src, grads[0], grads[1], tgt, grads[2], grads[3], asw, r, c, *s, 2, cfg, want / 3
+    )
+    assert want / 3 < bounded <= want + 1e-6
+
+
+def test_message_and_disbelief_match_oracle(tiny):
+    _, _, lab, found, _ = tiny
+    h, w = lab.shape[:2]
+    roi = np.array([0, h, 0, w], np.int64)
+    lam, trunc = 0.7, 2.5
+    rng = np.random.default_rng(5)
+    for r, c in [(0, 0), (4, 5), (8, 10), (0, 6), (5, 0)]:
+        s = rng.uniform(-2, 2, 2)
+        got = K._message_sum(lab, found, r, c, s[0], s[1], lam, trunc, roi)
+        assert got == pytest.approx(naive.message_sum(lab, found, r, c, s, lam, trunc), rel=1e-6)
+        una = np.zeros(lab.shape[:3], np.float32) + 0.25
+        dis = np.zeros(lab.shape[:3], np.float32)
+        K._refresh(lab, una, dis, found, r, c, lam, trunc, roi)
+        for k in range(lab.shape[2]):
+            want = naive.disbelief(0.25, lab, found, r, c, lab[r, c, k], lam, trunc)
+            assert dis[r, c, k] == pytest.approx(want, rel=1e-5)
+
+
+def test_foundation_update_matches_oracle(tiny):
+    _, _, lab, found, dis = tiny
+    h, w = lab.shape[:2]
+    roi = np.array([0, h, 0, w], np.int64)
+    lam, trunc = 0.7, 2.5
+    for r, c in [(0, 0), (4, 5), (8, 10), (3, 10)]:
+        want = naive.foundations(lab, dis, found, r, c, lam, trunc)
+        got = found.copy()
+        K._cache_foundations(lab, dis, got, r, c, lam, trunc, roi)
+        np.testing.assert_allclose(got[r, c], want, rtol=1e-5, atol=1e-6)
+        present = [d for d, *_ in naive.neighbours(r, c, (h, w))]
+        assert np.all(got[r, c, present].min(axis=1) == 0.0)
+        # only p's own foundations change
+        mask = np.ones((h, w), bool)
+        mask[r, c] = False
+        np.testing.assert_array_equal(got[mask], found[mask])
+
+
+def test_roi_removes_neighbours(tiny):
+    _, _, lab, found, _ = tiny
+    roi = np.array([4, 9, 5, 11], np.int64)  # (4, 5) is the roi's top-left corner
+    full = naive.message_sum(lab, found, 4, 5, (0.1, 0.2), 1.0, 3.0)
+    up = naive.message(lab, found, 3, 5, 1, (0.1, 0.2), 1.0, 3.0)
+    left = naive.message(lab, found, 4, 4, 3, (0.1, 0.2), 1.0, 3.0)
+    got = K._message_sum(lab, found, 4, 5, 0.1, 0.2, 1.0, 3.0, roi)
+    assert got == pytest.approx(full - up - left, rel=1e-5)
+
+
+def test_solution_lowers_the_energy():
+    """The PMBP field has lower MRF energy (naive oracle) than zero flow and the true shift."""
+    a, b = _pair(20, 22, (0.6, -0.4), noise=0.03, seed=2)
+    p = PMBPParams(num_particles=3, num_iter=4, pairwise_weight=0.5)
+    flow = pmbp_flow(a, b, p)
+    roi = np.array([0, 20, 0, 22], np.int64)
+    asw = _asw_weights(a, p, roi)
+    border = _config(p, 1.0, True)[K._CFG_BORDER]
+
+    def unary(r, c, s):
+        return naive.patch_cost(a, b, asw, r, c, s, rho=2, tau1=0.3, border=border)
+
+    e_pmbp = naive.energy(flow, unary, 0.5, 4.0)
+    truth = np.broadcast_to(np.float32([0.6, -0.4]), flow.shape).copy()
+    assert e_pmbp < naive.energy(np.zeros_like(flow), unary, 0.5, 4.0)
+    assert e_pmbp < naive.energy(truth, unary, 0.5, 4.0) * 1.02
+
+
+# ------------------------------------------------------------------------------------------
+# known motions
+
+
+@pytest.mark.parametrize("schedule", ["parallel", "sequential"])
+def test_zero_motion_gives_zero_flow(schedule):
+    a = _texture(48, 56)
+    flow = pmbp_flow(a, a, dataclasses.replace(SMALL, schedule=schedule))
+    assert flow.shape == (48, 56, 2)
+    assert flow.dtype == np.float32
+    np.testing.assert_array_equal(flow, 0.0)
+
+
+@pytest.mark.parametrize("d", [(0.4, -0.7), (1.25, 0.5), (-2.3, 1.6)])
+def test_subpixel_translation_recovered(d):
+    a, b = _pair(80, 80, d)
+    flow = pmbp_flow(a, b)
+    assert _epe(flow, d, 10) < 0.1
+    assert np.median(np.abs(flow[10:-10, 10:-10] - np.float32(d))) < 0.05
+
+
+def test_fast_preset_translation():
+    a, b = _pair(80, 80, (1.4, -0.9), noise=0.02)
+    flow = pmbp_flow_fast(a, b)
+    assert _epe(flow, (1.4, -0.9), 10) < 0.2
+    assert PMBP_FAST.num_particles == 1
+    assert isinstance(PMBP_FAST, PMBPParams)
+
+
+def test_parallel_agrees_with_sequential_schedule():
+    d = (1.1, -0.6)
+    a, b = _pair(64, 72, d, noise=0.02, seed=4)
+    base = PMBPParams(num_particles=2, num_iter=3, pyramid_levels=2)
+    e_par = _epe(pmbp_flow(a, b, base), d, 8)
+    e_seq = _epe(pmbp_flow(a, b, dataclasses.replace(base, schedule="sequential")), d, 8)
+    assert e_par < 0.15
+    assert e_seq < 0.15
+    assert abs(e_par - e_seq) < 0.05
+
+
+# ------------------------------------------------------------------------------------------
+# determinism, warm start, roi
+
+
+@pytest.mark.parametrize("schedule", ["parallel", "sequential"])
+def test_deterministic_for_a_fixed_seed(schedule):
+    a, b = _pair(40, 44, (0.7, 0.3), noise=0.05, seed=1)
+    p = dataclasses.replace(SMALL, schedule=schedule, seed=7)
+    first = pmbp_flow(a, b, p)
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        second = pmbp_flow(a, b, p)
+    finally:
+        numba.set_num_threads(threads)
+    np.testing.assert_array_equal(first, second)
+    other = pmbp_flow(a, b, dataclasses.replace(p, seed=8))
+    assert not np.array_equal(first, other)
+
+
+def test_warm_start_is_used():
+    d = (2.6, -1.3)
+    a, b = _pair(40, 40, d)
+    init = np.broadcast_to(np.float32(d), (40, 40, 2)).copy()
+    p = PMBPParams(num_particles=1, num_iter=0, pyramid_levels=1)
+    np.testing.assert_array_equal(pmbp_flow(a, b, p, init)[6:-6, 6:-6], init[6:-6, 6:-6])
+    # without it, zero-iteration K=1 is the zero seed
+    assert np.abs(pmbp_flow(a, b, p)[6:-6, 6:-6]).max() == 0.0
+
+
+def test_roi_restricts_the_solve():
+    d = (0.8, 0.5)
+    a, b = _pair(48, 60, d)
+    p = dataclasses.replace(SMALL, roi=(10, 40, 12, 50))
+    flow = pmbp_flow(a, b, p)
+    outside = np.ones((48, 60), bool)
+    outside[10:40, 12:50] = False
+    assert np.all(flow[outside] == 0.0)
+    assert _epe(flow[10:40, 12:50], d, 4) < 0.1
+
+
+# ------------------------------------------------------------------------------------------
+# parameters and input errors
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "match"),
+    [
+        ("num_particles", 0, "num_particles"),
+        ("num_particles", 2.0, "num_particles"),
+        ("patch_radius", -1, "patch_radius"),
+        ("gradient_weight", 1.5, "gradient_weight"),
+        ("asw_gamma", 0.0, "asw_gamma"),
+        ("pairwise_weight", -1.0, "pairwise_weight"),
+        ("max_motion", float("nan"), "max_motion"),
+        ("num_iter", -1, "num_iter"),
+        ("pyramid_levels", 0, "pyramid_levels"),
+        ("schedule", "random", "schedule"),
+        ("early_termination", 1, "early_termination"),
+        ("roi", (5, 2, 0, 4), "roi"),
+        ("roi", (0, 4, 0), "roi"),
+        ("seed", -3, "seed"),
+    ],
+)
+def test_params_validation(field, value, match):
+    with pytest.raises(ValueError, match=match):
+        PMBPParams(**{field: value})
+
+
+def test_fast_params_defaults():
+    p = PMBPFastParams(num_iter=1)
+    assert p.num_particles == 1
+    assert p.num_iter == 1
+    assert PMBPParams().num_particles == 3
+
+
+def test_input_errors():
+    a = _texture(20, 20)
+    with pytest.raises(ShapeError, match="image1"):
+        pmbp_flow(a, a[:10])
+    with pytest.raises(ShapeError, match="image0"):
+        pmbp_flow(np.stack([a, a]), a)
+    with pytest.raises(ShapeError, match="init"):
+        pmbp_flow(a, a, init=np.zeros((20, 20, 3), np.float32))
+    with pytest.raises(ValueError, match="NaN"):
+        pmbp_flow(np.full((20, 20), np.nan, np.float32), a)
+    with pytest.raises(ValueError, match="roi"):
+        pmbp_flow(a, a, PMBPParams(roi=(0, 30, 0, 10)))
+    with pytest.raises(TypeError, match="PMBPParams"):
+        pmbp_flow(a, a, {"num_particles": 1})
+
+
+def test_registered_with_flow_module():
+    flow_mod = pytest.importorskip("fuse4d.flow")
+    if not hasattr(flow_mod, "estimate_flow"):
+        pytest.skip("fuse4d.flow has no estimate_flow yet")
+    from fuse4d.pmbp import register
+
+    register()
+    d = (0.5, -0.5)
+    a, b = _pair(48, 48, d)
+    flow = flow_mod.estimate_flow(a, b, method="pmbp-fast")
+    assert _epe(flow, d, 8) < 0.1
+    flow = flow_mod.estimate_flow(a, b, method="pmbp", params=SMALL)
+    assert _epe(flow, d, 8) < 0.1

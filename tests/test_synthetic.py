@@ -1,0 +1,235 @@
+"""Tests of fuse4d.synthetic: geometry, ground truth, noise streams, errors, CLI."""
+
+from __future__ import annotations
+
+import warnings
+
+import cv2
+import numpy as np
+import pytest
+
+from fuse4d import Sequence
+from fuse4d.cli import main
+from fuse4d.io import load_sequence
+from fuse4d.synthetic import (
+    make_deforming_sheet,
+    make_falling_ball,
+    make_scene,
+    make_static_plane,
+    scene_intrinsics,
+)
+
+
+@pytest.mark.parametrize("factory", [make_falling_ball, make_static_plane, make_deforming_sheet])
+def test_shapes_and_ground_truth(factory):
+    seq = factory(small=True, num_frames=3)
+    assert isinstance(seq, Sequence)
+    assert seq.depth.shape == (3, 150, 150)
+    assert seq.depth.dtype == np.float32
+    assert seq.intrinsics == scene_intrinsics(small=True)
+    gt = seq.ground_truth
+    assert gt.depth.shape == (3, 150, 150)
+    assert gt.mask.dtype == bool
+    assert gt.flow.shape == (2, 150, 150, 2)
+    assert gt.flow.dtype == np.float32
+    assert seq.intensity.min() >= 0.0
+    assert seq.intensity.max() <= 1.0
+    assert np.isfinite(seq.depth).all()  # background wall: every pixel valid
+    assert gt.extra["seed"] == 0
+
+
+def test_default_frame_counts():
+    assert make_falling_ball(small=True).num_frames == 12
+    assert make_falling_ball(small=True, num_frames=5).num_frames == 5
+
+
+def test_ball_depth_lies_on_the_sphere():
+    seq = make_falling_ball(small=True, num_frames=3, depth_noise=0.0)
+    gt = seq.ground_truth
+    pts = seq.points()
+    for t in range(3):
+        centre = gt.extra["center_mm"][t]
+        dist = np.linalg.norm(pts[t][gt.mask[t]] - centre, axis=1)
+        np.testing.assert_allclose(dist, 140.0, atol=2e-3)
+        assert np.all(pts[t][~gt.mask[t]][:, 2] == 1000.0)
+    # projected centre row v_c(t) = 62.125 + 0.5 t (full size: 250 + 2 t)
+    np.testing.assert_allclose(gt.extra["center_row"], [62.125, 62.625, 63.125])
+    rows = np.nonzero(gt.mask[0].any(axis=1))[0]
+    assert rows.min() < 62.125 - 45
+    assert rows.max() > 62.125 + 45
+
+
+def test_ball_flow_and_brightness_constancy():
+    seq = make_falling_ball(small=True, num_frames=3, intensity_noise=0.0)
+    gt = seq.ground_truth
+    # exact image motion of a point at depth Z translating along Y: speed * z0 / Z
+    on = gt.mask[:-1]
+    np.testing.assert_allclose(gt.flow[..., 1][on], 0.5 * 700.0 / gt.depth[:-1][on], rtol=1e-5)
+    assert not gt.flow[..., 1][~on].any()
+    assert 0.5 < gt.flow[..., 1][on].min() < 0.53
+    assert 0.6 < gt.flow[..., 1][on].max() < 0.63  # front of the ball, Z = 560 mm
+    assert not gt.flow[..., 0].any()
+    _check_brightness_constancy(seq, max_error=0.005)
+
+
+def test_sheet_flow_brightness_constancy():
+    seq = make_deforming_sheet(small=True, num_frames=4, intensity_noise=0.0)
+    flow = seq.ground_truth.flow
+    on = seq.ground_truth.mask[:-1]
+    assert np.abs(flow[..., 0][on] - 0.125).max() < 0.02  # 0.5 px/frame x pixel_scale
+    assert not flow[~on].any()
+    _check_brightness_constancy(seq, max_error=0.01)
+
+
+def _check_brightness_constancy(seq, *, max_error):
+    """Warp frame t+1 back with the GT flow: the texture must match on the object interior."""
+    gt = seq.ground_truth
+    h, w = seq.shape
+    cols, rows = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    for t in range(seq.num_frames - 1):
+        mx = cols + gt.flow[t, ..., 0]
+        my = rows + gt.flow[t, ..., 1]
+        warped = cv2.remap(seq.intensity[t + 1], mx, my, interpolation=cv2.INTER_LINEAR)
+        inner = cv2.erode(gt.mask[t].astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+        err = np.abs(warped - seq.intensity[t])[inner]
+        assert err.mean() < max_error
+        # and the texture is really there: a zero-flow warp is much worse
+        assert np.abs(seq.intensity[t + 1] - seq.intensity[t])[inner].mean() > 3 * err.mean()
+
+
+def test_noise_levels():
+    seq = make_falling_ball(small=True, num_frames=4, depth_noise=0.3, intensity_noise=0.05)
+    gt = seq.ground_truth
+    resid = (seq.depth - gt.depth).ravel()
+    assert resid.std() == pytest.approx(0.3, rel=0.02)
+    assert abs(resid.mean()) < 0.01
+    clean = make_falling_ball(small=True, num_frames=4, depth_noise=0.0, intensity_noise=0.0)
+    np.testing.assert_array_equal(clean.depth, gt.depth)
+    di = seq.intensity - clean.intensity
+    interior = (clean.intensity > 0.2) & (clean.intensity < 0.8)
+    assert di[interior].std() == pytest.approx(0.05, rel=0.03)
+
+
+def test_independent_streams():
+    a = make_falling_ball(small=True, num_frames=3, depth_noise=0.1, intensity_noise=0.02)
+    b = make_falling_ball(small=True, num_frames=3, depth_noise=0.4, intensity_noise=0.02)
+    c = make_falling_ball(small=True, num_frames=3, depth_noise=0.1, intensity_noise=0.08)
+    np.testing.assert_array_equal(a.intensity, b.intensity)  # intensity: only (seed, sigma_I)
+    np.testing.assert_array_equal(a.depth, c.depth)  # depth: only (seed, sigma_d)
+    d = make_falling_ball(small=True, num_frames=3, rng=1)
+    assert not np.array_equal(a.intensity, d.intensity)
+    # frame t does not depend on the sequence length
+    e = make_falling_ball(small=True, num_frames=5, depth_noise=0.1)
+    np.testing.assert_array_equal(a.depth, e.depth[:3])
+    # the same seed reproduces exactly
+    np.testing.assert_array_equal(
+        a.depth, make_falling_ball(small=True, num_frames=3, depth_noise=0.1).depth
+    )
+
+
+def test_structural_noise_is_fixed_over_time():
+    seq = make_falling_ball(small=True, num_frames=3, depth_noise=0.0, structural_noise=0.15)
+    resid = seq.depth - seq.ground_truth.depth
+    np.testing.assert_allclose(resid[0], resid[2], atol=1e-4)
+    assert resid[0].std() == pytest.approx(0.15, rel=0.05)
+
+
+def test_background_none_is_nan_without_warning():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        seq = make_falling_ball(small=True, num_frames=2, background="none")
+    np.testing.assert_array_equal(np.isfinite(seq.depth), seq.ground_truth.mask)
+
+
+def test_static_plane_geometry_and_texture_noise():
+    seq = make_static_plane(small=True, num_frames=30, structural_noise=0.0)
+    gt = seq.ground_truth
+    on = gt.mask[0]
+    assert (gt.mask == on).all()
+    assert not gt.flow.any()
+    pts = seq.with_depth(gt.depth).points()[0][on]
+    normal = gt.extra["normal"]
+    np.testing.assert_allclose(pts @ normal, 500.0 * normal[2], atol=1e-3)  # on the plane
+    assert on.sum() == pytest.approx(120 * 80 * np.cos(np.radians(15)) * (0.25 * 2) ** 2, rel=0.08)
+    # texture-correlated noise: dark pixels are noisier
+    std = seq.depth.std(axis=0)
+    albedo = seq.intensity.mean(axis=0) / (0.3 + 0.7 * np.cos(np.radians(15)))
+    dark, bright = on & (albedo < 0.35), on & (albedo > 0.65)
+    ratio = std[dark].mean() / std[bright].mean()
+    assert 1.3 < ratio < 2.0
+
+
+def test_static_plane_structural_noise():
+    seq = make_static_plane(small=True, num_frames=2, depth_noise=0.0, structural_noise=0.02)
+    resid = seq.depth - seq.ground_truth.depth
+    np.testing.assert_allclose(resid[0], resid[1], atol=1e-5)
+    assert resid.std() == pytest.approx(0.02, rel=0.05)
+
+
+def test_deforming_sheet_bump():
+    seq = make_deforming_sheet(
+        small=True, num_frames=30, depth_noise=0.0, period_frames=40.0, drift_px=0.0
+    )
+    gt = seq.ground_truth
+    centre = gt.depth[:, 75, 75]  # 1.1 mm from the sheet centre (no drift): g = 0.997
+    bump = 3.0 * np.sin(2 * np.pi * np.arange(30) / 40)
+    np.testing.assert_allclose(centre, 550.0 - 0.997 * bump, atol=2e-3)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"depth_noise": -0.1}, "depth_noise must be a finite number >= 0"),
+        ({"intensity_noise": 2.0}, "intensity_noise is a fraction"),
+        ({"num_frames": 1}, "num_frames must be an integer >= 2"),
+        ({"background": "wall"}, "background must be 'plane' or 'none'"),
+    ],
+)
+def test_bad_arguments(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        make_falling_ball(small=True, **kwargs)
+
+
+def test_bad_rng_and_scene():
+    with pytest.raises(TypeError, match="rng must be a non-negative int seed"):
+        make_falling_ball(small=True, rng=-1)
+    with pytest.raises(ValueError, match="unknown scene 'cube'; choose one of ball, plane, sheet"):
+        make_scene("cube")
+
+
+def test_generator_rng_recorded():
+    seq = make_static_plane(small=True, num_frames=2, rng=np.random.default_rng(5))
+    again = make_static_plane(small=True, num_frames=2, rng=seq.ground_truth.extra["seed"])
+    np.testing.assert_array_equal(seq.depth, again.depth)
+
+
+@pytest.mark.slow
+def test_full_size_ball_builds():
+    seq = make_falling_ball(num_frames=3)
+    assert seq.shape == (600, 600)
+    np.testing.assert_allclose(seq.ground_truth.extra["center_row"], [250.0, 252.0, 254.0])
+    ball_flow = seq.ground_truth.flow[0][seq.ground_truth.mask[0]][:, 1]
+    assert 2.0 < ball_flow.min() < 2.1
+    assert 2.49 < ball_flow.max() <= 2.5
+
+
+def test_cli_synth_round_trip(tmp_path, capsys):
+    out = tmp_path / "sheet.npz"
+    args = ["synth", "sheet", "-o", str(out), "--small", "--frames", "3", "--seed", "4"]
+    assert main([*args, "--depth-noise", "0.3", "--intensity-noise", "0.05"]) == 0
+    seq = load_sequence(out)
+    ref = make_deforming_sheet(
+        small=True, num_frames=3, rng=4, depth_noise=0.3, intensity_noise=0.05
+    )
+    np.testing.assert_array_equal(seq.depth, ref.depth)
+    np.testing.assert_array_equal(seq.ground_truth.flow, ref.ground_truth.flow)
+    assert seq.ground_truth.extra["depth_noise"] == 0.3
+    capsys.readouterr()
+    assert main(args) == 2
+    assert "output exists; pass --force" in capsys.readouterr().err
+    assert main([*args, "--force"]) == 0
+    assert (
+        main(["synth", "ball", "-o", str(tmp_path / "y.npz"), "--small", "--depth-noise", "-1"])
+        == 2
+    )
+    assert "depth_noise must be a finite number >= 0" in capsys.readouterr().err
