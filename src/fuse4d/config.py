@@ -59,10 +59,6 @@ class FusionParams:
         motion-reference smoothing. ``math.inf`` disables the gate (pure paper check).
     motion_sigma : float
         sigma_m (px) of the range-gated Gaussian smoothing that gives the motion-reference depth.
-    plane_tolerance : float or None
-        Tangent-plane gate (mm) of the smooth references (A3b, see
-        :func:`fuse4d.motion.motion_reference_depth`); ``None`` gives the plain range-gated
-        Gaussian of METHOD §4.3.
     reference_sigma : float
         sigma (px) of the local reference surface used by the residual bilateral (A18) and for
         the output normals (A17); small, so that it follows strongly curved surfaces.
@@ -117,9 +113,8 @@ class FusionParams:
     sigma_temporal: float = 3.0
     fb_threshold: float = 2.0
     max_depth_step: float = 10.0
-    motion_sigma: float = 3.0
+    motion_sigma: float = 8.0
     reference_sigma: float = 2.0
-    plane_tolerance: float | None = 1.0
     temporal_gate: float = 3.0
     min_gate_mm: float = 0.05
     motion_depth: MotionDepth = "smoothed"
@@ -158,12 +153,6 @@ class FusionParams:
             if not (value > 0):
                 raise ValueError(f"FusionParams.{name} must be > 0, got {value}")
             object.__setattr__(self, name, float(value))
-        if self.plane_tolerance is not None:
-            if isinstance(self.plane_tolerance, bool) or not (self.plane_tolerance > 0):
-                raise ValueError(
-                    f"FusionParams.plane_tolerance must be > 0 or None, got {self.plane_tolerance}"
-                )
-            object.__setattr__(self, "plane_tolerance", float(self.plane_tolerance))
         _choice(self, "motion_depth", ("smoothed", "raw"))
         _choice(self, "quantize", ("final", "per_step"))
         _choice(self, "fill_fallback", ("bilateral", "nan"))

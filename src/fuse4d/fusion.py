@@ -274,10 +274,7 @@ class FusionEngine:
     def _smoothed_points(self, depth, points, given: bool, sigma: float) -> np.ndarray:
         """Back-projected range-gated Gaussian smoothing of ``depth`` (METHOD §4.3)."""
         smooth_depth = motion_reference_depth(
-            depth,
-            sigma=sigma,
-            max_step=self.params.max_depth_step,
-            plane_tolerance=self.params.plane_tolerance,
+            depth, sigma=sigma, max_step=self.params.max_depth_step
         )
         if not given:
             return depth_to_points(smooth_depth, self.intrinsics)

@@ -17,9 +17,6 @@ from ._kernels.fusion import (
     _gated_smooth_cols_kernel,
     _gated_smooth_rows_kernel,
     _pair_diagnostics_kernel,
-    _slopes_kernel,
-    _tangent_smooth_cols_kernel,
-    _tangent_smooth_rows_kernel,
     _track_kernel,
 )
 from ._validation import as_float32, check_shape
@@ -36,29 +33,16 @@ __all__ = [
 
 
 def motion_reference_depth(
-    depth: ArrayLike,
-    *,
-    sigma: float = 3.0,
-    max_step: float = 10.0,
-    plane_tolerance: float | None = None,
+    depth: ArrayLike, *, sigma: float = 8.0, max_step: float = 10.0
 ) -> NDArray[np.float32]:
-    """Smooth one depth frame into the motion-reference depth D~ (METHOD §4.3, A3).
+    """Range-gated Gaussian smoothing of one depth frame: the motion-reference depth D~ (A3).
 
-    Without ``plane_tolerance``: the range-gated Gaussian of METHOD §4.3,
-    ``D~(x) = sum_y G(|x - y|) [|D(y) - D(x)| < max_step] D(y) / sum (same weights)``,
-    implemented separably (a row pass, then a column pass over the row means, each gated
-    against the centre's raw depth): 2 (6 sigma + 1) instead of (6 sigma + 1)^2 operations per
-    pixel. Identical to the 2D window on planes and away from depth edges; at an edge a sample
-    can pass both gates with up to 2 max_step of depth difference.
-
-    With ``plane_tolerance`` (our refinement, A3b): the window is additionally gated by the
-    tangent plane at x (slopes from a sigma = 1.5 px pre-smoothing): a neighbour counts only if
-    it lies within ``max(plane_tolerance, 4 sigma_noise)`` mm of that plane, and it contributes
-    its depth minus the slope term. The reference then follows strongly curved surfaces (a
-    sphere's rim) instead of cutting across them, so the detail layer of Eq. 5 stays small and
-    mis-tracked samples do little harm; slopes and truncated windows cause no bias.
-    ``sigma_noise`` is a robust per-frame estimate (1.4826 MAD of D minus the pre-smoothing), so
-    the tolerance widens on noisy sensors.
+    ``D~(x) = sum_y G(|x - y|) [|D(y) - D(x)| < max_step] D(y) / sum (same weights)`` over
+    valid pixels, window radius ceil(3 sigma). Implemented separably (a row pass, then a column
+    pass over the row means, each gated against the centre's raw depth), which costs
+    2 (6 sigma + 1) instead of (6 sigma + 1)^2 operations per pixel. This is our documented
+    deviation from the 2D window of METHOD §4.3: identical on planes and away from depth edges;
+    at an edge a sample can pass both gates with up to 2 max_step of depth difference.
 
     Parameters
     ----------
@@ -68,34 +52,24 @@ def motion_reference_depth(
         sigma_m in px.
     max_step : float
         tau_jump in mm: never average across a larger depth difference.
-    plane_tolerance : float, optional
-        Tangent-plane gate in mm (None: plain range-gated Gaussian).
 
     Returns
     -------
     (H, W) ndarray of float32
         Smoothed depth in mm, NaN where ``depth`` is NaN.
+
+    Examples
+    --------
+    >>> d = np.full((5, 5), 500.0, np.float32); d[2, 2] = np.nan
+    >>> r = motion_reference_depth(d, sigma=1.0)
+    >>> float(r[0, 0]), bool(np.isnan(r[2, 2]))
+    (500.0, True)
     """
     d = as_float32(depth, name="depth")
     check_shape(d, ("H", "W"), name="depth")
-    if plane_tolerance is None:
-        return _gated_gaussian(d, sigma, max_step)
-    base = _gated_gaussian(d, 1.5, max_step)
-    tolerance = max(float(plane_tolerance), 4.0 * _noise_sigma(d, base))
-    grad_u = np.empty_like(d)
-    grad_v = np.empty_like(d)
-    _slopes_kernel(base, float(max_step), grad_u, grad_v)
-    gauss = _gaussian_taps(sigma)
-    row_mean = np.empty_like(d)
-    row_weight = np.empty_like(d)
-    out = np.empty_like(d)
-    _tangent_smooth_rows_kernel(
-        d, base, grad_u, gauss, tolerance, float(max_step), row_mean, row_weight
-    )
-    _tangent_smooth_cols_kernel(
-        d, base, grad_v, row_mean, row_weight, gauss, tolerance, float(max_step), out
-    )
-    return out
+    if not sigma > 0:
+        raise ValueError(f"sigma must be > 0 px, got {sigma}")
+    return _gated_gaussian(d, sigma, max_step)
 
 
 def _gaussian_taps(sigma: float) -> NDArray[np.float64]:

@@ -19,6 +19,7 @@ from ._app import CliError, app
 from . import (  # noqa: F401  isort: skip
     cmd_baseline,  # baseline
     cmd_flow,  # flow, bench-flow
+    cmd_fuse,  # run, bench, demo
     cmd_eval,  # synth, metrics
     cmd_io,  # info, export-ply
 )

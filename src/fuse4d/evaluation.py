@@ -1,0 +1,128 @@
+"""Quality evaluation on the synthetic ball: the comparisons the fusion issue's targets name.
+
+Reference methods users run today, measured in the same run as fuse4d:
+
+* ``guided (depth self-guided)``: OpenCV ``cv2.ximgproc.guidedFilter`` with the depth as its own
+  guide (radius 2, eps 10 mm^2), the best single-frame filter in PEERS.md;
+* ``temporal mean (9)``: a plain 9-frame mean without motion compensation (the ghosting the
+  method exists to remove).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from .camera import depth_to_points
+from .metrics import bad_pixel_fraction, ball_roi, depth_rmse, roughness_stats
+from .sequence import Sequence
+
+__all__ = ["MethodScore", "score_on_ball", "self_guided_filter", "temporal_mean"]
+
+
+def self_guided_filter(depth: NDArray[np.float32], *, radius: int = 2, eps: float = 10.0):
+    """OpenCV guided filter with each depth frame as its own guide (NaN-safe; NaN stays NaN).
+
+    Parameters
+    ----------
+    depth : (T, H, W) ndarray
+        Depth in mm, NaN = invalid.
+    radius : int
+        Box radius in px.
+    eps : float
+        Regularisation in mm^2.
+    """
+    out = np.empty_like(depth, dtype=np.float32)
+    for t, frame in enumerate(depth):
+        valid = np.isfinite(frame)
+        filled = np.where(valid, frame, np.nanmedian(frame) if valid.any() else 0.0)
+        filled = filled.astype(np.float32)
+        res = cv2.ximgproc.guidedFilter(guide=filled, src=filled, radius=radius, eps=eps, dDepth=-1)
+        out[t] = np.where(valid, res, np.nan)
+    return out
+
+
+def temporal_mean(depth: NDArray[np.float32], *, num_frames: int = 9) -> NDArray[np.float32]:
+    """Per-pixel mean over a centred window of ``num_frames`` frames, no motion compensation."""
+    n = depth.shape[0]
+    past = (num_frames - 1) // 2
+    future = num_frames - 1 - past
+    out = np.empty_like(depth, dtype=np.float32)
+    for t in range(n):
+        window = depth[max(0, t - past) : min(n, t + future + 1)]
+        with warnings.catch_warnings():  # all-NaN pixels: "Mean of empty slice"
+            warnings.simplefilter("ignore", category=RuntimeWarning)
+            out[t] = np.nanmean(window, axis=0)
+    return out
+
+
+@dataclass
+class MethodScore:
+    """Scores of one method on the ball (EVALUATION §1, §3).
+
+    Attributes
+    ----------
+    name : str
+    roughness_mean, roughness_std : float
+        Eq. 7 (5x5) over the ball ROI, mean and std over frames, mm.
+    rmse : float
+        RMSE to GT depth over the ball ROI, mm.
+    bad_1mm : float
+        Fraction of all pixels more than 1 mm from GT (NaN counted bad).
+    """
+
+    name: str
+    roughness_mean: float
+    roughness_std: float
+    rmse: float
+    bad_1mm: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+def score_on_ball(
+    seq: Sequence,
+    name: str,
+    *,
+    depth: NDArray[np.float32] | None = None,
+    points: NDArray[np.float32] | None = None,
+    frames: slice | None = None,
+) -> MethodScore:
+    """Score a method's output (depth or points) on a synthetic ball sequence.
+
+    Parameters
+    ----------
+    seq : Sequence
+        The ball (``make_falling_ball``), with ground truth.
+    name : str
+        Method label.
+    depth, points : ndarray
+        The output as depth (T,H,W) mm or points (T,H,W,3) mm (one of them).
+    frames : slice, optional
+        Frames to score (default all).
+    """
+    gt = seq.ground_truth
+    if gt is None or gt.depth is None:
+        raise ValueError("score_on_ball needs a sequence with ground-truth depth")
+    if points is None:
+        if depth is None:
+            raise ValueError("give depth or points")
+        points = depth_to_points(depth, seq.intrinsics)
+    sl = frames or slice(None)
+    roi = ball_roi(seq)[sl]
+    pts = points[sl]
+    stats = roughness_stats(pts, roi=roi)
+    z = pts[..., 2]
+    return MethodScore(
+        name=name,
+        roughness_mean=float(stats.mean),
+        roughness_std=float(stats.std),
+        rmse=float(depth_rmse(gt.depth[sl], z, mask=roi)),
+        bad_1mm=float(bad_pixel_fraction(gt.depth[sl], z)),
+    )
