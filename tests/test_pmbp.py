@@ -161,7 +161,14 @@ def test_roi_removes_neighbours(tiny):
 def test_solution_lowers_the_energy():
     """The PMBP field has lower MRF energy (naive oracle) than zero flow and the true shift."""
     a, b = _pair(20, 22, (0.6, -0.4), noise=0.03, seed=2)
-    p = PMBPParams(num_particles=3, num_iter=4, pairwise_weight=0.5)
+    p = PMBPParams(
+        num_particles=3,
+        num_iter=4,
+        pairwise_weight=0.5,
+        gradient_weight=0.0,
+        presmooth_sigma=0.0,
+        pyramid_levels=1,
+    )
     flow = pmbp_flow(a, b, p)
     roi = np.array([0, 20, 0, 22], np.int64)
     asw = _asw_weights(a, p, roi)
@@ -207,7 +214,7 @@ def test_fast_preset_translation():
 
 def test_parallel_agrees_with_sequential_schedule():
     d = (1.1, -0.6)
-    a, b = _pair(64, 72, d, noise=0.02, seed=4)
+    a, b = _pair(64, 72, d, noise=0.01, seed=4)
     base = PMBPParams(num_particles=2, num_iter=3, pyramid_levels=2)
     e_par = _epe(pmbp_flow(a, b, base), d, 8)
     e_seq = _epe(pmbp_flow(a, b, dataclasses.replace(base, schedule="sequential")), d, 8)
@@ -316,7 +323,7 @@ def test_registered_with_flow_module():
 
     register()
     d = (0.5, -0.5)
-    a, b = _pair(48, 48, d)
+    a, b = _pair(64, 64, d)
     flow = flow_mod.estimate_flow(a, b, method="pmbp-fast")
     assert _epe(flow, d, 8) < 0.1
     flow = flow_mod.estimate_flow(a, b, method="pmbp", params=SMALL)

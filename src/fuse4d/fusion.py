@@ -252,7 +252,7 @@ class FusionEngine:
         self.timings["motion_reference"] += t1 - t0
         self.timings["bilateral"] += t2 - t1
         self._depth[slot] = d
-        self._noise[slot] = estimate_depth_noise(d)
+        self._noise[slot] = estimate_depth_noise(d, reference=self._smooth[slot][..., 2])
         self._intensity[slot] = inten
         if index > 0:
             self._add_pair(index, pair_flow)
@@ -272,7 +272,7 @@ class FusionEngine:
 
     # ------------------------------------------------------------------ internals
     def _smoothed_points(self, depth, points, given: bool, sigma: float) -> np.ndarray:
-        """Back-projected range-gated Gaussian smoothing of ``depth`` (METHOD §4.3)."""
+        """Back-projected edge-limited smoothing of ``depth`` (METHOD §4.3, see motion_reference_depth)."""
         smooth_depth = motion_reference_depth(
             depth, sigma=sigma, max_step=self.params.max_depth_step
         )

@@ -178,56 +178,6 @@ def _bilateral3d_kernel(points, ref, intensity, radius, inv_2sd2, inv_2sg2, lut,
 
 
 @njit_parallel
-def _gated_smooth_rows_kernel(depth, gauss, max_step, row_mean, row_weight):
-    """Pass 1 of the separable range-gated Gaussian (motion-reference depth, METHOD §4.3).
-
-    row_mean (H,W): gated Gaussian mean along the row; row_weight (H,W): its weight sum
-    (0 where depth is NaN).
-    """
-    h, w = depth.shape
-    r = (gauss.shape[0] - 1) // 2
-    for v in prange(h):
-        for u in range(w):
-            dc = depth[v, u]
-            if np.isnan(dc):
-                row_mean[v, u] = np.nan
-                row_weight[v, u] = 0.0
-                continue
-            a = 0.0
-            b = 0.0
-            for k in range(max(u - r, 0), min(u + r + 1, w)):
-                d = depth[v, k]
-                if not np.isnan(d) and abs(d - dc) < max_step:
-                    g = gauss[k - u + r]
-                    a += g * (d - dc)
-                    b += g
-            row_mean[v, u] = dc + a / b
-            row_weight[v, u] = b
-
-
-@njit_parallel
-def _gated_smooth_cols_kernel(depth, row_mean, row_weight, gauss, max_step, out):
-    """Pass 2 (columns): combine the row means of gated column neighbours; NaN stays NaN."""
-    h, w = depth.shape
-    r = (gauss.shape[0] - 1) // 2
-    for v in prange(h):
-        for u in range(w):
-            dc = depth[v, u]
-            if np.isnan(dc):
-                out[v, u] = np.nan
-                continue
-            a = 0.0
-            b = 0.0
-            for k in range(max(v - r, 0), min(v + r + 1, h)):
-                d = depth[k, u]
-                if not np.isnan(d) and abs(d - dc) < max_step:
-                    g = gauss[k - v + r] * row_weight[k, u]
-                    a += g * (row_mean[k, u] - dc)
-                    b += g
-            out[v, u] = dc + a / b
-
-
-@njit_parallel
 def _pair_diagnostics_kernel(
     fwd, bwd, ref_t, ref_t1, depth_t, depth_t1, theta, max_step, per_step, fb_error, motion
 ):
@@ -633,3 +583,56 @@ def _project_to_rays_kernel(points, ref, fx, fy, cx, cy, max_step, out):
             out[v, u, 0] = rx * d
             out[v, u, 1] = ry * d
             out[v, u, 2] = d
+
+
+# --------------------------------------------------------------------------- segment-limited smoothing
+@njit_parallel
+def _segment_box_rows_kernel(values, depth, radius, max_step, out):
+    """One local-linear box pass along rows, limited to depth-continuous segments.
+
+    A segment is a run of valid pixels (finite ``depth``) whose consecutive raw depths differ
+    by less than ``max_step`` mm; the window of each pixel is truncated to its segment, so
+    values never mix across depth discontinuities or holes. Within the window a straight line
+    is fitted (least squares over the column index) and evaluated at the pixel: on a symmetric
+    window this is the plain box mean; on a truncated one (image border, depth edge) it has no
+    slope bias. O(1) per pixel (prefix sums). values, depth, out: (H, W) float32; out is NaN
+    where depth is NaN.
+    """
+    h, w = depth.shape
+    for v in prange(h):
+        s_val = np.empty(w + 1, dtype=np.float64)
+        s_kv = np.empty(w + 1, dtype=np.float64)
+        u = 0
+        while u < w:
+            if np.isnan(depth[v, u]):
+                out[v, u] = np.nan
+                u += 1
+                continue
+            a = u
+            b = u + 1
+            while (
+                b < w
+                and not np.isnan(depth[v, b])
+                and abs(depth[v, b] - depth[v, b - 1]) < max_step
+            ):
+                b += 1
+            s_val[0] = 0.0
+            s_kv[0] = 0.0
+            for k in range(a, b):
+                j = k - a
+                s_val[j + 1] = s_val[j] + values[v, k]
+                s_kv[j + 1] = s_kv[j] + j * values[v, k]
+            for k in range(a, b):
+                lo = max(k - radius, a) - a
+                hi = min(k + radius, b - 1) - a
+                n = hi - lo + 1
+                mean_val = (s_val[hi + 1] - s_val[lo]) / n
+                # column indices lo..hi: mean and variance in closed form
+                mean_j = 0.5 * (lo + hi)
+                var_j = (n * n - 1) / 12.0
+                if var_j > 0.0:
+                    cov = (s_kv[hi + 1] - s_kv[lo]) / n - mean_j * mean_val
+                    out[v, k] = mean_val + cov / var_j * ((k - a) - mean_j)
+                else:
+                    out[v, k] = mean_val
+            u = b

@@ -44,7 +44,8 @@ _CFG_RMIN = 8  # minimal random-search radius (px)
 _CFG_EARLY = 9  # 1.0: early termination of the patch cost
 _CFG_INIT_RADIUS = 10  # random initial particles: uniform within this radius (px) ...
 _CFG_INIT_CENTRED = 11  # ... of seeds[0] if 1.0, else of zero
-_CFG_SIZE = 12
+_CFG_INSIDE = 12  # 1.0: labels must keep p + s inside the target image
+_CFG_SIZE = 13
 
 _INF = np.inf
 _DUP2 = 1e-6  # two labels closer than 1e-3 px are duplicates
@@ -136,21 +137,28 @@ def _patch_cost(src, sgu, sgv, tgt, tgu, tgv, asw, r, c, su, sv, rho, cfg, bound
         bx = 1.0 - ax
         j = 0
         if alpha > 0.0:
+            # separable bilinear on three channels: vertical blend of 2ρ+2 columns, then
+            # horizontal blend of neighbouring columns
             for dy in range(-rho, rho + 1):
                 ty = iy + dy
                 qr = r + dy
+                tx = ix - rho
+                p_i = by * tgt[ty, tx] + ay * tgt[ty + 1, tx]
+                p_u = by * tgu[ty, tx] + ay * tgu[ty + 1, tx]
+                p_v = by * tgv[ty, tx] + ay * tgv[ty + 1, tx]
                 for dx in range(-rho, rho + 1):
-                    tx = ix + dx
+                    tx = ix + dx + 1
+                    c_i = by * tgt[ty, tx] + ay * tgt[ty + 1, tx]
+                    c_u = by * tgu[ty, tx] + ay * tgu[ty + 1, tx]
+                    c_v = by * tgv[ty, tx] + ay * tgv[ty + 1, tx]
                     qc = c + dx
-                    val = w00 * tgt[ty, tx] + w01 * tgt[ty, tx + 1]
-                    val += w10 * tgt[ty + 1, tx] + w11 * tgt[ty + 1, tx + 1]
-                    gu = w00 * tgu[ty, tx] + w01 * tgu[ty, tx + 1]
-                    gu += w10 * tgu[ty + 1, tx] + w11 * tgu[ty + 1, tx + 1]
-                    gv = w00 * tgv[ty, tx] + w01 * tgv[ty, tx + 1]
-                    gv += w10 * tgv[ty + 1, tx] + w11 * tgv[ty + 1, tx + 1]
-                    gd = abs(sgu[qr, qc] - gu) + abs(sgv[qr, qc] - gv)
-                    cost = a_int * min(abs(src[qr, qc] - val), tau1) + alpha * min(gd, tau2)
-                    acc += asw[r, c, j] * cost
+                    gd = abs(sgu[qr, qc] - (bx * p_u + ax * c_u))
+                    gd += abs(sgv[qr, qc] - (bx * p_v + ax * c_v))
+                    di = abs(src[qr, qc] - (bx * p_i + ax * c_i))
+                    acc += asw[r, c, j] * (a_int * min(di, tau1) + alpha * min(gd, tau2))
+                    p_i = c_i
+                    p_u = c_u
+                    p_v = c_v
                     j += 1
                 if acc > bound:
                     return acc
@@ -192,8 +200,18 @@ def _patch_cost(src, sgu, sgv, tgt, tgu, tgv, asw, r, c, su, sv, rho, cfg, bound
             val = w00 * tgt[ty, tx] + w01 * tgt[ty, tx1] + w10 * tgt[ty1, tx] + w11 * tgt[ty1, tx1]
             cost = a_int * min(abs(src[qr, qc] - val), tau1)
             if alpha > 0.0:
-                gu = w00 * tgu[ty, tx] + w01 * tgu[ty, tx1] + w10 * tgu[ty1, tx] + w11 * tgu[ty1, tx1]
-                gv = w00 * tgv[ty, tx] + w01 * tgv[ty, tx1] + w10 * tgv[ty1, tx] + w11 * tgv[ty1, tx1]
+                gu = (
+                    w00 * tgu[ty, tx]
+                    + w01 * tgu[ty, tx1]
+                    + w10 * tgu[ty1, tx]
+                    + w11 * tgu[ty1, tx1]
+                )
+                gv = (
+                    w00 * tgv[ty, tx]
+                    + w01 * tgv[ty, tx1]
+                    + w10 * tgv[ty1, tx]
+                    + w11 * tgv[ty1, tx1]
+                )
                 gd = abs(sgu[qr, qc] - gu) + abs(sgv[qr, qc] - gv)
                 cost += alpha * min(gd, tau2)
             acc += wq * cost
@@ -272,9 +290,12 @@ def _cache_foundations(lab, dis, found, r, c, lam, trunc, roi):
 
 
 @njit
-def _label_valid(r, c, su, sv, h, w, maxmot):
+def _label_valid(r, c, su, sv, h, w, maxmot, inside):
+    """|s| <= M and, if ``inside``, p + s within the target image."""
     if su * su + sv * sv > maxmot * maxmot:
         return False
+    if not inside:
+        return True
     x = c + su
     y = r + sv
     return 0.0 <= x <= w - 1.0 and 0.0 <= y <= h - 1.0
@@ -286,7 +307,7 @@ def _try_candidate(
 ):
     """Evaluate candidate label s' at p; replace the worst particle if B_p(s') is lower."""
     h, w = src.shape
-    if not _label_valid(r, c, su, sv, h, w, cfg[_CFG_MAXMOT]):
+    if not _label_valid(r, c, su, sv, h, w, cfg[_CFG_MAXMOT], cfg[_CFG_INSIDE] != 0.0):
         return False
     nk = lab.shape[2]
     worst_k = 0
@@ -476,6 +497,7 @@ def _init_kernel(
     h, w = src.shape
     nk = lab.shape[2]
     maxmot = cfg[_CFG_MAXMOT]
+    inside = cfg[_CFG_INSIDE] != 0.0
     for r in prange(roi[0], roi[1]):
         for c in range(roi[2], roi[3]):
             for d in range(4):
@@ -485,7 +507,7 @@ def _init_kernel(
             for s in range(seeds.shape[0]):
                 su = seeds[s, r, c, 0]
                 sv = seeds[s, r, c, 1]
-                if not _label_valid(r, c, su, sv, h, w, maxmot):
+                if not _label_valid(r, c, su, sv, h, w, maxmot, inside):
                     continue
                 dup = False
                 for k in range(n):
@@ -527,7 +549,7 @@ def _init_kernel(
                 su = lo_u + 0.5 * (a + 1.0) * (hi_u - lo_u)
                 sv = lo_v + 0.5 * (b + 1.0) * (hi_v - lo_v)
                 tries += 1
-                if not _label_valid(r, c, su, sv, h, w, maxmot) and tries < 1000:
+                if not _label_valid(r, c, su, sv, h, w, maxmot, inside) and tries < 1000:
                     continue
                 if tries >= 1000:
                     su = 0.0

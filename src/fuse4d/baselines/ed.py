@@ -89,7 +89,7 @@ def _solve_spd(lhs: sp.csr_matrix, rhs: NDArray, *, direct: bool) -> NDArray[np.
     n = lhs.shape[0]
     lhs = (lhs + sp.identity(n, format="csr") * 1e-6).tocsr()
     if direct:
-        return spsolve(lhs.tocsc(), rhs)
+        return spsolve(lhs.tocsc(), rhs, permc_spec="MMD_AT_PLUS_A")
     coo = lhs.tocoo()
     same = coo.row // 12 == coo.col // 12
     blocks = np.zeros((n // 12, 12, 12))
