@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 import pytest
-from naive import fusion as naive
 
 from fuse4d import Intrinsics, ShapeError, depth_to_points
 from fuse4d._kernels.fusion import (
@@ -21,6 +20,7 @@ from fuse4d.config import FusionParams
 from fuse4d.fusion import FusionEngine, PrecomputedFlow, fuse_sequence, fuse_stream
 from fuse4d.metrics import roughness_stats
 from fuse4d.motion import compute_motion_field, motion_reference_depth, track_frame
+from naive import fusion as naive
 
 H, W = 40, 48
 K = Intrinsics(fx=120.0, fy=120.0, cx=23.5, cy=19.5, width=W, height=H)
@@ -78,6 +78,12 @@ def test_bilateral_kernel_matches_oracle(rng):
         assert np.isfinite(fast[3, 5]).all()  # NaN does not spread
 
 
+def test_weight_function_is_close_to_exp():
+    x = np.linspace(0, 4, 41)
+    approx = np.array([naive.approx_exp_neg(v) for v in x])
+    np.testing.assert_allclose(approx, np.exp(-x), rtol=0.009)
+
+
 def test_segment_box_kernel_matches_oracle(rng):
     depth = (500 + rng.normal(0, 1, (6, 30))).astype(np.float32)
     depth[:, 12:] += 50.0  # a depth edge
@@ -112,7 +118,7 @@ def test_track_and_fuse_kernels_match_oracles(rng):
     ok = np.empty(rows.shape, bool)
     _track_kernel(ring_f, ring_b, depth, t, first, last, 1.0, 0.6, False, rows, cols, ok)
     oracle = naive.track(fwd, bwd, depth, t, first, last, 1.0, 0.6)
-    others = [T for T in range(first, last + 1) if T != t]
+    others = [T for T in range(first, last + 1) if t != T]
     for k, T in enumerate(others):
         for v in range(14):
             for u in range(16):
@@ -178,7 +184,7 @@ def test_project_to_rays_puts_points_on_their_pixel_ray():
 # ----------------------------------------------------------------------------- METHOD §8 tests
 def test_eq2_eq3_round_trip():
     n = 4
-    depth, inten, fwd, bwd = _translating(n)
+    depth, _inten, fwd, bwd = _translating(n)
     depth = _plane_depth(n, slope=0.3)
     params = FusionParams(max_depth_step=50.0)
     motion, fb = compute_motion_field(fwd, bwd, depth, K, params=params)
@@ -199,7 +205,7 @@ def test_eq2_eq3_round_trip():
 
 def test_integer_translation_tracks_and_telescoping():
     n = 7
-    depth, inten, fwd, bwd = _translating(n)
+    depth, _inten, fwd, bwd = _translating(n)
     depth = _plane_depth(n, slope=0.3)
     tracks = track_frame(fwd, bwd, depth, 3, params=FusionParams(max_depth_step=50.0))
     rows, cols = np.mgrid[0:H, 0:W]
@@ -353,7 +359,7 @@ def test_bad_input_messages():
         fuse_sequence(depth, inten, K, flow="nope")
     with pytest.raises(ValueError, match=r"FusionParams.num_frames must be an integer >= 1, got 0"):
         FusionParams(num_frames=0)
-    with pytest.raises(ValueError, match="FusionParams.motion_depth must be one of"):
+    with pytest.raises(ValueError, match=r"FusionParams\.motion_depth must be one of"):
         FusionParams(motion_depth="smooth")
     with pytest.raises(ValueError, match=r"fuse_sequence needs at least one frame, got T = 0"):
         fuse_sequence(np.zeros((0, H, W)), np.zeros((0, H, W)), K)

@@ -8,7 +8,6 @@ import cv2
 import numba
 import numpy as np
 import pytest
-from naive import pmbp as naive
 
 from fuse4d import ShapeError
 from fuse4d._kernels import pmbp as K
@@ -21,6 +20,7 @@ from fuse4d.pmbp import (
     pmbp_flow,
     pmbp_flow_fast,
 )
+from naive import pmbp as naive
 
 
 def _texture(h, w, shift=(0.0, 0.0), seed=0):
@@ -99,7 +99,9 @@ def test_patch_cost_matches_oracle(tiny, alpha, r, c, s):
     gv0, gu0 = np.gradient(src)
     gv1, gu1 = np.gradient(tgt)
     grads = [np.ascontiguousarray(g, np.float32) for g in (gu0, gv0, gu1, gv1)]
-    got = K._patch_cost(src, grads[0], grads[1], tgt, grads[2], grads[3], asw, r, c, *s, 2, cfg, np.inf)
+    got = K._patch_cost(
+        src, grads[0], grads[1], tgt, grads[2], grads[3], asw, r, c, *s, 2, cfg, np.inf
+    )
     border = cfg[K._CFG_BORDER]
     want = naive.patch_cost(
         src, tgt, asw, r, c, s, rho=2, tau1=0.1, tau2=0.05, border=border, alpha=alpha, grads=grads
@@ -281,7 +283,6 @@ def test_roi_restricts_the_solve():
         ("num_iter", -1, "num_iter"),
         ("pyramid_levels", 0, "pyramid_levels"),
         ("schedule", "random", "schedule"),
-        ("early_termination", 1, "early_termination"),
         ("roi", (5, 2, 0, 4), "roi"),
         ("roi", (0, 4, 0), "roi"),
         ("seed", -3, "seed"),
@@ -290,6 +291,12 @@ def test_roi_restricts_the_solve():
 def test_params_validation(field, value, match):
     with pytest.raises(ValueError, match=match):
         PMBPParams(**{field: value})
+
+
+@pytest.mark.parametrize("field", ["early_termination", "inside_target"])
+def test_params_bool_type(field):
+    with pytest.raises(TypeError, match=field):
+        PMBPParams(**{field: 1})
 
 
 def test_fast_params_defaults():

@@ -5,12 +5,10 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._kernels.fusion import _bilateral3d_kernel, make_exp_lut
+from ._kernels.fusion import _bilateral3d_kernel
 from ._validation import as_float32, check_shape
 
 __all__ = ["bilateral_filter_points"]
-
-_LUT = make_exp_lut()
 
 
 def bilateral_filter_points(
@@ -28,8 +26,8 @@ def bilateral_filter_points(
     ``B[c] = sum_n d(P[c], P[n]) g(I[c], I[n]) P[n] / sum_n d g`` over the (2r+1)^2 window,
     with ``d = exp(-|p - q|^2 / (2 sigma_distance^2))`` (3D distance, mm) and
     ``g = exp(-(a - b)^2 / (2 sigma_intensity^2))``. Invalid (NaN) points get no weight and
-    stay NaN. The weights come from an interpolated exp table (relative error ~2e-6); weights
-    below exp(-16) are dropped.
+    stay NaN. The weights use exp(-x) ~ (1 - x/1024)^1024 (relative error x^2/2048: 0.05 % at
+    x = 1, 0.8 % at x = 4), pure arithmetic so that the kernel vectorises.
 
     Parameters
     ----------
@@ -69,22 +67,24 @@ def bilateral_filter_points(
         raise ValueError(f"radius must be an integer >= 0, got {radius!r}")
     if not (sigma_distance > 0 and sigma_intensity > 0):
         raise ValueError("sigma_distance and sigma_intensity must be > 0")
-    residual = reference is not None
-    ref = p
-    if residual:
+    planes = [np.ascontiguousarray(p[..., c]) for c in range(3)]
+    if reference is not None:
         ref = as_float32(reference, name="reference")
         check_shape(ref, p.shape, name="reference")
+        values = [np.ascontiguousarray(p[..., c] - ref[..., c]) for c in range(3)]
+    else:  # literal mean of the points, taken about a constant (float32 precision)
+        finite = p[np.isfinite(p[..., 2])]
+        centre = np.median(finite, axis=0) if finite.size else np.zeros(3, np.float32)
+        values = [np.ascontiguousarray(p[..., c] - np.float32(centre[c])) for c in range(3)]
     if out is None:
         out = np.empty_like(p)
     _bilateral3d_kernel(
-        p,
-        ref,
+        *planes,
         i,
+        *values,
         int(radius),
         1.0 / (2.0 * sigma_distance**2),
         1.0 / (2.0 * sigma_intensity**2),
-        _LUT,
-        residual,
         out,
     )
     return out

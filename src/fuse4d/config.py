@@ -230,7 +230,7 @@ def _paper_flow() -> FlowConfig:
 
 
 PRESETS: dict[str, str] = {
-    "fast": "METHOD defaults with OpenCV DIS flow (medium preset): the quick everyday setting",
+    "fast": "fuse4d defaults with OpenCV DIS flow (its 'fast' preset): the quick everyday setting",
     "paper": "METHOD defaults with the paper's PMBP tracker (DeepFlow while PMBP is unavailable)",
 }
 
@@ -238,7 +238,7 @@ PRESETS: dict[str, str] = {
 def preset(name: str) -> Preset:
     """Return the preset ``"fast"`` or ``"paper"``."""
     if name == "fast":
-        return Preset(name, PRESETS[name], FusionParams(), FlowConfig("dis", {"preset": "medium"}))
+        return Preset(name, PRESETS[name], FusionParams(), FlowConfig("dis", {"preset": "fast"}))
     if name == "paper":
         return Preset(name, PRESETS[name], FusionParams(), _paper_flow())
     raise ValueError(f"unknown preset {name!r}; choose one of: {', '.join(PRESETS)}")

@@ -37,8 +37,8 @@ def motion_reference_depth(
     """Edge-limited smoothing of one depth frame: the motion-reference depth D~ (A3).
 
     METHOD §4.3 asks for a normalised Gaussian (sigma_m) over valid pixels that never mixes
-    depths more than ``max_step`` apart. We compute it as three box-filter passes along rows and
-    three along columns (their product approximates a Gaussian of the same sigma to a few %),
+    depths more than ``max_step`` apart. We compute it as two box-filter passes along rows and
+    two along columns (a separable triangle kernel with the same variance as the Gaussian),
     each a local-linear fit over its window (so truncated windows at borders and edges carry no
     slope bias),
     each pass confined to *depth-continuous segments*: runs of valid pixels whose consecutive
@@ -53,7 +53,7 @@ def motion_reference_depth(
     depth : (H, W) ndarray
         Depth in mm, NaN = invalid.
     sigma : float
-        sigma_m in px (box radius r with (2r+1)^2 = 4 sigma^2 + 1, at least 1).
+        sigma_m in px (box radius r with (2r+1)^2 = 6 sigma^2 + 1, at least 1).
     max_step : float
         tau_jump in mm: a larger step between neighbouring pixels ends a segment.
 
@@ -73,17 +73,17 @@ def motion_reference_depth(
     check_shape(d, ("H", "W"), name="depth")
     if not sigma > 0:
         raise ValueError(f"sigma must be > 0 px, got {sigma}")
-    radius = max(1, round((np.sqrt(4.0 * sigma**2 + 1.0) - 1.0) / 2.0))
+    radius = max(1, round((np.sqrt(6.0 * sigma**2 + 1.0) - 1.0) / 2.0))
     step = float(max_step)
     a = d.copy()
     b = np.empty_like(d)
-    for _ in range(3):
+    for _ in range(2):
         _segment_box_rows_kernel(a, d, radius, step, b)
         a, b = b, a
     at = np.ascontiguousarray(a.T)
     dt = np.ascontiguousarray(d.T)
     bt = np.empty_like(at)
-    for _ in range(3):
+    for _ in range(2):
         _segment_box_rows_kernel(at, dt, radius, step, bt)
         at, bt = bt, at
     return np.ascontiguousarray(at.T)

@@ -7,6 +7,11 @@ import math
 import numpy as np
 
 
+def approx_exp_neg(x):
+    """The kernels' weight function: exp(-x) ~ (1 - x / 1024) ** 1024, 0 beyond x = 1024."""
+    return max(1.0 - x / 1024.0, 0.0) ** 1024
+
+
 def bilateral3d(points, intensity, radius, sigma_d, sigma_g, reference=None):
     """Inner sum of Eq. 5 with exact exp; residual form when ``reference`` is given."""
     h, w = intensity.shape
@@ -24,7 +29,7 @@ def bilateral3d(points, intensity, radius, sigma_d, sigma_g, reference=None):
                         continue
                     d2 = np.sum((q - points[v, u]) ** 2)
                     di = float(intensity[nv, nu]) - float(intensity[v, u])
-                    wgt = math.exp(-d2 / (2 * sigma_d**2) - di * di / (2 * sigma_g**2))
+                    wgt = approx_exp_neg(d2 / (2 * sigma_d**2) + di * di / (2 * sigma_g**2))
                     acc += wgt * (q - reference[nv, nu] if reference is not None else q)
                     wsum += wgt
             out[v, u] = acc / wsum + (reference[v, u] if reference is not None else 0.0)
@@ -64,8 +69,8 @@ def segment_box_rows(values, depth, radius, max_step):
 def bilinear(field, x, y):
     """Bilinear sample with the 2x2 stencil clamped at the last row/column."""
     h, w = field.shape[:2]
-    x0 = min(max(int(math.floor(x)), 0), max(w - 2, 0))
-    y0 = min(max(int(math.floor(y)), 0), max(h - 2, 0))
+    x0 = min(max(math.floor(x), 0), max(w - 2, 0))
+    y0 = min(max(math.floor(y), 0), max(h - 2, 0))
     x1 = min(x0 + 1, w - 1)
     y1 = min(y0 + 1, h - 1)
     fx = x - x0 if w > 1 else 0.0
@@ -77,7 +82,7 @@ def bilinear(field, x, y):
 
 def track(fwd, bwd, depth, t, first, last, theta, max_step):
     """Chained tracks (METHOD §4.1, quantize='final'): {T: (row, col, valid)} per pixel."""
-    n, h, w = depth.shape
+    _n, h, w = depth.shape
     result = {}
     for v in range(h):
         for u in range(w):
@@ -113,7 +118,7 @@ def track(fwd, bwd, depth, t, first, last, theta, max_step):
 
 def fuse(bilateral, reference, tracks, t, first, last, weights, gate):
     """Outer sum of Eq. 5 along given tracks, with the temporal range gate (A19)."""
-    n, h, w, _ = bilateral.shape
+    _n, h, w, _ = bilateral.shape
     out = np.full((h, w, 3), np.nan)
     support = np.zeros((h, w), int)
     for v in range(h):
@@ -124,7 +129,7 @@ def fuse(bilateral, reference, tracks, t, first, last, weights, gate):
             acc = weights[0] * own
             wsum = weights[0]
             for T in range(first, last + 1):
-                if T == t:
+                if t == T:
                     continue
                 r, c, ok = tracks[(T, v, u)]
                 if not ok:

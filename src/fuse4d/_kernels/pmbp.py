@@ -45,7 +45,8 @@ _CFG_EARLY = 9  # 1.0: early termination of the patch cost
 _CFG_INIT_RADIUS = 10  # random initial particles: uniform within this radius (px) ...
 _CFG_INIT_CENTRED = 11  # ... of seeds[0] if 1.0, else of zero
 _CFG_INSIDE = 12  # 1.0: labels must keep p + s inside the target image
-_CFG_SIZE = 13
+_CFG_SEARCH_BEST = 13  # 1.0: random search around the best particle only
+_CFG_SIZE = 14
 
 _INF = np.inf
 _DUP2 = 1e-6  # two labels closer than 1e-3 px are duplicates
@@ -362,14 +363,20 @@ def _propagate_from(
 def _random_search(
     src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, rho, cfg, roi, state, centres
 ):
-    """Step 3: draws s_p^k + rad·U(−1,1)², rad = r0, r0/2, … ≥ r_min, around frozen centres."""
+    """Step 3: draws s_p^k + rad·U(−1,1)², rad = r0, r0/2, … ≥ r_min, around frozen centres
+    (every particle, or only the best one if ``cfg[_CFG_SEARCH_BEST]``)."""
     nk = lab.shape[2]
     for k in range(nk):
         centres[k, 0] = lab[r, c, k, 0]
         centres[k, 1] = lab[r, c, k, 1]
     r0 = cfg[_CFG_R0]
     rmin = cfg[_CFG_RMIN]
-    for k in range(nk):
+    k_lo = 0
+    k_hi = nk
+    if cfg[_CFG_SEARCH_BEST] != 0.0:
+        k_lo = _best_particle(dis, r, c)
+        k_hi = k_lo + 1
+    for k in range(k_lo, k_hi):
         rad = r0
         while rad >= rmin:
             state, u1 = _uniform(state)
