@@ -65,7 +65,7 @@ _TO_UNIT = 1.0 / 9007199254740992.0  # 2**-53
 # random numbers
 
 
-@njit
+@njit(inline="always")
 def _mix64(z):
     """splitmix64 finaliser (uint64 -> uint64)."""
     z = (z ^ (z >> _S30)) * _MIX1
@@ -82,7 +82,7 @@ def _rng_key(seed, level, it, phase, pixel):
     return _mix64(z ^ np.uint64(pixel))
 
 
-@njit
+@njit(inline="always")
 def _uniform(state):
     """Next (state, u) with u uniform in [-1, 1)."""
     state = state + _GOLDEN
@@ -95,7 +95,7 @@ def _uniform(state):
 # energy terms
 
 
-@njit
+@njit(inline="always")
 def _patch_cost(src, sgu, sgv, tgt, tgu, tgv, asw, r, c, su, sv, rho, cfg, bound):
     """ψ1_p(s): ASW-weighted truncated patch dissimilarity (METHOD §2.1).
 
@@ -221,7 +221,7 @@ def _patch_cost(src, sgu, sgv, tgt, tgu, tgv, asw, r, c, su, sv, rho, cfg, bound
     return acc
 
 
-@njit
+@njit(inline="always")
 def _message(lab, found, qr, qc, dq, su, sv, lam, trunc):
     """m_{q→p}(s) = min_k λ·min(|s - s_q^k|², T) + F_{q\\p}^k, p = nbr_dq(q)."""
     best = _INF
@@ -234,7 +234,7 @@ def _message(lab, found, qr, qc, dq, su, sv, lam, trunc):
     return best
 
 
-@njit
+@njit(inline="always")
 def _message_sum(lab, found, r, c, su, sv, lam, trunc, roi):
     """Σ_{q ∈ N4(p) ∩ roi} m_{q→p}(s)."""
     acc = 0.0
@@ -249,7 +249,7 @@ def _message_sum(lab, found, r, c, su, sv, lam, trunc, roi):
     return acc
 
 
-@njit
+@njit(inline="always")
 def _neighbour(r, c, d, roi):
     """(exists, row, col) of the neighbour of (r, c) in direction d inside ``roi``."""
     if d == 0:
@@ -261,7 +261,7 @@ def _neighbour(r, c, d, roi):
     return c < roi[3] - 1, r, c + 1
 
 
-@njit
+@njit(inline="always")
 def _refresh(lab, una, dis, found, r, c, lam, trunc, roi):
     """Step 1: B_p^k = ψ1 (cached) + current messages, for every particle."""
     for k in range(lab.shape[2]):
@@ -270,7 +270,7 @@ def _refresh(lab, una, dis, found, r, c, lam, trunc, roi):
         )
 
 
-@njit
+@njit(inline="always")
 def _cache_foundations(lab, dis, found, r, c, lam, trunc, roi):
     """Step 4: F_{p\\q}^k = B_p^k − m_{q→p}(s_p^k), shifted to min 0, for every neighbour q."""
     nk = lab.shape[2]
@@ -290,7 +290,7 @@ def _cache_foundations(lab, dis, found, r, c, lam, trunc, roi):
             found[r, c, d, k] -= lo
 
 
-@njit
+@njit(inline="always")
 def _label_valid(r, c, su, sv, h, w, maxmot, inside):
     """|s| <= M and, if ``inside``, p + s within the target image."""
     if su * su + sv * sv > maxmot * maxmot:
@@ -302,7 +302,7 @@ def _label_valid(r, c, su, sv, h, w, maxmot, inside):
     return 0.0 <= x <= w - 1.0 and 0.0 <= y <= h - 1.0
 
 
-@njit
+@njit(inline="always")
 def _try_candidate(
     src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, su, sv, rho, cfg, roi
 ):
@@ -339,7 +339,7 @@ def _try_candidate(
     return False
 
 
-@njit
+@njit(inline="always")
 def _best_particle(dis, r, c):
     best_k = 0
     for k in range(1, dis.shape[2]):
@@ -348,7 +348,7 @@ def _best_particle(dis, r, c):
     return best_k
 
 
-@njit
+@njit(inline="always")
 def _propagate_from(
     src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, qr, qc, rho, cfg, roi
 ):
@@ -359,7 +359,7 @@ def _propagate_from(
     )  # fmt: skip
 
 
-@njit
+@njit(inline="always")
 def _random_search(
     src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, rho, cfg, roi, state, centres
 ):

@@ -1,0 +1,134 @@
+"""CLI tests of ``fuse4d run``, ``bench``, ``demo`` and TOML configuration files."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from fuse4d import FusionParams, load_config, load_sequence, preset
+from fuse4d.cli import main
+from fuse4d.errors import InputFileError
+from fuse4d.io import FrameFolderWriter, read_npz_extra
+from fuse4d.synthetic import make_falling_ball
+
+
+@pytest.fixture(scope="module")
+def ball_npz(tmp_path_factory):
+    path = tmp_path_factory.mktemp("ball") / "ball.npz"
+    assert main(["synth", "ball", "--small", "--frames", "6", "-o", str(path)]) == 0
+    return path
+
+
+def test_run_npz_to_npz_keeps_keys_and_adds_support(ball_npz, tmp_path, capsys):
+    out = tmp_path / "fused.npz"
+    assert main(["run", str(ball_npz), "-o", str(out), "--frames", "5", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["frames"] == 6
+    assert summary["fused_roughness_mm"] < summary["raw_roughness_mm"]
+    assert 0.5 < summary["support_fraction"] <= 1.0
+    fused = load_sequence(out)
+    raw = load_sequence(ball_npz)
+    np.testing.assert_array_equal(fused.intensity, raw.intensity)
+    np.testing.assert_array_equal(fused.ground_truth.depth, raw.ground_truth.depth)
+    extra = read_npz_extra(out)
+    assert extra["support"].shape == (6, 150, 150)
+    assert extra["support"].max() <= 4
+    err_raw = np.nanstd(raw.depth - raw.ground_truth.depth)
+    err_fused = np.nanstd(fused.depth - raw.ground_truth.depth)
+    assert err_fused < 0.6 * err_raw
+    # refuses to overwrite, and never writes onto the input
+    assert main(["run", str(ball_npz), "-o", str(out)]) == 2
+    assert "output exists" in capsys.readouterr().err
+    assert main(["run", str(ball_npz), "-o", str(ball_npz), "--force"]) == 2
+
+
+def test_run_folder_streams_to_folder(tmp_path, capsys):
+    seq = make_falling_ball(small=True, num_frames=5)
+    src = tmp_path / "rec"
+    with FrameFolderWriter(src, seq.intrinsics, depth_unit_mm=0.05) as writer:
+        for d, i in zip(seq.depth, seq.intensity, strict=True):
+            writer.write(d, i)
+    out = tmp_path / "rec_fused"
+    assert main(["run", str(src), "-o", str(out), "--causal", "--set", "spatial_radius=2"]) == 0
+    text = capsys.readouterr().out
+    assert "roughness raw -> fused" in text
+    fused = load_sequence(out)
+    assert fused.num_frames == 5
+    raw = load_sequence(src)
+    assert np.nanstd(fused.depth - seq.ground_truth.depth) < np.nanstd(
+        raw.depth - seq.ground_truth.depth
+    )
+
+
+def test_run_bad_parameters_give_one_line_errors(ball_npz, tmp_path, capsys):
+    out = str(tmp_path / "x.npz")
+    assert main(["run", str(ball_npz), "-o", out, "--set", "spatial_radius"]) == 2
+    assert "--set must look like KEY=VALUE" in capsys.readouterr().err
+    assert main(["run", str(ball_npz), "-o", out, "--set", "radius=3"]) == 2
+    assert "unknown fusion parameter 'radius'" in capsys.readouterr().err
+    assert main(["run", str(ball_npz), "-o", out, "--flow", "nope"]) == 2
+    assert "unknown flow method 'nope'" in capsys.readouterr().err
+    assert main(["run", str(tmp_path / "missing"), "-o", out]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("fuse4d: error: ")
+    assert "Traceback" not in err
+
+
+def test_toml_config_round_trip(tmp_path):
+    cfg = tmp_path / "fuse.toml"
+    cfg.write_text(
+        'preset = "fast"\n[fusion]\nnum_frames = 5\nsigma_temporal = "inf"\n'
+        '[flow]\nmethod = "dis"\n[flow.params]\npreset = "ultrafast"\n',
+        encoding="utf-8",
+    )
+    chosen = load_config(cfg)
+    assert chosen.fusion.num_frames == 5
+    assert math.isinf(chosen.fusion.sigma_temporal)
+    assert chosen.flow.method == "dis"
+    assert chosen.flow.build_params().patch_stride == 4  # DIS ultrafast
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[fusion]\nradius = 3\n", encoding="utf-8")
+    with pytest.raises(
+        InputFileError, match=r"bad\.toml: unknown \[fusion\] key\(s\) \['radius'\]"
+    ):
+        load_config(bad)
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[fusion\n", encoding="utf-8")
+    with pytest.raises(InputFileError, match="cannot read TOML"):
+        load_config(broken)
+
+
+def test_presets():
+    assert preset("fast").flow.method == "dis"
+    assert preset("paper").flow.method in ("pmbp", "deepflow")
+    assert preset("fast").fusion == FusionParams()
+    with pytest.raises(ValueError, match="unknown preset 'slow'"):
+        preset("slow")
+
+
+def test_bench_small_reports_every_stage(capsys):
+    assert main(["bench", "--small", "--frames", "6", "--window", "3", "--json"]) == 0
+    (result,) = json.loads(capsys.readouterr().out)
+    assert set(result["stage_ms"]) == {
+        "flow",
+        "bilateral",
+        "motion_reference",
+        "tracking",
+        "fusion",
+        "fill",
+    }
+    assert result["ms_per_frame"] > 0
+    assert result["peak_rss_mb"] > 0
+
+
+def test_demo_small_writes_figure_and_table(tmp_path, capsys):
+    assert main(["demo", "--small", "--frames", "6", "--out", str(tmp_path / "demo")]) == 0
+    out = capsys.readouterr().out
+    assert "fuse4d (fast" in out
+    payload = json.loads((tmp_path / "demo" / "metrics.json").read_text())
+    scores = {s["name"].split(" ")[0]: s for s in payload["scores"]}
+    assert scores["fuse4d"]["rmse"] < scores["raw"]["rmse"]
+    assert (tmp_path / "demo" / "demo_before_after.png").stat().st_size > 10_000
