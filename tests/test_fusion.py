@@ -116,7 +116,8 @@ def test_track_and_fuse_kernels_match_oracles(rng):
     rows = np.empty((4, 14, 16), np.int32)
     cols = np.empty_like(rows)
     ok = np.empty(rows.shape, bool)
-    _track_kernel(ring_f, ring_b, depth, t, first, last, 1.0, 0.6, False, rows, cols, ok)
+    slots = np.arange(first, last + 1)
+    _track_kernel(ring_f, ring_b, depth, slots, t, first, last, 1.0, 0.6, False, rows, cols, ok)
     oracle = naive.track(fwd, bwd, depth, t, first, last, 1.0, 0.6)
     others = [T for T in range(first, last + 1) if t != T]
     for k, T in enumerate(others):
@@ -134,7 +135,7 @@ def test_track_and_fuse_kernels_match_oracles(rng):
     out = np.empty((14, 16, 3), np.float32)
     support = np.empty((14, 16), np.uint8)
     hole = np.empty((14, 16), bool)
-    _fuse_kernel(bil, ref, t, first, rows, cols, ok, weights, 1, 0.8, out, support, hole)
+    _fuse_kernel(bil, ref, slots, t, first, rows, cols, ok, weights, 1, 0.8, out, support, hole)
     expected, exp_support = naive.fuse(bil, ref, oracle, t, first, last, weights, 0.8)
     np.testing.assert_array_equal(support, exp_support)
     filled = support >= 1

@@ -322,8 +322,9 @@ class FusionEngine:
             motion = np.empty((h, w, 3), np.float32)
             fb = np.empty((h, w), np.float32)
             _pair_diagnostics_kernel(
-                self._fwd[slot],
-                self._bwd[slot],
+                self._fwd,
+                self._bwd,
+                slot,
                 self._reference[prev],
                 self._reference[slot],
                 self._depth[prev],
@@ -347,10 +348,12 @@ class FusionEngine:
         rows = np.empty((k, h, w), np.int32)
         cols = np.empty((k, h, w), np.int32)
         ok = np.empty((k, h, w), np.bool_)
+        frame_slot = np.arange(first, last + 1, dtype=np.int64) % self.ring
         _track_kernel(
             self._fwd,
             self._bwd,
             self._depth,
+            frame_slot,
             t,
             first,
             last,
@@ -369,6 +372,7 @@ class FusionEngine:
         _fuse_kernel(
             self._bilateral,
             self._reference,
+            frame_slot,
             t,
             first,
             rows,

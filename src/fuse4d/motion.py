@@ -181,6 +181,7 @@ def track_frame(
         _pair_ring(fwd),
         _pair_ring(bwd),
         d,
+        np.arange(first, last + 1, dtype=np.int64),
         t,
         first,
         last,
@@ -243,10 +244,13 @@ def compute_motion_field(
     ref = depth_to_points(ref_depth, intrinsics)
     motion = np.empty((max(n - 1, 0), h, w, 3), np.float32)
     fb = np.empty((max(n - 1, 0), h, w), np.float32)
+    fwd_ring = _pair_ring(fwd)
+    bwd_ring = _pair_ring(bwd)
     for t in range(n - 1):
         _pair_diagnostics_kernel(
-            fwd[t],
-            bwd[t],
+            fwd_ring,
+            bwd_ring,
+            t + 1,
             ref[t],
             ref[t + 1],
             d[t],

@@ -16,14 +16,14 @@ from ._numba import njit, njit_parallel, prange
 
 
 @njit(inline="always")
-def _bilinear2(field, x, y):
-    """Bilinear sample of both components of ``field`` (H, W, 2) at (x = column, y = row).
+def _bilinear2(ring, slot, x, y):
+    """Bilinear sample of both components of ``ring[slot]`` (H, W, 2) at (x = column, y = row).
 
     The 2x2 stencil is clamped at the last row/column (METHOD §4.1); callers ensure
     0 <= x <= W-1 and 0 <= y <= H-1.
     """
-    h = field.shape[0]
-    w = field.shape[1]
+    h = ring.shape[1]
+    w = ring.shape[2]
     x0 = min(max(int(math.floor(x)), 0), max(w - 2, 0))
     y0 = min(max(int(math.floor(y)), 0), max(h - 2, 0))
     x1 = min(x0 + 1, w - 1)
@@ -35,16 +35,16 @@ def _bilinear2(field, x, y):
     w10 = (1.0 - fx) * fy
     w11 = fx * fy
     a = (
-        w00 * field[y0, x0, 0]
-        + w01 * field[y0, x1, 0]
-        + w10 * field[y1, x0, 0]
-        + w11 * field[y1, x1, 0]
+        w00 * ring[slot, y0, x0, 0]
+        + w01 * ring[slot, y0, x1, 0]
+        + w10 * ring[slot, y1, x0, 0]
+        + w11 * ring[slot, y1, x1, 0]
     )
     b = (
-        w00 * field[y0, x0, 1]
-        + w01 * field[y0, x1, 1]
-        + w10 * field[y1, x0, 1]
-        + w11 * field[y1, x1, 1]
+        w00 * ring[slot, y0, x0, 1]
+        + w01 * ring[slot, y0, x1, 1]
+        + w10 * ring[slot, y1, x0, 1]
+        + w11 * ring[slot, y1, x1, 1]
     )
     return a, b
 
@@ -56,23 +56,23 @@ def _round_half_up(x):
 
 
 @njit(inline="always")
-def _track_step(flow_step, flow_check, x, y, theta, per_step):
+def _track_step(step_ring, check_ring, slot, x, y, theta, per_step):
     """One tracking step with the forward-backward check (Eq. 4, in px, A4).
 
-    Parameters: ``flow_step`` is sampled at (x, y) to move; ``flow_check`` (the reverse flow,
-    on the landing frame's grid) is sampled at the landing point. Returns
+    ``step_ring[slot]`` (the flow that moves the point) is sampled at (x, y); ``check_ring[slot]``
+    (the reverse flow, on the landing frame's grid) at the landing point. Returns
     ``(ok, new_x, new_y)``; ok is False when the landing point leaves the image or the FB
     error is not < theta.
     """
-    h = flow_step.shape[0]
-    w = flow_step.shape[1]
+    h = step_ring.shape[1]
+    w = step_ring.shape[2]
     if per_step:
         iu = _round_half_up(x)
         iv = _round_half_up(y)
-        su = float(flow_step[iv, iu, 0])
-        sv = float(flow_step[iv, iu, 1])
+        su = float(step_ring[slot, iv, iu, 0])
+        sv = float(step_ring[slot, iv, iu, 1])
     else:
-        su, sv = _bilinear2(flow_step, x, y)
+        su, sv = _bilinear2(step_ring, slot, x, y)
     nx = x + su
     ny = y + sv
     if not (nx >= 0.0 and nx <= w - 1.0 and ny >= 0.0 and ny <= h - 1.0):
@@ -80,10 +80,10 @@ def _track_step(flow_step, flow_check, x, y, theta, per_step):
     if per_step:
         ix = _round_half_up(nx)
         iy = _round_half_up(ny)
-        cu = float(flow_check[iy, ix, 0])
-        cv = float(flow_check[iy, ix, 1])
+        cu = float(check_ring[slot, iy, ix, 0])
+        cv = float(check_ring[slot, iy, ix, 1])
     else:
-        cu, cv = _bilinear2(flow_check, nx, ny)
+        cu, cv = _bilinear2(check_ring, slot, nx, ny)
     e2 = (su + cu) * (su + cu) + (sv + cv) * (sv + cv)
     if not (e2 < theta * theta):
         return False, nx, ny
@@ -179,9 +179,20 @@ def _bilateral3d_kernel(px, py, pz, intensity, qx, qy, qz, radius, inv_2sd2, inv
 
 @njit_parallel
 def _pair_diagnostics_kernel(
-    fwd, bwd, ref_t, ref_t1, depth_t, depth_t1, theta, max_step, per_step, fb_error, motion
+    fwd_ring,
+    bwd_ring,
+    slot,
+    ref_t,
+    ref_t1,
+    depth_t,
+    depth_t1,
+    theta,
+    max_step,
+    per_step,
+    fb_error,
+    motion,
 ):
-    """Per pair (t, t+1): FB error map on frame t's grid and the one-step 3D motion m^{t,t+1}.
+    """Per pair (t, t+1) with flows in ``*_ring[slot]``: FB error map and one-step 3D motion.
 
     fb_error (H,W): |s_fwd(x) + s_bwd(x + s_fwd(x))| px, NaN if the landing leaves the image.
     motion (H,W,3): P~^{t+1}[round(x')] - P~^t[x] in mm where the step is valid (Eq. 3, 4), NaN
@@ -190,8 +201,8 @@ def _pair_diagnostics_kernel(
     h, w = depth_t.shape
     for v in prange(h):
         for u in range(w):
-            su = fwd[v, u, 0]
-            sv = fwd[v, u, 1]
+            su = fwd_ring[slot, v, u, 0]
+            sv = fwd_ring[slot, v, u, 1]
             nx = u + su
             ny = v + sv
             motion[v, u, 0] = np.nan
@@ -200,11 +211,11 @@ def _pair_diagnostics_kernel(
             if not (nx >= 0.0 and nx <= w - 1.0 and ny >= 0.0 and ny <= h - 1.0):
                 fb_error[v, u] = np.nan
                 continue
-            cu, cv = _bilinear2(bwd, nx, ny)
+            cu, cv = _bilinear2(bwd_ring, slot, nx, ny)
             fb_error[v, u] = math.sqrt((su + cu) ** 2 + (sv + cv) ** 2)
             if np.isnan(depth_t[v, u]):
                 continue
-            ok, lx, ly = _track_step(fwd, bwd, float(u), float(v), theta, per_step)
+            ok, lx, ly = _track_step(fwd_ring, bwd_ring, slot, float(u), float(v), theta, per_step)
             if not ok:
                 continue
             iu = _round_half_up(lx)
@@ -222,6 +233,7 @@ def _track_kernel(
     fwd_ring,
     bwd_ring,
     depth_ring,
+    frame_slot,
     t,
     first,
     last,
@@ -234,74 +246,56 @@ def _track_kernel(
 ):
     """Chain tracks from every valid pixel of frame t through the window [first, last].
 
-    Output index k runs over offsets first-t .. last-t without 0, in increasing order
-    (k = T - first for T < t, k = T - first - 1 for T > t). ``land_row/col`` (K,H,W) int32
-    hold the rounded landing pixel x^_i^T; ``land_ok`` (K,H,W) bool the validity nu^{t,T}
-    (AND of per-step checks: in image, FB < theta, valid depth, depth step < max_step).
+    ``frame_slot[T - first]`` is the ring slot of frame T, which also holds the flows of the
+    pair (T-1, T). Output index k runs over the frames first..last without t, increasing
+    (k = T - first for T < t, T - first - 1 for T > t). ``land_row/col`` (K,H,W) int32 hold
+    the rounded landing pixel x^_i^T; ``land_ok`` (K,H,W) bool the validity nu^{t,T} (AND of
+    per-step checks: in image, FB < theta, valid depth, depth step < max_step).
     """
-    ring = depth_ring.shape[0]
     h = depth_ring.shape[1]
     w = depth_ring.shape[2]
-    st = t % ring
+    st = frame_slot[t - first]
     for v in prange(h):
         for u in range(w):
             valid0 = not np.isnan(depth_ring[st, v, u])
-            # forward
-            x = float(u)
-            y = float(v)
-            pr = np.int64(v)
-            pc = np.int64(u)
-            alive = valid0
-            for T in range(t + 1, last + 1):
-                k = T - first - 1
-                if alive:
-                    ps = T % ring
-                    ok, nx, ny = _track_step(fwd_ring[ps], bwd_ring[ps], x, y, theta, per_step)
-                    if ok:
-                        r = _round_half_up(ny)
-                        c = _round_half_up(nx)
-                        d1 = depth_ring[T % ring, r, c]
-                        d0 = depth_ring[(T - 1) % ring, pr, pc]
-                        if np.isnan(d1) or not (abs(d1 - d0) < max_step):
-                            ok = False
-                    if ok:
-                        x = nx
-                        y = ny
-                        pr = r
-                        pc = c
-                    else:
-                        alive = False
-                land_ok[k, v, u] = alive
-                land_row[k, v, u] = pr
-                land_col[k, v, u] = pc
-            # backward
-            x = float(u)
-            y = float(v)
-            pr = np.int64(v)
-            pc = np.int64(u)
-            alive = valid0
-            for T in range(t - 1, first - 1, -1):
-                k = T - first
-                if alive:
-                    ps = (T + 1) % ring
-                    ok, nx, ny = _track_step(bwd_ring[ps], fwd_ring[ps], x, y, theta, per_step)
-                    if ok:
-                        r = _round_half_up(ny)
-                        c = _round_half_up(nx)
-                        d1 = depth_ring[T % ring, r, c]
-                        d0 = depth_ring[(T + 1) % ring, pr, pc]
-                        if np.isnan(d1) or not (abs(d1 - d0) < max_step):
-                            ok = False
-                    if ok:
-                        x = nx
-                        y = ny
-                        pr = r
-                        pc = c
-                    else:
-                        alive = False
-                land_ok[k, v, u] = alive
-                land_row[k, v, u] = pr
-                land_col[k, v, u] = pc
+            for direction in (1, -1):
+                x = float(u)
+                y = float(v)
+                pr = np.int64(v)
+                pc = np.int64(u)
+                prev_depth = depth_ring[st, v, u]
+                alive = valid0
+                n_steps = last - t if direction == 1 else t - first
+                for step in range(1, n_steps + 1):
+                    T = t + direction * step
+                    k = T - first - 1 if direction == 1 else T - first
+                    if alive:
+                        slot = frame_slot[T - first]
+                        if direction == 1:  # pair (T-1, T): forward flow moves, backward checks
+                            ok, nx, ny = _track_step(
+                                fwd_ring, bwd_ring, slot, x, y, theta, per_step
+                            )
+                        else:  # pair (T, T+1) lives in the slot of T+1
+                            ok, nx, ny = _track_step(
+                                bwd_ring, fwd_ring, frame_slot[T + 1 - first], x, y, theta, per_step
+                            )
+                        if ok:
+                            r = _round_half_up(ny)
+                            c = _round_half_up(nx)
+                            d1 = depth_ring[slot, r, c]
+                            if np.isnan(d1) or not (abs(d1 - prev_depth) < max_step):
+                                ok = False
+                        if ok:
+                            x = nx
+                            y = ny
+                            pr = r
+                            pc = c
+                            prev_depth = d1
+                        else:
+                            alive = False
+                    land_ok[k, v, u] = alive
+                    land_row[k, v, u] = pr
+                    land_col[k, v, u] = pc
 
 
 # --------------------------------------------------------------------------- fusion (Eq. 5)
@@ -309,6 +303,7 @@ def _track_kernel(
 def _fuse_kernel(
     bil_ring,
     ref_ring,
+    frame_slot,
     t,
     first,
     land_row,
@@ -329,11 +324,11 @@ def _fuse_kernel(
     B^T[x^] - m^{t,T} lies ``gate`` mm or more from frame t's own B^t[x] is rejected like a
     failed track (temporal range gate, A19; gate = inf disables it). Pixels with support <
     min_support are holes and get the bilateral-only value B^t[x_i] (filled later by Eq. 6).
+    ``frame_slot[T - first]`` is the ring slot of frame T.
     """
-    ring = bil_ring.shape[0]
     h = bil_ring.shape[1]
     w = bil_ring.shape[2]
-    st = t % ring
+    st = frame_slot[t - first]
     kmax = land_ok.shape[0]
     gate2 = gate * gate
     for v in prange(h):
@@ -358,7 +353,7 @@ def _fuse_kernel(
                 if not land_ok[k, v, u]:
                     continue
                 T = first + k if first + k < t else first + k + 1
-                sT = T % ring
+                sT = frame_slot[T - first]
                 r = land_row[k, v, u]
                 c = land_col[k, v, u]
                 dx = bil_ring[sT, r, c, 0] - ref_ring[sT, r, c, 0]
@@ -621,9 +616,15 @@ def _segment_box_rows_kernel(values, depth, radius, max_step, out):
                 j = k - a
                 s_val[j + 1] = s_val[j] + values[v, k]
                 s_kv[j + 1] = s_kv[j] + j * values[v, k]
+            inv_full = 1.0 / (2 * radius + 1)
             for k in range(a, b):
-                lo = max(k - radius, a) - a
-                hi = min(k + radius, b - 1) - a
+                j = k - a
+                if j - radius >= 0 and j + radius <= b - 1 - a:
+                    # full symmetric window: the line fit reduces to the mean
+                    out[v, k] = (s_val[j + radius + 1] - s_val[j - radius]) * inv_full
+                    continue
+                lo = max(j - radius, 0)
+                hi = min(j + radius, b - 1 - a)
                 n = hi - lo + 1
                 mean_val = (s_val[hi + 1] - s_val[lo]) / n
                 # column indices lo..hi: mean and variance in closed form
@@ -631,7 +632,7 @@ def _segment_box_rows_kernel(values, depth, radius, max_step, out):
                 var_j = (n * n - 1) / 12.0
                 if var_j > 0.0:
                     cov = (s_kv[hi + 1] - s_kv[lo]) / n - mean_j * mean_val
-                    out[v, k] = mean_val + cov / var_j * ((k - a) - mean_j)
+                    out[v, k] = mean_val + cov / var_j * (j - mean_j)
                 else:
                     out[v, k] = mean_val
             u = b
