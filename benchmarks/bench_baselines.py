@@ -51,6 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scene", choices=("ball", "plane"), default="ball")
     parser.add_argument("--frames", type=int, default=12)
     parser.add_argument("--frames-6d", type=int, default=9)
+    parser.add_argument("--size-6d", type=int, default=None, help="temporal radius of 6D methods")
     parser.add_argument("--methods", default="all", help="comma list or 'all'")
     args = parser.parse_args(argv)
     infos = available_baselines()
@@ -79,8 +80,9 @@ def main(argv: list[str] | None = None) -> int:
             run_baseline(name, small.depth[crop], small.intensity[crop],
                          small.intrinsics.__class__(**{**small.intrinsics.to_dict(),
                                                        "width": 64, "height": 64}))  # fmt: skip
+            params = {"size": args.size_6d} if info.returns_points and args.size_6d else {}
             start = time.perf_counter()
-            out = run_baseline(name, seq.depth, seq.intensity, seq.intrinsics)
+            out = run_baseline(name, seq.depth, seq.intensity, seq.intrinsics, **params)
             ms = 1000.0 * (time.perf_counter() - start) / n
             if info.returns_points:
                 points, depth = out, out[..., 2]

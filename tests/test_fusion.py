@@ -90,7 +90,7 @@ def test_segment_box_kernel_matches_oracle(rng):
     depth[2, 5] = np.nan
     values = depth.copy()
     out = np.empty_like(depth)
-    _segment_box_rows_kernel(values, depth, 3, 10.0, out)
+    _segment_box_rows_kernel(values, depth, 3, 10.0, 0.0, out)
     np.testing.assert_allclose(out, naive.segment_box_rows(values, depth, 3, 10.0), atol=1e-4)
 
 
@@ -117,7 +117,9 @@ def test_track_and_fuse_kernels_match_oracles(rng):
     cols = np.empty_like(rows)
     ok = np.empty(rows.shape, bool)
     slots = np.arange(first, last + 1)
-    _track_kernel(ring_f, ring_b, depth, slots, t, first, last, 1.0, 0.6, False, rows, cols, ok)
+    _track_kernel(
+        ring_f, ring_b, depth, slots, t, first, last, 1.0, 0.6, 0.0, False, rows, cols, ok
+    )
     oracle = naive.track(fwd, bwd, depth, t, first, last, 1.0, 0.6)
     others = [T for T in range(first, last + 1) if t != T]
     for k, T in enumerate(others):
@@ -135,13 +137,34 @@ def test_track_and_fuse_kernels_match_oracles(rng):
     out = np.empty((14, 16, 3), np.float32)
     support = np.empty((14, 16), np.uint8)
     hole = np.empty((14, 16), bool)
-    _fuse_kernel(bil, ref, slots, t, first, rows, cols, ok, weights, 1, 0.8, out, support, hole)
-    expected, exp_support = naive.fuse(bil, ref, oracle, t, first, last, weights, 0.8)
-    np.testing.assert_array_equal(support, exp_support)
-    filled = support >= 1
-    np.testing.assert_allclose(out[filled], expected[filled], atol=1e-4)
-    np.testing.assert_allclose(out[~filled & ~hole], expected[~filled & ~hole], atol=1e-4)
-    np.testing.assert_array_equal(out[hole], bil[t][hole])  # holes keep B^t (fallback)
+    for trajectory in (False, True):
+        _fuse_kernel(
+            bil,
+            ref,
+            slots,
+            t,
+            first,
+            rows,
+            cols,
+            ok,
+            weights,
+            1,
+            1.0,
+            0.8,
+            0.0,
+            0.0,
+            trajectory,
+            out,
+            support,
+            hole,
+        )
+        expected, exp_support = naive.fuse(
+            bil, ref, oracle, t, first, last, weights, 0.8, trajectory=trajectory
+        )
+        np.testing.assert_array_equal(support, exp_support)
+        fused = support >= 1
+        np.testing.assert_allclose(out[fused], expected[fused], atol=1e-4)
+        np.testing.assert_array_equal(out[hole], bil[t][hole])  # holes keep B^t (fallback)
 
 
 def test_fill_kernel_extrapolates_a_plane():
@@ -282,7 +305,7 @@ def test_literal_motion_is_much_rougher_than_regularised(rng):
     inten = np.broadcast_to(_texture(H, W), (n, H, W)).copy()
     default = fuse_sequence(depth, inten, K, flow=_zero_flow(n))
     literal = fuse_sequence(
-        depth, inten, K, flow=_zero_flow(n), fusion=FusionParams(motion_depth="raw")
+        depth, inten, K, flow=_zero_flow(n), fusion=FusionParams(motion_depth="raw", base="frame")
     )
     roi = np.zeros((n, H, W), bool)
     roi[:, 6:-6, 6:-6] = True

@@ -150,6 +150,39 @@ def test_foundation_update_matches_oracle(tiny):
         np.testing.assert_array_equal(got[mask], found[mask])
 
 
+@pytest.mark.parametrize("worst_value", [20.0, 2.0])
+@pytest.mark.parametrize("cand", [(0.2, -0.3), (1.7, 0.9), (-1.1, 1.4)])
+def test_candidate_acceptance_matches_oracle(tiny, cand, worst_value):
+    """A candidate replaces the worst particle iff ψ1(s') + Σ m(s') < max_k B^k (METHOD §2.3)."""
+    src, tgt, lab, found, dis = (x.copy() for x in tiny)
+    h, w = src.shape
+    r, c = 4, 5
+    dis[r, c] = [1.0, worst_value, 0.5]  # B(s') is 5-10 here: accepted against 20, not 2
+    p = PMBPParams(pairwise_weight=0.7, pairwise_trunc=2.5, gradient_weight=0.0)
+    roi = np.array([0, h, 0, w], np.int64)
+    asw = _asw_weights(src, p, roi)
+    cfg = _config(p, 1.0, True)
+    una = np.zeros((h, w, lab.shape[2]), np.float32)
+    before = (lab.copy(), dis.copy())
+    unary = naive.patch_cost(src, tgt, asw, r, c, cand, rho=2, tau1=0.3, border=cfg[3])
+    b_new = naive.disbelief(unary, lab, found, r, c, cand, 0.7, 2.5)
+    worst = int(np.argmax(dis[r, c]))
+    accepted = K._try_candidate(
+        src, src, src, tgt, tgt, tgt, asw, lab, una, dis, found, r, c, *cand, 2, cfg, roi
+    )
+    assert accepted == (b_new < before[1][r, c, worst])
+    assert accepted == (worst_value == 20.0)
+    if accepted:
+        np.testing.assert_allclose(lab[r, c, worst], cand, rtol=1e-6)
+        assert dis[r, c, worst] == pytest.approx(b_new, rel=1e-5)
+        assert una[r, c, worst] == pytest.approx(unary, rel=1e-5)
+        others = [k for k in range(lab.shape[2]) if k != worst]
+        np.testing.assert_array_equal(lab[r, c, others], before[0][r, c, others])
+    else:
+        np.testing.assert_array_equal(lab, before[0])
+        np.testing.assert_array_equal(dis, before[1])
+
+
 def test_roi_removes_neighbours(tiny):
     _, _, lab, found, _ = tiny
     roi = np.array([4, 9, 5, 11], np.int64)  # (4, 5) is the roi's top-left corner
@@ -331,7 +364,7 @@ def test_registered_with_flow_module():
     register()
     d = (0.5, -0.5)
     a, b = _pair(64, 64, d)
-    flow = flow_mod.estimate_flow(a, b, method="pmbp-fast")
-    assert _epe(flow, d, 8) < 0.1
+    flow = flow_mod.estimate_flow(a, b, method="pmbp-fast")  # solved at half resolution
+    assert _epe(flow, d, 8) < 0.15
     flow = flow_mod.estimate_flow(a, b, method="pmbp", params=SMALL)
     assert _epe(flow, d, 8) < 0.1

@@ -37,6 +37,10 @@ BilateralMode = Literal["residual", "points"]
 class FusionParams:
     """Knobs of the spatio-temporal fusion (paper Eq. 4–6; METHOD.md §5.3 defaults).
 
+    fuse4d's own decisions (docs/method_notes.md, A17–A22) are defaults; the literal paper
+    (METHOD A3 "raw" ablation) is ``FusionParams(motion_depth="raw", bilateral="points",
+    output="points", temporal_gate=math.inf)``.
+
     Parameters
     ----------
     num_frames : int
@@ -76,6 +80,14 @@ class FusionParams:
         depth changes by mm per pixel) from entering Eq. 5. ``math.inf`` disables it.
     min_gate_mm : float
         Lower bound (mm) of the temporal gate, for noise-free or quantised depth.
+    base : {"frame", "trajectory"}
+        Base of Eq. 5 to which the averaged detail is added. "frame" (default): P~^t[x_i] as in
+        METHOD §4.3. "trajectory" (our A21, optional): the value at t of a weighted
+        least-squares line through the tracked reference positions P~^T[x^_i^T], i.e. motion
+        vectors regularised to be linear in time, so frame t's own low-frequency noise is
+        averaged too. Measured: static_room_rgbd pose-compensated flicker 1.63 -> 1.56 mm (raw
+        2.34); ball RMSE 0.0142 -> 0.0136 mm but pixels > 1 mm off 0.057 % -> 0.104 %
+        (frame 4), hence not the default.
     motion_depth : {"smoothed", "raw"}
         Depth used for the 3D motion vectors m (Eq. 3). "smoothed" (default, A3) or "raw"
         (the literal paper, kept as an ablation).
@@ -123,6 +135,7 @@ class FusionParams:
     reference_sigma: float = 3.0
     temporal_gate: float = 3.0
     min_gate_mm: float = 0.05
+    base: Literal["trajectory", "frame"] = "frame"
     motion_depth: MotionDepth = "smoothed"
     quantize: Quantize = "final"
     min_temporal_support: int = 1
@@ -160,6 +173,7 @@ class FusionParams:
                 raise ValueError(f"FusionParams.{name} must be > 0, got {value}")
             object.__setattr__(self, name, float(value))
         _choice(self, "motion_depth", ("smoothed", "raw"))
+        _choice(self, "base", ("trajectory", "frame"))
         _choice(self, "quantize", ("final", "per_step"))
         _choice(self, "fill_fallback", ("bilateral", "nan"))
         _choice(self, "output", ("ray", "points"))

@@ -31,7 +31,7 @@ from .bilateral import bilateral_filter_points
 from .camera import Intrinsics, depth_to_points
 from .config import FlowConfig, FusionParams, preset
 from .errors import ShapeError
-from .motion import estimate_depth_noise, motion_reference_depth
+from .motion import estimate_depth_noise, estimate_noise_quad, motion_reference_depth
 from .sequence import normalize_intensity
 
 __all__ = [
@@ -161,7 +161,8 @@ class FusionEngine:
         h, w = intrinsics.height, intrinsics.width
         s = self.ring
         self._depth = np.full((s, h, w), np.nan, np.float32)
-        self._noise = np.zeros(s, np.float64)  # robust depth-noise estimate per frame, mm
+        # per-frame depth-noise model sigma(z) = max(sigma0, quad z^2) (A22): (sigma0, quad)
+        self._noise = np.zeros((s, 2), np.float64)
         self._intensity = np.zeros((s, h, w), np.float32)
         self._bilateral = np.full((s, h, w, 3), np.nan, np.float32)
         # local reference surface (A17, A18) and motion reference P~ (A3)
@@ -229,13 +230,16 @@ class FusionEngine:
             pts = as_float32(points, name="points")
             check_shape(pts, (h, w, 3), name=f"points (frame {index})")
             d = np.ascontiguousarray(pts[..., 2])
+        quad = estimate_noise_quad(d)  # depth-noise model, part 1 (A22)
         # local reference (A18) for the residual bilateral and the output normals (A17)
-        self._smooth[slot] = self._smoothed_points(d, pts, points is not None, p.reference_sigma)
+        self._smooth[slot] = self._smoothed_points(
+            d, pts, points is not None, p.reference_sigma, quad
+        )
         if p.motion_depth == "raw":
             self._reference[slot] = pts  # literal Eq. 3 (ablation)
         else:  # motion reference P~ (A3)
             self._reference[slot] = self._smoothed_points(
-                d, pts, points is not None, p.motion_sigma
+                d, pts, points is not None, p.motion_sigma, quad
             )
         smooth = self._smooth[slot]
         t1 = time.perf_counter()
@@ -252,7 +256,8 @@ class FusionEngine:
         self.timings["motion_reference"] += t1 - t0
         self.timings["bilateral"] += t2 - t1
         self._depth[slot] = d
-        self._noise[slot] = estimate_depth_noise(d, reference=self._smooth[slot][..., 2])
+        sigma0 = estimate_depth_noise(d, reference=self._smooth[slot][..., 2])
+        self._noise[slot] = (sigma0, quad)
         self._intensity[slot] = inten
         if index > 0:
             self._add_pair(index, pair_flow)
@@ -271,10 +276,10 @@ class FusionEngine:
         return out
 
     # ------------------------------------------------------------------ internals
-    def _smoothed_points(self, depth, points, given: bool, sigma: float) -> np.ndarray:
-        """Back-projected edge-limited smoothing of ``depth`` (METHOD §4.3, see motion_reference_depth)."""
+    def _smoothed_points(self, depth, points, given: bool, sigma: float, quad: float):
+        """Back-projected edge-limited smoothing of ``depth`` (see motion_reference_depth)."""
         smooth_depth = motion_reference_depth(
-            depth, sigma=sigma, max_step=self.params.max_depth_step
+            depth, sigma=sigma, max_step=self.params.max_depth_step, noise_quad=quad
         )
         if not given:
             return depth_to_points(smooth_depth, self.intrinsics)
@@ -349,6 +354,7 @@ class FusionEngine:
         cols = np.empty((k, h, w), np.int32)
         ok = np.empty((k, h, w), np.bool_)
         frame_slot = np.arange(first, last + 1, dtype=np.int64) % self.ring
+        sigma0, quad = self._noise[t % self.ring]
         _track_kernel(
             self._fwd,
             self._bwd,
@@ -359,6 +365,7 @@ class FusionEngine:
             last,
             p.fb_threshold,
             p.max_depth_step,
+            quad,
             p.quantize == "per_step",
             rows,
             cols,
@@ -368,7 +375,9 @@ class FusionEngine:
         points = np.empty((h, w, 3), np.float32)
         support = np.empty((h, w), np.uint8)
         hole = np.empty((h, w), np.bool_)
-        gate = max(p.temporal_gate * self._noise[t % self.ring], p.min_gate_mm)
+        depth_t = self._depth[t % self.ring]
+        z_med = float(np.nanmedian(depth_t)) if np.isfinite(depth_t).any() else 0.0
+        frame_gate = max(p.temporal_gate * max(sigma0, quad * z_med**2), p.min_gate_mm)
         _fuse_kernel(
             self._bilateral,
             self._reference,
@@ -380,7 +389,11 @@ class FusionEngine:
             ok,
             self._temporal_weight,
             p.min_temporal_support,
-            gate,
+            p.temporal_gate,
+            sigma0,
+            quad,
+            p.min_gate_mm,
+            p.base == "trajectory",
             points,
             support,
             hole,
@@ -397,7 +410,7 @@ class FusionEngine:
                 1.0 / (2.0 * p.sigma_fill**2),
                 p.fill_passes,
                 3,
-                gate,
+                frame_gate,
                 filled,
             )
         if p.fill_fallback == "nan":

@@ -26,13 +26,14 @@ __all__ = [
     "Tracks",
     "compute_motion_field",
     "estimate_depth_noise",
+    "estimate_noise_quad",
     "motion_reference_depth",
     "track_frame",
 ]
 
 
 def motion_reference_depth(
-    depth: ArrayLike, *, sigma: float = 8.0, max_step: float = 10.0
+    depth: ArrayLike, *, sigma: float = 12.0, max_step: float = 10.0, noise_quad: float = 0.0
 ) -> NDArray[np.float32]:
     """Edge-limited smoothing of one depth frame: the motion-reference depth D~ (A3).
 
@@ -56,6 +57,10 @@ def motion_reference_depth(
         sigma_m in px (box radius r with (2r+1)^2 = 6 sigma^2 + 1, at least 1).
     max_step : float
         tau_jump in mm: a larger step between neighbouring pixels ends a segment.
+    noise_quad : float
+        Quadratic depth-noise coefficient (mm^-1, see :func:`estimate_noise_model`): at depth z
+        the step limit is ``max(max_step, 2.5 * noise_quad * z^2)``, so quantisation steps of far
+        structured-light depth do not cut segments.
 
     Returns
     -------
@@ -78,32 +83,55 @@ def motion_reference_depth(
     a = d.copy()
     b = np.empty_like(d)
     for _ in range(2):
-        _segment_box_rows_kernel(a, d, radius, step, b)
+        _segment_box_rows_kernel(a, d, radius, step, float(noise_quad), b)
         a, b = b, a
     at = np.ascontiguousarray(a.T)
     dt = np.ascontiguousarray(d.T)
     bt = np.empty_like(at)
     for _ in range(2):
-        _segment_box_rows_kernel(at, dt, radius, step, bt)
+        _segment_box_rows_kernel(at, dt, radius, step, float(noise_quad), bt)
         at, bt = bt, at
     return np.ascontiguousarray(at.T)
+
+
+def estimate_noise_quad(depth: ArrayLike) -> float:
+    """Quadratic coefficient of a frame's depth-noise model sigma(z) = quad * z^2 (A22), mm^-1.
+
+    Structured-light and stereo depth is noisier, and quantised more coarsely, further away
+    (step ~ z^2). ``quad`` is the median over horizontally neighbouring pixel pairs (every 2nd
+    row) of |D(x) - D(y)| / z^2, over non-zero differences below 5 % of the depth (true edges
+    excluded): on quantised depth the median non-zero step is one quantisation level, on
+    continuous depth it is ~sigma. Returns 0.0 when no pair qualifies.
+    """
+    d = as_float32(depth, name="depth")
+    check_shape(d, ("H", "W"), name="depth")
+    sub = d[::2]
+    steps = np.abs(np.diff(sub, axis=1)).ravel()
+    z = np.fmin(sub[:, 1:], sub[:, :-1]).ravel()
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(steps) & (steps > 0) & (steps < 0.05 * z)
+    return float(np.median(steps[ok] / z[ok] ** 2)) if ok.any() else 0.0
 
 
 def estimate_depth_noise(depth: ArrayLike, *, reference: ArrayLike | None = None) -> float:
     """Robust estimate of the per-pixel depth noise of one frame, in mm.
 
-    1.4826 * MAD of the residual between the depth and a small-scale edge-limited smoothing
-    (sigma = 2 px, or ``reference`` when given), subsampled 2x2. The residual keeps ~95 % of
-    white noise and the MAD ignores depth edges. Returns 0.0 for a frame without valid depth.
+    The residual r between the depth and a small-scale edge-limited smoothing (sigma = 2 px,
+    or ``reference`` when given), subsampled 2x2, summarised as ``1.2533 * mean(|r|)`` over
+    the residuals below their 95th percentile (a trimmed mean absolute deviation, scaled to a
+    Gaussian sigma; trimming ignores depth edges). Unlike the median absolute deviation it does
+    not collapse to 0 on quantised depth (structured-light cameras, where most residuals are
+    exactly 0). Returns 0.0 for a frame without valid depth.
     """
     d = as_float32(depth, name="depth")
     check_shape(d, ("H", "W"), name="depth")
     ref = motion_reference_depth(d, sigma=2.0) if reference is None else np.asarray(reference)
-    r = (d[::2, ::2] - ref[::2, ::2]).ravel()
+    r = np.abs(d[::2, ::2] - ref[::2, ::2]).ravel()
     r = r[np.isfinite(r)]
     if r.size == 0:
         return 0.0
-    return float(1.4826 * np.median(np.abs(r - np.median(r))))
+    keep = r[r <= np.quantile(r, 0.95)]
+    return float(1.2533 * keep.mean()) if keep.size else 0.0
 
 
 @dataclass(frozen=True)
@@ -160,6 +188,11 @@ def track_frame(
     Returns
     -------
     Tracks
+
+    Notes
+    -----
+    The depth-jump gate is ``max(max_depth_step, 2.5 quad z^2)`` with ``quad`` from
+    :func:`estimate_noise_quad` on frame t, exactly as in the fusion engine (A22).
     """
     params = params or FusionParams()
     d = as_float32(depth, name="depth")
@@ -187,6 +220,7 @@ def track_frame(
         last,
         params.fb_threshold,
         params.max_depth_step,
+        estimate_noise_quad(d[t]),
         params.quantize == "per_step",
         rows,
         cols,
@@ -235,7 +269,12 @@ def compute_motion_field(
     if params.motion_depth == "smoothed":
         ref_depth = np.stack(
             [
-                motion_reference_depth(f, sigma=params.motion_sigma, max_step=params.max_depth_step)
+                motion_reference_depth(
+                    f,
+                    sigma=params.motion_sigma,
+                    max_step=params.max_depth_step,
+                    noise_quad=estimate_noise_quad(f),
+                )
                 for f in d
             ]
         )

@@ -20,19 +20,33 @@ Two schedules are provided:
     other and each pixel draws its random numbers from a counter-based generator keyed by
     (seed, level, iteration, colour, pixel index).
 
-Speed-ups beyond METHOD §2.5 (deviation, there "no coarse-to-fine"): an image pyramid
-(``pyramid_levels``; each level's flow, upsampled ×2, seeds the next finer level, whose random
-search then starts at ``refine_radius`` instead of ``search_radius0``), early termination of
-the patch cost, the unary of each particle cached, precomputed adaptive-support weights, and
-``roi`` restriction. SPM-BP (Li et al., ICCV 2015: superpixel-shared particles and an
-edge-aware filtered data cost) is *not* implemented; ``"pmbp-fast"`` is K = 1 + pyramid +
-parallel schedule + fewer sweeps.
+Deviations from METHOD §2 (each a field of :class:`PMBPParams`, so the literal setting stays
+available), all measured with ``benchmarks/bench_pmbp.py``:
 
-Initialisation (METHOD §2.3): the particles of each pixel start from seed labels -- zero, the
-warm start ``init`` (particle 1 in METHOD), and on pyramid levels below the top the upsampled
-coarser flow -- then uniform random labels in [-M, M]². If more valid seeds than K exist
-(K = 1, or K = 2 with a pyramid and a warm start), the K seeds with the lowest unary are kept
-(our rule; METHOD is silent for K = 1).
+- coarse-to-fine (``pyramid_levels=3``; METHOD: "no coarse-to-fine"): each level's flow,
+  upsampled ×2, seeds the next finer level, whose random search starts at ``refine_radius``
+  and whose extra particles are drawn within ``refine_radius`` of it. Without it the
+  truncated-quadratic smoothness pins the field near its all-zero initial particle;
+- ``data_sweeps=1``: the first sweep on the coarsest level runs with λ = 0 (plain PatchMatch)
+  for the same reason;
+- the gradient term is on (α = 0.9, the reference demo's value; METHOD default 0, "intensity
+  patches"): on Middlebury α = 0 gave EPE 0.77 against 0.40, the ball is unaffected;
+- ``presmooth_sigma=1`` (Gaussian on both images), ``inside_target=False`` (labels may point
+  off the image, which costs the border cost), fewer sweeps and r_min = 0.05 px to fit the
+  2 s budget, ``search_best_only`` and ``finest_level`` as speed knobs.
+
+Other speed-ups: early termination of the patch cost, each particle's unary cached (a label's
+ψ1 never changes), precomputed adaptive-support weights ((H, W, (2ρ+1)²) float32), separable
+bilinear sampling in the image interior, the energy terms inlined into one per-pixel update,
+and ``roi`` restriction. SPM-BP (Li et al., ICCV 2015: superpixel-shared particles and an
+edge-aware filtered data cost) is *not* implemented; ``"pmbp-fast"`` is K = 1, solved down to
+half resolution, parallel schedule, 2 sweeps per level.
+
+Initialisation (METHOD §2.3): the particles of each pixel start from seed labels -- on the
+coarsest level zero and the warm start ``init`` (particle 1 in METHOD), on finer levels the
+upsampled coarser flow and ``init`` -- then random labels (uniform in [-M, M]² on the coarsest
+level). If more valid seeds than K exist (K = 1 with a warm start), the K seeds with the
+lowest unary are kept (our rule; METHOD is silent for K = 1).
 
 References
 ----------
@@ -155,6 +169,12 @@ class PMBPParams:
         any thread count).
     """
 
+    # Defaults tuned on the 600x600 ball (σ_I 2 % / 10 %, pair 10-11) and the 4 Middlebury
+    # pairs (max_motion 16), 2-core machine shared with other jobs, 2026-11-22
+    # (benchmarks/bench_pmbp.py). α = 0 (METHOD) scored Middlebury EPE 0.77 (real lighting
+    # changes) against 0.40 with α = 0.9; λ ∈ {0.03, 0.05, 0.1, 0.3}: 0.05 keeps the ball at
+    # σ_I 10 % under 0.6 px (0.44) with the best Middlebury EPE; 1 finest + 2 coarse sweeps and
+    # r_min 0.05 px fit the 2 s budget at equal ball EPE (Middlebury 0.40 vs 0.38 with 2 + 3).
     num_particles: int = 3
     patch_radius: int = 2
     gradient_weight: float = 0.9
@@ -162,14 +182,14 @@ class PMBPParams:
     trunc_gradient: float = 0.1
     asw_gamma: float = 0.1
     border_factor: float = 0.85
-    pairwise_weight: float = 0.1
+    pairwise_weight: float = 0.05
     pairwise_trunc: float = 4.0
-    max_motion: float = 8.0
-    num_iter: int = 2
-    coarse_num_iter: int | None = 3
+    max_motion: float = 16.0
+    num_iter: int = 1
+    coarse_num_iter: int | None = 2
     search_radius0: float | None = None
     refine_radius: float = 1.0
-    min_search_radius: float = 0.01
+    min_search_radius: float = 0.05
     pyramid_levels: int = 3
     finest_level: int = 0
     schedule: Schedule = "parallel"
@@ -250,15 +270,15 @@ class PMBPParams:
 class PMBPFastParams(PMBPParams):
     """:class:`PMBPParams` with the defaults of the fast setting ``"pmbp-fast"``.
 
-    K = 1, a 3-level pyramid, the parallel schedule and fewer sweeps; every field can still be
-    overridden. Same fields and meaning as :class:`PMBPParams`.
+    K = 1, solved down to half resolution (``finest_level=1``) and upsampled, 2 sweeps per
+    level; every field can still be overridden. Same fields and meaning as
+    :class:`PMBPParams`. SPM-BP (superpixel particles, filtered data cost) is not implemented.
     """
 
     num_particles: int = 1
-    pyramid_levels: int = 3
-    finest_level: int = 0
+    finest_level: int = 1
     num_iter: int = 2
-    coarse_num_iter: int | None = 3
+    coarse_num_iter: int | None = 2
 
 
 #: Parameters of ``"pmbp-fast"``.
@@ -391,7 +411,8 @@ def pmbp_flow(
         Knobs; None = ``PMBPParams()`` (the paper preset, K = 3).
     init : (H, W, 2) ndarray of float32, optional
         Warm start in px (``[..., 0]`` = du, ``[..., 1]`` = dv), e.g. the previous pair's flow or
-        minus the forward flow for a backward solve; it seeds one particle per pixel.
+        minus the forward flow for a backward solve; it seeds one particle per pixel on every
+        pyramid level (resized there). NaN / inf entries are treated as 0.
 
     Returns
     -------

@@ -116,8 +116,9 @@ def track(fwd, bwd, depth, t, first, last, theta, max_step):
     return result
 
 
-def fuse(bilateral, reference, tracks, t, first, last, weights, gate):
-    """Outer sum of Eq. 5 along given tracks, with the temporal range gate (A19)."""
+def fuse(bilateral, reference, tracks, t, first, last, weights, gate, *, trajectory=False):
+    """Outer sum of Eq. 5 along given tracks, with the temporal range gate (A19) and,
+    optionally, the trajectory base (A21: least-squares line through the motion vectors)."""
     _n, h, w, _ = bilateral.shape
     out = np.full((h, w, 3), np.nan)
     support = np.zeros((h, w), int)
@@ -126,8 +127,7 @@ def fuse(bilateral, reference, tracks, t, first, last, weights, gate):
             if np.isnan(reference[t, v, u, 2]):
                 continue
             own = bilateral[t, v, u] - reference[t, v, u]
-            acc = weights[0] * own
-            wsum = weights[0]
+            taus, wts, details, motions = [0.0], [weights[0]], [own], [np.zeros(3)]
             for T in range(first, last + 1):
                 if t == T:
                     continue
@@ -137,8 +137,24 @@ def fuse(bilateral, reference, tracks, t, first, last, weights, gate):
                 detail = bilateral[T, r, c] - reference[T, r, c]
                 if not np.linalg.norm(detail - own) < gate:
                     continue
-                acc = acc + weights[abs(T - t)] * detail
-                wsum += weights[abs(T - t)]
+                taus.append(float(T - t))
+                wts.append(weights[abs(T - t)])
+                details.append(detail)
+                motions.append(reference[T, r, c] - reference[t, v, u])
                 support[v, u] += 1
-            out[v, u] = reference[t, v, u] + acc / wsum
+            wts_a = np.array(wts)
+            base = np.zeros(3)
+            if trajectory:
+                taus_a = np.array(taus)
+                if len(set(taus)) > 1:
+                    design = (
+                        np.stack([np.ones_like(taus_a), taus_a], axis=1) * np.sqrt(wts_a)[:, None]
+                    )
+                    rhs = np.array(motions) * np.sqrt(wts_a)[:, None]
+                    base = np.linalg.lstsq(design, rhs, rcond=None)[0][0]
+                else:
+                    base = np.average(np.array(motions), axis=0, weights=wts_a)
+            out[v, u] = (
+                reference[t, v, u] + base + np.average(np.array(details), axis=0, weights=wts_a)
+            )
     return out, support

@@ -50,6 +50,14 @@ def _bilinear2(ring, slot, x, y):
 
 
 @njit(inline="always")
+def _step_limit(z, max_step, quad):
+    """Largest plausible depth change (mm) between neighbours at depth z: the fixed
+    ``max_step`` or, on quantised/noisy far depth, 2.5 noise levels of the frame's depth-noise
+    model sigma(z) = quad * z^2 (A22), whichever is larger."""
+    return max(max_step, 2.5 * quad * z * z)
+
+
+@njit(inline="always")
 def _round_half_up(x):
     """floor(x + 0.5): METHOD §4.1 rounding (not round-half-to-even)."""
     return np.int64(math.floor(x + 0.5))
@@ -239,6 +247,7 @@ def _track_kernel(
     last,
     theta,
     max_step,
+    quad,
     per_step,
     land_row,
     land_col,
@@ -283,7 +292,8 @@ def _track_kernel(
                             r = _round_half_up(ny)
                             c = _round_half_up(nx)
                             d1 = depth_ring[slot, r, c]
-                            if np.isnan(d1) or not (abs(d1 - prev_depth) < max_step):
+                            limit = _step_limit(prev_depth, max_step, quad)
+                            if np.isnan(d1) or not (abs(d1 - prev_depth) < limit):
                                 ok = False
                         if ok:
                             x = nx
@@ -311,7 +321,11 @@ def _fuse_kernel(
     land_ok,
     temporal_weight,
     min_support,
-    gate,
+    gate_factor,
+    sigma0,
+    quad,
+    min_gate,
+    trajectory,
     out_points,
     support,
     hole,
@@ -322,15 +336,21 @@ def _fuse_kernel(
     which equals (1/kappa) sum_T nu f (B^T[x^] - m^{t,T}) with m = P~^T[x^] - P~^t[x].
     temporal_weight[|T - t|] = f(t, T). A sample whose mapped-back point
     B^T[x^] - m^{t,T} lies ``gate`` mm or more from frame t's own B^t[x] is rejected like a
-    failed track (temporal range gate, A19; gate = inf disables it). Pixels with support <
+    failed track (temporal range gate, A19), with gate = max(gate_factor * sigma(z),
+    min_gate) and the frame's noise model sigma(z) = max(sigma0, quad z^2) (A22);
+    gate_factor = inf disables it. Pixels with support <
     min_support are holes and get the bilateral-only value B^t[x_i] (filled later by Eq. 6).
     ``frame_slot[T - first]`` is the ring slot of frame T.
+
+    trajectory=True (A21): the base P~^t[x] is replaced by the value at t of the weighted
+    least-squares line through the tracked reference positions P~^T[x^] (T in the window,
+    accepted samples and t itself), i.e. the motion vectors m^{t,T} are regularised to be
+    linear in time, so frame t's own low-frequency noise is averaged too.
     """
     h = bil_ring.shape[1]
     w = bil_ring.shape[2]
     st = frame_slot[t - first]
     kmax = land_ok.shape[0]
-    gate2 = gate * gate
     for v in prange(h):
         for u in range(w):
             if np.isnan(ref_ring[st, v, u, 2]):
@@ -339,6 +359,9 @@ def _fuse_kernel(
                 support[v, u] = 0
                 hole[v, u] = False
                 continue
+            zt = ref_ring[st, v, u, 2]
+            gate = max(gate_factor * max(sigma0, quad * zt * zt), min_gate)
+            gate2 = gate * gate
             # detail of frame t itself: B^t - P~^t
             ex = bil_ring[st, v, u, 0] - ref_ring[st, v, u, 0]
             ey = bil_ring[st, v, u, 1] - ref_ring[st, v, u, 1]
@@ -349,6 +372,15 @@ def _fuse_kernel(
             az = w0 * ez
             wsum = w0
             count = 0
+            # weighted line fit of the motion vectors m^{t,T} against tau = T - t (m^{t,t} = 0)
+            s1 = 0.0
+            s2 = 0.0
+            y0x = 0.0
+            y0y = 0.0
+            y0z = 0.0
+            y1x = 0.0
+            y1y = 0.0
+            y1z = 0.0
             for k in range(kmax):
                 if not land_ok[k, v, u]:
                     continue
@@ -367,6 +399,18 @@ def _fuse_kernel(
                 az += wt * dz
                 wsum += wt
                 count += 1
+                tau = float(T - t)
+                mx = ref_ring[sT, r, c, 0] - ref_ring[st, v, u, 0]
+                my = ref_ring[sT, r, c, 1] - ref_ring[st, v, u, 1]
+                mz = ref_ring[sT, r, c, 2] - ref_ring[st, v, u, 2]
+                s1 += wt * tau
+                s2 += wt * tau * tau
+                y0x += wt * mx
+                y0y += wt * my
+                y0z += wt * mz
+                y1x += wt * tau * mx
+                y1y += wt * tau * my
+                y1z += wt * tau * mz
             support[v, u] = min(count, 255)
             if count < min_support:
                 hole[v, u] = True
@@ -374,9 +418,22 @@ def _fuse_kernel(
                     out_points[v, u, c] = bil_ring[st, v, u, c]
             else:
                 hole[v, u] = False
-                out_points[v, u, 0] = ref_ring[st, v, u, 0] + ax / wsum
-                out_points[v, u, 1] = ref_ring[st, v, u, 1] + ay / wsum
-                out_points[v, u, 2] = ref_ring[st, v, u, 2] + az / wsum
+                bx = 0.0
+                by = 0.0
+                bz = 0.0
+                if trajectory:
+                    det = wsum * s2 - s1 * s1
+                    if det > 1e-9 * wsum * wsum:
+                        bx = (y0x * s2 - y1x * s1) / det
+                        by = (y0y * s2 - y1y * s1) / det
+                        bz = (y0z * s2 - y1z * s1) / det
+                    else:
+                        bx = y0x / wsum
+                        by = y0y / wsum
+                        bz = y0z / wsum
+                out_points[v, u, 0] = ref_ring[st, v, u, 0] + bx + ax / wsum
+                out_points[v, u, 1] = ref_ring[st, v, u, 1] + by + ay / wsum
+                out_points[v, u, 2] = ref_ring[st, v, u, 2] + bz + az / wsum
 
 
 # --------------------------------------------------------------------------- hole filling (Eq. 6)
@@ -581,7 +638,7 @@ def _project_to_rays_kernel(points, ref, fx, fy, cx, cy, max_step, out):
 
 # --------------------------------------------------------------------------- segment-limited smoothing
 @njit_parallel
-def _segment_box_rows_kernel(values, depth, radius, max_step, out):
+def _segment_box_rows_kernel(values, depth, radius, max_step, quad, out):
     """One local-linear box pass along rows, limited to depth-continuous segments.
 
     A segment is a run of valid pixels (finite ``depth``) whose consecutive raw depths differ
@@ -607,7 +664,8 @@ def _segment_box_rows_kernel(values, depth, radius, max_step, out):
             while (
                 b < w
                 and not np.isnan(depth[v, b])
-                and abs(depth[v, b] - depth[v, b - 1]) < max_step
+                and abs(depth[v, b] - depth[v, b - 1])
+                < _step_limit(depth[v, b - 1], max_step, quad)
             ):
                 b += 1
             s_val[0] = 0.0
