@@ -19,7 +19,12 @@ from fuse4d.bilateral import bilateral_filter_points
 from fuse4d.config import FusionParams
 from fuse4d.fusion import FusionEngine, PrecomputedFlow, fuse_sequence, fuse_stream
 from fuse4d.metrics import roughness_stats
-from fuse4d.motion import compute_motion_field, motion_reference_depth, track_frame
+from fuse4d.motion import (
+    compute_motion_field,
+    estimate_noise_quad,
+    motion_reference_depth,
+    track_frame,
+)
 from naive import fusion as naive
 
 H, W = 40, 48
@@ -214,7 +219,12 @@ def test_eq2_eq3_round_trip():
     motion, fb = compute_motion_field(fwd, bwd, depth, K, params=params)
     ref_depth = np.stack(
         [
-            motion_reference_depth(d, sigma=params.motion_sigma, max_step=params.max_depth_step)
+            motion_reference_depth(
+                d,
+                sigma=params.motion_sigma,
+                max_step=params.max_depth_step,
+                noise_quad=estimate_noise_quad(d),
+            )
             for d in depth
         ]
     )
@@ -240,7 +250,15 @@ def test_integer_translation_tracks_and_telescoping():
         np.testing.assert_array_equal(tracks.cols[k][inside], cols[inside])
     motion, _ = compute_motion_field(fwd, bwd, depth, K, params=FusionParams(max_depth_step=50.0))
     ref = depth_to_points(
-        np.stack([motion_reference_depth(d, sigma=12.0, max_step=50.0) for d in depth]), K
+        np.stack(
+            [
+                motion_reference_depth(
+                    d, sigma=3.0, max_step=50.0, noise_quad=estimate_noise_quad(d)
+                )
+                for d in depth
+            ]
+        ),
+        K,
     )
     v, u = 8, 20
     m02 = ref[2, v + 4, u] - ref[0, v, u]  # endpoint form of m^{0,2}

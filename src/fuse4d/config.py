@@ -63,11 +63,8 @@ class FusionParams:
         motion-reference smoothing. ``math.inf`` disables the gate (pure paper check).
     motion_sigma : float
         sigma_m (px) of the edge-limited smoothing that gives the motion-reference depth D~
-        (A3). METHOD §5.3 says 3 px; we use 12 px. The base P~^t[x] of Eq. 5 carries frame t's
-        own low-frequency noise, which is not averaged over time, so a wider smoothing lowers
-        the error floor; curvature bias of the wider smoothing cancels against the detail
-        layer. Measured on the ball (0.2 mm / 2 %, DIS flow, frame 4, ball ROI RMSE to GT):
-        3 px 0.023 mm, 8 px 0.0152 mm, 12 px 0.0147 mm, 16 px 0.0145 mm.
+        (A3), METHOD's 3 px. With the trajectory base (A21) frame t's low-frequency noise is
+        averaged over time, so a small sigma_m (little curvature bias) costs no accuracy.
     reference_sigma : float
         sigma (px) of the local reference surface used by the residual bilateral (A18) and for
         the output normals (A17); small, so that it follows curved surfaces. 3 px (measured:
@@ -80,14 +77,15 @@ class FusionParams:
         depth changes by mm per pixel) from entering Eq. 5. ``math.inf`` disables it.
     min_gate_mm : float
         Lower bound (mm) of the temporal gate, for noise-free or quantised depth.
-    base : {"frame", "trajectory"}
-        Base of Eq. 5 to which the averaged detail is added. "frame" (default): P~^t[x_i] as in
-        METHOD §4.3. "trajectory" (our A21, optional): the value at t of a weighted
-        least-squares line through the tracked reference positions P~^T[x^_i^T], i.e. motion
-        vectors regularised to be linear in time, so frame t's own low-frequency noise is
-        averaged too. Measured: static_room_rgbd pose-compensated flicker 1.63 -> 1.56 mm (raw
-        2.34); ball RMSE 0.0142 -> 0.0136 mm but pixels > 1 mm off 0.057 % -> 0.104 %
-        (frame 4), hence not the default.
+    base : {"trajectory", "frame"}
+        Base of Eq. 5 to which the averaged detail is added. "trajectory" (default, our A21):
+        the value at t of a weighted least-squares line through the tracked reference
+        positions P~^T[x^_i^T] over the window, i.e. motion vectors regularised to be linear in
+        time, so frame t's own low-frequency noise is averaged too. "frame": P~^t[x_i] as in
+        METHOD §4.3, whose noise is never averaged. Measured (ball 600x600, 0.2 mm / 2 %, DIS,
+        frame 4, RMSE in the ball ROI): frame base 0.023 mm at sigma_m = 3 px (0.0147 only
+        with sigma_m = 12 px, which over-smooths coarse scenes: 150x150 ball 0.175 mm);
+        trajectory base 0.0136 mm at sigma_m = 3 px (150x150 ball 0.055 mm).
     motion_depth : {"smoothed", "raw"}
         Depth used for the 3D motion vectors m (Eq. 3). "smoothed" (default, A3) or "raw"
         (the literal paper, kept as an ablation).
@@ -131,11 +129,11 @@ class FusionParams:
     sigma_temporal: float = 3.0
     fb_threshold: float = 2.0
     max_depth_step: float = 10.0
-    motion_sigma: float = 12.0
+    motion_sigma: float = 3.0
     reference_sigma: float = 3.0
     temporal_gate: float = 3.0
     min_gate_mm: float = 0.05
-    base: Literal["trajectory", "frame"] = "frame"
+    base: Literal["trajectory", "frame"] = "trajectory"
     motion_depth: MotionDepth = "smoothed"
     quantize: Quantize = "final"
     min_temporal_support: int = 1

@@ -291,20 +291,25 @@ PMBP_FAST = PMBPFastParams()
 
 @dataclass
 class _Level:
-    src: NDArray[np.float32]
-    tgt: NDArray[np.float32]
-    sgu: NDArray[np.float32]
-    sgv: NDArray[np.float32]
-    tgu: NDArray[np.float32]
-    tgv: NDArray[np.float32]
+    src4: NDArray[np.float32]  # (H, W, 4): I^t, ∂u I^t, ∂v I^t, 0
+    tgt4: NDArray[np.float32]  # (H, W, 4): same for I^{t+1}
     roi: NDArray[np.int64]
     scale: float
 
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.src4.shape[:2]
 
-def _gradients(image: NDArray[np.float32]) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """Central differences (one-sided at the border): (∂u I, ∂v I)."""
-    gv, gu = np.gradient(image)
-    return np.ascontiguousarray(gu, np.float32), np.ascontiguousarray(gv, np.float32)
+
+def _channels(image: NDArray[np.float32], gradients: bool) -> NDArray[np.float32]:
+    """(H, W, 4) float32: intensity and its central differences (one-sided at the border)."""
+    out = np.zeros((*image.shape, 4), np.float32)
+    out[..., 0] = image
+    if gradients:
+        gv, gu = np.gradient(image)
+        out[..., 1] = gu
+        out[..., 2] = gv
+    return out
 
 
 def _level_roi(roi: tuple[int, int, int, int], shape: tuple[int, int], scale: float):
@@ -329,12 +334,10 @@ def _build_levels(
                 break  # coarser images are too small for patches: fewer levels
             a, b = cv2.pyrDown(a), cv2.pyrDown(b)
         scale = float(2**lev)
-        if p.gradient_weight > 0.0:
-            sgu, sgv = _gradients(a)
-            tgu, tgv = _gradients(b)
-        else:
-            sgu = sgv = tgu = tgv = a
-        levels.append(_Level(a, b, sgu, sgv, tgu, tgv, _level_roi(roi, a.shape, scale), scale))
+        grads = p.gradient_weight > 0.0
+        levels.append(
+            _Level(_channels(a, grads), _channels(b, grads), _level_roi(roi, a.shape, scale), scale)
+        )
     return levels
 
 
@@ -459,11 +462,11 @@ def pmbp_flow(
         L = levels[lev]
         first = flow is None
         if flow is None:
-            seeds = [np.zeros((*L.src.shape, 2), np.float32)]
+            seeds = [np.zeros((*L.shape, 2), np.float32)]
         else:
-            seeds = [_resize_flow(flow, L.src.shape)]
+            seeds = [_resize_flow(flow, L.shape)]
         if init_arr is not None:
-            seeds.append(init_arr if lev == 0 else _resize_flow(init_arr, L.src.shape))
+            seeds.append(init_arr if lev == 0 else _resize_flow(init_arr, L.shape))
         n_iter = p.num_iter if lev == finest else p.coarse_num_iter
         if n_iter is None:
             n_iter = p.num_iter
@@ -482,16 +485,16 @@ def pmbp_flow(
 def _solve_level(
     L: _Level, p: PMBPParams, seeds: NDArray[np.float32], lev: int, first: bool, n_iter: int
 ) -> NDArray[np.float32]:
-    h, w = L.src.shape
+    h, w = L.shape
     k = p.num_particles
     rho = p.patch_radius
     cfg = _config(p, L.scale, first)
-    asw = _asw_weights(L.src, p, L.roi)
+    asw = _asw_weights(np.ascontiguousarray(L.src4[..., 0]), p, L.roi)
     lab = np.zeros((h, w, k, 2), np.float32)
     una = np.zeros((h, w, k), np.float32)
     dis = np.zeros((h, w, k), np.float32)
     found = np.zeros((h, w, 4, k), np.float32)
-    args = (L.src, L.sgu, L.sgv, L.tgt, L.tgu, L.tgv, asw)
+    args = (L.src4, L.tgt4, asw)
     seed = int(p.seed)
     _k._init_kernel(*args, seeds, lab, una, dis, found, rho, cfg, L.roi, seed, lev)
     lam = cfg[_k._CFG_LAMBDA]

@@ -11,9 +11,10 @@ State of one solve (all float32, C-contiguous, allocated by ``fuse4d.pmbp``):
 The message from q = nbr_d(p) into p at label s is
 ``min_k λ·min(|s - s_q^k|², T) + found[q, d ^ 1, k]``.
 
-Images: ``src`` = I^t (the grid the flow lives on), ``tgt`` = I^{t+1} (sampled bilinearly),
-``sgu/sgv`` and ``tgu/tgv`` their central-difference gradients (only read when α > 0), ``asw``
-(H, W, (2ρ+1)²) the adaptive-support weights of each pixel's patch (0 outside the image).
+Images: ``src4`` = I^t (the grid the flow lives on) and ``tgt4`` = I^{t+1} (sampled
+bilinearly), each (H, W, 4) float32 with channels (I, ∂u I, ∂v I, unused) -- interleaved so
+that one bilinear tap reads one cache line (the gradient channels are read only when α > 0);
+``asw`` (H, W, (2ρ+1)²) the adaptive-support weights of each pixel's patch (0 off the image).
 
 ``cfg`` (float64 array) packs the scalar knobs, see ``_CFG_*``; ``roi`` (int64[4]) =
 (row0, row1, col0, col1), half-open: only pixels inside are solved, and neighbours outside it do
@@ -100,33 +101,36 @@ def _uniform(state):
 
 
 @njit(inline="always")
-def _patch_cost(src, sgu, sgv, tgt, tgu, tgv, asw, r, c, su, sv, rho, cfg, bound):
-    """ψ1_p(s): ASW-weighted truncated patch dissimilarity (METHOD §2.1).
+def _patch_cost(src4, tgt4, asw, r, c, su, sv, rho, cfg, bound):
+    """ψ1_p(s): ASW-weighted truncated patch dissimilarity (METHOD §2.1), float32 arithmetic.
 
+    ``src4`` / ``tgt4`` (H, W, 4): channels (I, ∂u I, ∂v I, unused) of I^t and I^{t+1}.
     Accumulated row by row; returns as soon as the partial sum exceeds ``bound`` (early
     termination, METHOD §2.5.3; pass ``inf`` for the full value). ``s`` is constant over the
-    patch, so the bilinear weights are computed once.
+    patch, so the bilinear weights are computed once; in the image interior the interpolation
+    is separable (vertical blend of 2ρ+2 columns, then horizontal).
     """
-    h, w = src.shape
-    alpha = cfg[_CFG_ALPHA]
-    tau1 = cfg[_CFG_TAU1]
-    tau2 = cfg[_CFG_TAU2]
-    border = cfg[_CFG_BORDER]
-    a_int = 1.0 - alpha
+    h = src4.shape[0]
+    w = src4.shape[1]
+    alpha = np.float32(cfg[_CFG_ALPHA])
+    tau1 = np.float32(cfg[_CFG_TAU1])
+    tau2 = np.float32(cfg[_CFG_TAU2])
+    border = np.float32(cfg[_CFG_BORDER])
+    bnd = np.float32(bound)
+    one = np.float32(1.0)
+    a_int = one - alpha
     x = c + su
     y = r + sv
     fx = math.floor(x)
     fy = math.floor(y)
     ix = int(fx)
     iy = int(fy)
-    ax = x - fx
-    ay = y - fy
-    w00 = (1.0 - ax) * (1.0 - ay)
-    w01 = ax * (1.0 - ay)
-    w10 = (1.0 - ax) * ay
-    w11 = ax * ay
-    side = 2 * rho + 1
-    acc = 0.0
+    ax = np.float32(x - fx)
+    ay = np.float32(y - fy)
+    bx = one - ax
+    by = one - ay
+    acc = np.float32(0.0)
+    j = 0
     if (
         r - rho >= 0
         and r + rho < h
@@ -138,52 +142,50 @@ def _patch_cost(src, sgu, sgv, tgt, tgu, tgv, asw, r, c, su, sv, rho, cfg, bound
         and ix + rho + 1 < w
     ):
         # fast path: patch and its bilinear footprint inside both images, no bounds checks
-        by = 1.0 - ay
-        bx = 1.0 - ax
-        j = 0
         if alpha > 0.0:
-            # separable bilinear on three channels: vertical blend of 2ρ+2 columns, then
-            # horizontal blend of neighbouring columns
             for dy in range(-rho, rho + 1):
                 ty = iy + dy
                 qr = r + dy
                 tx = ix - rho
-                p_i = by * tgt[ty, tx] + ay * tgt[ty + 1, tx]
-                p_u = by * tgu[ty, tx] + ay * tgu[ty + 1, tx]
-                p_v = by * tgv[ty, tx] + ay * tgv[ty + 1, tx]
+                p0 = by * tgt4[ty, tx, 0] + ay * tgt4[ty + 1, tx, 0]
+                p1 = by * tgt4[ty, tx, 1] + ay * tgt4[ty + 1, tx, 1]
+                p2 = by * tgt4[ty, tx, 2] + ay * tgt4[ty + 1, tx, 2]
                 for dx in range(-rho, rho + 1):
                     tx = ix + dx + 1
-                    c_i = by * tgt[ty, tx] + ay * tgt[ty + 1, tx]
-                    c_u = by * tgu[ty, tx] + ay * tgu[ty + 1, tx]
-                    c_v = by * tgv[ty, tx] + ay * tgv[ty + 1, tx]
                     qc = c + dx
-                    gd = abs(sgu[qr, qc] - (bx * p_u + ax * c_u))
-                    gd += abs(sgv[qr, qc] - (bx * p_v + ax * c_v))
-                    di = abs(src[qr, qc] - (bx * p_i + ax * c_i))
+                    c0 = by * tgt4[ty, tx, 0] + ay * tgt4[ty + 1, tx, 0]
+                    c1 = by * tgt4[ty, tx, 1] + ay * tgt4[ty + 1, tx, 1]
+                    c2 = by * tgt4[ty, tx, 2] + ay * tgt4[ty + 1, tx, 2]
+                    di = abs(src4[qr, qc, 0] - (bx * p0 + ax * c0))
+                    gd = abs(src4[qr, qc, 1] - (bx * p1 + ax * c1))
+                    gd += abs(src4[qr, qc, 2] - (bx * p2 + ax * c2))
                     acc += asw[r, c, j] * (a_int * min(di, tau1) + alpha * min(gd, tau2))
-                    p_i = c_i
-                    p_u = c_u
-                    p_v = c_v
+                    p0 = c0
+                    p1 = c1
+                    p2 = c2
                     j += 1
-                if acc > bound:
+                if acc > bnd:
                     return acc
             return acc
-        # intensity only: separable interpolation (vertical blend of 2ρ+2 columns, then
-        # horizontal)
         for dy in range(-rho, rho + 1):
             ty = iy + dy
             qr = r + dy
-            prev = by * tgt[ty, ix - rho] + ay * tgt[ty + 1, ix - rho]
+            p0 = by * tgt4[ty, ix - rho, 0] + ay * tgt4[ty + 1, ix - rho, 0]
             for dx in range(-rho, rho + 1):
                 tx = ix + dx + 1
-                cur = by * tgt[ty, tx] + ay * tgt[ty + 1, tx]
-                val = bx * prev + ax * cur
-                prev = cur
-                acc += asw[r, c, j] * min(abs(src[qr, c + dx] - val), tau1)
+                c0 = by * tgt4[ty, tx, 0] + ay * tgt4[ty + 1, tx, 0]
+                acc += asw[r, c, j] * min(abs(src4[qr, c + dx, 0] - (bx * p0 + ax * c0)), tau1)
+                p0 = c0
                 j += 1
-            if acc > bound:
+            if acc > bnd:
                 return acc
         return acc * a_int
+    # general path: clipped patch, samples off the target image cost ``border``
+    w00 = bx * by
+    w01 = ax * by
+    w10 = bx * ay
+    w11 = ax * ay
+    side = 2 * rho + 1
     for dy in range(-rho, rho + 1):
         qr = r + dy
         if qr < 0 or qr >= h:
@@ -202,25 +204,18 @@ def _patch_cost(src, sgu, sgv, tgt, tgu, tgv, asw, r, c, su, sv, rho, cfg, bound
                 acc += wq * border
                 continue
             tx1 = min(tx + 1, w - 1)
-            val = w00 * tgt[ty, tx] + w01 * tgt[ty, tx1] + w10 * tgt[ty1, tx] + w11 * tgt[ty1, tx1]
-            cost = a_int * min(abs(src[qr, qc] - val), tau1)
+            val = w00 * tgt4[ty, tx, 0] + w01 * tgt4[ty, tx1, 0]
+            val += w10 * tgt4[ty1, tx, 0] + w11 * tgt4[ty1, tx1, 0]
+            cost = a_int * min(abs(src4[qr, qc, 0] - val), tau1)
             if alpha > 0.0:
-                gu = (
-                    w00 * tgu[ty, tx]
-                    + w01 * tgu[ty, tx1]
-                    + w10 * tgu[ty1, tx]
-                    + w11 * tgu[ty1, tx1]
-                )
-                gv = (
-                    w00 * tgv[ty, tx]
-                    + w01 * tgv[ty, tx1]
-                    + w10 * tgv[ty1, tx]
-                    + w11 * tgv[ty1, tx1]
-                )
-                gd = abs(sgu[qr, qc] - gu) + abs(sgv[qr, qc] - gv)
+                gu = w00 * tgt4[ty, tx, 1] + w01 * tgt4[ty, tx1, 1]
+                gu += w10 * tgt4[ty1, tx, 1] + w11 * tgt4[ty1, tx1, 1]
+                gv = w00 * tgt4[ty, tx, 2] + w01 * tgt4[ty, tx1, 2]
+                gv += w10 * tgt4[ty1, tx, 2] + w11 * tgt4[ty1, tx1, 2]
+                gd = abs(src4[qr, qc, 1] - gu) + abs(src4[qr, qc, 2] - gv)
                 cost += alpha * min(gd, tau2)
             acc += wq * cost
-        if acc > bound:
+        if acc > bnd:
             return acc
     return acc
 
@@ -307,11 +302,10 @@ def _label_valid(r, c, su, sv, h, w, maxmot, inside):
 
 
 @njit(inline="always")
-def _try_candidate(
-    src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, su, sv, rho, cfg, roi
-):
+def _try_candidate(src4, tgt4, asw, lab, una, dis, found, r, c, su, sv, rho, cfg, roi):
     """Evaluate candidate label s' at p; replace the worst particle if B_p(s') is lower."""
-    h, w = src.shape
+    h = src4.shape[0]
+    w = src4.shape[1]
     if not _label_valid(r, c, su, sv, h, w, cfg[_CFG_MAXMOT], cfg[_CFG_INSIDE] != 0.0):
         return False
     nk = lab.shape[2]
@@ -333,7 +327,7 @@ def _try_candidate(
         return False
     if cfg[_CFG_EARLY] == 0.0:
         bound = _INF
-    u = _patch_cost(src, sgu, sgv, tgt, tgu, tgv, asw, r, c, su, sv, rho, cfg, bound)
+    u = _patch_cost(src4, tgt4, asw, r, c, su, sv, rho, cfg, bound)
     if u + ms < worst:
         lab[r, c, worst_k, 0] = su
         lab[r, c, worst_k, 1] = sv
@@ -353,20 +347,18 @@ def _best_particle(dis, r, c):
 
 
 @njit(inline="always")
-def _propagate_from(
-    src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, qr, qc, rho, cfg, roi
-):
+def _propagate_from(src4, tgt4, asw, lab, una, dis, found, r, c, qr, qc, rho, cfg, roi):
     """Step 2 for one neighbour q: its min-disbelief particle is a candidate at p."""
     kq = _best_particle(dis, qr, qc)
     _try_candidate(
-        src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c,
+        src4, tgt4, asw, lab, una, dis, found, r, c,
         lab[qr, qc, kq, 0], lab[qr, qc, kq, 1], rho, cfg, roi,
     )  # fmt: skip
 
 
 @njit
 def _visit_pixel(
-    src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, rho, cfg, roi, prop_mask,
+    src4, tgt4, asw, lab, una, dis, found, r, c, rho, cfg, roi, prop_mask,
     state, centres,
 ):  # fmt: skip
     """One PMBP update of pixel p = (r, c) (METHOD §2.3 steps 1-4).
@@ -389,7 +381,7 @@ def _visit_pixel(
             ok, qr, qc = _neighbour(r, c, d, roi)
             if ok:
                 _propagate_from(
-                    src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, qr, qc, rho,
+                    src4, tgt4, asw, lab, una, dis, found, r, c, qr, qc, rho,
                     cfg, roi,
                 )  # fmt: skip
     # 3. random search around frozen centres (every particle, or the best one only)
@@ -408,7 +400,7 @@ def _visit_pixel(
             state, u1 = _uniform(state)
             state, u2 = _uniform(state)
             _try_candidate(
-                src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c,
+                src4, tgt4, asw, lab, una, dis, found, r, c,
                 centres[k, 0] + rad * u1, centres[k, 1] + rad * u2, rho, cfg, roi,
             )  # fmt: skip
             rad *= 0.5
@@ -421,12 +413,10 @@ def _visit_pixel(
 
 
 @njit
-def _sweep_sequential_kernel(
-    src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, rho, cfg, roi, seed, level, it
-):
+def _sweep_sequential_kernel(src4, tgt4, asw, lab, una, dis, found, rho, cfg, roi, seed, level, it):
     """One reference sweep (METHOD §2.3): raster order by ``it % 4``, neighbours visited earlier
     in this sweep propagate."""
-    w = src.shape[1]
+    w = src4.shape[1]
     direction = it % 4
     rows_up = direction == 0 or direction == 3  # rows increasing
     cols_up = direction == 0 or direction == 2  # cols increasing
@@ -446,14 +436,14 @@ def _sweep_sequential_kernel(
                 mask |= 1 << d_col
             state = _rng_key(seed, level, it, 0, r * w + c)
             _visit_pixel(
-                src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, rho, cfg, roi,
+                src4, tgt4, asw, lab, una, dis, found, r, c, rho, cfg, roi,
                 mask, state, centres,
             )  # fmt: skip
 
 
 @njit_parallel
 def _sweep_checkerboard_kernel(
-    src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, rho, cfg, roi, seed, level, it,
+    src4, tgt4, asw, lab, una, dis, found, rho, cfg, roi, seed, level, it,
     colour,
 ):  # fmt: skip
     """Half a parallel sweep: every pixel with (r + c) % 2 == colour, rows in parallel.
@@ -461,7 +451,7 @@ def _sweep_checkerboard_kernel(
     Pixels of one colour read only the other colour's particles and foundations, so the result
     does not depend on the thread schedule. Each pixel propagates from all four neighbours.
     """
-    w = src.shape[1]
+    w = src4.shape[1]
     nk = lab.shape[2]
     for ii in prange(roi[1] - roi[0]):
         r = roi[0] + ii
@@ -470,7 +460,7 @@ def _sweep_checkerboard_kernel(
         while c < roi[3]:
             state = _rng_key(seed, level, it, 1 + colour, r * w + c)
             _visit_pixel(
-                src, sgu, sgv, tgt, tgu, tgv, asw, lab, una, dis, found, r, c, rho, cfg, roi,
+                src4, tgt4, asw, lab, una, dis, found, r, c, rho, cfg, roi,
                 15, state, centres,
             )  # fmt: skip
             c += 2
@@ -501,14 +491,13 @@ def _asw_kernel(guide, rho, gamma, roi, out):
 
 
 @njit_parallel
-def _init_kernel(
-    src, sgu, sgv, tgt, tgu, tgv, asw, seeds, lab, una, dis, found, rho, cfg, roi, seed, level
-):
+def _init_kernel(src4, tgt4, asw, seeds, lab, una, dis, found, rho, cfg, roi, seed, level):
     """Initial particles: the seed labels ``seeds`` (S, H, W, 2) first (invalid and duplicate ones
     dropped; if more than K remain, the K with the lowest unary are kept), then uniform random
     labels in the box ±``cfg[_CFG_INIT_RADIUS]`` around zero (or around ``seeds[0]``),
     redrawn until valid. B = ψ1, foundations 0."""
-    h, w = src.shape
+    h = src4.shape[0]
+    w = src4.shape[1]
     nk = lab.shape[2]
     maxmot = cfg[_CFG_MAXMOT]
     inside = cfg[_CFG_INSIDE] != 0.0
@@ -531,7 +520,7 @@ def _init_kernel(
                         dup = True
                 if dup:
                     continue
-                u = _patch_cost(src, sgu, sgv, tgt, tgu, tgv, asw, r, c, su, sv, rho, cfg, _INF)
+                u = _patch_cost(src4, tgt4, asw, r, c, su, sv, rho, cfg, _INF)
                 slot = n
                 if n == nk:
                     slot = 0
@@ -570,9 +559,7 @@ def _init_kernel(
                     sv = 0.0
                 lab[r, c, n, 0] = su
                 lab[r, c, n, 1] = sv
-                una[r, c, n] = _patch_cost(
-                    src, sgu, sgv, tgt, tgu, tgv, asw, r, c, su, sv, rho, cfg, _INF
-                )
+                una[r, c, n] = _patch_cost(src4, tgt4, asw, r, c, su, sv, rho, cfg, _INF)
                 n += 1
             for k in range(nk):
                 dis[r, c, k] = una[r, c, k]
