@@ -57,13 +57,15 @@ def _fb_pass(fw, bw, mask, threshold=1.0) -> float:
 
 
 def _timed(fn, repeat):
-    times = []
+    """(result, median wall s, wall times, median process CPU s summed over threads)."""
+    times, cpu = [], []
     out = None
     for _ in range(repeat):
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         out = fn()
         times.append(time.perf_counter() - start)
-    return out, statistics.median(times), times
+        cpu.append(time.process_time() - start_cpu)
+    return out, statistics.median(times), times, statistics.median(cpu)
 
 
 def bench_compile() -> None:
@@ -90,15 +92,17 @@ def bench_compile() -> None:
 def bench_speed(repeat: int) -> None:
     pair = ball_pairs(intensity_noise=0.02)[0]
     print(f"\n600x600 forward flow, ball pair {pair.name}, σ_I 2 %, median of {repeat}")
-    print("| method | params | wall s (median) | runs | EPE px |")
-    print("|---|---|---|---|---|")
+    print(f"load average before: {os.getloadavg()[0]:.1f} (the machine may be shared)")
+    print("| method | params | wall s (median) | runs | CPU s (median) | EPE px |")
+    print("|---|---|---|---|---|---|")
     for name, params in (("pmbp", PMBPParams()), ("pmbp-fast", PMBPFastParams())):
         pmbp_flow(pair.image0[:64, :64], pair.image1[:64, :64], params)  # compile / warm up
-        flow, med, times = _timed(lambda p=params: pmbp_flow(pair.image0, pair.image1, p), repeat)
-        runs = ", ".join(f"{t:.2f}" for t in times)
-        print(
-            f"| {name} | K={params.num_particles} | {med:.2f} | {runs} | {_epe(flow, pair):.3f} |"
+        flow, med, times, cpu = _timed(
+            lambda p=params: pmbp_flow(pair.image0, pair.image1, p), repeat
         )
+        runs = ", ".join(f"{t:.2f}" for t in times)
+        epe = _epe(flow, pair)
+        print(f"| {name} | K={params.num_particles} | {med:.2f} | {runs} | {cpu:.2f} | {epe:.3f} |")
 
 
 def bench_ball() -> None:

@@ -21,6 +21,7 @@ from fuse4d.baselines.stmf import block_match
 from naive.baselines import block_match as naive_block_match
 from naive.baselines import guided_filter as naive_guided
 from naive.baselines import joint_bilateral as naive_joint_bilateral
+from naive.baselines import temporal_average as naive_temporal_average
 
 T, H, W = 6, 48, 64
 HOLE = (slice(None), slice(18, 23), slice(28, 34))
@@ -272,6 +273,14 @@ def test_temporal_mean_ghosts_on_moving_step(intrinsics):
     ta = run_baseline("ta", depth, None, intrinsics, size=5, noise_sigma=0.2)
     assert np.abs(mean - depth).max() > 5.0
     np.testing.assert_allclose(ta, depth, atol=1e-3)
+
+
+def test_ta_matches_naive(rng, intrinsics):
+    depth = (300 + rng.normal(0, 0.3, (T, H, W))).astype(np.float32)
+    depth[2, 5:9, 5:9] = np.nan
+    out = run_baseline("ta", depth, None, intrinsics, size=3, noise_sigma=0.2)
+    ref = naive_temporal_average(depth.astype(np.float64), 3, 0.6)
+    np.testing.assert_allclose(out, ref, atol=1e-4)
 
 
 def test_adjbf_temporal_kalman_reduces_noise(plane, intrinsics, rng):

@@ -375,3 +375,37 @@ def test_registered_with_flow_module():
     assert _epe(flow, d, 8) < 0.15
     flow = flow_mod.estimate_flow(a, b, method="pmbp", params=SMALL)
     assert _epe(flow, d, 8) < 0.1
+
+
+# ------------------------------------------------------------------------------------------
+# METHOD §2.6 acceptance on the falling ball
+
+
+def _fb_pass_rate(fw, bw, mask):
+    h, w = mask.shape
+    rows, cols = np.mgrid[0:h, 0:w].astype(np.float32)
+    back = cv2.remap(bw, cols + fw[..., 0], rows + fw[..., 1], cv2.INTER_LINEAR)
+    return float((np.hypot(*(fw + back).transpose(2, 0, 1))[mask] < 1.0).mean())
+
+
+def _ball_acceptance(small):
+    flow_bench = pytest.importorskip("fuse4d.flow_bench")
+    for noise, limit in ((0.02, 0.25), (0.10, 0.6)):
+        pair = flow_bench.ball_pairs(intensity_noise=noise, small=small)[0]
+        fw = pmbp_flow(pair.image0, pair.image1)
+        epe = np.hypot(*(fw - pair.flow_true).transpose(2, 0, 1))[pair.mask].mean()
+        assert epe < limit, (noise, epe)
+        if noise == 0.02:
+            bw = pmbp_flow(pair.image1, pair.image0, None, -fw)
+            assert _fb_pass_rate(fw, bw, pair.mask) > 0.95
+
+
+def test_ball_acceptance_small():
+    """METHOD §2.6 targets on the 150x150 CI ball (exact image motion as reference)."""
+    _ball_acceptance(small=True)
+
+
+@pytest.mark.slow
+def test_ball_acceptance_full_size():
+    """METHOD §2.6 targets on the 600x600 ball: EPE < 0.25 / 0.6 px, FB pass > 95 %."""
+    _ball_acceptance(small=False)

@@ -90,3 +90,21 @@ def block_match(reference: np.ndarray, moving: np.ndarray, block: int, search: i
                         best = (sad, du, dv, length)
             out[br, bc] = best[1], best[2]
     return out
+
+
+def temporal_average(depth: np.ndarray, n: int, sigma_r: float) -> np.ndarray:
+    """TA (σ_t = ∞): per pixel, weighted mean of the last n frames with a range weight."""
+    out = np.full(depth.shape, np.nan)
+    for t in range(depth.shape[0]):
+        center = depth[t]
+        acc = np.zeros(center.shape)
+        norm = np.zeros(center.shape)
+        for k in range(min(n, t + 1)):
+            v = depth[t - k]
+            w = np.exp(-((v - center) ** 2) / (2 * sigma_r**2))
+            ok = np.isfinite(v) & np.isfinite(center)
+            acc += np.where(ok, w * v, 0)
+            norm += np.where(ok, w, 0)
+        with np.errstate(invalid="ignore"):
+            out[t] = np.where(np.isfinite(center), acc / norm, np.nan)
+    return out

@@ -1,4 +1,4 @@
-"""Kernels of the baselines besides the joint bilateral: ST-MF, and Ad-GF's PCA view angle.
+"""Kernels of the baselines besides the joint bilateral: ST-MF, TA, and Ad-GF's PCA view angle.
 
 Private; arrays and scalars only; the public wrappers live in ``fuse4d.baselines``.
 """
@@ -11,7 +11,12 @@ import numpy as np
 
 from ._numba import njit_parallel, prange
 
-__all__ = ["_block_match_kernel", "_pca_view_angle_kernel", "_stmf_median_kernel"]
+__all__ = [
+    "_block_match_kernel",
+    "_pca_view_angle_kernel",
+    "_stmf_median_kernel",
+    "_temporal_average_kernel",
+]
 
 
 @njit_parallel
@@ -230,3 +235,41 @@ def _pca_view_angle_kernel(points, half, min_count, out):  # pragma: no cover - 
             ray = math.sqrt(px * px + py * py + pz * pz)
             cos = abs(nx * px + ny * py + nz * pz) / (math.sqrt(best) * ray)
             out[row, col] = math.acos(min(cos, 1.0))
+
+
+@njit_parallel
+def _temporal_average_kernel(depth, num_frames, coeff_t, coeff_r, out):  # pragma: no cover
+    """TA: causal range-gated per-pixel average of the last ``num_frames`` frames.
+
+    Parameters
+    ----------
+    depth : (T, H, W) float32
+        Depth (mm), NaN = invalid.
+    num_frames : int
+        N (window of frames t−N+1 … t, truncated at the start).
+    coeff_t : float
+        ``1 / (2 σ_t²)`` (1/frames²); 0 = uniform in time.
+    coeff_r : float
+        ``1 / (2 σ_r²)`` (1/mm²).
+    out : (T, H, W) float32
+        Output; NaN where the centre sample is NaN.
+    """
+    n_t, height, width = depth.shape
+    for row in prange(height):
+        for t in range(n_t):
+            for col in range(width):
+                center = depth[t, row, col]
+                if math.isnan(center):
+                    out[t, row, col] = np.nan
+                    continue
+                acc = 0.0
+                norm = 0.0
+                for k in range(min(num_frames, t + 1)):
+                    value = depth[t - k, row, col]
+                    if math.isnan(value):
+                        continue
+                    diff = value - center
+                    w = math.exp(-(k * k) * coeff_t - diff * diff * coeff_r)
+                    acc += w * value
+                    norm += w
+                out[t, row, col] = acc / norm

@@ -265,47 +265,54 @@ def _track_kernel(
     w = depth_ring.shape[2]
     st = frame_slot[t - first]
     for v in prange(h):
-        for u in range(w):
-            valid0 = not np.isnan(depth_ring[st, v, u])
-            for direction in (1, -1):
-                x = float(u)
-                y = float(v)
-                pr = np.int64(v)
-                pc = np.int64(u)
-                prev_depth = depth_ring[st, v, u]
-                alive = valid0
-                n_steps = last - t if direction == 1 else t - first
-                for step in range(1, n_steps + 1):
-                    T = t + direction * step
-                    k = T - first - 1 if direction == 1 else T - first
-                    if alive:
-                        slot = frame_slot[T - first]
-                        if direction == 1:  # pair (T-1, T): forward flow moves, backward checks
-                            ok, nx, ny = _track_step(
-                                fwd_ring, bwd_ring, slot, x, y, theta, per_step
-                            )
-                        else:  # pair (T, T+1) lives in the slot of T+1
-                            ok, nx, ny = _track_step(
-                                bwd_ring, fwd_ring, frame_slot[T + 1 - first], x, y, theta, per_step
-                            )
+        # step-major order: all pixels of the row advance one step at a time, so the
+        # independent per-pixel chains overlap in the CPU (a per-pixel chain is latency-bound)
+        xs = np.empty(w, dtype=np.float64)
+        ys = np.empty(w, dtype=np.float64)
+        pr = np.empty(w, dtype=np.int64)
+        pc = np.empty(w, dtype=np.int64)
+        prev_depth = np.empty(w, dtype=np.float32)
+        alive = np.empty(w, dtype=np.bool_)
+        for direction in (1, -1):
+            for u in range(w):
+                xs[u] = u
+                ys[u] = v
+                pr[u] = v
+                pc[u] = u
+                prev_depth[u] = depth_ring[st, v, u]
+                alive[u] = not np.isnan(depth_ring[st, v, u])
+            n_steps = last - t if direction == 1 else t - first
+            for step in range(1, n_steps + 1):
+                T = t + direction * step
+                k = T - first - 1 if direction == 1 else T - first
+                slot = frame_slot[T - first]
+                # pair (T-1, T) lives in the slot of T, pair (T, T+1) in the slot of T+1
+                flow_slot = slot if direction == 1 else frame_slot[T + 1 - first]
+                step_ring = fwd_ring if direction == 1 else bwd_ring
+                check_ring = bwd_ring if direction == 1 else fwd_ring
+                for u in range(w):
+                    if alive[u]:
+                        ok, nx, ny = _track_step(
+                            step_ring, check_ring, flow_slot, xs[u], ys[u], theta, per_step
+                        )
                         if ok:
                             r = _round_half_up(ny)
                             c = _round_half_up(nx)
                             d1 = depth_ring[slot, r, c]
-                            limit = _step_limit(prev_depth, max_step, quad)
-                            if np.isnan(d1) or not (abs(d1 - prev_depth) < limit):
+                            limit = _step_limit(prev_depth[u], max_step, quad)
+                            if np.isnan(d1) or not (abs(d1 - prev_depth[u]) < limit):
                                 ok = False
-                        if ok:
-                            x = nx
-                            y = ny
-                            pr = r
-                            pc = c
-                            prev_depth = d1
-                        else:
-                            alive = False
-                    land_ok[k, v, u] = alive
-                    land_row[k, v, u] = pr
-                    land_col[k, v, u] = pc
+                            else:
+                                xs[u] = nx
+                                ys[u] = ny
+                                pr[u] = r
+                                pc[u] = c
+                                prev_depth[u] = d1
+                        if not ok:
+                            alive[u] = False
+                    land_ok[k, v, u] = alive[u]
+                    land_row[k, v, u] = pr[u]
+                    land_col[k, v, u] = pc[u]
 
 
 # --------------------------------------------------------------------------- fusion (Eq. 5)
@@ -351,7 +358,50 @@ def _fuse_kernel(
     w = bil_ring.shape[2]
     st = frame_slot[t - first]
     kmax = land_ok.shape[0]
+    w0 = temporal_weight[0]
     for v in prange(h):
+        # sample-major order over the row (independent per-pixel work overlaps in the CPU).
+        # acc rows: 0-2 own detail e, 3-5 detail sum, 6 weight sum, 7 count, 8 s1, 9 s2,
+        # 10-12 y0 (sum w m), 13-15 y1 (sum w tau m), 16 gate^2
+        acc = np.zeros((17, w), dtype=np.float64)
+        for u in range(w):
+            zt = ref_ring[st, v, u, 2]
+            if np.isnan(zt):
+                continue
+            gate = max(gate_factor * max(sigma0, quad * zt * zt), min_gate)
+            acc[16, u] = gate * gate
+            for c in range(3):
+                e = bil_ring[st, v, u, c] - ref_ring[st, v, u, c]  # detail of frame t
+                acc[c, u] = e
+                acc[3 + c, u] = w0 * e
+            acc[6, u] = w0
+        for k in range(kmax):
+            T = first + k if first + k < t else first + k + 1
+            sT = frame_slot[T - first]
+            wt = temporal_weight[abs(T - t)]
+            tau = float(T - t)
+            for u in range(w):
+                if not land_ok[k, v, u]:
+                    continue
+                r = land_row[k, v, u]
+                c = land_col[k, v, u]
+                dx = bil_ring[sT, r, c, 0] - ref_ring[sT, r, c, 0]
+                dy = bil_ring[sT, r, c, 1] - ref_ring[sT, r, c, 1]
+                dz = bil_ring[sT, r, c, 2] - ref_ring[sT, r, c, 2]
+                dist2 = (dx - acc[0, u]) ** 2 + (dy - acc[1, u]) ** 2 + (dz - acc[2, u]) ** 2
+                if not (dist2 < acc[16, u]):
+                    continue
+                acc[3, u] += wt * dx
+                acc[4, u] += wt * dy
+                acc[5, u] += wt * dz
+                acc[6, u] += wt
+                acc[7, u] += 1.0
+                acc[8, u] += wt * tau
+                acc[9, u] += wt * tau * tau
+                for q in range(3):
+                    m = ref_ring[sT, r, c, q] - ref_ring[st, v, u, q]
+                    acc[10 + q, u] += wt * m
+                    acc[13 + q, u] += wt * tau * m
         for u in range(w):
             if np.isnan(ref_ring[st, v, u, 2]):
                 for c in range(3):
@@ -359,81 +409,26 @@ def _fuse_kernel(
                 support[v, u] = 0
                 hole[v, u] = False
                 continue
-            zt = ref_ring[st, v, u, 2]
-            gate = max(gate_factor * max(sigma0, quad * zt * zt), min_gate)
-            gate2 = gate * gate
-            # detail of frame t itself: B^t - P~^t
-            ex = bil_ring[st, v, u, 0] - ref_ring[st, v, u, 0]
-            ey = bil_ring[st, v, u, 1] - ref_ring[st, v, u, 1]
-            ez = bil_ring[st, v, u, 2] - ref_ring[st, v, u, 2]
-            w0 = temporal_weight[0]
-            ax = w0 * ex
-            ay = w0 * ey
-            az = w0 * ez
-            wsum = w0
-            count = 0
-            # weighted line fit of the motion vectors m^{t,T} against tau = T - t (m^{t,t} = 0)
-            s1 = 0.0
-            s2 = 0.0
-            y0x = 0.0
-            y0y = 0.0
-            y0z = 0.0
-            y1x = 0.0
-            y1y = 0.0
-            y1z = 0.0
-            for k in range(kmax):
-                if not land_ok[k, v, u]:
-                    continue
-                T = first + k if first + k < t else first + k + 1
-                sT = frame_slot[T - first]
-                r = land_row[k, v, u]
-                c = land_col[k, v, u]
-                dx = bil_ring[sT, r, c, 0] - ref_ring[sT, r, c, 0]
-                dy = bil_ring[sT, r, c, 1] - ref_ring[sT, r, c, 1]
-                dz = bil_ring[sT, r, c, 2] - ref_ring[sT, r, c, 2]
-                if not ((dx - ex) ** 2 + (dy - ey) ** 2 + (dz - ez) ** 2 < gate2):
-                    continue
-                wt = temporal_weight[abs(T - t)]
-                ax += wt * dx
-                ay += wt * dy
-                az += wt * dz
-                wsum += wt
-                count += 1
-                tau = float(T - t)
-                mx = ref_ring[sT, r, c, 0] - ref_ring[st, v, u, 0]
-                my = ref_ring[sT, r, c, 1] - ref_ring[st, v, u, 1]
-                mz = ref_ring[sT, r, c, 2] - ref_ring[st, v, u, 2]
-                s1 += wt * tau
-                s2 += wt * tau * tau
-                y0x += wt * mx
-                y0y += wt * my
-                y0z += wt * mz
-                y1x += wt * tau * mx
-                y1y += wt * tau * my
-                y1z += wt * tau * mz
+            count = int(acc[7, u])
             support[v, u] = min(count, 255)
             if count < min_support:
                 hole[v, u] = True
                 for c in range(3):
                     out_points[v, u, c] = bil_ring[st, v, u, c]
-            else:
-                hole[v, u] = False
-                bx = 0.0
-                by = 0.0
-                bz = 0.0
+                continue
+            hole[v, u] = False
+            wsum = acc[6, u]
+            s1 = acc[8, u]
+            s2 = acc[9, u]
+            det = wsum * s2 - s1 * s1
+            for c in range(3):
+                base = 0.0
                 if trajectory:
-                    det = wsum * s2 - s1 * s1
                     if det > 1e-9 * wsum * wsum:
-                        bx = (y0x * s2 - y1x * s1) / det
-                        by = (y0y * s2 - y1y * s1) / det
-                        bz = (y0z * s2 - y1z * s1) / det
+                        base = (acc[10 + c, u] * s2 - acc[13 + c, u] * s1) / det
                     else:
-                        bx = y0x / wsum
-                        by = y0y / wsum
-                        bz = y0z / wsum
-                out_points[v, u, 0] = ref_ring[st, v, u, 0] + bx + ax / wsum
-                out_points[v, u, 1] = ref_ring[st, v, u, 1] + by + ay / wsum
-                out_points[v, u, 2] = ref_ring[st, v, u, 2] + bz + az / wsum
+                        base = acc[10 + c, u] / wsum
+                out_points[v, u, c] = ref_ring[st, v, u, c] + base + acc[3 + c, u] / wsum
 
 
 # --------------------------------------------------------------------------- hole filling (Eq. 6)

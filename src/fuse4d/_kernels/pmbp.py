@@ -260,7 +260,7 @@ def _neighbour(r, c, d, roi):
     return c < roi[3] - 1, r, c + 1
 
 
-@njit
+@njit(inline="always")
 def _refresh(lab, una, dis, found, r, c, lam, trunc, roi):
     """Step 1: B_p^k = ψ1 (cached) + current messages, for every particle."""
     for k in range(lab.shape[2]):
@@ -370,11 +370,7 @@ def _visit_pixel(
     lam = cfg[_CFG_LAMBDA]
     trunc = cfg[_CFG_TRUNC]
     nk = lab.shape[2]
-    # 1. refresh
-    for k in range(nk):
-        dis[r, c, k] = una[r, c, k] + _message_sum(
-            lab, found, r, c, lab[r, c, k, 0], lab[r, c, k, 1], lam, trunc, roi
-        )
+    _refresh(lab, una, dis, found, r, c, lam, trunc, roi)  # 1.
     # 2. propagation
     for d in range(4):
         if (prop_mask >> d) & 1:

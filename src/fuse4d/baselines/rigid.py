@@ -207,11 +207,15 @@ def _cast_depth(vbg, k, w, h, depth_min, depth_max, trunc_voxels) -> NDArray[np.
         )
         return result["depth"].numpy().reshape(h, w).astype(np.float32)
 
+    # Open3D 0.20: a ray cast whose range-map fragment buffer is too small ("Could not
+    # generate full range map") returns only a few hits, and resizes the buffer for the next
+    # call (measured: 2.5 % then 98.5 % of pixels at 600x600). Cast until the hits stop growing.
     out = cast()
-    if not (out > 0).any():
-        # Open3D 0.20: the first ray cast of a grid can return nothing while it (re)allocates
-        # its range-map fragment buffer ("Could not generate full range map"); cast again.
-        out = cast()
+    for _ in range(3):
+        again = cast()
+        if np.count_nonzero(again > 0) <= np.count_nonzero(out > 0):
+            break
+        out = again
     return out
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._kernels.baselines import _temporal_average_kernel
 from ..camera import Intrinsics
 from ._common import check_inputs, check_positive_int, iterate, resolve_noise_sigma
 
@@ -57,21 +58,9 @@ def temporal_average(
     coeff_t = 0.0 if np.isinf(sigma_temporal) else 0.5 / float(sigma_temporal) ** 2
 
     def step(cur: NDArray[np.float32]) -> NDArray[np.float32]:
-        acc = np.zeros(cur.shape, np.float64)
-        norm = np.zeros(cur.shape, np.float64)
-        for k in range(n):
-            if k >= cur.shape[0]:
-                break
-            past = cur[: cur.shape[0] - k]  # D_{t-k} for t = k .. T-1
-            now = cur[k:]
-            diff = past.astype(np.float64) - now
-            w = np.exp(-(k * k) * coeff_t - diff * diff * coeff_r)
-            w = np.where(np.isfinite(diff), w, 0.0)
-            acc[k:] += w * np.where(np.isfinite(past), past, 0.0)
-            norm[k:] += w
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out = acc / norm
-        return np.where(np.isfinite(cur), out, np.nan).astype(np.float32)
+        out = np.empty_like(cur)
+        _temporal_average_kernel(np.ascontiguousarray(cur), n, coeff_t, coeff_r, out)
+        return out
 
     return iterate(step, d, iterations)
 
