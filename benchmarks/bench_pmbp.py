@@ -17,7 +17,8 @@ Measures
   (|s_fw(p) + s_bw(p + s_fw(p))| < 1 px) at 2 %;
 - Middlebury EPE (4 real pairs, unknown GT excluded) for pmbp, pmbp-fast (``max_motion`` 16,
   because Hydrangea moves 11 px), OpenCV DIS (medium) and Dual TV-L1;
-- parallel (red-black) vs reference sequential schedule on a 200x200 crop of the ball.
+- the parallel schedules ("lines", red-black "parallel") vs the reference sequential schedule
+  on a 200x200 crop of the ball.
 """
 
 from __future__ import annotations
@@ -158,7 +159,7 @@ def bench_schedules() -> None:
     print("| schedule | params | wall s | EPE px |")
     print("|---|---|---|---|")
     for params in (PMBPParams(), PMBPParams(pyramid_levels=1, num_iter=5)):
-        for schedule in ("sequential", "parallel"):
+        for schedule in ("sequential", "lines", "parallel"):
             p = dataclasses.replace(params, schedule=schedule)
             pmbp_flow(a[:64, :64], b[:64, :64], p)
             start = time.perf_counter()

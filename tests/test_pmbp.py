@@ -229,7 +229,7 @@ def test_solution_lowers_the_energy():
 # known motions
 
 
-@pytest.mark.parametrize("schedule", ["parallel", "sequential"])
+@pytest.mark.parametrize("schedule", ["lines", "parallel", "sequential"])
 def test_zero_motion_gives_zero_flow(schedule):
     a = _texture(48, 56)
     flow = pmbp_flow(a, a, dataclasses.replace(SMALL, schedule=schedule))
@@ -254,11 +254,13 @@ def test_fast_preset_translation():
     assert isinstance(PMBP_FAST, PMBPParams)
 
 
-def test_parallel_agrees_with_sequential_schedule():
+@pytest.mark.parametrize("schedule", ["lines", "parallel"])
+@pytest.mark.parametrize("levels", [1, 2])
+def test_parallel_agrees_with_sequential_schedule(schedule, levels):
     d = (1.1, -0.6)
     a, b = _pair(64, 72, d, noise=0.01, seed=4)
-    base = PMBPParams(num_particles=2, num_iter=3, pyramid_levels=2)
-    e_par = _epe(pmbp_flow(a, b, base), d, 8)
+    base = PMBPParams(num_particles=2, num_iter=4, pyramid_levels=levels, coarse_num_iter=3)
+    e_par = _epe(pmbp_flow(a, b, dataclasses.replace(base, schedule=schedule)), d, 8)
     e_seq = _epe(pmbp_flow(a, b, dataclasses.replace(base, schedule="sequential")), d, 8)
     assert e_par < 0.15
     assert e_seq < 0.15
@@ -269,7 +271,7 @@ def test_parallel_agrees_with_sequential_schedule():
 # determinism, warm start, roi
 
 
-@pytest.mark.parametrize("schedule", ["parallel", "sequential"])
+@pytest.mark.parametrize("schedule", ["lines", "parallel", "sequential"])
 def test_deterministic_for_a_fixed_seed(schedule):
     a, b = _pair(40, 44, (0.7, 0.3), noise=0.05, seed=1)
     p = dataclasses.replace(SMALL, schedule=schedule, seed=7)

@@ -36,6 +36,7 @@ from .fusion import (
     fuse_stream,
 )
 from .io import load_sequence, open_frames, read_flo, save_sequence, write_flo, write_ply
+from .pmbp import PMBPFastParams, PMBPParams, pmbp_flow
 from .sequence import GroundTruth, Sequence, normalize_intensity, sanitize_depth
 
 __version__ = "0.1.0"
@@ -51,6 +52,8 @@ __all__ = [
     "InputFileError",
     "Intrinsics",
     "OutputExistsError",
+    "PMBPFastParams",
+    "PMBPParams",
     "PrecomputedFlow",
     "Sequence",
     "SequenceFlow",
@@ -67,6 +70,7 @@ __all__ = [
     "load_sequence",
     "normalize_intensity",
     "open_frames",
+    "pmbp_flow",
     "points_to_depth",
     "preset",
     "project_points",

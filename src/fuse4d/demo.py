@@ -177,8 +177,8 @@ def _before_after_figure(seq, fused_points: np.ndarray, mean_depth: np.ndarray):
     for ax, idx in zip(axes.ravel(), order, strict=True):
         image, title, cmap, lo, hi = panels[idx]
         crop = image[box]
-        if lo is None:
-            finite = crop[np.isfinite(crop)]
+        if lo is None:  # depth panels: colour range of the ball (the wall would dominate)
+            finite = image[gt.mask[t] & np.isfinite(image)]
             lo, hi = np.percentile(finite, [1, 99]) if finite.size else (0, 1)
         im = ax.imshow(crop, cmap=cmap, vmin=lo, vmax=hi)
         ax.set_title(title, fontsize=10)

@@ -462,6 +462,56 @@ def _sweep_checkerboard_kernel(
             c += 2
 
 
+@njit_parallel
+def _sweep_lines_kernel(
+    src4, tgt4, asw, lab, una, dis, found, rho, cfg, roi, seed, level, it, parity
+):  # fmt: skip
+    """Half a line-parallel sweep: every row (``it`` even) or column (``it`` odd) whose index
+    has the given ``parity`` is scanned sequentially, lines in parallel.
+
+    Along a line the scan runs forward for ``it % 4`` in (0, 1), backward otherwise, and each
+    pixel propagates from the pixel it just left (same thread) and from its two neighbours on
+    the adjacent lines, which have the other parity and are not written during this phase:
+    the result does not depend on the thread schedule, and labels travel a whole line per
+    sweep as in the sequential reference (GPU PatchMatch style alternating passes).
+    """
+    w = src4.shape[1]
+    nk = lab.shape[2]
+    horizontal = it % 2 == 0
+    forward = it % 4 < 2
+    if horizontal:
+        lo, hi = roi[0], roi[1]
+        length = roi[3] - roi[2]
+        d_prev = 2 if forward else 3  # left / right neighbour was visited just before
+        perp = (1 << 0) | (1 << 1)
+    else:
+        lo, hi = roi[2], roi[3]
+        length = roi[1] - roi[0]
+        d_prev = 0 if forward else 1  # up / down
+        perp = (1 << 2) | (1 << 3)
+    first = lo if (lo % 2) == parity else lo + 1
+    n_lines = max(0, (hi - first + 1) // 2)
+    for li in prange(n_lines):
+        line = first + 2 * li
+        centres = np.empty((nk, 2), dtype=np.float64)
+        for jj in range(length):
+            pos = jj if forward else length - 1 - jj
+            if horizontal:
+                r = line
+                c = roi[2] + pos
+            else:
+                r = roi[0] + pos
+                c = line
+            mask = perp
+            if jj > 0:
+                mask |= 1 << d_prev
+            state = _rng_key(seed, level, it, 4 + parity, r * w + c)
+            _visit_pixel(
+                src4, tgt4, asw, lab, una, dis, found, r, c, rho, cfg, roi, mask, state,
+                centres,
+            )  # fmt: skip
+
+
 # --------------------------------------------------------------------------------------------
 # set-up and read-out
 

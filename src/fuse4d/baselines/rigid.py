@@ -209,14 +209,10 @@ def _cast_depth(vbg, k, w, h, depth_min, depth_max, trunc_voxels) -> NDArray[np.
 
     # Open3D 0.20: a ray cast whose range-map fragment buffer is too small ("Could not
     # generate full range map") returns only a few hits, and resizes the buffer for the next
-    # call (measured: 2.5 % then 98.5 % of pixels at 600x600). Cast until the hits stop growing.
-    out = cast()
-    for _ in range(3):
-        again = cast()
-        if np.count_nonzero(again > 0) <= np.count_nonzero(out > 0):
-            break
-        out = again
-    return out
+    # call (measured: 2.5 % then 98.5 % of pixels at 600x600). So cast twice; keep the better.
+    first = cast()
+    second = cast()
+    return second if np.count_nonzero(second > 0) >= np.count_nonzero(first > 0) else first
 
 
 def kinectfusion(
