@@ -102,6 +102,10 @@ def _track_step(step_ring, check_ring, slot, x, y, theta, per_step):
 
 
 # --------------------------------------------------------------------------- per-frame stages
+#: parallel loops run over this many row chunks (scratch buffers are allocated per chunk:
+#: allocating inside a prange body per row serialises the threads on the allocator)
+ROW_CHUNKS = 64
+
 #: exp(-x) ~ (1 - x / EXP_POWER) ** EXP_POWER (10 squarings): relative error x^2 / 2048, i.e.
 #: 0.05 % at x = 1 and 0.8 % at x = 4; exactly 0 beyond x = EXP_POWER. Pure arithmetic, so the
 #: bilateral loops vectorise (a table lookup or a libm call would not).
@@ -149,40 +153,43 @@ def _bilateral3d_kernel(px, py, pz, intensity, qx, qy, qz, radius, inv_2sd2, inv
     h, w = intensity.shape
     a = np.float32(inv_2sd2)
     b = np.float32(inv_2sg2)
-    for v in prange(h):
-        acc = np.zeros((4, w), dtype=np.float32)
-        for nv in range(max(v - radius, 0), min(v + radius + 1, h)):
-            for du in range(-radius, radius + 1):
-                u0 = max(0, -du)
-                u1 = min(w, w - du)
-                _bilateral_row_kernel(
-                    px[v, u0:u1],
-                    py[v, u0:u1],
-                    pz[v, u0:u1],
-                    intensity[v, u0:u1],
-                    px[nv, u0 + du : u1 + du],
-                    py[nv, u0 + du : u1 + du],
-                    pz[nv, u0 + du : u1 + du],
-                    intensity[nv, u0 + du : u1 + du],
-                    qx[nv, u0 + du : u1 + du],
-                    qy[nv, u0 + du : u1 + du],
-                    qz[nv, u0 + du : u1 + du],
-                    a,
-                    b,
-                    acc[0, u0:u1],
-                    acc[1, u0:u1],
-                    acc[2, u0:u1],
-                    acc[3, u0:u1],
-                )
-        for u in range(w):
-            if np.isnan(pz[v, u]):
-                out[v, u, 0] = np.nan
-                out[v, u, 1] = np.nan
-                out[v, u, 2] = np.nan
-            else:
-                out[v, u, 0] = px[v, u] - qx[v, u] + acc[0, u] / acc[3, u]
-                out[v, u, 1] = py[v, u] - qy[v, u] + acc[1, u] / acc[3, u]
-                out[v, u, 2] = pz[v, u] - qz[v, u] + acc[2, u] / acc[3, u]
+    n_chunks = min(h, ROW_CHUNKS)
+    for ci in prange(n_chunks):  # scratch allocated once per chunk, not per row
+        acc = np.empty((4, w), dtype=np.float32)
+        for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
+            acc[:] = 0.0
+            for nv in range(max(v - radius, 0), min(v + radius + 1, h)):
+                for du in range(-radius, radius + 1):
+                    u0 = max(0, -du)
+                    u1 = min(w, w - du)
+                    _bilateral_row_kernel(
+                        px[v, u0:u1],
+                        py[v, u0:u1],
+                        pz[v, u0:u1],
+                        intensity[v, u0:u1],
+                        px[nv, u0 + du : u1 + du],
+                        py[nv, u0 + du : u1 + du],
+                        pz[nv, u0 + du : u1 + du],
+                        intensity[nv, u0 + du : u1 + du],
+                        qx[nv, u0 + du : u1 + du],
+                        qy[nv, u0 + du : u1 + du],
+                        qz[nv, u0 + du : u1 + du],
+                        a,
+                        b,
+                        acc[0, u0:u1],
+                        acc[1, u0:u1],
+                        acc[2, u0:u1],
+                        acc[3, u0:u1],
+                    )
+            for u in range(w):
+                if np.isnan(pz[v, u]):
+                    out[v, u, 0] = np.nan
+                    out[v, u, 1] = np.nan
+                    out[v, u, 2] = np.nan
+                else:
+                    out[v, u, 0] = px[v, u] - qx[v, u] + acc[0, u] / acc[3, u]
+                    out[v, u, 1] = py[v, u] - qy[v, u] + acc[1, u] / acc[3, u]
+                    out[v, u, 2] = pz[v, u] - qz[v, u] + acc[2, u] / acc[3, u]
 
 
 @njit_parallel
@@ -264,55 +271,57 @@ def _track_kernel(
     h = depth_ring.shape[1]
     w = depth_ring.shape[2]
     st = frame_slot[t - first]
-    for v in prange(h):
-        # step-major order: all pixels of the row advance one step at a time, so the
-        # independent per-pixel chains overlap in the CPU (a per-pixel chain is latency-bound)
+    n_chunks = min(h, ROW_CHUNKS)
+    for ci in prange(n_chunks):  # scratch allocated once per chunk, not per row
         xs = np.empty(w, dtype=np.float64)
         ys = np.empty(w, dtype=np.float64)
         pr = np.empty(w, dtype=np.int64)
         pc = np.empty(w, dtype=np.int64)
         prev_depth = np.empty(w, dtype=np.float32)
         alive = np.empty(w, dtype=np.bool_)
-        for direction in (1, -1):
-            for u in range(w):
-                xs[u] = u
-                ys[u] = v
-                pr[u] = v
-                pc[u] = u
-                prev_depth[u] = depth_ring[st, v, u]
-                alive[u] = not np.isnan(depth_ring[st, v, u])
-            n_steps = last - t if direction == 1 else t - first
-            for step in range(1, n_steps + 1):
-                T = t + direction * step
-                k = T - first - 1 if direction == 1 else T - first
-                slot = frame_slot[T - first]
-                # pair (T-1, T) lives in the slot of T, pair (T, T+1) in the slot of T+1
-                flow_slot = slot if direction == 1 else frame_slot[T + 1 - first]
-                step_ring = fwd_ring if direction == 1 else bwd_ring
-                check_ring = bwd_ring if direction == 1 else fwd_ring
+        for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
+            # step-major order: all pixels of the row advance one step at a time, so the
+            # independent per-pixel chains overlap in the CPU (a per-pixel chain is latency-bound)
+            for direction in (1, -1):
                 for u in range(w):
-                    if alive[u]:
-                        ok, nx, ny = _track_step(
-                            step_ring, check_ring, flow_slot, xs[u], ys[u], theta, per_step
-                        )
-                        if ok:
-                            r = _round_half_up(ny)
-                            c = _round_half_up(nx)
-                            d1 = depth_ring[slot, r, c]
-                            limit = _step_limit(prev_depth[u], max_step, quad)
-                            if np.isnan(d1) or not (abs(d1 - prev_depth[u]) < limit):
-                                ok = False
-                            else:
-                                xs[u] = nx
-                                ys[u] = ny
-                                pr[u] = r
-                                pc[u] = c
-                                prev_depth[u] = d1
-                        if not ok:
-                            alive[u] = False
-                    land_ok[k, v, u] = alive[u]
-                    land_row[k, v, u] = pr[u]
-                    land_col[k, v, u] = pc[u]
+                    xs[u] = u
+                    ys[u] = v
+                    pr[u] = v
+                    pc[u] = u
+                    prev_depth[u] = depth_ring[st, v, u]
+                    alive[u] = not np.isnan(depth_ring[st, v, u])
+                n_steps = last - t if direction == 1 else t - first
+                for step in range(1, n_steps + 1):
+                    T = t + direction * step
+                    k = T - first - 1 if direction == 1 else T - first
+                    slot = frame_slot[T - first]
+                    # pair (T-1, T) lives in the slot of T, pair (T, T+1) in the slot of T+1
+                    flow_slot = slot if direction == 1 else frame_slot[T + 1 - first]
+                    step_ring = fwd_ring if direction == 1 else bwd_ring
+                    check_ring = bwd_ring if direction == 1 else fwd_ring
+                    for u in range(w):
+                        if alive[u]:
+                            ok, nx, ny = _track_step(
+                                step_ring, check_ring, flow_slot, xs[u], ys[u], theta, per_step
+                            )
+                            if ok:
+                                r = _round_half_up(ny)
+                                c = _round_half_up(nx)
+                                d1 = depth_ring[slot, r, c]
+                                limit = _step_limit(prev_depth[u], max_step, quad)
+                                if np.isnan(d1) or not (abs(d1 - prev_depth[u]) < limit):
+                                    ok = False
+                                else:
+                                    xs[u] = nx
+                                    ys[u] = ny
+                                    pr[u] = r
+                                    pc[u] = c
+                                    prev_depth[u] = d1
+                            if not ok:
+                                alive[u] = False
+                        land_ok[k, v, u] = alive[u]
+                        land_row[k, v, u] = pr[u]
+                        land_col[k, v, u] = pc[u]
 
 
 # --------------------------------------------------------------------------- fusion (Eq. 5)
@@ -359,76 +368,79 @@ def _fuse_kernel(
     st = frame_slot[t - first]
     kmax = land_ok.shape[0]
     w0 = temporal_weight[0]
-    for v in prange(h):
-        # sample-major order over the row (independent per-pixel work overlaps in the CPU).
-        # acc rows: 0-2 own detail e, 3-5 detail sum, 6 weight sum, 7 count, 8 s1, 9 s2,
-        # 10-12 y0 (sum w m), 13-15 y1 (sum w tau m), 16 gate^2
-        acc = np.zeros((17, w), dtype=np.float64)
-        for u in range(w):
-            zt = ref_ring[st, v, u, 2]
-            if np.isnan(zt):
-                continue
-            gate = max(gate_factor * max(sigma0, quad * zt * zt), min_gate)
-            acc[16, u] = gate * gate
-            for c in range(3):
-                e = bil_ring[st, v, u, c] - ref_ring[st, v, u, c]  # detail of frame t
-                acc[c, u] = e
-                acc[3 + c, u] = w0 * e
-            acc[6, u] = w0
-        for k in range(kmax):
-            T = first + k if first + k < t else first + k + 1
-            sT = frame_slot[T - first]
-            wt = temporal_weight[abs(T - t)]
-            tau = float(T - t)
+    n_chunks = min(h, ROW_CHUNKS)
+    for ci in prange(n_chunks):  # scratch allocated once per chunk, not per row
+        acc = np.empty((17, w), dtype=np.float64)
+        for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
+            acc[:] = 0.0
+            # sample-major order over the row (independent per-pixel work overlaps in the CPU).
+            # acc rows: 0-2 own detail e, 3-5 detail sum, 6 weight sum, 7 count, 8 s1, 9 s2,
+            # 10-12 y0 (sum w m), 13-15 y1 (sum w tau m), 16 gate^2
             for u in range(w):
-                if not land_ok[k, v, u]:
+                zt = ref_ring[st, v, u, 2]
+                if np.isnan(zt):
                     continue
-                r = land_row[k, v, u]
-                c = land_col[k, v, u]
-                dx = bil_ring[sT, r, c, 0] - ref_ring[sT, r, c, 0]
-                dy = bil_ring[sT, r, c, 1] - ref_ring[sT, r, c, 1]
-                dz = bil_ring[sT, r, c, 2] - ref_ring[sT, r, c, 2]
-                dist2 = (dx - acc[0, u]) ** 2 + (dy - acc[1, u]) ** 2 + (dz - acc[2, u]) ** 2
-                if not (dist2 < acc[16, u]):
-                    continue
-                acc[3, u] += wt * dx
-                acc[4, u] += wt * dy
-                acc[5, u] += wt * dz
-                acc[6, u] += wt
-                acc[7, u] += 1.0
-                acc[8, u] += wt * tau
-                acc[9, u] += wt * tau * tau
-                for q in range(3):
-                    m = ref_ring[sT, r, c, q] - ref_ring[st, v, u, q]
-                    acc[10 + q, u] += wt * m
-                    acc[13 + q, u] += wt * tau * m
-        for u in range(w):
-            if np.isnan(ref_ring[st, v, u, 2]):
+                gate = max(gate_factor * max(sigma0, quad * zt * zt), min_gate)
+                acc[16, u] = gate * gate
                 for c in range(3):
-                    out_points[v, u, c] = np.nan
-                support[v, u] = 0
+                    e = bil_ring[st, v, u, c] - ref_ring[st, v, u, c]  # detail of frame t
+                    acc[c, u] = e
+                    acc[3 + c, u] = w0 * e
+                acc[6, u] = w0
+            for k in range(kmax):
+                T = first + k if first + k < t else first + k + 1
+                sT = frame_slot[T - first]
+                wt = temporal_weight[abs(T - t)]
+                tau = float(T - t)
+                for u in range(w):
+                    if not land_ok[k, v, u]:
+                        continue
+                    r = land_row[k, v, u]
+                    c = land_col[k, v, u]
+                    dx = bil_ring[sT, r, c, 0] - ref_ring[sT, r, c, 0]
+                    dy = bil_ring[sT, r, c, 1] - ref_ring[sT, r, c, 1]
+                    dz = bil_ring[sT, r, c, 2] - ref_ring[sT, r, c, 2]
+                    dist2 = (dx - acc[0, u]) ** 2 + (dy - acc[1, u]) ** 2 + (dz - acc[2, u]) ** 2
+                    if not (dist2 < acc[16, u]):
+                        continue
+                    acc[3, u] += wt * dx
+                    acc[4, u] += wt * dy
+                    acc[5, u] += wt * dz
+                    acc[6, u] += wt
+                    acc[7, u] += 1.0
+                    acc[8, u] += wt * tau
+                    acc[9, u] += wt * tau * tau
+                    for q in range(3):
+                        m = ref_ring[sT, r, c, q] - ref_ring[st, v, u, q]
+                        acc[10 + q, u] += wt * m
+                        acc[13 + q, u] += wt * tau * m
+            for u in range(w):
+                if np.isnan(ref_ring[st, v, u, 2]):
+                    for c in range(3):
+                        out_points[v, u, c] = np.nan
+                    support[v, u] = 0
+                    hole[v, u] = False
+                    continue
+                count = int(acc[7, u])
+                support[v, u] = min(count, 255)
+                if count < min_support:
+                    hole[v, u] = True
+                    for c in range(3):
+                        out_points[v, u, c] = bil_ring[st, v, u, c]
+                    continue
                 hole[v, u] = False
-                continue
-            count = int(acc[7, u])
-            support[v, u] = min(count, 255)
-            if count < min_support:
-                hole[v, u] = True
+                wsum = acc[6, u]
+                s1 = acc[8, u]
+                s2 = acc[9, u]
+                det = wsum * s2 - s1 * s1
                 for c in range(3):
-                    out_points[v, u, c] = bil_ring[st, v, u, c]
-                continue
-            hole[v, u] = False
-            wsum = acc[6, u]
-            s1 = acc[8, u]
-            s2 = acc[9, u]
-            det = wsum * s2 - s1 * s1
-            for c in range(3):
-                base = 0.0
-                if trajectory:
-                    if det > 1e-9 * wsum * wsum:
-                        base = (acc[10 + c, u] * s2 - acc[13 + c, u] * s1) / det
-                    else:
-                        base = acc[10 + c, u] / wsum
-                out_points[v, u, c] = ref_ring[st, v, u, c] + base + acc[3 + c, u] / wsum
+                    base = 0.0
+                    if trajectory:
+                        if det > 1e-9 * wsum * wsum:
+                            base = (acc[10 + c, u] * s2 - acc[13 + c, u] * s1) / det
+                        else:
+                            base = acc[10 + c, u] / wsum
+                    out_points[v, u, c] = ref_ring[st, v, u, c] + base + acc[3 + c, u] / wsum
 
 
 # --------------------------------------------------------------------------- hole filling (Eq. 6)
@@ -645,47 +657,49 @@ def _segment_box_rows_kernel(values, depth, radius, max_step, quad, out):
     where depth is NaN.
     """
     h, w = depth.shape
-    for v in prange(h):
+    n_chunks = min(h, ROW_CHUNKS)
+    for ci in prange(n_chunks):  # scratch allocated once per chunk, not per row
         s_val = np.empty(w + 1, dtype=np.float64)
         s_kv = np.empty(w + 1, dtype=np.float64)
-        u = 0
-        while u < w:
-            if np.isnan(depth[v, u]):
-                out[v, u] = np.nan
-                u += 1
-                continue
-            a = u
-            b = u + 1
-            while (
-                b < w
-                and not np.isnan(depth[v, b])
-                and abs(depth[v, b] - depth[v, b - 1])
-                < _step_limit(depth[v, b - 1], max_step, quad)
-            ):
-                b += 1
-            s_val[0] = 0.0
-            s_kv[0] = 0.0
-            for k in range(a, b):
-                j = k - a
-                s_val[j + 1] = s_val[j] + values[v, k]
-                s_kv[j + 1] = s_kv[j] + j * values[v, k]
-            inv_full = 1.0 / (2 * radius + 1)
-            for k in range(a, b):
-                j = k - a
-                if j - radius >= 0 and j + radius <= b - 1 - a:
-                    # full symmetric window: the line fit reduces to the mean
-                    out[v, k] = (s_val[j + radius + 1] - s_val[j - radius]) * inv_full
+        for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
+            u = 0
+            while u < w:
+                if np.isnan(depth[v, u]):
+                    out[v, u] = np.nan
+                    u += 1
                     continue
-                lo = max(j - radius, 0)
-                hi = min(j + radius, b - 1 - a)
-                n = hi - lo + 1
-                mean_val = (s_val[hi + 1] - s_val[lo]) / n
-                # column indices lo..hi: mean and variance in closed form
-                mean_j = 0.5 * (lo + hi)
-                var_j = (n * n - 1) / 12.0
-                if var_j > 0.0:
-                    cov = (s_kv[hi + 1] - s_kv[lo]) / n - mean_j * mean_val
-                    out[v, k] = mean_val + cov / var_j * (j - mean_j)
-                else:
-                    out[v, k] = mean_val
-            u = b
+                a = u
+                b = u + 1
+                while (
+                    b < w
+                    and not np.isnan(depth[v, b])
+                    and abs(depth[v, b] - depth[v, b - 1])
+                    < _step_limit(depth[v, b - 1], max_step, quad)
+                ):
+                    b += 1
+                s_val[0] = 0.0
+                s_kv[0] = 0.0
+                for k in range(a, b):
+                    j = k - a
+                    s_val[j + 1] = s_val[j] + values[v, k]
+                    s_kv[j + 1] = s_kv[j] + j * values[v, k]
+                inv_full = 1.0 / (2 * radius + 1)
+                for k in range(a, b):
+                    j = k - a
+                    if j - radius >= 0 and j + radius <= b - 1 - a:
+                        # full symmetric window: the line fit reduces to the mean
+                        out[v, k] = (s_val[j + radius + 1] - s_val[j - radius]) * inv_full
+                        continue
+                    lo = max(j - radius, 0)
+                    hi = min(j + radius, b - 1 - a)
+                    n = hi - lo + 1
+                    mean_val = (s_val[hi + 1] - s_val[lo]) / n
+                    # column indices lo..hi: mean and variance in closed form
+                    mean_j = 0.5 * (lo + hi)
+                    var_j = (n * n - 1) / 12.0
+                    if var_j > 0.0:
+                        cov = (s_kv[hi + 1] - s_kv[lo]) / n - mean_j * mean_val
+                        out[v, k] = mean_val + cov / var_j * (j - mean_j)
+                    else:
+                        out[v, k] = mean_val
+                u = b
