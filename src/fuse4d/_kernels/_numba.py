@@ -14,7 +14,7 @@ import os
 # took 70 ms instead of 18 ms). Sleep instead; a user's own setting wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-import numba  # noqa: E402
+import numba
 
 __all__ = ["FASTMATH", "njit", "njit_parallel", "prange"]
 
