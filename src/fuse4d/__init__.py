@@ -16,6 +16,7 @@ Main entry points
 
 from __future__ import annotations
 
+from .baselines import available_baselines, run_baseline
 from .camera import Intrinsics, depth_to_points, points_to_depth, project_points
 from .config import FlowConfig, FusionParams, load_config, preset
 from .errors import InputFileError, OutputExistsError, ShapeError
@@ -59,6 +60,7 @@ __all__ = [
     "SequenceFlow",
     "ShapeError",
     "__version__",
+    "available_baselines",
     "available_flow_methods",
     "depth_to_points",
     "estimate_flow",
@@ -75,6 +77,7 @@ __all__ = [
     "preset",
     "project_points",
     "read_flo",
+    "run_baseline",
     "sanitize_depth",
     "save_sequence",
     "write_flo",
