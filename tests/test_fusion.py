@@ -355,6 +355,11 @@ def test_streaming_equals_in_memory_bit_for_bit(rng):
         assert [f.index for f in streamed] == list(range(n))
         np.testing.assert_array_equal(np.stack([f.points for f in streamed]), memory.points)
         np.testing.assert_array_equal(np.stack([f.support for f in streamed]), memory.support)
+        # a ring that never evicts (other slot mapping) gives the same bits
+        engine = FusionEngine(K, fusion=params, flow="dis", ring_size=n)
+        big = [fr for d, i in zip(depth, inten, strict=True) for fr in engine.push(d, i)]
+        big += engine.flush()
+        np.testing.assert_array_equal(np.stack([f.points for f in big]), memory.points)
 
 
 def test_engine_emits_with_latency_and_bounded_ring():

@@ -577,7 +577,7 @@ def fuse_sequence(
             intrinsics,
             fusion=params,
             flow=flow_cfg,
-            ring_size=n,
+            ring_size=None,
             on_pair=on_pair if iteration == 0 else None,
             timings=timings,
         )
