@@ -27,7 +27,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from fuse4d import depth_to_points, fuse_sequence, load_sequence, preset
-from fuse4d.evaluation import temporal_mean
+from fuse4d.baselines.temporal import temporal_mean
 from fuse4d.metrics import default_roi, roughness_stats, temporal_flicker
 
 
@@ -77,7 +77,9 @@ def static_room(path: Path, chosen) -> dict:
     return {
         "frames": seq.num_frames,
         "pose_compensated_flicker_median_planar_mm": {
-            "raw": comp_raw, "fused": comp_fused, "ratio": comp_fused / comp_raw,
+            "raw": comp_raw,
+            "fused": comp_fused,
+            "ratio": comp_fused / comp_raw,
             "pixels": int(planar0.sum()),
         },
         "flicker_median_mm": {
@@ -110,7 +112,7 @@ def person(path: Path, chosen) -> dict:
     seconds = time.perf_counter() - t0
     inner = np.stack([ndi.binary_erosion(m, iterations=3) for m in mask])
     roi = inner & default_roi(seq.depth)
-    mean9 = temporal_mean(seq.depth)
+    mean9 = temporal_mean(seq.depth, None, seq.intrinsics)
     band = np.stack(
         [ndi.binary_dilation(m, iterations=6) & ~ndi.binary_erosion(m, iterations=6) for m in mask]
     )

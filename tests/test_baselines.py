@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import importlib.util
+import subprocess
+import sys
 import warnings
 
 import cv2
@@ -55,10 +58,8 @@ def _call(name: str, depth, intensity, intrinsics, **params):
     info = available_baselines()[name]
     if info.needs == "realsense" and not info.available:
         pytest.skip("pyrealsense2 not installed (pip install 'fuse4d[realsense]')")
-    if name == "kinectfusion":
-        if not info.available:
-            pytest.skip("open3d not installed (pip install 'fuse4d[6d]')")
-        params.setdefault("backend", "open3d")
+    # kinectfusion runs its default (projective) backend in-process; the Open3D backend is
+    # exercised in a subprocess with a timeout (test_kinectfusion_open3d_backend_in_a_subprocess)
     if info.returns_points:
         params.setdefault("size", 1)
     out = run_baseline(name, depth, intensity, intrinsics, **params)
@@ -298,13 +299,39 @@ def test_kinectfusion_fallback_is_labelled_and_exact_on_plane(plane, intrinsics)
     np.testing.assert_allclose(pts[..., 2], depth, atol=1e-3)
 
 
-def test_kinectfusion_auto_warns_without_open3d(plane, intrinsics, monkeypatch):
-    from fuse4d.baselines import rigid
+def test_kinectfusion_auto_is_the_projective_backend(plane, intrinsics):
+    depth, tex = plane
+    auto = run_baseline("kinectfusion", depth[:3], tex[:3], intrinsics, size=1)
+    proj = run_baseline(
+        "kinectfusion", depth[:3], tex[:3], intrinsics, size=1, backend="projective"
+    )
+    np.testing.assert_array_equal(auto, proj)
 
-    monkeypatch.setattr(rigid, "have_open3d", lambda: False)
-    depth, _tex = plane
-    with pytest.warns(RuntimeWarning, match="fallback"):
-        rigid.kinectfusion(depth[:2], None, intrinsics, size=1)
+
+@pytest.mark.skipif(importlib.util.find_spec("open3d") is None, reason="open3d not installed")
+def test_kinectfusion_open3d_backend_in_a_subprocess(tmp_path):
+    """The Open3D TSDF path, isolated: its 0.20 ray cast can hang (rigid.py docstring)."""
+    script = tmp_path / "kf.py"
+    script.write_text(
+        "import numpy as np\n"
+        "from fuse4d import Intrinsics\n"
+        "from fuse4d.baselines import run_baseline\n"
+        "k = Intrinsics(200.0, 200.0, 31.5, 23.5, width=64, height=48)\n"
+        "d = np.full((3, 48, 64), 500.0, np.float32)\n"
+        "p = run_baseline('kinectfusion', d, None, k, size=1, backend='open3d')\n"
+        "z = p[..., 2][np.isfinite(p[..., 2])]\n"
+        "print(z.size, float(np.median(z)))\n"
+    )
+    try:
+        res = subprocess.run(
+            [sys.executable, str(script)], capture_output=True, text=True, timeout=120, check=False
+        )
+    except subprocess.TimeoutExpired:
+        pytest.skip("Open3D 0.20 ray_cast hung (known intermittent issue, see rigid.py)")
+    assert res.returncode == 0, res.stderr[-2000:]
+    count, median = res.stdout.split()
+    assert int(count) > 0
+    assert abs(float(median) - 500.0) < 1.0
 
 
 def test_ed_tracks_a_translating_plane(intrinsics, rng):

@@ -17,8 +17,9 @@ from typing import Any
 
 import numpy as np
 
+from .baselines.temporal import temporal_mean
 from .config import preset as get_preset
-from .evaluation import MethodScore, score_on_ball, self_guided_filter, temporal_mean
+from .evaluation import MethodScore, score_on_ball, self_guided_filter
 from .fusion import fuse_sequence
 from .metrics import ball_roi, roughness_maps
 from .synthetic import make_falling_ball
@@ -105,7 +106,9 @@ def run_demo(
             depth=self_guided_filter(seq.depth),
         ),
         score_on_ball(
-            seq, "temporal mean (9 frames, no motion comp.)", depth=temporal_mean(seq.depth)
+            seq,
+            "temporal mean (9 frames, no motion comp.)",
+            depth=temporal_mean(seq.depth, None, seq.intrinsics),
         ),
         score_on_ball(seq, f"fuse4d ({preset}, {result.flow_method})", points=result.points),
     ]
@@ -118,7 +121,7 @@ def run_demo(
         flow_method=result.flow_method,
         support_fraction=result.support_fraction,
     )
-    fig = _before_after_figure(seq, result.points, temporal_mean(seq.depth))
+    fig = _before_after_figure(seq, result.points, temporal_mean(seq.depth, None, seq.intrinsics))
     demo.files.append(save_figure(fig, out / "demo_before_after.png", overwrite=overwrite))
     payload: dict[str, Any] = {
         "scene": "falling ball, 0.2 mm depth noise, 2 % intensity noise, seed 0",

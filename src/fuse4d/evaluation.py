@@ -5,12 +5,11 @@ Reference methods users run today, measured in the same run as fuse4d:
 * ``guided (depth self-guided)``: OpenCV ``cv2.ximgproc.guidedFilter`` with the depth as its own
   guide (radius 2, eps 10 mm^2), the best single-frame filter in PEERS.md;
 * ``temporal mean (9)``: a plain 9-frame mean without motion compensation (the ghosting the
-  method exists to remove).
+  method exists to remove), :func:`fuse4d.baselines.temporal.temporal_mean`.
 """
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,11 +17,18 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from .baselines.temporal import temporal_mean
 from .camera import depth_to_points
 from .metrics import bad_pixel_fraction, ball_roi, depth_rmse, roughness_stats
 from .sequence import Sequence
 
-__all__ = ["MethodScore", "score_on_ball", "self_guided_filter", "temporal_mean"]
+__all__ = [
+    "MethodScore",
+    "QualityReport",
+    "ball_quality_report",
+    "score_on_ball",
+    "self_guided_filter",
+]
 
 
 def self_guided_filter(depth: NDArray[np.float32], *, radius: int = 2, eps: float = 10.0):
@@ -44,20 +50,6 @@ def self_guided_filter(depth: NDArray[np.float32], *, radius: int = 2, eps: floa
         filled = filled.astype(np.float32)
         res = cv2.ximgproc.guidedFilter(guide=filled, src=filled, radius=radius, eps=eps, dDepth=-1)
         out[t] = np.where(valid, res, np.nan)
-    return out
-
-
-def temporal_mean(depth: NDArray[np.float32], *, num_frames: int = 9) -> NDArray[np.float32]:
-    """Per-pixel mean over a centred window of ``num_frames`` frames, no motion compensation."""
-    n = depth.shape[0]
-    past = (num_frames - 1) // 2
-    future = num_frames - 1 - past
-    out = np.empty_like(depth, dtype=np.float32)
-    for t in range(n):
-        window = depth[max(0, t - past) : min(n, t + future + 1)]
-        with warnings.catch_warnings():  # all-NaN pixels: "Mean of empty slice"
-            warnings.simplefilter("ignore", category=RuntimeWarning)
-            out[t] = np.nanmean(window, axis=0)
     return out
 
 
@@ -198,7 +190,7 @@ def ball_quality_report(
             self_guided_filter(seq.depth), seq.intrinsics
         ),
         "temporal mean (9, no motion comp.)": depth_to_points(
-            temporal_mean(seq.depth), seq.intrinsics
+            temporal_mean(seq.depth, None, seq.intrinsics), seq.intrinsics
         ),
         f"fuse4d {preset}": res.points,
     }

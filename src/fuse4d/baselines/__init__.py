@@ -35,7 +35,7 @@ from .bilateral import adaptive_bilateral, adaptive_gaussian, adaptive_joint_bil
 from .ed import embedded_deformation
 from .guided import guided
 from .realsense import have_pyrealsense2, realsense_chain
-from .rigid import have_open3d, kinectfusion
+from .rigid import kinectfusion
 from .stmf import spatio_temporal_median
 from .temporal import temporal_average, temporal_mean
 
@@ -177,16 +177,15 @@ _REGISTRY: dict[str, BaselineInfo] = {
         BaselineInfo(
             "kinectfusion",
             kinectfusion,
-            "6D rigid: ICP + TSDF fusion of 9 frames, ray cast (Open3D; NumPy fallback)",
+            "6D rigid: projective ICP + per-ray box (TSDF-style) fusion of 9 frames in NumPy; "
+            "Open3D TSDF opt-in with backend='open3d'",
             returns_points=True,
-            needs="6d",
             default_size=4,
             size_sweep=(1, 2, 3, 4),
             iterations_sweep=(1, 2, 3),
             size_meaning="temporal radius (2*size+1 frames)",
             reference="Newcombe et al., ISMAR 2011 / Izadi et al., UIST 2011",
             fills_holes=True,
-            _available=have_open3d,
         ),
         BaselineInfo(
             "ed",

@@ -143,5 +143,6 @@ def projective_fuse(
     n = np.bincount(group[keep], minlength=uniq.size).astype(np.float64)
     for c in range(3):
         s = np.bincount(group[keep], weights=p[keep, c], minlength=uniq.size)
-        out[uniq, c] = (s / n).astype(np.float32)
+        with np.errstate(invalid="ignore", divide="ignore"):  # n = 0: pixel stays NaN
+            out[uniq, c] = np.where(n > 0, s / np.maximum(n, 1), np.nan).astype(np.float32)
     return out.reshape(h, w, 3)
