@@ -584,27 +584,25 @@ def fuse_sequence(
         if not flow_method:
             flow_method = engine.flow_config.method
         out_points = np.empty((n, h, w, 3), np.float32)
-        for t in range(n):
-            if (iteration == 0 and precomputed is None) or t == 0:
-                pair = None
-            elif iteration == 0:
-                pair = (precomputed.forward[t - 1], precomputed.backward[t - 1])
-            else:
-                pair = (fwd_all[t - 1], bwd_all[t - 1])
-            frames = engine.push(
-                d[t],
-                inten[t],
-                pair_flow=pair,
-                points=None if current_points is None else current_points[t],
-            )
-            for fr in frames:
-                out_points[fr.index] = fr.points
-                support[fr.index] = fr.support
-                filled[fr.index] |= fr.filled
-                done += 1
-                if progress is not None:
-                    progress(done, total)
-        for fr in engine.flush():
+
+        def pushed_frames(engine=engine, iteration=iteration, previous=current_points):
+            """Push every frame (pair flows reused after the first pass), then flush."""
+            for t in range(n):
+                if (iteration == 0 and precomputed is None) or t == 0:
+                    pair = None
+                elif iteration == 0:
+                    pair = (precomputed.forward[t - 1], precomputed.backward[t - 1])
+                else:
+                    pair = (fwd_all[t - 1], bwd_all[t - 1])
+                yield from engine.push(
+                    d[t],
+                    inten[t],
+                    pair_flow=pair,
+                    points=None if previous is None else previous[t],
+                )
+            yield from engine.flush()
+
+        for fr in pushed_frames():
             out_points[fr.index] = fr.points
             support[fr.index] = fr.support
             filled[fr.index] |= fr.filled
