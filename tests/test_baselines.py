@@ -11,19 +11,17 @@ import cv2
 import numpy as np
 import pytest
 
-from fuse4d import Intrinsics
-from fuse4d._kernels.joint_bilateral import (
-    EXP_TABLE_SCALE,
-    _joint_bilateral_kernel,
-    make_exp_table,
-)
+from fuse4d import Intrinsics, depth_to_points
+from fuse4d._kernels.joint_bilateral import _joint_bilateral_kernel
 from fuse4d.baselines import available_baselines, estimate_noise_sigma, run_baseline
 from fuse4d.baselines._common import normalized_convolution_fill
-from fuse4d.baselines.bilateral import joint_bilateral_frame
-from fuse4d.baselines.stmf import block_match
+from fuse4d.baselines.bilateral import _view_angle, joint_bilateral_frame
+from fuse4d.baselines.stmf import block_match, sorting_network
 from naive.baselines import block_match as naive_block_match
 from naive.baselines import guided_filter as naive_guided
 from naive.baselines import joint_bilateral as naive_joint_bilateral
+from naive.baselines import pca_view_angle as naive_pca_view_angle
+from naive.baselines import stmf_median as naive_stmf_median
 from naive.baselines import temporal_average as naive_temporal_average
 
 T, H, W = 6, 48, 64
@@ -141,12 +139,26 @@ def test_kernel_matches_naive_oracle_adaptive_temporal_nan(rng):
         out = np.empty((h, w), np.float32)
         _joint_bilateral_kernel(
             depth, intensity, 2, tw, radius, 0.5 / s_s**2, 0.5 / 0.2**2, 0.5 / s_range**2,
-            relative, make_exp_table(), EXP_TABLE_SCALE, out,
+            relative, out,
         )  # fmt: skip
         ref = naive_joint_bilateral(depth, intensity, 2, tw, radius, s_s, 0.2, s_range, relative)
         np.testing.assert_array_equal(np.isnan(out), np.isnan(depth[2]))
-        # float32 coefficients and the interpolated exp table (relative weight error ~3e-5)
+        # float32 coefficients and exp(-x) ~ (1 - x/1024)^1024 (relative error x^2/2048)
         np.testing.assert_allclose(out, ref, rtol=0, atol=2e-3)
+
+
+def test_view_angle_matches_naive_pca_oracle(rng):
+    """Ad-GF's PCA normal angle (box-filtered moments + closed-form 3x3 eigen) vs numpy eigh."""
+    intr = Intrinsics(fx=300.0, fy=300.0, cx=20.0, cy=15.0, width=40, height=30)
+    yy, xx = np.mgrid[0:30, 0:40]
+    depth = 600 + 3 * xx + yy + 40 * np.sin(xx / 4.0) + rng.normal(0, 0.3, (30, 40))
+    depth = depth.astype(np.float32)
+    depth[5:9, 10:14] = np.nan
+    points = depth_to_points(depth, intr)
+    ours = _view_angle(points)
+    ref = np.minimum(naive_pca_view_angle(points, 2, 3), np.deg2rad(80.0))
+    np.testing.assert_allclose(ours, ref, atol=1e-5)
+    assert ref.mean() > 0.5  # a sloped surface: the angle is really measured
 
 
 def test_kernel_golden_cv2_bilateral(rng):
@@ -183,6 +195,38 @@ def test_guided_matches_naive_formulas(plane, intrinsics, rng):
     ref = naive_guided(tex[0], noisy[0], 3, 0.05**2)
     inner = (slice(8, -8), slice(8, -8))
     np.testing.assert_allclose(out[0][inner], ref[inner], atol=2e-3)
+
+
+@pytest.mark.parametrize("half_window", [0, 1, 2])
+def test_stmf_median_kernel_matches_naive_oracle(half_window, rng):
+    from fuse4d._kernels.baselines import _stmf_median_kernel
+
+    k, h, w = 5, 13, 19
+    depth = (500 + rng.normal(0, 2.0, (k, h, w))).astype(np.float32)
+    depth[rng.uniform(size=depth.shape) < 0.15] = np.nan
+    intensity = rng.uniform(0, 0.2, (k, h, w)).astype(np.float32)
+    vectors = rng.integers(-2, 3, (k, h, w, 2)).astype(np.int32)
+    vectors[2] = 0
+    size = k * (2 * half_window + 1) ** 2
+    out = np.empty((h, w), np.float32)
+    _stmf_median_kernel(depth, intensity, 2, vectors, half_window, 0.1, sorting_network(size), out)
+    ref = naive_stmf_median(depth, intensity, 2, vectors, half_window, 0.1)
+    np.testing.assert_array_equal(np.isnan(out), np.isnan(ref))
+    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-4)
+    assert np.isnan(ref).mean() < 0.5  # most pixels have candidates
+
+
+@pytest.mark.parametrize("size", [1, 2, 5, 9, 27, 45, 75])
+def test_stmf_sorting_network_sorts(size, rng):
+    """The pruned Batcher network sorts every input of its size (random and 0-1 inputs)."""
+    network = sorting_network(size)
+    inputs = [rng.normal(size=size) for _ in range(200)]
+    inputs += [rng.integers(0, 2, size).astype(float) for _ in range(200)]
+    for x in inputs:
+        y = x.copy()
+        for i, j in network:
+            y[i], y[j] = min(y[i], y[j]), max(y[i], y[j])
+        np.testing.assert_array_equal(y, np.sort(x))
 
 
 def test_block_matching_matches_oracle_and_finds_shift(rng):

@@ -108,3 +108,48 @@ def temporal_average(depth: np.ndarray, n: int, sigma_r: float) -> np.ndarray:
         with np.errstate(invalid="ignore"):
             out[t] = np.where(np.isfinite(center), acc / norm, np.nan)
     return out
+
+
+def pca_view_angle(points: np.ndarray, half: int, min_count: int) -> np.ndarray:
+    """Angle (rad) between the window's PCA normal (numpy eigh) and the camera ray; 0 if unknown."""
+    h, w, _ = points.shape
+    out = np.zeros((h, w))
+    for r in range(h):
+        for c in range(w):
+            if np.isnan(points[r, c, 2]):
+                continue
+            win = points[max(0, r - half) : r + half + 1, max(0, c - half) : c + half + 1]
+            win = win.reshape(-1, 3).astype(np.float64)
+            win = win[np.isfinite(win[:, 2])]
+            if len(win) < min_count:
+                continue
+            cov = np.cov(win.T, bias=True)
+            normal = np.linalg.eigh(cov)[1][:, 0]
+            ray = points[r, c].astype(np.float64)
+            cos = abs(normal @ ray) / np.linalg.norm(ray)
+            out[r, c] = np.arccos(min(cos, 1.0))
+    return out
+
+
+def stmf_median(depth, intensity, ref, vectors, half_window, intensity_tol) -> np.ndarray:
+    """ST-MF step 2-3 by a direct loop: median of the accepted candidates (NaN if none)."""
+    k_frames, h, w = depth.shape
+    out = np.full((h, w), np.nan)
+    for r in range(h):
+        for c in range(w):
+            cands = []
+            for k in range(k_frames):
+                du, dv = vectors[k, r, c]
+                for orow in range(-half_window, half_window + 1):
+                    for ocol in range(-half_window, half_window + 1):
+                        tr, tc = r + orow, c + ocol
+                        sr, sc = tr + dv, tc + du
+                        if not (0 <= tr < h and 0 <= tc < w and 0 <= sr < h and 0 <= sc < w):
+                            continue
+                        value = depth[k, sr, sc]
+                        di = abs(intensity[k, sr, sc] - intensity[ref, tr, tc])
+                        if np.isfinite(value) and di < intensity_tol:
+                            cands.append(value)
+            if cands:
+                out[r, c] = np.median(cands)
+    return out

@@ -9,9 +9,16 @@ Weight of neighbour ``j`` (frame ``tau``) for centre pixel ``i`` of the referenc
 
 with ``rho = D_tau(j) - D_ref(i)`` (mm), or ``rho = (D_tau(j) - D_ref(i)) / D_ref(i)`` when
 ``relative`` (DNBF's divisive normalisation). The three Gaussians are evaluated as a single
-``exp`` of the summed exponents. The window is the disc ``|x_i - x_j| <= radius[i]`` (like
-OpenCV's bilateral filters), clipped at the image border (no padding). NaN depth never
-contributes; a NaN centre gives NaN.
+``exp`` of the summed exponents, with exp(-x) ~ (1 - x/1024)^1024 (relative error x^2/2048:
+0.05 % at x = 1, 0.8 % at x = 4, the same approximation as fuse4d's own bilateral). The window
+is the disc ``|x_i - x_j| <= radius[i]`` (like OpenCV's bilateral filters), clipped at the image
+border (no padding). NaN depth never contributes; a NaN centre gives NaN.
+
+Layout: offset-major. For each output row, the loop runs over the frames and the (dr, dc)
+offsets of the largest disc in that row, and innermost over the columns, so that the centre and
+the neighbour are both contiguous slices and the inner loop vectorises (SIMD); the per-pixel
+disc is a mask ``dr^2 + dc^2 <= radius^2`` inside that loop. A per-pixel gather loop (one disc
+per pixel) cannot vectorise and was 4-8x slower.
 """
 
 from __future__ import annotations
@@ -20,32 +27,46 @@ import math
 
 import numpy as np
 
-from ._numba import njit_parallel, prange
+from ._numba import njit, njit_parallel, prange
 
-__all__ = ["_joint_bilateral_kernel", "make_exp_table"]
+__all__ = ["_joint_bilateral_kernel"]
 
-#: Exponent range of the weight table: exp(-30) ~ 1e-13 is treated as 0.
-EXP_TABLE_MAX = 30.0
-#: Entries per unit exponent; linear interpolation error <= (1/64)^2 / 8 ~ 3e-5 (relative).
-EXP_TABLE_SCALE = 64.0
+#: parallel loops run over this many row chunks (scratch allocated once per chunk)
+ROW_CHUNKS = 64
+#: exp(-x) ~ (1 - x / EXP_POWER) ** EXP_POWER, i.e. 10 squarings; exactly 0 beyond x = 1024.
+EXP_POWER = 1024.0
 
 
-def make_exp_table(
-    max_exponent: float = EXP_TABLE_MAX, scale: float = EXP_TABLE_SCALE
-) -> np.ndarray:
-    """Lookup table ``exp(-k / scale)``, k = 0 .. max_exponent·scale (float32).
+@njit(inline="always")
+def _exp_neg(x):
+    t = max(np.float32(1.0) - x * np.float32(1.0 / EXP_POWER), np.float32(0.0))
+    for _ in range(10):
+        t = t * t
+    return t
 
-    The kernel interpolates it linearly instead of calling ``exp`` per tap (no SIMD exp in
-    numba without SVML), which makes it several times faster.
-    """
-    n = round(max_exponent * scale) + 2
-    return np.exp(-np.arange(n, dtype=np.float64) / scale).astype(np.float32)
+
+@njit
+def _accumulate_offset(
+    center, inv_center, guide_c, a_s, a_d, rad2, nbr_depth, nbr_guide, wt, d2, a_i, acc, norm
+):  # pragma: no cover - compiled
+    """Add one (frame, dr, dc) offset to a row's sums (1D slices; this loop vectorises)."""
+    zero = np.float32(0.0)
+    d2f = np.float32(d2)
+    for u in range(center.shape[0]):
+        value = nbr_depth[u]
+        ok = (not math.isnan(value)) & (d2 <= rad2[u])
+        diff = (value - center[u]) * inv_center[u]
+        di = nbr_guide[u] - guide_c[u]
+        expo = d2f * a_s[u] + diff * diff * a_d[u] + di * di * a_i
+        w = wt * _exp_neg(expo) if ok else zero
+        acc[u] += w * (value if ok else zero)
+        norm[u] += w
 
 
 @njit_parallel
 def _joint_bilateral_kernel(
     depth,
-    intensity,
+    guide,
     ref,
     time_weight,
     radius,
@@ -53,8 +74,6 @@ def _joint_bilateral_kernel(
     intensity_coeff,
     range_coeff,
     relative,
-    exp_table,
-    table_scale,
     out,
 ):  # pragma: no cover - compiled (covered via NUMBA_DISABLE_JIT runs)
     """Fill ``out`` (H, W) with the joint-bilateral average around frame ``ref``.
@@ -63,8 +82,9 @@ def _joint_bilateral_kernel(
     ----------
     depth : (K, H, W) float32
         Depth (mm) of the K frames of the window; NaN = invalid.
-    intensity : (K, H, W) float32
-        Intensity in [0, 1] of the same frames (ignored when ``intensity_coeff == 0``).
+    guide : (K, H, W) float32
+        Intensity in [0, 1] of the same frames (any array of that shape when
+        ``intensity_coeff == 0``, e.g. ``depth`` itself).
     ref : int
         Index of the reference (centre) frame in ``depth``.
     time_weight : (K,) float32
@@ -79,60 +99,62 @@ def _joint_bilateral_kernel(
         Per-pixel ``1 / (2 sigma_D^2)`` (1/mm^2, or dimensionless when ``relative``); 0 = off.
     relative : bool
         Divide the depth difference by the centre depth (DNBF).
-    exp_table : (N,) float32
-        ``exp(-k / table_scale)`` for k = 0..N-1 (linearly interpolated; exponents beyond the
-        table give weight 0). See :func:`make_exp_table`.
-    table_scale : float
-        Table entries per unit of exponent.
     out : (H, W) float32
         Output buffer.
     """
     n_frames, height, width = depth.shape
-    use_intensity = intensity_coeff > 0.0
     a_i = np.float32(intensity_coeff)
-    scale = np.float32(table_scale)
-    last = np.float32(exp_table.shape[0] - 1)
-    for row in prange(height):
-        for col in range(width):
-            center = depth[ref, row, col]
-            if math.isnan(center):
-                out[row, col] = np.nan
-                continue
-            rad = radius[row, col]
-            rad2 = rad * rad
-            a_s = spatial_coeff[row, col]
-            a_d = range_coeff[row, col]
-            inv_center = np.float32(1.0) / center if relative else np.float32(1.0)
-            i_c = intensity[ref, row, col] if use_intensity else np.float32(0.0)
-            r0 = max(row - rad, 0)
-            r1 = min(row + rad, height - 1)
-            acc = 0.0
-            norm = 0.0
+    n_chunks = min(height, ROW_CHUNKS)
+    for chunk in prange(n_chunks):
+        acc = np.empty(width, dtype=np.float32)
+        norm = np.empty(width, dtype=np.float32)
+        center = np.empty(width, dtype=np.float32)
+        inv_center = np.empty(width, dtype=np.float32)
+        rad2 = np.empty(width, dtype=np.int32)
+        for row in range(chunk * height // n_chunks, (chunk + 1) * height // n_chunks):
+            max_rad = 0
+            for u in range(width):
+                c = depth[ref, row, u]
+                ok = not math.isnan(c)
+                center[u] = c if ok else np.float32(0.0)
+                inv_center[u] = np.float32(1.0) / c if (relative and ok) else np.float32(1.0)
+                r = radius[row, u] if ok else 0
+                rad2[u] = r * r
+                max_rad = max(max_rad, r)
+                acc[u] = 0.0
+                norm[u] = 0.0
             for k in range(n_frames):
                 wt = time_weight[k]
                 if wt <= 0.0:
                     continue
-                for rr in range(r0, r1 + 1):
-                    dr2 = (rr - row) * (rr - row)
-                    half = int(math.sqrt(rad2 - dr2))  # disc: |dc| <= sqrt(r^2 - dr^2)
-                    c0 = max(col - half, 0)
-                    c1 = min(col + half, width - 1)
-                    for cc in range(c0, c1 + 1):
-                        value = depth[k, rr, cc]
-                        if math.isnan(value):  # NaN never contributes
+                for rr in range(max(row - max_rad, 0), min(row + max_rad + 1, height)):
+                    dr = rr - row
+                    for dc in range(-max_rad, max_rad + 1):
+                        d2 = dr * dr + dc * dc
+                        if d2 > max_rad * max_rad:
                             continue
-                        dc = cc - col
-                        diff = (value - center) * inv_center
-                        expo = np.float32(dr2 + dc * dc) * a_s + diff * diff * a_d
-                        if use_intensity:
-                            di = intensity[k, rr, cc] - i_c
-                            expo += di * di * a_i
-                        x = expo * scale
-                        if x >= last:
+                        u0 = max(0, -dc)
+                        u1 = min(width, width - dc)
+                        if u1 <= u0:
                             continue
-                        i = int(x)
-                        f = x - np.float32(i)
-                        w = wt * (exp_table[i] + f * (exp_table[i + 1] - exp_table[i]))
-                        acc += w * value
-                        norm += w
-            out[row, col] = acc / norm if norm > 0.0 else center
+                        _accumulate_offset(
+                            center[u0:u1],
+                            inv_center[u0:u1],
+                            guide[ref, row, u0:u1],
+                            spatial_coeff[row, u0:u1],
+                            range_coeff[row, u0:u1],
+                            rad2[u0:u1],
+                            depth[k, rr, u0 + dc : u1 + dc],
+                            guide[k, rr, u0 + dc : u1 + dc],
+                            wt,
+                            d2,
+                            a_i,
+                            acc[u0:u1],
+                            norm[u0:u1],
+                        )
+            for u in range(width):
+                c = depth[ref, row, u]
+                if math.isnan(c):
+                    out[row, u] = np.nan
+                else:
+                    out[row, u] = acc[u] / norm[u] if norm[u] > 0.0 else c

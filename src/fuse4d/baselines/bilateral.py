@@ -14,11 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._kernels.baselines import _pca_view_angle_kernel
-from .._kernels.joint_bilateral import (
-    EXP_TABLE_SCALE,
-    _joint_bilateral_kernel,
-    make_exp_table,
-)
+from .._kernels.joint_bilateral import _joint_bilateral_kernel
 from ..camera import Intrinsics, depth_to_points
 from ._common import (
     check_inputs,
@@ -31,8 +27,6 @@ from ._common import (
 __all__ = ["adaptive_bilateral", "adaptive_gaussian", "adaptive_joint_bilateral", "dnbf"]
 
 F32 = NDArray[np.float32]
-
-_EXP_TABLE = make_exp_table()
 
 
 def _run_kernel(
@@ -61,8 +55,8 @@ def _run_kernel(
             range_coeff = np.where(np.isfinite(s_r) & (s_r > 0), 0.5 / s_r**2, 0.0)
         range_coeff = range_coeff.astype(np.float32)
     int_coeff = 0.0 if sigma_intensity is None else 0.5 / float(sigma_intensity) ** 2
-    guide = intensity if intensity is not None else np.zeros((1, 1, 1), np.float32)
-    if int_coeff > 0 and guide.shape != depth.shape:
+    guide = depth if intensity is None or int_coeff == 0 else intensity  # unread when 0
+    if guide.shape != depth.shape:
         raise ValueError("intensity window must match the depth window")
     tw = np.ones(n, np.float32) if time_weight is None else time_weight.astype(np.float32)
     out = np.empty(shape, np.float32)
@@ -76,8 +70,6 @@ def _run_kernel(
         float(int_coeff),
         np.ascontiguousarray(range_coeff),
         bool(relative),
-        _EXP_TABLE,
-        EXP_TABLE_SCALE,
         out,
     )
     return out
@@ -135,8 +127,9 @@ def joint_bilateral_frame(
 
 def _view_angle(points: F32) -> F32:
     """Angle θ (rad) between the PCA normal (5×5 window) and the camera ray, clamped ≤ 80°."""
+    pts = np.ascontiguousarray(points, dtype=np.float32)
     out = np.empty(points.shape[:2], np.float32)
-    _pca_view_angle_kernel(np.ascontiguousarray(points, dtype=np.float32), 2, 3, out)
+    _pca_view_angle_kernel(pts, 2, 3, out)
     return np.minimum(out, np.float32(np.deg2rad(80.0)))
 
 

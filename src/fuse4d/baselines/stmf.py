@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import median_filter
@@ -10,7 +12,34 @@ from .._kernels.baselines import _block_match_kernel, _stmf_median_kernel
 from ..camera import Intrinsics
 from ._common import check_inputs, check_positive_int, iterate
 
-__all__ = ["block_match", "spatio_temporal_median"]
+__all__ = ["block_match", "sorting_network", "spatio_temporal_median"]
+
+
+@functools.lru_cache(maxsize=16)
+def sorting_network(size: int) -> NDArray[np.int32]:
+    """Batcher's odd-even merge sorting network for ``size`` inputs, as (P, 2) index pairs.
+
+    Built for the next power of two and pruned to pairs with both indices < ``size``: the
+    missing inputs act as +inf, which never move, so the pruned network sorts ``size`` values
+    (ascending; pair (i, j) puts the smaller value at i).
+    """
+    n = 1
+    while n < size:
+        n *= 2
+    pairs = []
+    p = 1
+    while p < n:
+        k = p
+        while k >= 1:
+            pairs.extend(
+                (i + j, i + j + k)
+                for j in range(k % p, n - k, 2 * k)
+                for i in range(min(k, n - j - k))
+                if (i + j) // (2 * p) == (i + j + k) // (2 * p) and i + j + k < size
+            )
+            k //= 2
+        p *= 2
+    return np.array(pairs, dtype=np.int32).reshape(-1, 2)
 
 
 def block_match(
@@ -118,6 +147,7 @@ def spatio_temporal_median(
                 vec,
                 a,
                 float(intensity_tol),
+                sorting_network((t1 - t0) * (2 * a + 1) ** 2),  # windows truncate at the ends
                 buf,
             )
             out[t] = buf
