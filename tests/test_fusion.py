@@ -431,3 +431,33 @@ def test_all_nan_frame_and_single_frame_are_graceful():
 @pytest.mark.parametrize("value", [math.inf, 2.0])
 def test_temporal_gate_parameter(value):
     assert FusionParams(temporal_gate=value).temporal_gate == value
+
+
+def test_distance_kernel_widens_with_quantised_far_depth(rng):
+    """A25: on Kinect-like depth (z^2 quantisation steps of ~5 mm at 1.6 m) delta_d follows the
+    noise model and the fused plane is smoother than with the literal fixed 2 mm kernel."""
+    n = 5
+    kinect = Intrinsics(fx=544.0, fy=544.0, cx=23.5, cy=19.5, width=W, height=H)  # 3 mm/px
+    yy, xx = np.mgrid[0:H, 0:W]
+    depth = np.broadcast_to(1600.0 + 2.0 * xx + 1.0 * yy, (n, H, W))
+    step = 2e-6 * depth**2  # one disparity level, mm
+    noisy = (np.round((depth + rng.normal(0, 2.0, depth.shape)) / step) * step).astype(np.float32)
+    inten = np.broadcast_to(_texture(H, W), (n, H, W)).copy()
+    quad = estimate_noise_quad(noisy[0])
+    wide = FusionEngine(kinect, fusion=FusionParams())._frame_sigma_distance(noisy[0], quad)
+    fixed = FusionEngine(kinect, fusion=FusionParams(distance_noise_scale=0))
+    assert wide > 1.5 * 2.0  # ~ 1.5 * 5 mm
+    assert fixed._frame_sigma_distance(noisy[0], quad) == pytest.approx(2.0)
+    rough = {}
+    for scale in (0.0, 1.5):
+        res = fuse_sequence(
+            noisy,
+            inten,
+            kinect,
+            fusion=FusionParams(distance_noise_scale=scale),
+            flow=_zero_flow(n),
+        )
+        rough[scale] = roughness_stats(res.points, roi=np.isfinite(res.depth)).mean
+    assert rough[1.5] < 0.8 * rough[0.0]
+    with pytest.raises(ValueError, match="distance_noise_scale"):
+        FusionParams(distance_noise_scale=-1.0)

@@ -39,7 +39,7 @@ class FusionParams:
 
     fuse4d's own decisions (docs/method_notes.md, A17–A22) are defaults; the literal paper
     (METHOD A3 "raw" ablation) is ``FusionParams(motion_depth="raw", bilateral="points",
-    output="points", temporal_gate=math.inf)``.
+    output="points", temporal_gate=math.inf, distance_noise_scale=0)``.
 
     Parameters
     ----------
@@ -50,7 +50,14 @@ class FusionParams:
         Radius r (px) of the (2r+1)^2 window of the intensity-guided 3D bilateral (inner sum of
         Eq. 5).
     sigma_distance : float
-        delta_d (mm) of the 3D-distance kernel d(p_i, p_n).
+        delta_d (mm) of the 3D-distance kernel d(p_i, p_n): the floor of the per-frame value,
+        see ``distance_noise_scale``.
+    distance_noise_scale : float
+        Our A25: per frame, delta_d = max(``sigma_distance``, scale * q * z_med^2) with q the
+        frame's depth-quantisation coefficient (A22) and z_med its median depth (mm), so that the
+        3D-distance kernel stays wider than the sensor's noise at any range (Kinect-class depth
+        at 1.6 m: q z^2 ~ 4 mm, far beyond a fixed 2 mm). 0 = the literal fixed delta_d. Has no
+        effect on continuous depth (q z^2 ~ 0.1 mm on the synthetic ball).
     sigma_intensity : float
         delta_g ([0, 1] intensity units) of the intensity kernel g(I_i, I_n).
     sigma_temporal : float
@@ -125,6 +132,7 @@ class FusionParams:
     num_frames: int = 9
     spatial_radius: int = 3
     sigma_distance: float = 2.0
+    distance_noise_scale: float = 1.5
     sigma_intensity: float = 0.1
     sigma_temporal: float = 3.0
     fb_threshold: float = 2.0
@@ -170,6 +178,10 @@ class FusionParams:
             if not (value > 0):
                 raise ValueError(f"FusionParams.{name} must be > 0, got {value}")
             object.__setattr__(self, name, float(value))
+        scale = self.distance_noise_scale
+        if isinstance(scale, bool) or not isinstance(scale, int | float) or not scale >= 0:
+            raise ValueError(f"FusionParams.distance_noise_scale must be >= 0, got {scale!r}")
+        object.__setattr__(self, "distance_noise_scale", float(scale))
         _choice(self, "motion_depth", ("smoothed", "raw"))
         _choice(self, "base", ("trajectory", "frame"))
         _choice(self, "quantize", ("final", "per_step"))
