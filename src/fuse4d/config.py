@@ -37,9 +37,9 @@ BilateralMode = Literal["residual", "points"]
 class FusionParams:
     """Knobs of the spatio-temporal fusion (paper Eq. 4–6; METHOD.md §5.3 defaults).
 
-    fuse4d's own decisions (docs/method_notes.md, A17–A22) are defaults; the literal paper
+    fuse4d's own decisions (docs/method_notes.md, A17–A25) are defaults; the literal paper
     (METHOD A3 "raw" ablation) is ``FusionParams(motion_depth="raw", bilateral="points",
-    output="points", temporal_gate=math.inf, distance_noise_scale=0)``.
+    output="points", temporal_gate=math.inf, base="frame", distance_noise_scale=0)``.
 
     Parameters
     ----------
