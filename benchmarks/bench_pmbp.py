@@ -16,7 +16,9 @@ Measures
   σ_I = 2 % and 10 % on pairs (10, 11) and (25, 26), and the forward-backward pass rate
   (|s_fw(p) + s_bw(p + s_fw(p))| < 1 px) at 2 %;
 - Middlebury EPE (4 real pairs, unknown GT excluded) for pmbp, pmbp-fast (``max_motion`` 16,
-  because Hydrangea moves 11 px), OpenCV DIS (medium) and Dual TV-L1;
+  because Hydrangea moves 11 px), the same before decision A23 (``PRE_A23``: no
+  forward-backward fill / variational refinement, λ 0.05, r_min 0.05 px), OpenCV DIS (medium)
+  and Dual TV-L1;
 - the parallel schedules ("lines", red-black "parallel") vs the reference sequential schedule
   on a 200x200 crop of the ball.
 """
@@ -42,6 +44,15 @@ from fuse4d.flow_opencv import DISParams
 from fuse4d.pmbp import PMBPFastParams, PMBPParams, pmbp_flow
 
 DATA = Path(os.environ.get("FUSE4D_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
+
+#: The settings before decision A23 (docs/method_notes.md): λ = 0.05, r_min = 0.05 px, no
+#: forward-backward fill, no variational refinement -- for before/after rows.
+PRE_A23 = {
+    "pairwise_weight": 0.05,
+    "min_search_radius": 0.05,
+    "consistency_check": False,
+    "variational_refinement_iterations": 0,
+}
 
 
 def _epe(flow, pair) -> float:
@@ -96,7 +107,13 @@ def bench_speed(repeat: int) -> None:
     print(f"load average before: {os.getloadavg()[0]:.1f} (the machine may be shared)")
     print("| method | params | wall s (median) | runs | CPU s (median) | EPE px |")
     print("|---|---|---|---|---|---|")
-    for name, params in (("pmbp", PMBPParams()), ("pmbp-fast", PMBPFastParams())):
+    configs = (
+        ("pmbp", PMBPParams()),
+        ("pmbp-fast", PMBPFastParams()),
+        ("pmbp pre-A23", PMBPParams(**PRE_A23)),
+        ("pmbp-fast pre-A23", PMBPFastParams(**PRE_A23)),
+    )
+    for name, params in configs:
         pmbp_flow(pair.image0[:64, :64], pair.image1[:64, :64], params)  # compile / warm up
         flow, med, times, cpu = _timed(
             lambda p=params: pmbp_flow(pair.image0, pair.image1, p), repeat
@@ -129,6 +146,8 @@ def bench_middlebury(baselines: bool) -> None:
     entries = [
         ("pmbp", "pmbp", PMBPParams(max_motion=16.0)),
         ("pmbp-fast", "pmbp-fast", PMBPFastParams(max_motion=16.0)),
+        ("pmbp pre-A23", "pmbp", PMBPParams(max_motion=16.0, **PRE_A23)),
+        ("pmbp-fast pre-A23", "pmbp-fast", PMBPFastParams(max_motion=16.0, **PRE_A23)),
     ]
     if baselines:
         entries += [("dis-medium", "dis", DISParams.from_preset("medium")), ("tvl1", "tvl1", None)]

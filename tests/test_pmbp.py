@@ -17,8 +17,11 @@ from fuse4d.pmbp import (
     PMBPParams,
     _asw_weights,
     _config,
+    _consistent,
+    _fill_inconsistent,
     pmbp_flow,
     pmbp_flow_fast,
+    pmbp_flow_pair,
 )
 from naive import pmbp as naive
 
@@ -67,6 +70,8 @@ def _epe(flow, d, margin):
 
 
 SMALL = PMBPParams(num_particles=2, num_iter=3, pyramid_levels=2)
+#: no forward-backward fill, no variational refinement: the PMBP solve alone
+RAW = {"consistency_check": False, "variational_refinement_iterations": 0}
 
 
 # ------------------------------------------------------------------------------------------
@@ -210,6 +215,7 @@ def test_solution_lowers_the_energy():
         gradient_weight=0.0,
         presmooth_sigma=0.0,
         pyramid_levels=1,
+        **RAW,  # the MRF solve itself: the post-steps do not minimise this energy
     )
     flow = pmbp_flow(a, b, p)
     roi = np.array([0, 20, 0, 22], np.int64)
@@ -254,12 +260,15 @@ def test_fast_preset_translation():
     assert isinstance(PMBP_FAST, PMBPParams)
 
 
+@pytest.mark.parametrize("post", [True, False])
 @pytest.mark.parametrize("schedule", ["lines", "parallel"])
 @pytest.mark.parametrize("levels", [1, 2])
-def test_parallel_agrees_with_sequential_schedule(schedule, levels):
+def test_parallel_agrees_with_sequential_schedule(schedule, levels, post):
     d = (1.1, -0.6)
     a, b = _pair(64, 72, d, noise=0.01, seed=4)
     base = PMBPParams(num_particles=2, num_iter=4, pyramid_levels=levels, coarse_num_iter=3)
+    if not post:  # the solver alone, without the post-steps that could hide a difference
+        base = dataclasses.replace(base, **RAW)
     e_par = _epe(pmbp_flow(a, b, dataclasses.replace(base, schedule=schedule)), d, 8)
     e_seq = _epe(pmbp_flow(a, b, dataclasses.replace(base, schedule="sequential")), d, 8)
     assert e_par < 0.15
@@ -291,7 +300,7 @@ def test_warm_start_is_used():
     d = (2.6, -1.3)
     a, b = _pair(40, 40, d)
     init = np.broadcast_to(np.float32(d), (40, 40, 2)).copy()
-    p = PMBPParams(num_particles=1, num_iter=0, pyramid_levels=1)
+    p = PMBPParams(num_particles=1, num_iter=0, pyramid_levels=1, **RAW)
     np.testing.assert_array_equal(pmbp_flow(a, b, p, init)[6:-6, 6:-6], init[6:-6, 6:-6])
     # without it, zero-iteration K=1 is the zero seed
     assert np.abs(pmbp_flow(a, b, p)[6:-6, 6:-6]).max() == 0.0
@@ -328,6 +337,12 @@ def test_roi_restricts_the_solve():
         ("roi", (5, 2, 0, 4), "roi"),
         ("roi", (0, 4, 0), "roi"),
         ("seed", -3, "seed"),
+        ("consistency_threshold", 0.0, "consistency_threshold"),
+        ("fill_radius", 0, "fill_radius"),
+        ("fill_sigma_intensity", -1.0, "fill_sigma_intensity"),
+        ("variational_refinement_iterations", -1, "variational_refinement_iterations"),
+        ("variational_refinement_sor_iterations", 0, "variational_refinement_sor_iterations"),
+        ("variational_refinement_alpha", float("inf"), "variational_refinement_alpha"),
     ],
 )
 def test_params_validation(field, value, match):
@@ -335,7 +350,7 @@ def test_params_validation(field, value, match):
         PMBPParams(**{field: value})
 
 
-@pytest.mark.parametrize("field", ["early_termination", "inside_target"])
+@pytest.mark.parametrize("field", ["early_termination", "inside_target", "consistency_check"])
 def test_params_bool_type(field):
     with pytest.raises(TypeError, match=field):
         PMBPParams(**{field: 1})
@@ -377,6 +392,154 @@ def test_registered_with_flow_module():
     assert _epe(flow, d, 8) < 0.15
     flow = flow_mod.estimate_flow(a, b, method="pmbp", params=SMALL)
     assert _epe(flow, d, 8) < 0.1
+
+
+# ------------------------------------------------------------------------------------------
+# post-steps: forward-backward check + edge-aware fill, variational refinement
+
+
+def _occlusion_pair(h=96, w=96, d_bg=(0.5, 0.3), d_fg=(5.0, 0.0), box=(32, 64, 30, 62)):
+    """A textured square moving by ``d_fg`` over a background moving by ``d_bg``: the square
+    covers background pixels of image0 (occlusions). Returns image0, image1, true flow."""
+    bg0, bg1 = _texture(h, w, seed=1), _texture(h, w, shift=d_bg, seed=1)
+    fg0, fg1 = _texture(h, w, seed=2), _texture(h, w, shift=d_fg, seed=2)
+    rows, cols = np.mgrid[0:h, 0:w]
+    r0, r1, c0, c1 = box
+    in0 = (rows >= r0) & (rows < r1) & (cols >= c0) & (cols < c1)
+    in1 = (
+        (rows >= r0 + d_fg[1])
+        & (rows < r1 + d_fg[1])
+        & (cols >= c0 + d_fg[0])
+        & (cols < c1 + d_fg[0])
+    )
+    truth = np.empty((h, w, 2), np.float32)
+    truth[...] = d_bg
+    truth[in0] = d_fg
+    a = np.where(in0, fg0, bg0).astype(np.float32)
+    b = np.where(in1, fg1, bg1).astype(np.float32)
+    return a, b, truth
+
+
+def _field_epe(flow, truth, margin=8):
+    err = np.hypot(*(flow - truth).transpose(2, 0, 1))
+    return float(err[margin:-margin, margin:-margin].mean())
+
+
+def _naive_fill(flow, valid, guide, radius, sigma_i, sigma_s):
+    """Pure-NumPy oracle of the fill: per-component weighted median of consistent pixels."""
+    h, w = valid.shape
+    out = flow.copy()
+    for r, c in zip(*np.nonzero(~valid), strict=True):
+        r0, r1 = max(r - radius, 0), min(r + radius + 1, h)
+        c0, c1 = max(c - radius, 0), min(c + radius + 1, w)
+        rows, cols = np.mgrid[r0:r1, c0:c1]
+        ok = valid[r0:r1, c0:c1]
+        if not ok.any():
+            continue
+        wts = np.exp(
+            -np.abs(guide[r, c] - guide[r0:r1, c0:c1]) / sigma_i
+            - ((rows - r) ** 2 + (cols - c) ** 2) / (2 * sigma_s**2)
+        )[ok]
+        for ch in range(2):
+            vals = flow[r0:r1, c0:c1, ch][ok]
+            order = np.argsort(vals, kind="stable")
+            cum = np.cumsum(wts[order])
+            out[r, c, ch] = vals[order][np.searchsorted(cum, 0.5 * cum[-1])]
+    return out
+
+
+def test_fill_kernel_matches_oracle():
+    rng = np.random.default_rng(11)
+    h, w = 17, 23
+    flow = rng.normal(0, 2, (h, w, 2)).astype(np.float32)
+    valid = rng.random((h, w)) > 0.3
+    valid[:5, :5] = False  # a hole wider than the window: those pixels keep their value
+    guide = rng.random((h, w)).astype(np.float32)
+    p = PMBPParams(fill_radius=2, fill_sigma_intensity=0.2, fill_sigma_space=1.5)
+    got = _fill_inconsistent(flow, valid, guide, p)
+    want = _naive_fill(flow, valid, guide, 2, 0.2, 1.5)
+    np.testing.assert_allclose(got, want, rtol=1e-6)
+    np.testing.assert_array_equal(got[valid], flow[valid])
+    np.testing.assert_array_equal(got[:2, :2], flow[:2, :2])
+    assert not np.array_equal(got[~valid][10:], flow[~valid][10:])
+
+
+def test_consistency_mask():
+    h, w = 20, 30
+    fw = np.zeros((h, w, 2), np.float32)
+    fw[..., 0] = 2.0
+    bw = -fw.copy()
+    bw[5, 12] = (3.0, 0.0)  # breaks the cycle of p = (5, 10)
+    valid = _consistent(fw, bw, 1.0)
+    assert not valid[5, 10]
+    assert not valid[:, -2:].any()  # p + s leaves the image
+    assert valid[:, :-2].sum() == h * (w - 2) - 1
+
+
+def test_consistency_fill_fixes_occlusions():
+    """The FB check + fill lowers the EPE around an occluding square and changes only the
+    pixels that fail the check; disabled, the solve is untouched."""
+    a, b, truth = _occlusion_pair()
+    raw = pmbp_flow(a, b, PMBPParams(**RAW))
+    filled = pmbp_flow(a, b, PMBPParams(variational_refinement_iterations=0))
+    backward = pmbp_flow(b, a, PMBPParams(**RAW), -raw)
+    valid = _consistent(raw, backward, PMBPParams().consistency_threshold)
+    assert 0.01 < (~valid).mean() < 0.2
+    np.testing.assert_array_equal(filled[valid], raw[valid])
+    assert np.any(filled[~valid] != raw[~valid])
+    assert _field_epe(filled, truth) < 0.9 * _field_epe(raw, truth)
+
+
+def test_pair_function_shares_the_solves(monkeypatch):
+    """pmbp_flow_pair: forward bit-identical to pmbp_flow, backward as good as a separate
+    solve, and estimate_flow_pair runs 2 PMBP solves per pair instead of 4."""
+    import fuse4d.pmbp as pmbp_module
+    from fuse4d.flow import estimate_flow_pair
+
+    a, b, truth = _occlusion_pair()
+    p = PMBPParams(num_particles=2, num_iter=3)
+    forward, backward = pmbp_flow_pair(a, b, p)
+    np.testing.assert_array_equal(forward, pmbp_flow(a, b, p))
+    separate = pmbp_flow(b, a, p, -forward)
+    back_truth = -truth  # background and (shifted) square move back by the same amounts
+    mask = np.ones(truth.shape[:2], bool)
+    mask[20:76, 20:80] = False  # compare on the background (away from the square's track)
+    err_pair = np.hypot(*(backward - back_truth).transpose(2, 0, 1))[mask].mean()
+    err_sep = np.hypot(*(separate - back_truth).transpose(2, 0, 1))[mask].mean()
+    assert err_pair < 0.1
+    assert err_pair < 1.2 * err_sep + 0.01
+    calls = []
+    real_solve = pmbp_module._solve
+    monkeypatch.setattr(pmbp_module, "_solve", lambda *args: calls.append(1) or real_solve(*args))
+    fw2, bw2 = estimate_flow_pair(a, b, method="pmbp", params=p)
+    assert len(calls) == 2
+    np.testing.assert_array_equal(fw2, forward)
+    np.testing.assert_array_equal(bw2, backward)
+
+
+def test_variational_refinement_reduces_error():
+    a, b, truth = _occlusion_pair()
+    off = pmbp_flow(a, b, PMBPParams(variational_refinement_iterations=0))
+    on = pmbp_flow(a, b, PMBPParams())
+    assert _field_epe(on, truth) < 0.85 * _field_epe(off, truth)
+    # on a noisy sub-pixel translation as well
+    d = (0.6, -1.2)
+    a, b = _pair(64, 64, d, noise=0.03, seed=5)
+    off = pmbp_flow(a, b, PMBPParams(**RAW))
+    on = pmbp_flow(a, b, PMBPParams(consistency_check=False))
+    assert _epe(on, d, 8) < 0.7 * _epe(off, d, 8)
+
+
+def test_post_steps_respect_roi():
+    a, b, _ = _occlusion_pair()
+    p = PMBPParams(roi=(10, 80, 12, 90))
+    flow = pmbp_flow(a, b, p)
+    outside = np.ones(a.shape, bool)
+    outside[10:80, 12:90] = False
+    assert np.all(flow[outside] == 0.0)
+    assert np.abs(flow[~outside]).max() > 0.2
+    fast = pmbp_flow(a, b, PMBPFastParams(roi=(10, 80, 12, 90)))
+    assert np.all(fast[outside] == 0.0)
 
 
 # ------------------------------------------------------------------------------------------

@@ -55,6 +55,7 @@ __all__ = [
     "FlowCache",
     "FlowFunction",
     "FlowMethod",
+    "FlowPairFunction",
     "SequenceFlow",
     "SequenceFlowEstimator",
     "TVL1Params",
@@ -72,7 +73,7 @@ __all__ = [
 
 #: Bumped whenever a change in this module or a registered method changes flow results; part
 #: of every cache key (together with the fuse4d and OpenCV versions).
-FLOW_CODE_VERSION = "1"
+FLOW_CODE_VERSION = "2"  # 2: PMBP post-steps (A23)
 
 #: ``(image0, image1, params, init) -> flow``: image0/image1 float32 ``(H, W)`` in [0, 1],
 #: ``params`` the method's frozen dataclass, ``init`` an optional float32 ``(H, W, 2)`` initial
@@ -81,6 +82,14 @@ FLOW_CODE_VERSION = "1"
 FlowFunction = Callable[
     [NDArray[np.float32], NDArray[np.float32], Any, NDArray[np.float32] | None],
     NDArray[np.float32],
+]
+
+#: ``(image0, image1, params, init) -> (forward, backward)``: both directions of one pair at
+#: once, for methods that share work between them (PMBP's consistency check solves the
+#: opposite direction anyway). ``init`` warm-starts the forward solve.
+FlowPairFunction = Callable[
+    [NDArray[np.float32], NDArray[np.float32], Any, NDArray[np.float32] | None],
+    tuple[NDArray[np.float32], NDArray[np.float32]],
 ]
 
 #: Region of interest ``(row0, row1, col0, col1)``, half-open, in px.
@@ -106,6 +115,9 @@ class FlowMethod:
         never passed (``None``).
     paper_method : bool
         True only for the paper's tracker (PMBP); results of other methods must say so.
+    pair_function : FlowPairFunction, optional
+        Both directions of a pair in one call (used by :func:`estimate_flow_pair` when given);
+        None = ``function`` forward, then backward warm-started with ``-forward``.
     """
 
     name: str
@@ -114,6 +126,7 @@ class FlowMethod:
     description: str
     supports_init: bool
     paper_method: bool
+    pair_function: FlowPairFunction | None = None
 
     def __post_init__(self) -> None:
         if not self.name or self.name != self.name.strip().lower() or " " in self.name:
@@ -275,6 +288,33 @@ def _check_roi(roi: Any, shape: tuple[int, int]) -> Roi | None:
     return (r0, r1, c0, c1)
 
 
+def _run_pair_method(
+    m: FlowMethod,
+    image0: NDArray[np.float32],
+    image1: NDArray[np.float32],
+    params: Any,
+    init: NDArray[np.float32] | None,
+    roi: Roi | None,
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Call ``m.pair_function`` (inputs validated), cropping to ``roi`` and padding with 0."""
+    assert m.pair_function is not None
+    init = init if m.supports_init else None
+    shape = image0.shape
+    if roi is None:
+        fwd, bwd = m.pair_function(image0, image1, params, init)
+        return _check_output(m, fwd, shape), _check_output(m, bwd, shape)
+    r0, r1, c0, c1 = roi
+    crop = (slice(r0, r1), slice(c0, c1))
+    sub_init = None if init is None else np.ascontiguousarray(init[crop])
+    fwd, bwd = m.pair_function(
+        np.ascontiguousarray(image0[crop]), np.ascontiguousarray(image1[crop]), params, sub_init
+    )
+    out = np.zeros((2, *shape, 2), np.float32)
+    out[0][crop] = _check_output(m, fwd, (r1 - r0, c1 - c0))
+    out[1][crop] = _check_output(m, bwd, (r1 - r0, c1 - c0))
+    return out[0], out[1]
+
+
 def _run_method(
     m: FlowMethod,
     image0: NDArray[np.float32],
@@ -434,8 +474,11 @@ def estimate_flow_pair(
         hit = cache.load(key)
         if hit is not None and hit.shape == (2, *a.shape, 2) and hit.dtype == np.float32:
             return hit[0], hit[1]
-    forward = _run_method(m, a, b, p, init, box)
-    backward = _run_method(m, b, a, p, -forward if m.supports_init else None, box)
+    if m.pair_function is not None:
+        forward, backward = _run_pair_method(m, a, b, p, init, box)
+    else:
+        forward = _run_method(m, a, b, p, init, box)
+        backward = _run_method(m, b, a, p, -forward if m.supports_init else None, box)
     if cache is not None and key is not None:
         cache.store(key, np.stack([forward, backward]))
     return forward, backward

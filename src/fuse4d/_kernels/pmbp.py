@@ -26,6 +26,9 @@ shared by the sequential and the red-black sweep; the energy terms are inlined i
 
 Randomness: a counter-based generator (splitmix64) keyed by (seed, level, iteration, phase,
 pixel index), so every pixel draws the same numbers whatever the thread schedule.
+
+Post-step: ``_fill_inconsistent_kernel`` replaces the pixels that fail the forward-backward
+check by an edge-aware weighted median of the consistent ones (decision A23).
 """
 
 from __future__ import annotations
@@ -619,3 +622,57 @@ def _best_label_kernel(lab, dis, roi, out):
             k = _best_particle(dis, r, c)
             out[r, c, 0] = lab[r, c, k, 0]
             out[r, c, 1] = lab[r, c, k, 1]
+
+
+# --------------------------------------------------------------------------------------------
+# post-step: edge-aware fill of forward-backward inconsistent pixels
+
+
+@njit_parallel
+def _fill_inconsistent_kernel(flow, valid, guide, radius, inv_sigma_i, inv_2sigma_s2, out):
+    """Replace every pixel with ``valid[p] == False`` by the weighted median of the consistent
+    pixels q within the (2·radius+1)² window, weights
+    exp(−|Ī(p) − Ī(q)| · inv_sigma_i − |p − q|² · inv_2sigma_s2), per component (du, dv).
+
+    ``flow`` / ``out`` (H, W, 2) float32 (``out`` pre-filled with ``flow``); ``valid`` (H, W)
+    bool; ``guide`` (H, W) float32 intensity. Reads only ``flow`` (never ``out``), so the result
+    does not depend on the thread schedule. A pixel with no consistent pixel in its window keeps
+    its value.
+    """
+    h, w = valid.shape
+    side = 2 * radius + 1
+    for r in prange(h):
+        vals = np.empty((2, side * side), dtype=np.float32)
+        wts = np.empty(side * side, dtype=np.float64)
+        for c in range(w):
+            if valid[r, c]:
+                continue
+            g = guide[r, c]
+            m = 0
+            total = 0.0
+            for dy in range(-radius, radius + 1):
+                qr = r + dy
+                if qr < 0 or qr >= h:
+                    continue
+                for dx in range(-radius, radius + 1):
+                    qc = c + dx
+                    if qc < 0 or qc >= w or not valid[qr, qc]:
+                        continue
+                    wt = math.exp(
+                        -abs(g - guide[qr, qc]) * inv_sigma_i - (dx * dx + dy * dy) * inv_2sigma_s2
+                    )
+                    vals[0, m] = flow[qr, qc, 0]
+                    vals[1, m] = flow[qr, qc, 1]
+                    wts[m] = wt
+                    total += wt
+                    m += 1
+            if m == 0 or total <= 0.0:
+                continue
+            for ch in range(2):
+                order = np.argsort(vals[ch, :m], kind="mergesort")
+                acc = 0.0
+                for i in order:
+                    acc += wts[i]
+                    if acc >= 0.5 * total:
+                        out[r, c, ch] = vals[ch, i]
+                        break
