@@ -288,31 +288,36 @@ def _check_roi(roi: Any, shape: tuple[int, int]) -> Roi | None:
     return (r0, r1, c0, c1)
 
 
-def _run_pair_method(
+def _run_cropped(
     m: FlowMethod,
+    function: Callable[..., Any],
     image0: NDArray[np.float32],
     image1: NDArray[np.float32],
     params: Any,
     init: NDArray[np.float32] | None,
     roi: Roi | None,
-) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """Call ``m.pair_function`` (inputs validated), cropping to ``roi`` and padding with 0."""
-    assert m.pair_function is not None
+) -> list[NDArray[np.float32]]:
+    """Call ``function`` (a method's single or pair function; inputs validated) on the ``roi``
+    crop, and return its flow field(s) checked and zero-padded to the full image."""
     init = init if m.supports_init else None
     shape = image0.shape
-    if roi is None:
-        fwd, bwd = m.pair_function(image0, image1, params, init)
-        return _check_output(m, fwd, shape), _check_output(m, bwd, shape)
-    r0, r1, c0, c1 = roi
+    r0, r1, c0, c1 = roi if roi is not None else (0, shape[0], 0, shape[1])
     crop = (slice(r0, r1), slice(c0, c1))
-    sub_init = None if init is None else np.ascontiguousarray(init[crop])
-    fwd, bwd = m.pair_function(
-        np.ascontiguousarray(image0[crop]), np.ascontiguousarray(image1[crop]), params, sub_init
-    )
-    out = np.zeros((2, *shape, 2), np.float32)
-    out[0][crop] = _check_output(m, fwd, (r1 - r0, c1 - c0))
-    out[1][crop] = _check_output(m, bwd, (r1 - r0, c1 - c0))
-    return out[0], out[1]
+    if roi is not None:
+        image0 = np.ascontiguousarray(image0[crop])
+        image1 = np.ascontiguousarray(image1[crop])
+        init = None if init is None else np.ascontiguousarray(init[crop])
+    result = function(image0, image1, params, init)
+    fields = list(result) if isinstance(result, tuple) else [result]
+    fields = [_check_output(m, f, (r1 - r0, c1 - c0)) for f in fields]
+    if roi is None:
+        return fields
+    padded = []
+    for f in fields:
+        full = np.zeros((*shape, 2), np.float32)
+        full[crop] = f
+        padded.append(full)
+    return padded
 
 
 def _run_method(
@@ -323,19 +328,8 @@ def _run_method(
     init: NDArray[np.float32] | None,
     roi: Roi | None,
 ) -> NDArray[np.float32]:
-    """Call the method (inputs already validated), cropping to ``roi`` and padding with 0."""
-    init = init if m.supports_init else None
-    if roi is None:
-        return _check_output(m, m.function(image0, image1, params, init), image0.shape)
-    r0, r1, c0, c1 = roi
-    crop = (slice(r0, r1), slice(c0, c1))
-    sub_init = None if init is None else np.ascontiguousarray(init[crop])
-    sub = m.function(
-        np.ascontiguousarray(image0[crop]), np.ascontiguousarray(image1[crop]), params, sub_init
-    )
-    out = np.zeros((*image0.shape, 2), np.float32)
-    out[crop] = _check_output(m, sub, (r1 - r0, c1 - c0))
-    return out
+    """One direction with ``m.function`` (see :func:`_run_cropped`)."""
+    return _run_cropped(m, m.function, image0, image1, params, init, roi)[0]
 
 
 def _check_output(m: FlowMethod, flow: Any, shape: tuple[int, ...]) -> NDArray[np.float32]:
@@ -475,7 +469,7 @@ def estimate_flow_pair(
         if hit is not None and hit.shape == (2, *a.shape, 2) and hit.dtype == np.float32:
             return hit[0], hit[1]
     if m.pair_function is not None:
-        forward, backward = _run_pair_method(m, a, b, p, init, box)
+        forward, backward = _run_cropped(m, m.pair_function, a, b, p, init, box)
     else:
         forward = _run_method(m, a, b, p, init, box)
         backward = _run_method(m, b, a, p, -forward if m.supports_init else None, box)

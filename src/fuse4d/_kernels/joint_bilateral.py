@@ -10,7 +10,7 @@ Weight of neighbour ``j`` (frame ``tau``) for centre pixel ``i`` of the referenc
 with ``rho = D_tau(j) - D_ref(i)`` (mm), or ``rho = (D_tau(j) - D_ref(i)) / D_ref(i)`` when
 ``relative`` (DNBF's divisive normalisation). The three Gaussians are evaluated as a single
 ``exp`` of the summed exponents, with exp(-x) ~ (1 - x/1024)^1024 (relative error x^2/2048:
-0.05 % at x = 1, 0.8 % at x = 4, the same approximation as fuse4d's own bilateral). The window
+0.05 % at x = 1, 0.8 % at x = 4; fuse4d's own bilateral's function, shared). The window
 is the disc ``|x_i - x_j| <= radius[i]`` (like OpenCV's bilateral filters), clipped at the image
 border (no padding). NaN depth never contributes; a NaN centre gives NaN.
 
@@ -28,21 +28,10 @@ import math
 import numpy as np
 
 from ._numba import njit, njit_parallel, prange
+from .fusion import ROW_CHUNKS
+from .fusion import _exp_neg_fast as _exp_neg
 
 __all__ = ["_joint_bilateral_kernel"]
-
-#: parallel loops run over this many row chunks (scratch allocated once per chunk)
-ROW_CHUNKS = 64
-#: exp(-x) ~ (1 - x / EXP_POWER) ** EXP_POWER, i.e. 10 squarings; exactly 0 beyond x = 1024.
-EXP_POWER = 1024.0
-
-
-@njit(inline="always")
-def _exp_neg(x):
-    t = max(np.float32(1.0) - x * np.float32(1.0 / EXP_POWER), np.float32(0.0))
-    for _ in range(10):
-        t = t * t
-    return t
 
 
 @njit
