@@ -34,7 +34,7 @@ NAMES = (
 )  # fmt: skip
 SLOW = {"ed", "kinectfusion"}
 #: Max |out − GT| (mm) in the interior for a noise-free tilted plane (σ_d passed as 0.2 mm).
-CLEAN_TOL = {"guided": 0.3, "adjbf": 0.1, "realsense": 0.25, "kinectfusion": 0.6}
+CLEAN_TOL = {"guided": 0.3, "adjbf": 0.1, "realsense": 0.25}
 
 
 @pytest.fixture
@@ -247,10 +247,7 @@ def test_block_matching_matches_oracle_and_finds_shift(rng):
 @pytest.mark.parametrize("name", _params(NAMES))
 def test_reduces_noise_on_noisy_plane(name, plane, intrinsics, rng):
     depth, tex = plane
-    # Open3D's ray cast has a ≈0.2 mm floor at 0.5 mm voxels (measured), so KinectFusion is
-    # checked at 1 mm noise.
-    sigma = 1.0 if name == "kinectfusion" else 0.2
-    noisy = depth + rng.normal(0, sigma, depth.shape).astype(np.float32)
+    noisy = depth + rng.normal(0, 0.2, depth.shape).astype(np.float32)
     out = _call(name, noisy, tex, intrinsics)
     inner = (slice(None), slice(MARGIN, -MARGIN), slice(MARGIN, -MARGIN))
     raw_err = _rms(noisy[inner], depth[inner])
@@ -280,10 +277,7 @@ def test_nan_holes_do_not_spread(name, plane, intrinsics, rng):
     ring = np.zeros_like(hole)
     ring[:, 14:27, 24:38] = True
     ring &= ~hole
-    if name == "kinectfusion":  # isolated ray-cast misses are not NaN spreading
-        assert np.mean(np.isnan(out[ring])) < 0.05
-    else:
-        assert np.all(np.isfinite(out[ring])), f"{name}: NaN spread around the hole"
+    assert np.all(np.isfinite(out[ring])), f"{name}: NaN spread around the hole"
     assert np.nanmax(np.abs(out[ring] - depth[ring])) < 1.0
     if not available_baselines()[name].fills_holes:
         np.testing.assert_array_equal(np.isnan(out), hole)
@@ -368,7 +362,7 @@ def test_kinectfusion_open3d_backend_in_a_subprocess(tmp_path):
     )
     try:
         res = subprocess.run(
-            [sys.executable, str(script)], capture_output=True, text=True, timeout=120, check=False
+            [sys.executable, str(script)], capture_output=True, text=True, timeout=30, check=False
         )
     except subprocess.TimeoutExpired:
         pytest.skip("Open3D 0.20 ray_cast hung (known intermittent issue, see rigid.py)")

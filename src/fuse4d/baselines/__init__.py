@@ -177,8 +177,8 @@ _REGISTRY: dict[str, BaselineInfo] = {
         BaselineInfo(
             "kinectfusion",
             kinectfusion,
-            "6D rigid: projective ICP + per-ray box (TSDF-style) fusion of 9 frames in NumPy; "
-            "Open3D TSDF opt-in with backend='open3d'",
+            "6D rigid: ICP (Open3D when installed) + projective TSDF ray cast (numba) of "
+            "9 frames; Open3D's volume opt-in with backend='open3d'",
             returns_points=True,
             default_size=4,
             size_sweep=(1, 2, 3, 4),

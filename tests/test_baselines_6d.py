@@ -1,0 +1,177 @@
+"""The 6D rigid baseline (KinectFusion): lazy projective TSDF ray cast, ICP, scene behaviour."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.ndimage as ndi
+
+from fuse4d import Intrinsics
+from fuse4d.baselines import rigid
+from fuse4d.baselines.rigid import have_open3d, kinectfusion, tsdf_raycast
+from fuse4d.metrics import depth_rmse, roughness_stats
+from fuse4d.metrics.roi import scene_roi
+from fuse4d.synthetic import make_falling_ball, make_static_plane
+from naive.tsdf import tsdf_raycast as naive_tsdf_raycast
+
+ICPS = ["projective", pytest.param("open3d", marks=pytest.mark.skipif(
+    not have_open3d(), reason="open3d not installed (pip install 'fuse4d[6d]')"))]  # fmt: skip
+
+
+def _translation(offset) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, 3] = offset
+    return m
+
+
+def _rotation_x(deg: float, offset) -> np.ndarray:
+    a = np.deg2rad(deg)
+    m = _translation(offset)
+    m[1:3, 1:3] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    return m
+
+
+# ------------------------------------------------------------------------------ ray cast
+
+
+def test_raycast_matches_dense_naive_march(rng):
+    """Skipping, sampling and interpolation agree with a 2 µm dense march of the same TSDF."""
+    k = Intrinsics(fx=60.0, fy=60.0, cx=7.5, cy=5.5, width=16, height=12)
+    yy, xx = np.mgrid[0:12, 0:16]
+    base = 300.0 + 0.4 * xx - 0.3 * yy + 2.0 * np.sin(xx / 4.0)
+    depth = (base + rng.normal(0, 0.3, (3, 12, 16))).astype(np.float32)
+    to_ref = np.stack([np.eye(4), _rotation_x(0.3, (0.4, -0.3, 0.5)), _translation((-0.5, 0.2, 1))])
+    out = tsdf_raycast(depth, to_ref, k, truncation=2.0, step=0.5)
+    ref = naive_tsdf_raycast(
+        depth.astype(np.float64), to_ref, (60.0, 60.0, 7.5, 5.5), truncation=2.0,
+        z_range=(float(depth.min()) - 6, float(depth.max()) + 6),
+    )  # fmt: skip
+    inner = np.s_[2:-2, 2:-2]
+    np.testing.assert_array_equal(np.isnan(out[inner]), np.isnan(ref[inner]))
+    assert np.isfinite(out[inner]).mean() > 0.9
+    np.testing.assert_allclose(out[inner], ref[inner], atol=0.01, equal_nan=True)
+
+
+def test_raycast_round_trip_noise_free_plane():
+    """BASELINES §8: the TSDF round trip of a noise-free plane reproduces depth < 0.05 mm."""
+    seq = make_static_plane(small=True, num_frames=3, depth_noise=0.0, structural_noise=0.0, rng=0)
+    out = tsdf_raycast(seq.depth, np.tile(np.eye(4), (3, 1, 1)), seq.intrinsics)
+    valid = np.isfinite(seq.depth[0])
+    np.testing.assert_array_equal(np.isfinite(out), valid)
+    assert np.abs(out[valid] - seq.depth[0][valid]).max() < 1e-3  # spec: < 0.05 mm
+
+
+def test_raycast_fuses_a_known_rigid_motion():
+    """Noise-free falling ball with its true rigid motion: the ball interior is reproduced."""
+    seq = make_falling_ball(small=True, num_frames=5, depth_noise=0.0, rng=0)
+    centre = seq.ground_truth.extra["center_mm"]
+    t = 2
+    to_ref = np.stack([_translation(centre[t] - centre[f]) for f in range(5)])
+    out = tsdf_raycast(seq.depth, to_ref, seq.intrinsics)
+    # ≥ 8 px inside the rim: nearer, bilinear depth lookup on the steep, coarsely sampled
+    # (2.8 mm px) sphere flank costs up to 0.5 mm, as it would in a voxel TSDF
+    inner = ndi.binary_erosion(seq.ground_truth.mask[t], iterations=8)
+    err = np.abs(out[inner] - seq.ground_truth.depth[t][inner])
+    assert np.all(np.isfinite(err))
+    assert err.max() < 0.05, f"max error {err.max():.4f} mm"
+
+
+def test_raycast_ignores_what_no_frame_saw():
+    k = Intrinsics(fx=60.0, fy=60.0, cx=7.5, cy=5.5, width=16, height=12)
+    depth = np.full((2, 12, 16), np.nan, np.float32)
+    out = tsdf_raycast(depth, np.tile(np.eye(4), (2, 1, 1)), k)
+    assert np.isnan(out).all()
+    with pytest.raises(ValueError, match="to_reference"):
+        tsdf_raycast(depth, np.eye(4)[None], k)
+
+
+# ---------------------------------------------------------------------------- kinectfusion
+
+
+@pytest.mark.parametrize("icp", ICPS)
+def test_round_trip_noise_free_plane_with_icp(icp):
+    seq = make_static_plane(small=True, num_frames=5, depth_noise=0.0, structural_noise=0.0, rng=0)
+    pts = kinectfusion(seq.depth, None, seq.intrinsics, size=2, icp=icp)
+    inner = ndi.binary_erosion(np.isfinite(seq.depth), iterations=2)
+    err = np.abs(pts[..., 2][inner] - seq.depth[inner])
+    assert np.all(np.isfinite(err))
+    assert err.max() < 0.05, f"max error {err.max():.4f} mm"
+
+
+@pytest.mark.parametrize("icp", ICPS)
+def test_static_plane_noise_and_rmse_fall_well_below_raw(icp):
+    seq = make_static_plane(small=True, num_frames=9, rng=0)
+    gt = seq.ground_truth
+    roi, _ = scene_roi(seq)
+    pts = kinectfusion(seq.depth, None, seq.intrinsics, size=4, icp=icp)
+    raw_rmse = depth_rmse(gt.depth, seq.depth, mask=gt.mask)
+    rmse = depth_rmse(gt.depth, pts[..., 2], mask=gt.mask)
+    raw_rough = roughness_stats(seq.points(), roi=roi).mean
+    rough = roughness_stats(pts, roi=roi).mean
+    assert rmse < 0.6 * raw_rmse, (rmse, raw_rmse)
+    assert rough < 0.6 * raw_rough, (rough, raw_rough)
+
+
+def test_moving_ball_is_badly_fused():
+    """The rigid model cannot explain the ball against the wall: large errors on the ball."""
+    seq = make_falling_ball(small=True, num_frames=9, depth_noise=0.2, rng=0)
+    gt = seq.ground_truth
+    pts = kinectfusion(seq.depth, None, seq.intrinsics, size=4, icp="projective")
+    raw_rmse = depth_rmse(gt.depth, seq.depth, mask=gt.mask)
+    rmse = depth_rmse(gt.depth, pts[..., 2], mask=gt.mask)
+    assert rmse > 10 * raw_rmse, (rmse, raw_rmse)
+
+
+def test_holes_filled_by_other_frames_and_static_holes_kept(rng):
+    seq = make_static_plane(small=True, num_frames=5, rng=0)
+    depth = seq.depth.copy()
+    depth[2, 40:50, 60:70] = np.nan  # seen by the other frames: the fusion fills it
+    depth[:, 80:86, 70:78] = np.nan  # never seen: stays NaN, does not spread
+    pts = kinectfusion(depth, None, seq.intrinsics, size=2, icp="projective")
+    z = pts[..., 2]
+    assert np.all(np.isfinite(z[2, 40:50, 60:70]))
+    assert np.abs(z[2, 40:50, 60:70] - seq.ground_truth.depth[2, 40:50, 60:70]).max() < 0.3
+    assert np.all(np.isnan(z[:, 81:85, 71:77]))
+    ring = np.zeros(z.shape[1:], bool)
+    ring[76:90, 66:82] = True
+    ring[80:86, 70:78] = False
+    assert np.all(np.isfinite(z[:, ring]))
+
+
+def test_box_backend_and_backend_choice(monkeypatch):
+    seq = make_static_plane(small=True, num_frames=3, rng=0)
+    box = kinectfusion(seq.depth, None, seq.intrinsics, size=1, backend="box", icp="projective")
+    tsdf = kinectfusion(seq.depth, None, seq.intrinsics, size=1, icp="projective")
+    # both are per-ray averages of the same registered frames on a static scene
+    np.testing.assert_allclose(box[..., 2], tsdf[..., 2], atol=0.02)
+    assert np.abs(box[..., 2] - tsdf[..., 2]).max() > 1e-4  # but not the same computation
+    with pytest.raises(ValueError, match="backend"):
+        kinectfusion(seq.depth, None, seq.intrinsics, backend="voxels")
+    with pytest.raises(ValueError, match="icp"):
+        kinectfusion(seq.depth, None, seq.intrinsics, icp="gicp")
+    with pytest.raises(ValueError, match="trunc_voxels"):
+        kinectfusion(seq.depth, None, seq.intrinsics, trunc_voxels=0)
+    monkeypatch.setattr(rigid, "have_open3d", lambda: False)
+    assert rigid._resolve_icp("auto") == "projective"
+    assert rigid._resolve_backend("auto") == "projective"
+    with pytest.raises(ImportError, match="6d"):
+        rigid._resolve_icp("open3d")
+
+
+# ------------------------------------------------------------------------------------- ED
+
+
+def test_ed_nodes_not_doubled_on_a_voxel_boundary(rng):
+    """A noisy wall at Z = 1000 mm = 125 x 8 mm straddles two cell layers: one node layer."""
+    from scipy.spatial import cKDTree
+
+    from fuse4d.baselines.ed import _sample_nodes
+
+    xx, yy = np.meshgrid(np.arange(0, 160, 0.5), np.arange(0, 80, 0.5))
+    wall = np.stack([xx, yy, 1000 + rng.normal(0, 0.2, xx.shape)], axis=-1).reshape(-1, 3)
+    nodes = _sample_nodes(wall, 8.0)
+    assert len(nodes) <= 20 * 10 + 30  # ~one per 8x8 mm cell (was ~2x)
+    dist, _ = cKDTree(nodes).query(nodes, k=2)
+    assert dist[:, 1].min() >= 4.0
+    dist_to_node, _ = cKDTree(nodes).query(wall)
+    assert dist_to_node.max() < 8.0 * np.sqrt(3)  # still covers the surface
