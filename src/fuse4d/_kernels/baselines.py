@@ -105,6 +105,19 @@ def _compare_exchange(low, high):  # pragma: no cover - compiled
         high[u] = max(a, b)
 
 
+@njit
+def _gather_candidates(source, source_intensity, target_intensity, tol, cand, count):
+    """cand = source where valid and intensity-consistent, else +inf; count += accepted.
+
+    1D slices of one run of equal motion vectors (branch-free; this loop vectorises)."""
+    inf = np.float32(np.inf)
+    for i in range(cand.shape[0]):
+        v = source[i]
+        ok = (not math.isnan(v)) & (abs(source_intensity[i] - target_intensity[i]) < tol)
+        cand[i] = v if ok else inf
+        count[i] += np.int32(ok)
+
+
 @njit_parallel
 def _stmf_median_kernel(
     depth, intensity, ref, vectors, half_window, intensity_tol, network, out
@@ -134,7 +147,8 @@ def _stmf_median_kernel(
     Per row, the candidates of all pixels are laid out as a (K·(2a+1)², W) table (rejected
     ones +inf), sorted column-wise by the data-independent sorting network (branch-free
     min/max over whole rows: SIMD, no mispredictions), and the median of each column's n
-    valid values is read at (n−1)//2 and n//2. A per-pixel sort was ~10x slower.
+    valid values is read at (n−1)//2 and n//2. A per-pixel sort was ~10x slower. Candidates
+    are gathered per run of equal vectors along the row (contiguous slices, SIMD).
     """
     n_frames, height, width = depth.shape
     side = 2 * half_window + 1
@@ -144,28 +158,48 @@ def _stmf_median_kernel(
     for chunk in prange(n_chunks):
         cand = np.empty((cap, width), np.float32)
         count = np.empty(width, np.int32)
+        run_start = np.empty(width + 1, np.int64)
         for row in range(chunk * height // n_chunks, (chunk + 1) * height // n_chunks):
             count[:] = 0
             slot = 0
             for k in range(n_frames):
+                # runs of equal vectors along the row (one block's width or more for ST-MF)
+                n_runs = 0
+                run_start[0] = 0
+                for col in range(1, width):
+                    if (vectors[k, row, col, 0] != vectors[k, row, col - 1, 0]) or (
+                        vectors[k, row, col, 1] != vectors[k, row, col - 1, 1]
+                    ):
+                        n_runs += 1
+                        run_start[n_runs] = col
+                n_runs += 1
+                run_start[n_runs] = width
                 for orow in range(-half_window, half_window + 1):
                     tr = row + orow
                     for ocol in range(-half_window, half_window + 1):
-                        for col in range(width):
-                            du = vectors[k, row, col, 0]
-                            dv = vectors[k, row, col, 1]
-                            tc = col + ocol
-                            sr = tr + dv
-                            sc = tc + du
-                            value = inf
-                            inside = 0 <= tr < height and 0 <= sr < height
-                            if inside and 0 <= tc < width and 0 <= sc < width:
-                                v = depth[k, sr, sc]
-                                di = abs(intensity[k, sr, sc] - intensity[ref, tr, tc])
-                                if not math.isnan(v) and di < intensity_tol:
-                                    value = v
-                                    count[col] += 1
-                            cand[slot, col] = value
+                        for r in range(n_runs):
+                            c0 = run_start[r]
+                            c1 = run_start[r + 1]
+                            du = vectors[k, row, c0, 0]
+                            sr = tr + vectors[k, row, c0, 1]
+                            lo = c1  # columns [lo, hi) have target and source inside
+                            hi = c1
+                            if 0 <= tr < height and 0 <= sr < height:
+                                lo = min(max(c0, -ocol, -ocol - du), c1)
+                                hi = max(min(c1, width - ocol, width - ocol - du), lo)
+                            for col in range(c0, lo):
+                                cand[slot, col] = inf
+                            for col in range(hi, c1):
+                                cand[slot, col] = inf
+                            if hi > lo:
+                                _gather_candidates(
+                                    depth[k, sr, lo + ocol + du : hi + ocol + du],
+                                    intensity[k, sr, lo + ocol + du : hi + ocol + du],
+                                    intensity[ref, tr, lo + ocol : hi + ocol],
+                                    intensity_tol,
+                                    cand[slot, lo:hi],
+                                    count[lo:hi],
+                                )
                         slot += 1
             for p in range(network.shape[0]):
                 _compare_exchange(cand[network[p, 0]], cand[network[p, 1]])
