@@ -136,13 +136,17 @@ def _icp_refined_poses(depth: np.ndarray, intrinsics, poses, ref: int = 0):
     return refined, corrections
 
 
-def _compensated_flicker(raw, fused, intrinsics, poses, planar, frames) -> dict:
+def _compensated_flicker(raw, fused, intrinsics, poses, planar, selections) -> list[dict]:
+    """Pose-compensated median flicker, raw vs fused, for each frame selection (slices)."""
     raw0 = _warp_to_reference(raw, intrinsics, poses)
     fused0 = _warp_to_reference(fused, intrinsics, poses)
     mask = planar & np.isfinite(raw0).all(axis=0) & np.isfinite(fused0).all(axis=0)
-    a = temporal_flicker(raw0[frames], static_mask=mask).median
-    b = temporal_flicker(fused0[frames], static_mask=mask).median
-    return {"raw": a, "fused": b, "ratio": b / a, "pixels": int(mask.sum())}
+    out = []
+    for frames in selections:
+        a = temporal_flicker(raw0[frames], static_mask=mask).median
+        b = temporal_flicker(fused0[frames], static_mask=mask).median
+        out.append({"raw": a, "fused": b, "ratio": b / a, "pixels": int(mask.sum())})
+    return out
 
 
 def static_room(path: Path, chosen) -> dict:
@@ -168,12 +172,13 @@ def static_room(path: Path, chosen) -> dict:
     if icp is not None:
         poses_by_name["icp"] = icp[0]
         out["icp_pose_corrections_mm_deg"] = icp[1]
+    selections = {"all_frames": slice(0, n), "full_window_frames": full}
     for name, poses in poses_by_name.items():
-        for label, frames in (("all_frames", slice(0, n)), ("full_window_frames", full)):
-            key = f"pose_compensated_flicker_median_planar_mm[{name} poses, {label}]"
-            out[key] = _compensated_flicker(
-                seq.depth, res.depth, seq.intrinsics, poses, planar, frames
-            )
+        results = _compensated_flicker(
+            seq.depth, res.depth, seq.intrinsics, poses, planar, selections.values()
+        )
+        for label, result in zip(selections, results, strict=True):
+            out[f"pose_compensated_flicker_median_planar_mm[{name} poses, {label}]"] = result
     out.update(
         {
             "flicker_median_mm (uncompensated)": {

@@ -10,6 +10,7 @@ import math
 import numpy as np
 
 from ._numba import njit, njit_parallel, prange
+from .fusion import ROW_CHUNKS
 
 __all__ = [
     "_block_match_kernel",
@@ -154,7 +155,7 @@ def _stmf_median_kernel(
     side = 2 * half_window + 1
     cap = n_frames * side * side
     inf = np.float32(np.inf)
-    n_chunks = min(height, 64)
+    n_chunks = min(height, ROW_CHUNKS)
     for chunk in prange(n_chunks):
         cand = np.empty((cap, width), np.float32)
         count = np.empty(width, np.int32)
@@ -237,9 +238,10 @@ def _pca_view_angle_kernel(points, half, min_count, out):  # pragma: no cover - 
     ~1e-7 mm² at 5 m). O(1) in the window size instead of a per-pixel window loop.
     """
     height, width = out.shape
-    n_chunks = min(height, 64)
+    n_chunks = min(height, ROW_CHUNKS)
     for chunk in prange(n_chunks):
         colsum = np.empty((10, width), dtype=np.float64)
+        win = np.empty(10, dtype=np.float64)
         for row in range(chunk * height // n_chunks, (chunk + 1) * height // n_chunks):
             colsum[:] = 0.0
             for rr in range(max(row - half, 0), min(row + half + 1, height)):
@@ -259,7 +261,7 @@ def _pca_view_angle_kernel(points, half, min_count, out):  # pragma: no cover - 
                         colsum[7, cc] += x * y
                         colsum[8, cc] += x * z
                         colsum[9, cc] += y * z
-            win = np.zeros(10, dtype=np.float64)
+            win[:] = 0.0
             for cc in range(min(half, width)):  # prime the running window with columns < half
                 for q in range(10):
                     win[q] += colsum[q, cc]
