@@ -382,14 +382,28 @@ def estimate_flow(
     >>> flow.shape, bool(np.abs(flow).max() < 0.05)
     ((64, 64, 2), True)
     """
+    m, p, a, b, init_arr, box = _check_call(method, params, image0, image1, init, "init", roi)
+    return _run_method(m, a, b, p, init_arr, box)
+
+
+def _check_call(
+    method: str | FlowMethod,
+    params: Any,
+    image0: Any,
+    image1: Any,
+    init: Any,
+    init_name: str,
+    roi: Roi | None,
+) -> tuple[FlowMethod, Any, NDArray[np.float32], NDArray[np.float32], Any, Roi | None]:
+    """Resolve the method and its params and validate the images, warm start and roi."""
     m = get_flow_method(method)
     p = resolve_flow_params(m, params)
     a = _check_image(image0, "image0")
     b = _check_image(image1, "image1")
     if a.shape != b.shape:
         raise ShapeError("image1", a.shape, b.shape, f"It must match image0 {a.shape}")
-    init_arr = None if init is None else _check_flow(init, a.shape, "init")
-    return _run_method(m, a, b, p, init_arr, _check_roi(roi, a.shape))
+    init_arr = None if init is None else _check_flow(init, a.shape, init_name)
+    return m, p, a, b, init_arr, _check_roi(roi, a.shape)
 
 
 # --------------------------------------------------------------------------------------------
@@ -454,14 +468,9 @@ def estimate_flow_pair(
     backward : (H, W, 2) ndarray of float32
         s^{t+1,t} on frame t+1's grid, px (du, dv).
     """
-    m = get_flow_method(method)
-    p = resolve_flow_params(m, params)
-    a = _check_image(image0, "image0")
-    b = _check_image(image1, "image1")
-    if a.shape != b.shape:
-        raise ShapeError("image1", a.shape, b.shape, f"It must match image0 {a.shape}")
-    init = None if init_forward is None else _check_flow(init_forward, a.shape, "init_forward")
-    box = _check_roi(roi, a.shape)
+    m, p, a, b, init, box = _check_call(
+        method, params, image0, image1, init_forward, "init_forward", roi
+    )
     key = None
     if cache is not None:
         key = _pair_cache_key(m, p, a, b, init, box)
