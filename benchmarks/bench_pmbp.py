@@ -12,7 +12,7 @@ Measures
   cached first-call time;
 - wall time of one 600x600 forward flow (ball pair 10-11, σ_I 2 %), median of ``--repeat``
   runs, for ``pmbp`` (paper preset, K = 3) and ``pmbp-fast``, with their ball EPE;
-- ball-interior EPE (exact image motion (0, speed·Z_c/Z), see ``fuse4d.flow_bench``) at
+- ball-interior EPE (exact image motion (0, speed·Z_c/Z), see ``fuse4d.experiments.flow_accuracy``) at
   σ_I = 2 % and 10 % on pairs (10, 11) and (25, 26), and the forward-backward pass rate
   (|s_fw(p) + s_bw(p + s_fw(p))| < 1 px) at 2 %;
 - Middlebury EPE (4 real pairs, unknown GT excluded) for pmbp, pmbp-fast (``max_motion`` 16,
@@ -38,10 +38,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from fuse4d.experiments.flow_accuracy import ball_pairs, middlebury_pairs
 from fuse4d.flow import estimate_flow
-from fuse4d.flow_bench import ball_pairs, middlebury_pairs
-from fuse4d.flow_opencv import DISParams
-from fuse4d.pmbp import PMBPFastParams, PMBPParams, pmbp_flow
+from fuse4d.flow.opencv import DISParams
+from fuse4d.flow.pmbp import PMBPFastParams, PMBPParams, pmbp_flow
 
 DATA = Path(os.environ.get("FUSE4D_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 
@@ -83,7 +83,7 @@ def _timed(fn, repeat):
 def bench_compile() -> None:
     code = (
         "import time, numpy as np; t = time.perf_counter(); "
-        "from fuse4d.pmbp import pmbp_flow, PMBPParams; "
+        "from fuse4d.flow.pmbp import pmbp_flow, PMBPParams; "
         "a = np.random.default_rng(0).random((64, 64)).astype(np.float32); "
         "pmbp_flow(a, a, PMBPParams()); "
         "pmbp_flow(a, a, PMBPParams(schedule='sequential')); "

@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from fuse4d.experiments.flow_accuracy import ball_pairs
 from fuse4d.flow import DISParams, available_flow_methods, estimate_flow, estimate_flow_pair
-from fuse4d.flow_bench import ball_pairs
 
 CASES = [
     ("dis-ultrafast", "dis", DISParams.from_preset("ultrafast")),

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fuse4d import Intrinsics, ShapeError, depth_to_points, points_to_depth, project_points
+from fuse4d import Intrinsics, ShapeError, depth_to_points, project_points
+from fuse4d.camera import points_to_depth
 
 
 def test_intrinsics_matrix_and_array():

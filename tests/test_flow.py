@@ -10,7 +10,6 @@ import cv2
 import numpy as np
 import pytest
 
-import fuse4d.flow as flow_mod
 from fuse4d.cli import main
 from fuse4d.errors import ShapeError
 from fuse4d.flow import (
@@ -22,17 +21,17 @@ from fuse4d.flow import (
     SequenceFlowEstimator,
     TVL1Params,
     available_flow_methods,
-    default_flow_for_preset,
     estimate_flow,
     estimate_flow_pair,
     estimate_sequence_flow,
     flow_params_from_mapping,
+    read_flo,
     register_flow_method,
     resolve_flow_params,
     warp_image,
 )
-from fuse4d.flow_vis import flow_to_color, make_color_wheel
-from fuse4d.io import read_flo
+from fuse4d.flow import _registry as flow_mod
+from fuse4d.flow.vis import flow_to_color, make_color_wheel
 
 OPENCV_METHODS = ("dis", "farneback", "tvl1", "deepflow")
 BORDER = 12  # px excluded from "interior" checks (OpenCV methods are unreliable at the border)
@@ -136,7 +135,7 @@ def test_dis_presets_match_opencv():
             dis.getVariationalRefinementAlpha()
         )
         assert ours.use_spatial_propagation == dis.getUseSpatialPropagation()
-    assert DISParams() == DISParams.from_preset("medium")
+    assert DISParams() == DISParams.from_preset("fast")
 
 
 @pytest.mark.parametrize(
@@ -167,7 +166,7 @@ def test_params_from_mapping_coerces_strings():
     )
     assert p == DISParams.from_preset("fast", patch_size=12, use_mean_normalization=False)
     assert flow_params_from_mapping("tvl1", {"data_weight": 1}).data_weight == 1.0
-    with pytest.raises(ValueError, match="cannot read 'x' as int"):
+    with pytest.raises(ValueError, match="parameter levels: cannot read 'x' as an integer"):
         flow_params_from_mapping("farneback", {"levels": "x"})
     with pytest.raises(ValueError, match=r"unknown parameter\(s\) bogus .*valid: pyr_scale"):
         flow_params_from_mapping("farneback", {"bogus": 1})
@@ -182,23 +181,31 @@ def test_resolve_params_types():
         resolve_flow_params("dis", FarnebackParams())
 
 
-def test_default_flow_for_preset(monkeypatch):
-    method, params = default_flow_for_preset("fast")
-    assert method == "dis"
-    assert params == DISParams.from_preset("medium")
-    registry = {k: v for k, v in flow_mod._REGISTRY.items() if not k.startswith("pmbp")}
-    monkeypatch.setattr(flow_mod, "_REGISTRY", registry)
-    assert default_flow_for_preset("paper") == ("deepflow", DeepFlowParams())
-    with pytest.raises(ValueError, match="unknown fusion preset"):
-        default_flow_for_preset("slow")
+def test_default_flow_and_dis_by_name_are_one_setting():
+    """flow=None, flow="dis", FlowConfig("dis") and preset("fast") track with the same DIS."""
+    from fuse4d import FlowConfig, FusionEngine, Intrinsics, preset
+
+    k = Intrinsics(100.0, 100.0, 16.0, 16.0, 32, 32)
+    built = {
+        FusionEngine(k).flow_config.build_params(),
+        FusionEngine(k, flow="dis").flow_config.build_params(),
+        FlowConfig("dis").build_params(),
+        preset("fast").flow.build_params(),
+        resolve_flow_params("dis"),
+    }
+    assert built == {DISParams.from_preset("fast")}
+    assert preset("paper").flow.method == "pmbp"
+    assert DISParams.from_preset("medium") != DISParams()
 
 
-def test_paper_preset_uses_pmbp_when_registered():
-    if "pmbp" not in available_flow_methods():
-        pytest.skip("pmbp not registered")
-    method, params = default_flow_for_preset("paper")
-    assert method == "pmbp"
-    assert isinstance(params, available_flow_methods()["pmbp"].params_type)
+def test_optional_numeric_fields_from_strings():
+    """--flow-param strings reach ``int | None`` / ``float | None`` fields typed (bug b1)."""
+    p = flow_params_from_mapping("pmbp", {"coarse_num_iter": "3", "search_radius0": "4.5"})
+    assert p.coarse_num_iter == 3
+    assert p.search_radius0 == 4.5
+    assert flow_params_from_mapping("pmbp", {"coarse_num_iter": "none"}).coarse_num_iter is None
+    with pytest.raises(ValueError, match="coarse_num_iter"):
+        flow_params_from_mapping("pmbp", {"coarse_num_iter": "three"})
 
 
 # ---------------------------------------------------------------------------------------------
@@ -248,7 +255,7 @@ def test_sign_convention_pure_horizontal_shift():
 def test_vertical_shift_is_dv():
     image = texture()
     moved = np.roll(image, 3, axis=0)  # rows: content moves down
-    flow = estimate_flow(image, moved, method="dis")
+    flow = estimate_flow(image, moved, method="dis", params={"preset": "medium"})
     assert np.median(interior(flow)[..., 1]) == pytest.approx(3.0, abs=0.05)
     assert np.abs(np.median(interior(flow)[..., 0])) < 0.05
 
@@ -355,7 +362,12 @@ def test_sequence_flow_matches_pairwise_directions():
     image = texture((80, 96))
     video = np.stack([image, np.roll(image, 1, axis=1), np.roll(image, 2, axis=1)])
     calls = []
-    result = estimate_sequence_flow(video, method="dis", progress=lambda d, t: calls.append((d, t)))
+    result = estimate_sequence_flow(
+        video,
+        method="dis",
+        params={"preset": "medium"},
+        progress=lambda d, t: calls.append((d, t)),
+    )
     assert calls == [(1, 2), (2, 2)]
     for t in range(2):
         assert np.median(interior(result.forward[t])[..., 0]) == pytest.approx(1.0, abs=0.05)
@@ -570,7 +582,7 @@ def test_cli_bench_flow_middlebury_table(shared_data, capsys):
 
 @pytest.mark.realdata
 def test_middlebury_pairs_mask_unknown(shared_data):
-    from fuse4d.flow_bench import middlebury_pairs
+    from fuse4d.experiments.flow_accuracy import middlebury_pairs
 
     pairs, reason = middlebury_pairs(shared_data / "middlebury_flow")
     assert reason == ""

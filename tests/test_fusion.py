@@ -17,7 +17,8 @@ from fuse4d._kernels.fusion import (
 )
 from fuse4d.bilateral import bilateral_filter_points
 from fuse4d.config import FusionParams
-from fuse4d.fusion import FusionEngine, PrecomputedFlow, fuse_sequence, fuse_stream
+from fuse4d.flow import SequenceFlow
+from fuse4d.fusion import FusionEngine, fuse_sequence, fuse_stream
 from fuse4d.metrics import roughness_stats
 from fuse4d.motion import (
     compute_motion_field,
@@ -64,7 +65,7 @@ def _translating(n, speed=2):
 
 def _zero_flow(n):
     z = np.zeros((n - 1, H, W, 2), np.float32)
-    return PrecomputedFlow(z, z.copy())
+    return SequenceFlow(z, z.copy())
 
 
 # ----------------------------------------------------------------------------- kernels vs oracles
@@ -338,7 +339,7 @@ def test_moving_object_fused_without_ghosting(rng):
     n = 9
     depth, inten, fwd, bwd = _translating(n)
     depth = depth + rng.normal(0, 0.2, depth.shape).astype(np.float32)
-    res = fuse_sequence(depth, inten, K, flow=PrecomputedFlow(fwd, bwd))
+    res = fuse_sequence(depth, inten, K, flow=SequenceFlow(fwd, bwd))
     inner = (slice(4, 5), slice(8, -8), slice(8, -8))
     assert np.std(res.depth[inner] - 600.0) < 0.35 * np.std(depth[inner] - 600.0)
     assert (res.support[4, 8:-8, 8:-8] >= 6).mean() > 0.9
@@ -400,9 +401,9 @@ def test_bad_input_messages():
         fuse_sequence(depth, inten, wrong)
     with pytest.raises(ShapeError, match=r"flow.forward must have shape \(2, 40, 48, 2\)"):
         fuse_sequence(
-            depth, inten, K, flow=PrecomputedFlow(np.zeros((1, H, W, 2)), np.zeros((1, H, W, 2)))
+            depth, inten, K, flow=SequenceFlow(np.zeros((1, H, W, 2)), np.zeros((1, H, W, 2)))
         )
-    with pytest.raises(ValueError, match="unknown flow method 'nope'; available: "):
+    with pytest.raises(ValueError, match="unknown flow method 'nope'; available methods: "):
         fuse_sequence(depth, inten, K, flow="nope")
     with pytest.raises(ValueError, match=r"FusionParams.num_frames must be an integer >= 1, got 0"):
         FusionParams(num_frames=0)

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 from fuse4d import (
-    GroundTruth,
     InputFileError,
     OutputExistsError,
     Sequence,
     depth_to_points,
 )
+from fuse4d.flow import read_flo, write_flo
 from fuse4d.io import (
     CAMERA_PRESETS,
     FrameFolderWriter,
@@ -28,7 +28,6 @@ from fuse4d.io import (
     iter_frames,
     load_sequence,
     open_frames,
-    read_flo,
     read_frame_folder,
     read_intrinsics,
     read_mask,
@@ -38,11 +37,11 @@ from fuse4d.io import (
     read_tum,
     resolve_frames,
     save_sequence,
-    write_flo,
     write_frame_folder,
     write_npz,
     write_ply,
 )
+from fuse4d.sequence import GroundTruth
 
 
 # ----------------------------------------------------------------------------- helpers

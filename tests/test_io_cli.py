@@ -7,9 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from fuse4d import GroundTruth, Sequence
+from fuse4d import Sequence
 from fuse4d.cli import main
 from fuse4d.io import read_ply, write_npz
+from fuse4d.sequence import GroundTruth
 from test_io import _write_tum
 
 

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from fuse4d import InputFileError, Sequence
+from fuse4d.flow import read_flo
 from fuse4d.io import (
     load_sequence,
     open_frames,
-    read_flo,
     read_frame_folder,
     read_npz,
     read_ply,

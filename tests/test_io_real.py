@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from fuse4d.cli import main
+from fuse4d.flow import read_flo
 from fuse4d.io import (
     count_frames,
     detect_format,
     iter_frames,
     load_sequence,
-    read_flo,
     read_mask,
 )
 

@@ -11,7 +11,7 @@ import pytest
 
 from fuse4d import ShapeError
 from fuse4d._kernels import pmbp as K
-from fuse4d.pmbp import (
+from fuse4d.flow.pmbp import (
     PMBP_FAST,
     PMBPFastParams,
     PMBPParams,
@@ -383,7 +383,7 @@ def test_registered_with_flow_module():
     flow_mod = pytest.importorskip("fuse4d.flow")
     if not hasattr(flow_mod, "estimate_flow"):
         pytest.skip("fuse4d.flow has no estimate_flow yet")
-    from fuse4d.pmbp import register
+    from fuse4d.flow.pmbp import register
 
     register()
     d = (0.5, -0.5)
@@ -493,7 +493,7 @@ def test_consistency_fill_fixes_occlusions():
 def test_pair_function_shares_the_solves(monkeypatch):
     """pmbp_flow_pair: forward bit-identical to pmbp_flow, backward as good as a separate
     solve, and estimate_flow_pair runs 2 PMBP solves per pair instead of 4."""
-    import fuse4d.pmbp as pmbp_module
+    import fuse4d.flow.pmbp as pmbp_module
     from fuse4d.flow import estimate_flow_pair
 
     a, b, truth = _occlusion_pair()
@@ -554,7 +554,7 @@ def _fb_pass_rate(fw, bw, mask):
 
 
 def _ball_acceptance(small):
-    flow_bench = pytest.importorskip("fuse4d.flow_bench")
+    flow_bench = pytest.importorskip("fuse4d.experiments.flow_accuracy")
     for noise, limit in ((0.02, 0.25), (0.10, 0.6)):
         pair = flow_bench.ball_pairs(intensity_noise=noise, small=small)[0]
         fw = pmbp_flow(pair.image0, pair.image1)

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fuse4d import GroundTruth, Intrinsics, Sequence, ShapeError, normalize_intensity
+from fuse4d import Intrinsics, Sequence, ShapeError
+from fuse4d.sequence import GroundTruth, normalize_intensity
 
 
 @pytest.fixture

@@ -4,82 +4,84 @@ Zhang, Maniatis, Horna, Fisher, *Intensity Video Guided 4D Fusion for Improved H
 3D Reconstruction*. Depth in mm (float32, NaN = invalid), intensity float32 in [0, 1], arrays
 ``(T, H, W)``, pinhole intrinsics in pixels.
 
-Main entry points
------------------
-- :func:`fuse_sequence` / :func:`fuse_stream` / :class:`FusionEngine`: the fusion (Eq. 2-6).
-- :mod:`fuse4d.io`: read and write recordings (``load_sequence``, ``save_sequence``, ...).
-- :mod:`fuse4d.flow`: optical flow (OpenCV methods and the paper's PMBP).
-- :mod:`fuse4d.metrics`: roughness (Eq. 7), shape correctness (Eq. 8), RMSE, flicker, EPE.
-- :mod:`fuse4d.synthetic`: scenes with ground truth (falling ball, plane, deforming sheet).
-- :mod:`fuse4d.baselines`: the paper's comparison methods behind one interface.
+The top level holds what a user needs (the full list with one line each: ``docs/api.md``):
+
+- fusion: :func:`fuse_sequence`, :func:`fuse_stream`, :class:`FusionEngine` (Eq. 2-6), their
+  results :class:`FusionResult` / :class:`FusedFrame`, and the knobs :class:`FusionParams`,
+  :class:`FlowConfig`, :func:`preset`, :func:`load_config`;
+- data: :class:`Sequence`, :class:`Intrinsics`, :func:`load_sequence`, :func:`save_sequence`,
+  :func:`depth_to_points`, :func:`project_points`;
+- flow and comparisons: :func:`estimate_flow`, :func:`run_baseline`,
+  :func:`available_baselines`;
+- errors: :class:`InputFileError`, :class:`OutputExistsError`, :class:`ShapeError`.
+
+Everything else lives in its subpackage: :mod:`fuse4d.flow` (optical flow, PMBP, cache),
+:mod:`fuse4d.io` (readers and writers), :mod:`fuse4d.metrics` (Eq. 7, Eq. 8, RMSE, flicker,
+:func:`fuse4d.metrics.evaluate`), :mod:`fuse4d.motion` (Eq. 3-4), :mod:`fuse4d.synthetic`
+(scenes with ground truth), :mod:`fuse4d.baselines` (the paper's comparison methods),
+:mod:`fuse4d.experiments` (benchmarks, evaluation, demo).
 """
 
 from __future__ import annotations
 
-from .baselines import available_baselines, run_baseline
-from .camera import Intrinsics, depth_to_points, points_to_depth, project_points
+import importlib
+from typing import Any
+
+from ._version import __version__
+from .camera import Intrinsics, depth_to_points, project_points
 from .config import FlowConfig, FusionParams, load_config, preset
 from .errors import InputFileError, OutputExistsError, ShapeError
-from .flow import (
-    FlowCache,
-    SequenceFlow,
-    available_flow_methods,
-    estimate_flow,
-    estimate_flow_pair,
-    estimate_sequence_flow,
-)
-from .fusion import (
-    FusedFrame,
-    FusionEngine,
-    FusionResult,
-    PrecomputedFlow,
-    fuse_sequence,
-    fuse_stream,
-)
-from .io import load_sequence, open_frames, read_flo, save_sequence, write_flo, write_ply
-from .pmbp import PMBPFastParams, PMBPParams, pmbp_flow
-from .sequence import GroundTruth, Sequence, normalize_intensity, sanitize_depth
-
-__version__ = "0.1.0"
+from .flow import estimate_flow
+from .fusion import FusedFrame, FusionEngine, FusionResult, fuse_sequence, fuse_stream
+from .io import load_sequence, save_sequence
+from .sequence import Sequence
 
 __all__ = [
-    "FlowCache",
     "FlowConfig",
     "FusedFrame",
     "FusionEngine",
     "FusionParams",
     "FusionResult",
-    "GroundTruth",
     "InputFileError",
     "Intrinsics",
     "OutputExistsError",
-    "PMBPFastParams",
-    "PMBPParams",
-    "PrecomputedFlow",
     "Sequence",
-    "SequenceFlow",
     "ShapeError",
     "__version__",
     "available_baselines",
-    "available_flow_methods",
     "depth_to_points",
     "estimate_flow",
-    "estimate_flow_pair",
-    "estimate_sequence_flow",
     "fuse_sequence",
     "fuse_stream",
     "load_config",
     "load_sequence",
-    "normalize_intensity",
-    "open_frames",
-    "pmbp_flow",
-    "points_to_depth",
     "preset",
     "project_points",
-    "read_flo",
     "run_baseline",
-    "sanitize_depth",
     "save_sequence",
-    "write_flo",
-    "write_ply",
 ]
+
+#: Loaded on first use (the baselines pull in scipy.sparse / Open3D probes).
+_LAZY = {"run_baseline": "baselines", "available_baselines": "baselines"}
+_SUBPACKAGES = {
+    "baselines",
+    "experiments",
+    "flow",
+    "io",
+    "metrics",
+    "motion",
+    "plot",
+    "synthetic",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    if name in _SUBPACKAGES:
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module 'fuse4d' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__, *_SUBPACKAGES})

@@ -24,6 +24,8 @@ from os import PathLike
 from pathlib import Path
 from typing import Any, Literal
 
+from ._params import coerce_fields
+
 __all__ = ["PRESETS", "FlowConfig", "FusionParams", "load_config", "preset"]
 
 MotionDepth = Literal["smoothed", "raw"]
@@ -213,28 +215,47 @@ class FusionParams:
 
 @dataclass(frozen=True)
 class FlowConfig:
-    """Which optical-flow method tracks the intensity video, and its parameters.
+    """Which optical-flow method tracks the intensity video, its parameters, cache and ROI.
 
     Parameters
     ----------
     method : str
         A registered method name (``fuse4d.flow.available_flow_methods()``).
     params : dict
-        Keyword arguments for that method's parameter dataclass (empty = its defaults).
+        Keyword arguments for that method's parameter dataclass (empty = its defaults; strings
+        are converted to the field types, see :func:`fuse4d.flow.flow_params_from_mapping`).
+    cache_dir : str or None
+        Folder of an on-disk :class:`fuse4d.flow.FlowCache` (METHOD §2.5 item 6): every pair's
+        forward/backward flow is stored there and reused by later runs on the same intensity
+        frames and flow settings. None = no cache.
+    roi : (row0, row1, col0, col1) or None
+        Solve the flow only inside this half-open box (px, METHOD §2.5 item 8); the flow is 0
+        outside it, so tracks there stay put. None = the whole frame.
     """
 
     method: str = "dis"
     params: dict[str, Any] = field(default_factory=dict)
+    cache_dir: str | None = None
+    roi: tuple[int, int, int, int] | None = None
 
     def build_params(self) -> Any:
         """Instantiate the method's parameter dataclass (validates the name and the keys)."""
-        from .flow import available_flow_methods, flow_params_from_mapping
+        from .flow import flow_params_from_mapping, get_flow_method
 
-        methods = available_flow_methods()
-        if self.method not in methods:
-            names = ", ".join(sorted(methods))
-            raise ValueError(f"unknown flow method {self.method!r}; available: {names}")
-        return flow_params_from_mapping(self.method, self.params)
+        return flow_params_from_mapping(get_flow_method(self.method), self.params)
+
+    def estimator(self, *, warm_start: bool = True) -> Any:
+        """A :class:`fuse4d.flow.SequenceFlowEstimator` for this configuration (what the
+        fusion engine drives pair by pair)."""
+        from .flow import FlowCache, SequenceFlowEstimator
+
+        return SequenceFlowEstimator(
+            method=self.method,
+            params=self.build_params(),
+            warm_start=warm_start,
+            roi=self.roi,
+            cache=None if self.cache_dir is None else FlowCache(self.cache_dir),
+        )
 
 
 @dataclass(frozen=True)
@@ -247,24 +268,18 @@ class Preset:
     flow: FlowConfig
 
 
-def _paper_flow() -> FlowConfig:
-    from .flow import available_flow_methods
-
-    return FlowConfig("pmbp") if "pmbp" in available_flow_methods() else FlowConfig("deepflow")
-
-
 PRESETS: dict[str, str] = {
-    "fast": "fuse4d defaults with OpenCV DIS flow (its 'fast' preset): the quick everyday setting",
-    "paper": "METHOD defaults with the paper's PMBP tracker (DeepFlow while PMBP is unavailable)",
+    "fast": "fuse4d's fusion defaults (A17-A25) with OpenCV DIS flow ('fast' preset): everyday",
+    "paper": "fuse4d's fusion defaults (A17-A25) with the paper's PMBP tracker (K = 3)",
 }
 
 
 def preset(name: str) -> Preset:
     """Return the preset ``"fast"`` or ``"paper"``."""
     if name == "fast":
-        return Preset(name, PRESETS[name], FusionParams(), FlowConfig("dis", {"preset": "fast"}))
+        return Preset(name, PRESETS[name], FusionParams(), FlowConfig("dis"))
     if name == "paper":
-        return Preset(name, PRESETS[name], FusionParams(), _paper_flow())
+        return Preset(name, PRESETS[name], FusionParams(), FlowConfig("pmbp"))
     raise ValueError(f"unknown preset {name!r}; choose one of: {', '.join(PRESETS)}")
 
 
@@ -299,22 +314,29 @@ def load_config(path: str | PathLike[str], *, base: str | None = None) -> Preset
         )
     start = preset(str(data.get("preset", base or "fast")))
     try:
-        fusion_data = dict(data.get("fusion", {}))
-        known = {f.name for f in fields(FusionParams)}
-        bad = set(fusion_data) - known
-        if bad:
-            raise ValueError(f"unknown [fusion] key(s) {sorted(bad)}")
-        fusion_data = {k: _from_toml(v) for k, v in fusion_data.items()}
+        fusion_data = coerce_fields(
+            FusionParams, dict(data.get("fusion", {})), owner="[fusion] of the config file"
+        )
         fusion = start.fusion.replace(**fusion_data)
         flow_data = dict(data.get("flow", {}))
-        bad = set(flow_data) - {"method", "params"}
+        bad = set(flow_data) - {"method", "params", "cache_dir", "roi"}
         if bad:
-            raise ValueError(f"unknown [flow] key(s) {sorted(bad)}; expected method, [flow.params]")
+            raise ValueError(
+                f"unknown [flow] key(s) {sorted(bad)}; expected method, cache_dir, roi, "
+                "[flow.params]"
+            )
         method = str(flow_data.get("method", start.flow.method))
         params = dict(
             flow_data.get("params", start.flow.params if method == start.flow.method else {})
         )
-        flow = FlowConfig(method, params)
+        roi = flow_data.get("roi")
+        cache_dir = flow_data.get("cache_dir")
+        flow = FlowConfig(
+            method,
+            params,
+            cache_dir=None if cache_dir is None else str(cache_dir),
+            roi=None if roi is None else tuple(int(v) for v in roi),
+        )
         flow.build_params()
     except (TypeError, ValueError) as exc:
         raise InputFileError(p, str(exc)) from None
@@ -346,10 +368,4 @@ def _choice(obj: Any, name: str, options: tuple[str, ...]) -> None:
 def _jsonable(value: Any) -> Any:
     if isinstance(value, float) and math.isinf(value):
         return "inf"
-    return value
-
-
-def _from_toml(value: Any) -> Any:
-    if isinstance(value, str) and value.lower() in ("inf", "infinity"):
-        return math.inf
     return value

@@ -31,6 +31,7 @@ from .bilateral import bilateral_filter_points
 from .camera import Intrinsics, depth_to_points
 from .config import FlowConfig, FusionParams, preset
 from .errors import ShapeError
+from .flow import SequenceFlow, as_sequence_flow
 from .motion import estimate_depth_noise, estimate_noise_quad, motion_reference_depth
 from .sequence import normalize_intensity
 
@@ -38,28 +39,11 @@ __all__ = [
     "FusedFrame",
     "FusionEngine",
     "FusionResult",
-    "PrecomputedFlow",
     "fuse_sequence",
     "fuse_stream",
 ]
 
 STAGES = ("flow", "bilateral", "motion_reference", "tracking", "fusion", "fill")
-
-
-@dataclass(frozen=True)
-class PrecomputedFlow:
-    """Flows computed elsewhere (e.g. exact ground-truth flows, or a cached run).
-
-    Attributes
-    ----------
-    forward : (T-1, H, W, 2) ndarray of float32
-        s^{t,t+1} in px on frame t's grid, ``[..., 0]`` = du (column).
-    backward : (T-1, H, W, 2) ndarray of float32
-        s^{t+1,t} in px on frame t+1's grid.
-    """
-
-    forward: NDArray[np.float32]
-    backward: NDArray[np.float32]
 
 
 @dataclass
@@ -116,9 +100,11 @@ class FusionEngine:
     fusion : FusionParams, optional
         Fusion knobs (defaults: METHOD §5.3). ``iterations`` > 1 is handled by
         :func:`fuse_sequence`, not by a single engine.
-    flow : FlowConfig or str, optional
-        Tracker and its parameters (default: the "fast" preset's). Ignored for pairs whose
-        flows are passed to :meth:`push`.
+    flow : FlowConfig, str, SequenceFlow or (forward, backward), optional
+        Tracker, its parameters, flow cache and flow ROI (default: the "fast" preset's: OpenCV
+        DIS), driven through :class:`fuse4d.flow.SequenceFlowEstimator` (warm starts, cache,
+        ROI); or precomputed flows of the whole stream (pair (t-1, t) is used when frame t is
+        pushed). Ignored for pairs whose flows are passed to :meth:`push`.
     ring_size : int, optional
         Frames kept; at least ``num_frames`` (default). Larger values only cost memory.
     warm_start : bool
@@ -134,7 +120,7 @@ class FusionEngine:
         intrinsics: Intrinsics,
         *,
         fusion: FusionParams | None = None,
-        flow: FlowConfig | str | None = None,
+        flow: FlowConfig | str | SequenceFlow | tuple | None = None,
         ring_size: int | None = None,
         warm_start: bool = True,
         on_pair: Callable[[_PairOutput], None] | None = None,
@@ -144,12 +130,16 @@ class FusionEngine:
         self.params = fusion or FusionParams()
         if self.params.num_frames > 256:
             raise ValueError("num_frames must be <= 256 (support is stored as uint8)")
+        self.precomputed: SequenceFlow | None = None
         if isinstance(flow, str):
             flow = FlowConfig(flow)
+        elif flow is not None and not isinstance(flow, FlowConfig):
+            self.precomputed = as_sequence_flow(flow)
+            flow = None
         self.flow_config = flow or preset("fast").flow
-        self._flow_params: Any = None
-        self._flow_supports_init = False
         self.warm_start = warm_start
+        # the tracker (built on the first pair that needs it, so precomputed runs never load it)
+        self._flow_estimator: Any = None
         self.on_pair = on_pair
         self.timings = timings if timings is not None else dict.fromkeys(STAGES, 0.0)
         for stage in STAGES:
@@ -168,7 +158,14 @@ class FusionEngine:
         self._bilateral = np.full((s, h, w, 3), np.nan, np.float32)
         # local reference surface (A17, A18) and motion reference P~ (A3)
         self._smooth = np.full((s, h, w, 3), np.nan, np.float32)
-        self._reference = np.full((s, h, w, 3), np.nan, np.float32)
+        # with motion_sigma == reference_sigma (the default) D~ and the local reference are the
+        # same surface: one buffer, computed once per frame
+        self._shared_reference = p.motion_depth == "smoothed" and (
+            p.motion_sigma == p.reference_sigma
+        )
+        self._reference = (
+            self._smooth if self._shared_reference else np.full((s, h, w, 3), np.nan, np.float32)
+        )
         self._fwd = np.zeros((s, h, w, 2), np.float32)
         self._bwd = np.zeros((s, h, w, 2), np.float32)
         tw = np.arange(max(self.past, self.future) + 1, dtype=np.float64)
@@ -239,7 +236,7 @@ class FusionEngine:
         )
         if p.motion_depth == "raw":
             self._reference[slot] = pts  # literal Eq. 3 (ablation)
-        else:  # motion reference P~ (A3)
+        elif not self._shared_reference:  # motion reference P~ (A3) with its own sigma_m
             self._reference[slot] = self._smoothed_points(
                 d, pts, points is not None, p.motion_sigma, quad
             )
@@ -288,22 +285,19 @@ class FusionEngine:
         # keep the lateral position of given points (fusion iterations)
         return points * np.where(np.isfinite(depth), smooth_depth / depth, np.nan)[..., None]
 
-    def _flow_pair(self, image0: np.ndarray, image1: np.ndarray, init: np.ndarray | None):
-        from .flow import available_flow_methods, estimate_flow_pair
-
-        if self._flow_params is None:
-            self._flow_params = self.flow_config.build_params()
-            method = available_flow_methods()[self.flow_config.method]
-            self._flow_supports_init = bool(method.supports_init)
-        if not (self.warm_start and self._flow_supports_init):
-            init = None
-        return estimate_flow_pair(
-            image0,
-            image1,
-            method=self.flow_config.method,
-            params=self._flow_params,
-            init_forward=init,
-        )
+    def _flow_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Flows of the pair (index-1, index): precomputed, or from the tracker."""
+        if self.precomputed is not None:
+            if index - 1 >= self.precomputed.num_pairs:
+                raise ValueError(
+                    f"precomputed flows cover {self.precomputed.num_pairs} pairs; frame {index} "
+                    "needs one more"
+                )
+            return self.precomputed.forward[index - 1], self.precomputed.backward[index - 1]
+        if self._flow_estimator is None:
+            self._flow_estimator = self.flow_config.estimator(warm_start=self.warm_start)
+        prev = (index - 1) % self.ring
+        return self._flow_estimator(self._intensity[prev], self._intensity[index % self.ring])
 
     def _frame_sigma_distance(self, z_med: float, quad: float) -> float:
         """delta_d (mm) of a frame with median depth ``z_med`` (mm) and noise coefficient
@@ -317,11 +311,7 @@ class FusionEngine:
         slot = index % self.ring
         prev = (index - 1) % self.ring
         t0 = time.perf_counter()
-        if pair_flow is None:
-            init = self._fwd[prev] if index >= 2 else None
-            fwd, bwd = self._flow_pair(self._intensity[prev], self._intensity[slot], init)
-        else:
-            fwd, bwd = pair_flow
+        fwd, bwd = self._flow_pair(index) if pair_flow is None else pair_flow
         fwd = as_float32(fwd, name="forward flow")
         bwd = as_float32(bwd, name="backward flow")
         for name, f in (("forward flow", fwd), ("backward flow", bwd)):
@@ -495,7 +485,7 @@ def fuse_sequence(
     intrinsics: Intrinsics,
     *,
     fusion: FusionParams | None = None,
-    flow: FlowConfig | str | PrecomputedFlow | None = None,
+    flow: FlowConfig | str | SequenceFlow | tuple | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> FusionResult:
     """Denoise a 3D video by intensity-guided 4D fusion (paper Eq. 2–6).
@@ -510,9 +500,10 @@ def fuse_sequence(
         Pinhole camera (px).
     fusion : FusionParams, optional
         Fusion knobs; ``None`` = METHOD.md §5.3 defaults (9 frames).
-    flow : FlowConfig, str, or PrecomputedFlow, optional
-        Tracker (method name or config; default: the "fast" preset, OpenCV DIS) or precomputed
-        forward/backward flows.
+    flow : FlowConfig, str, SequenceFlow or (forward, backward), optional
+        Tracker (method name or config with its cache and ROI; default: the "fast" preset,
+        OpenCV DIS), or precomputed flows: a :class:`fuse4d.flow.SequenceFlow` (e.g. from
+        :func:`fuse4d.flow.estimate_sequence_flow`) or a pair of ``(T-1, H, W, 2)`` px arrays.
     progress : callable, optional
         ``progress(done, total)`` after every output frame.
 
@@ -552,13 +543,9 @@ def fuse_sequence(
             d.shape,
             "the intrinsics describe another image size",
         )
-    precomputed = flow if isinstance(flow, PrecomputedFlow) else None
-    if precomputed is not None:
-        for name, f in (
-            ("flow.forward", precomputed.forward),
-            ("flow.backward", precomputed.backward),
-        ):
-            check_shape(np.asarray(f), (n - 1, h, w, 2), name=name)
+    precomputed = None
+    if flow is not None and not isinstance(flow, FlowConfig | str):
+        precomputed = as_sequence_flow(flow, shape=(n, h, w))
     flow_cfg = None if precomputed is not None else flow
     fwd_all = np.zeros((max(n - 1, 0), h, w, 2), np.float32)
     bwd_all = np.zeros_like(fwd_all)
@@ -570,7 +557,7 @@ def fuse_sequence(
     current_points: NDArray[np.float32] | None = None
     support = np.zeros((n, h, w), np.uint8)
     filled = np.zeros((n, h, w), np.bool_)
-    flow_method = "precomputed" if precomputed is not None else ""
+    flow_method = precomputed.method if precomputed is not None else ""
     for iteration in range(params.iterations):
 
         def on_pair(pair: _PairOutput) -> None:
@@ -637,7 +624,7 @@ def fuse_stream(
     intrinsics: Intrinsics,
     *,
     fusion: FusionParams | None = None,
-    flow: FlowConfig | str | None = None,
+    flow: FlowConfig | str | SequenceFlow | tuple | None = None,
     timings: dict[str, float] | None = None,
 ) -> Iterator[FusedFrame]:
     """Fuse a stream of ``(depth, intensity)`` frames with bounded memory.

@@ -156,7 +156,7 @@ class Sequence:
             if lo < 0.0 or hi > 1.0:
                 raise ValueError(
                     f"intensity must lie in [0, 1], got range [{lo:.4g}, {hi:.4g}]; "
-                    "use fuse4d.normalize_intensity() to rescale"
+                    "use fuse4d.sequence.normalize_intensity() to rescale"
                 )
         else:
             i = normalize_intensity(intensity)

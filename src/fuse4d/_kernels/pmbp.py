@@ -1,6 +1,6 @@
 """numba kernels of PatchMatch Belief Propagation (METHOD.md §2).
 
-State of one solve (all float32, C-contiguous, allocated by ``fuse4d.pmbp``):
+State of one solve (all float32, C-contiguous, allocated by ``fuse4d.flow.pmbp``):
 
 - ``lab``   (H, W, K, 2): particles s_p^k = (du, dv) in px;
 - ``una``   (H, W, K):    cached unary ψ1_p(s_p^k) (a particle's unary never changes);

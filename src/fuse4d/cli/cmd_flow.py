@@ -11,16 +11,21 @@ import cv2
 import typer
 from rich.table import Table
 
-from ..flow import estimate_flow, flow_params_from_mapping, get_flow_method
-from ..flow_bench import (
+from ..experiments.flow_accuracy import (
     ball_pairs,
     default_bench_entries,
     middlebury_pairs,
     run_flow_benchmark,
     summarize_flow_benchmark,
 )
-from ..flow_vis import flow_to_color
-from ..io import read_intensity_image, write_flo
+from ..flow import (
+    estimate_flow,
+    flow_params_from_mapping,
+    flow_to_color,
+    get_flow_method,
+    write_flo,
+)
+from ..io import read_intensity_image
 from ._app import app, eprint, fail, out_console, progress_bar, progress_callback
 
 

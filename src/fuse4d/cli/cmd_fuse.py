@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
-from dataclasses import fields
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -28,48 +28,27 @@ def _parse_assignments(items: list[str] | None, what: str) -> dict[str, Any]:
     return out
 
 
-def _coerce_fusion_value(name: str, text: str) -> Any:
-    from ..config import FusionParams
-
-    known = {f.name: f for f in fields(FusionParams)}
-    if name not in known:
-        fail(f"unknown fusion parameter {name!r}; valid: {', '.join(sorted(known))}")
-    default = getattr(FusionParams(), name)
-    if isinstance(default, bool):
-        if text.lower() in ("1", "true", "yes", "on"):
-            return True
-        if text.lower() in ("0", "false", "no", "off"):
-            return False
-        fail(f"fusion parameter {name} must be true or false, got {text!r}")
-    if isinstance(default, int):
-        try:
-            return int(text)
-        except ValueError:
-            fail(f"fusion parameter {name} must be an integer, got {text!r}")
-    if isinstance(default, float):
-        try:
-            return float(text)
-        except ValueError:
-            fail(f"fusion parameter {name} must be a number, got {text!r}")
-    return text
-
-
 def _resolve(
     preset_name: str,
     config: Path | None,
-    num_frames: int | None,
+    window: int | None,
     causal: bool,
     sets: list[str] | None,
     flow_method: str | None,
     flow_params: list[str] | None,
+    flow_cache: Path | None = None,
+    flow_roi: str | None = None,
 ):
-    from ..config import FlowConfig, load_config, preset
+    from .._params import coerce_fields
+    from ..config import FlowConfig, FusionParams, load_config, preset
 
     chosen = load_config(config, base=preset_name) if config else preset(preset_name)
     fusion = chosen.fusion
-    changes = {k: _coerce_fusion_value(k, v) for k, v in _parse_assignments(sets, "--set").items()}
-    if num_frames is not None:
-        changes["num_frames"] = num_frames
+    changes = coerce_fields(
+        FusionParams, _parse_assignments(sets, "--set"), owner="the fusion (--set, FusionParams)"
+    )
+    if window is not None:
+        changes["num_frames"] = window
     if causal:
         changes["causal"] = True
     if changes:
@@ -79,7 +58,19 @@ def _resolve(
     if flow_method is not None or extra:
         method = flow_method or flow.method
         base = dict(flow.params) if method == flow.method else {}
-        flow = FlowConfig(method, {**base, **extra})
+        flow = dataclasses.replace(flow, method=method, params={**base, **extra})
+    if flow_cache is not None:
+        flow = dataclasses.replace(flow, cache_dir=str(flow_cache))
+    if flow_roi is not None:
+        parts = flow_roi.replace(",", " ").split()
+        try:
+            roi = tuple(int(v) for v in parts)
+        except ValueError:
+            roi = ()
+        if len(roi) != 4:
+            fail(f"--flow-roi must be ROW0,ROW1,COL0,COL1 (px, half-open), got {flow_roi!r}")
+        flow = dataclasses.replace(flow, roi=roi)
+    assert isinstance(flow, FlowConfig)
     flow.build_params()  # validate early, before any frame is read
     return fusion, flow
 
@@ -89,8 +80,8 @@ def run_command(
     input: Annotated[Path, typer.Argument(help="Recording: .npz, frame folder, TUM, ...")],
     output: Annotated[Path, typer.Option("-o", "--output", help="Output .npz or folder.")],
     preset_name: PresetOpt = "fast",
-    num_frames: Annotated[
-        int | None, typer.Option("--frames", help="Frames fused per output frame (n).")
+    window: Annotated[
+        int | None, typer.Option("--window", help="Frames fused per output frame (n, paper: 9).")
     ] = None,
     config: Annotated[
         Path | None, typer.Option("--config", help="TOML file with [fusion] and [flow].")
@@ -111,13 +102,36 @@ def run_command(
             "--flow-param", help="Flow parameter KEY=VALUE (repeatable).", show_default=False
         ),
     ] = None,
+    flow_cache: Annotated[
+        Path | None,
+        typer.Option(
+            "--flow-cache",
+            help="Folder of an on-disk flow cache: flows are stored and reused by later runs.",
+        ),
+    ] = None,
+    flow_roi: Annotated[
+        str | None,
+        typer.Option(
+            "--flow-roi", help="Solve flow only in ROW0,ROW1,COL0,COL1 (px); 0 flow outside."
+        ),
+    ] = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing output.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
 ) -> None:
     """Fuse a recording (paper Eq. 2-6) and write the same kind of file or folder."""
     from ..run import fuse_file
 
-    fusion, flow = _resolve(preset_name, config, num_frames, causal, sets, flow_method, flow_params)
+    fusion, flow = _resolve(
+        preset_name,
+        config,
+        window,
+        causal,
+        sets,
+        flow_method,
+        flow_params,
+        flow_cache,
+        flow_roi,
+    )
     with progress_bar("fusing", None) as progress:
         summary = fuse_file(
             input,
@@ -177,8 +191,8 @@ def bench_command(
     With --quality: RMSE/roughness/bad pixels/shape of raw, the depth self-guided filter, a
     9-frame mean and fuse4d against ground truth on the 50-frame 600x600 ball.
     """
-    from ..bench import benchmark_pipeline
     from ..config import PRESETS
+    from ..experiments.speed import benchmark_pipeline
 
     names = list(PRESETS) if preset_name == "all" else [preset_name]
     for name in names:
@@ -216,7 +230,7 @@ def demo_command(
     preset_name: PresetOpt = "fast",
 ) -> None:
     """Fuse the built-in synthetic falling ball and write figures and a metrics table."""
-    from ..demo import run_demo
+    from ..experiments.demo import run_demo
 
     err_console.print("fuse4d demo: synthetic falling ball (first run compiles kernels) ...")
     with progress_bar("fusing", None) as progress:
@@ -246,7 +260,7 @@ def demo_command(
 
 
 def _quality(names: list[str], small: bool, intensity_noise: float, as_json: bool) -> None:
-    from ..evaluation import ball_quality_report
+    from ..experiments.quality import ball_quality_report
 
     reports = []
     for name in names:

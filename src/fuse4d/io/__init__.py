@@ -1,5 +1,5 @@
 """Reading and writing 3D videos: fuse4d's npz and frame-folder formats, real RGB-D layouts
-(TUM, cv2-xml, frames-json), PLY point clouds and Middlebury ``.flo`` flow.
+(TUM, cv2-xml, frames-json), PLY point clouds (Middlebury ``.flo`` flow files: :mod:`fuse4d.flow.flo`).
 
 In memory: depth (T, H, W) float32 mm with NaN = invalid, intensity (T, H, W) float32 in
 [0, 1]. On disk, 16-bit depth stores ``value * depth_unit_mm`` mm with 0 = invalid. Every
@@ -25,7 +25,6 @@ from .api import (
     save_sequence,
 )
 from .cv2xml import Cv2XmlReader
-from .flo import read_flo, write_flo
 from .folder import FolderReader, FrameFolderWriter, read_frame_folder, write_frame_folder
 from .framesjson import FramesJsonReader
 from .mask import read_mask
@@ -54,7 +53,6 @@ __all__ = [
     "open_frames",
     "read_camera_json",
     "read_depth_png",
-    "read_flo",
     "read_frame_folder",
     "read_intensity_image",
     "read_intrinsics",
@@ -66,7 +64,6 @@ __all__ = [
     "read_tum",
     "resolve_frames",
     "save_sequence",
-    "write_flo",
     "write_frame_folder",
     "write_npz",
     "write_ply",

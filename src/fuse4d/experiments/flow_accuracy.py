@@ -32,10 +32,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from .flow import available_flow_methods, estimate_flow, resolve_flow_params
-from .flow_opencv import DISParams
-from .io import read_flo, read_intensity_image
-from .metrics import flow_angular_error, flow_endpoint_error
+from ..flow import DISParams, available_flow_methods, estimate_flow, read_flo, resolve_flow_params
+from ..io import read_intensity_image
+from ..metrics import flow_angular_error, flow_endpoint_error
 
 __all__ = [
     "BenchEntry",
@@ -161,7 +160,7 @@ def middlebury_pairs(directory: str | Path) -> tuple[list[FlowPair], str]:
 
 def ball_pairs(*, intensity_noise: float, small: bool = False) -> list[FlowPair]:
     """Two frame pairs of the synthetic falling ball with their GT flow and interior mask."""
-    from .synthetic import make_falling_ball
+    from ..synthetic import make_falling_ball
 
     pairs_t = (4, 9) if small else (10, 25)
     seq = make_falling_ball(

@@ -13,9 +13,9 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from .config import preset as get_preset
-from .fusion import STAGES, FusionEngine
-from .synthetic import make_falling_ball
+from ..config import preset as get_preset
+from ..fusion import STAGES, FusionEngine
+from ..synthetic import make_falling_ball
 
 __all__ = ["BenchResult", "benchmark_pipeline"]
 

@@ -17,10 +17,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from .baselines.temporal import temporal_mean
-from .camera import depth_to_points
-from .metrics import bad_pixel_fraction, ball_roi, depth_rmse, roughness_stats
-from .sequence import Sequence
+from ..baselines.temporal import temporal_mean
+from ..camera import depth_to_points
+from ..metrics import bad_pixel_fraction, ball_roi, depth_rmse, roughness_stats
+from ..sequence import Sequence
 
 __all__ = [
     "MethodScore",
@@ -166,10 +166,10 @@ def ball_quality_report(
     """
     import time
 
-    from .config import preset as get_preset
-    from .fusion import fuse_sequence
-    from .metrics import shape_correctness
-    from .synthetic import make_falling_ball
+    from ..config import preset as get_preset
+    from ..fusion import fuse_sequence
+    from ..metrics import shape_correctness
+    from ..synthetic import make_falling_ball
 
     chosen = get_preset(preset)
     seq = make_falling_ball(

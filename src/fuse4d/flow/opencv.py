@@ -41,6 +41,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from ._checks import to_uint8
+from ._registry import FlowMethod, register_flow_method
+
 __all__ = [
     "DISParams",
     "DeepFlowParams",
@@ -73,13 +76,6 @@ def _check_bool(name: str, value: Any) -> None:
         raise TypeError(f"{name} must be True or False, got {value!r}")
 
 
-def _to_uint8(image: NDArray[np.float32]) -> NDArray[np.uint8]:
-    """[0, 1] float → uint8 with rounding and saturation (like ``Mat.convertTo(CV_8U, 255)``)."""
-    out = np.empty(image.shape, np.uint8)
-    np.clip(image * np.float32(255.0) + np.float32(0.5), 0.0, 255.0, out=out, casting="unsafe")
-    return out
-
-
 def _init_or_none(init: NDArray[np.float32] | None) -> NDArray[np.float32] | None:
     return None if init is None else np.ascontiguousarray(init, dtype=np.float32).copy()
 
@@ -93,7 +89,9 @@ def _init_or_none(init: NDArray[np.float32] | None) -> NDArray[np.float32] | Non
 class DISParams:
     """Parameters of OpenCV's Dense Inverse Search flow (Kroeger et al., ECCV 2016).
 
-    Defaults are OpenCV 5's ``PRESET_MEDIUM``; :meth:`from_preset` gives the other presets.
+    Defaults are OpenCV 5's ``PRESET_FAST`` — the tracker of the ``fast`` fusion preset, so
+    ``flow="dis"``, ``--flow dis`` and the default flow are one setting; :meth:`from_preset`
+    gives ``ultrafast`` and ``medium``.
 
     Parameters
     ----------
@@ -121,10 +119,10 @@ class DISParams:
         Propagate good patch matches to neighbours.
     """
 
-    finest_scale: int = 1
+    finest_scale: int = 2
     patch_size: int = 8
-    patch_stride: int = 3
-    gradient_descent_iterations: int = 25
+    patch_stride: int = 4
+    gradient_descent_iterations: int = 16
     variational_refinement_iterations: int = 5
     variational_refinement_alpha: float = 20.0
     variational_refinement_gamma: float = 10.0
@@ -141,13 +139,13 @@ class DISParams:
             "gradient_descent_iterations": 12,
             "variational_refinement_iterations": 0,
         },
-        "fast": {
-            "finest_scale": 2,
-            "patch_stride": 4,
-            "gradient_descent_iterations": 16,
+        "fast": {},
+        "medium": {
+            "finest_scale": 1,
+            "patch_stride": 3,
+            "gradient_descent_iterations": 25,
             "variational_refinement_iterations": 5,
         },
-        "medium": {},
     }
 
     def __post_init__(self) -> None:
@@ -212,7 +210,7 @@ def dis_flow(
     candidates"); it does not replace the coarse-to-fine search.
     """
     dis = _make_dis(params)
-    return dis.calc(_to_uint8(image0), _to_uint8(image1), _init_or_none(init))
+    return dis.calc(to_uint8(image0), to_uint8(image1), _init_or_none(init))
 
 
 # --------------------------------------------------------------------------------------------
@@ -277,8 +275,8 @@ def farneback_flow(
     if flow is not None:
         flags |= cv2.OPTFLOW_USE_INITIAL_FLOW
     return cv2.calcOpticalFlowFarneback(
-        _to_uint8(image0),
-        _to_uint8(image1),
+        to_uint8(image0),
+        to_uint8(image1),
         flow,
         pyr_scale=float(params.pyr_scale),
         levels=int(params.levels),
@@ -420,3 +418,50 @@ def deepflow_flow(
     scale = np.float32(255.0)
     deep = cv2.optflow.createOptFlow_DeepFlow()
     return deep.calc(image0 * scale, image1 * scale, None)
+
+
+def register() -> None:
+    """Register the four OpenCV trackers (``dis``, ``farneback``, ``tvl1``, ``deepflow``)."""
+    register_flow_method(
+        FlowMethod(
+            name="dis",
+            function=dis_flow,
+            params_type=DISParams,
+            description="OpenCV Dense Inverse Search (fast; presets ultrafast/fast/medium)",
+            supports_init=True,
+            paper_method=False,
+        )
+    )
+    register_flow_method(
+        FlowMethod(
+            name="farneback",
+            function=farneback_flow,
+            params_type=FarnebackParams,
+            description="OpenCV Farneback polynomial expansion",
+            supports_init=True,
+            paper_method=False,
+        )
+    )
+    register_flow_method(
+        FlowMethod(
+            name="tvl1",
+            function=tvl1_flow,
+            params_type=TVL1Params,
+            description="OpenCV Dual TV-L1 (slow)",
+            supports_init=True,
+            paper_method=False,
+        )
+    )
+    register_flow_method(
+        FlowMethod(
+            name="deepflow",
+            function=deepflow_flow,
+            params_type=DeepFlowParams,
+            description="OpenCV DeepFlow (most accurate OpenCV tracker; no warm start)",
+            supports_init=False,
+            paper_method=False,
+        )
+    )
+
+    # --- PMBP registration (pmbp.py) ---
+    # The paper's tracker registers "pmbp" and "pmbp-fast". Kept at the very end: pmbp.py imports

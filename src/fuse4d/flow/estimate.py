@@ -1,73 +1,36 @@
-"""Stage 1 — dense intensity tracking: optical flow between consecutive frames (METHOD §2).
-
-The flow stage is a small registry of methods behind one signature, so that the paper's PMBP
-tracker (``fuse4d.pmbp``, registered as ``"pmbp"`` / ``"pmbp-fast"``) and the OpenCV trackers
-(``fuse4d.flow_opencv``: ``"dis"``, ``"farneback"``, ``"tvl1"``, ``"deepflow"``, which are *not*
-the paper's method) are interchangeable.
+"""Stage 1 — dense intensity tracking: flow fields of frames, pairs and sequences (METHOD §2).
 
 Conventions (STYLE.md): intensity images are float32 ``(H, W)`` in [0, 1]; a flow field is
 float32 ``(H, W, 2)`` in px with ``[..., 0]`` = du (column) and ``[..., 1]`` = dv (row), defined
 on the grid of its *source* image: ``image0[v, u] ≈ image1[v + dv, u + du]``. For a sequence,
 ``forward[t]`` = s^{t,t+1} (on frame t's grid) and ``backward[t]`` = s^{t+1,t} (on frame t+1's
 grid), both ``(T-1, H, W, 2)``.
-
-Entry points
-------------
-- :func:`estimate_flow` — one flow field with any registered method.
-- :func:`estimate_flow_pair` — forward and backward flow of one frame pair (+ warm start, ROI,
-  on-disk cache); what the streaming fusion engine calls pair by pair.
-- :class:`SequenceFlowEstimator` — the same, remembering the previous pair for warm starts.
-- :func:`estimate_sequence_flow` — all pairs of a ``(T, H, W)`` video, each pair computed once.
-- :func:`default_flow_for_preset` — the method and parameters of the fusion presets.
-- :func:`warp_image` — backward warping with a flow field (tests, visual checks).
 """
 
 from __future__ import annotations
 
-import typing
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, fields, is_dataclass
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from ._validation import as_float32, check_shape
-from .errors import ShapeError
-from .flow_cache import FlowCache, hash_parts
-from .flow_opencv import (
-    DeepFlowParams,
-    DISParams,
-    FarnebackParams,
-    TVL1Params,
-    deepflow_flow,
-    dis_flow,
-    farneback_flow,
-    tvl1_flow,
-)
+from .._validation import as_float32, check_shape
+from .._version import __version__
+from ..errors import ShapeError
+from ._checks import check_flow_field, check_image, check_roi
+from ._registry import FlowMethod, Roi, get_flow_method, resolve_flow_params
+from .cache import FlowCache, hash_parts
 
 __all__ = [
     "FLOW_CODE_VERSION",
-    "DISParams",
-    "DeepFlowParams",
-    "FarnebackParams",
-    "FlowCache",
-    "FlowFunction",
-    "FlowMethod",
-    "FlowPairFunction",
     "SequenceFlow",
     "SequenceFlowEstimator",
-    "TVL1Params",
-    "available_flow_methods",
-    "default_flow_for_preset",
     "estimate_flow",
     "estimate_flow_pair",
     "estimate_sequence_flow",
-    "flow_params_from_mapping",
-    "get_flow_method",
-    "register_flow_method",
-    "resolve_flow_params",
     "warp_image",
 ]
 
@@ -75,217 +38,9 @@ __all__ = [
 #: of every cache key (together with the fuse4d and OpenCV versions).
 FLOW_CODE_VERSION = "2"  # 2: PMBP post-steps (A23)
 
-#: ``(image0, image1, params, init) -> flow``: image0/image1 float32 ``(H, W)`` in [0, 1],
-#: ``params`` the method's frozen dataclass, ``init`` an optional float32 ``(H, W, 2)`` initial
-#: flow (px); returns float32 ``(H, W, 2)`` flow from image0 to image1 (px, du then dv).
-#: Inputs are validated by :func:`estimate_flow` before the function is called.
-FlowFunction = Callable[
-    [NDArray[np.float32], NDArray[np.float32], Any, NDArray[np.float32] | None],
-    NDArray[np.float32],
-]
-
-#: ``(image0, image1, params, init) -> (forward, backward)``: both directions of one pair at
-#: once, for methods that share work between them (PMBP's consistency check solves the
-#: opposite direction anyway). ``init`` warm-starts the forward solve.
-FlowPairFunction = Callable[
-    [NDArray[np.float32], NDArray[np.float32], Any, NDArray[np.float32] | None],
-    tuple[NDArray[np.float32], NDArray[np.float32]],
-]
-
-#: Region of interest ``(row0, row1, col0, col1)``, half-open, in px.
-Roi = tuple[int, int, int, int]
-
-
-@dataclass(frozen=True)
-class FlowMethod:
-    """A registered optical-flow method.
-
-    Parameters
-    ----------
-    name : str
-        Registry name (``"dis"``, ``"pmbp"``, ...), used by the API, the CLI and config files.
-    function : FlowFunction
-        ``(image0, image1, params, init) -> flow``; see :data:`FlowFunction`.
-    params_type : type
-        Frozen dataclass of the method's parameters; ``params_type()`` gives the defaults.
-    description : str
-        One line for ``--help`` and benchmark tables.
-    supports_init : bool
-        Whether ``function`` uses ``init`` (warm starts, METHOD §2.3). If False, ``init`` is
-        never passed (``None``).
-    paper_method : bool
-        True only for the paper's tracker (PMBP); results of other methods must say so.
-    pair_function : FlowPairFunction, optional
-        Both directions of a pair in one call (used by :func:`estimate_flow_pair` when given);
-        None = ``function`` forward, then backward warm-started with ``-forward``.
-    """
-
-    name: str
-    function: FlowFunction
-    params_type: type
-    description: str
-    supports_init: bool
-    paper_method: bool
-    pair_function: FlowPairFunction | None = None
-
-    def __post_init__(self) -> None:
-        if not self.name or self.name != self.name.strip().lower() or " " in self.name:
-            raise ValueError(f"flow method name must be lower-case without spaces: {self.name!r}")
-        if not callable(self.function):
-            raise TypeError(f"flow method {self.name!r}: function must be callable")
-        if not (isinstance(self.params_type, type) and is_dataclass(self.params_type)):
-            raise TypeError(f"flow method {self.name!r}: params_type must be a dataclass type")
-
-
-_REGISTRY: dict[str, FlowMethod] = {}
-
-
-def register_flow_method(method: FlowMethod, *, replace: bool = False) -> None:
-    """Add ``method`` to the registry under ``method.name``.
-
-    Registering the same object twice is a no-op; a *different* method under an existing name
-    raises ``ValueError`` unless ``replace=True``.
-    """
-    if not isinstance(method, FlowMethod):
-        raise TypeError(f"expected a FlowMethod, got {type(method).__name__}")
-    existing = _REGISTRY.get(method.name)
-    if existing is not None and existing != method and not replace:
-        raise ValueError(
-            f"a flow method named {method.name!r} is already registered; pass replace=True"
-        )
-    _REGISTRY[method.name] = method
-
-
-def available_flow_methods() -> dict[str, FlowMethod]:
-    """All registered methods by name (a copy, in registration order)."""
-    return dict(_REGISTRY)
-
-
-def get_flow_method(name: str | FlowMethod) -> FlowMethod:
-    """Look a method up by name; the error lists the registered names."""
-    if isinstance(name, FlowMethod):
-        return name
-    try:
-        return _REGISTRY[name]
-    except (KeyError, TypeError):
-        names = ", ".join(sorted(_REGISTRY))
-        raise ValueError(f"unknown flow method {name!r}; available methods: {names}") from None
-
-
-def resolve_flow_params(method: str | FlowMethod, params: Any = None) -> Any:
-    """The parameter object for ``method``.
-
-    ``None`` → the method's defaults; a mapping → :func:`flow_params_from_mapping`; an instance
-    of ``method.params_type`` → itself. Anything else raises ``TypeError``.
-    """
-    m = get_flow_method(method)
-    if params is None:
-        return m.params_type()
-    if isinstance(params, m.params_type):
-        return params
-    if isinstance(params, Mapping):
-        return flow_params_from_mapping(m, params)
-    raise TypeError(
-        f"params for flow method {m.name!r} must be a {m.params_type.__name__} "
-        f"(or a mapping of its fields), got {type(params).__name__}"
-    )
-
-
-def flow_params_from_mapping(method: str | FlowMethod, mapping: Mapping[str, Any]) -> Any:
-    """Build ``method``'s parameter dataclass from a mapping (config file, ``--param k=v``).
-
-    String values are converted to the field's type (``"3"`` → 3, ``"true"`` → True). The key
-    ``"preset"`` selects a starting point for parameter types that have ``from_preset`` (DIS:
-    ``ultrafast``/``fast``/``medium``); the other keys override it. Unknown keys raise
-    ``ValueError`` listing the valid ones.
-    """
-    m = get_flow_method(method)
-    ptype = m.params_type
-    values = dict(mapping)
-    preset = values.pop("preset", None)
-    hints = typing.get_type_hints(ptype)
-    names = [f.name for f in fields(ptype)]
-    unknown = sorted(set(values) - set(names))
-    if unknown:
-        valid = ", ".join(names) or "(none)"
-        if hasattr(ptype, "from_preset"):
-            valid += ", preset"
-        raise ValueError(
-            f"unknown parameter(s) {', '.join(unknown)} for flow method {m.name!r}; valid: {valid}"
-        )
-    converted = {key: _coerce(key, value, hints[key]) for key, value in values.items()}
-    if preset is not None:
-        if not hasattr(ptype, "from_preset"):
-            raise ValueError(f"flow method {m.name!r} has no presets")
-        return ptype.from_preset(str(preset), **converted)
-    return ptype(**converted)
-
-
-def _coerce(name: str, value: Any, hint: Any) -> Any:
-    """Convert a string from the command line / config to the annotated field type."""
-    if not isinstance(value, str):
-        if hint is float and isinstance(value, int) and not isinstance(value, bool):
-            return float(value)
-        return value
-    text = value.strip()
-    try:
-        if hint is bool:
-            lowered = text.lower()
-            if lowered in {"1", "true", "yes", "on"}:
-                return True
-            if lowered in {"0", "false", "no", "off"}:
-                return False
-            raise ValueError(text)
-        if hint is int:
-            return int(text)
-        if hint is float:
-            return float(text)
-    except ValueError:
-        kind = getattr(hint, "__name__", str(hint))
-        raise ValueError(f"parameter {name}: cannot read {value!r} as {kind}") from None
-    if typing.get_origin(hint) is Literal and text not in typing.get_args(hint):
-        choices = ", ".join(map(str, typing.get_args(hint)))
-        raise ValueError(f"parameter {name}: {value!r} is not one of {choices}")
-    return text
-
-
 # --------------------------------------------------------------------------------------------
 # Single flow field
 # --------------------------------------------------------------------------------------------
-
-
-def _check_image(image: Any, name: str) -> NDArray[np.float32]:
-    arr = as_float32(image, name=name)
-    check_shape(arr, ("H", "W"), name=name, hint="Pass one gray-scale intensity frame")
-    if arr.shape[0] < 2 or arr.shape[1] < 2:
-        raise ShapeError(name, ("H", "W"), arr.shape, "Each side must be at least 2 px")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} contains NaN or inf; intensity must be finite, in [0, 1]")
-    return arr
-
-
-def _check_flow(flow: Any, shape: tuple[int, int], name: str) -> NDArray[np.float32]:
-    arr = as_float32(flow, name=name)
-    check_shape(arr, (*shape, 2), name=name, hint="A flow field is (H, W, 2) px: du, dv")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} contains NaN or inf")
-    return arr
-
-
-def _check_roi(roi: Any, shape: tuple[int, int]) -> Roi | None:
-    if roi is None:
-        return None
-    try:
-        r0, r1, c0, c1 = (int(v) for v in roi)
-    except (TypeError, ValueError):
-        raise ValueError(f"roi must be (row0, row1, col0, col1), got {roi!r}") from None
-    h, w = shape
-    if not (0 <= r0 < r1 <= h and 0 <= c0 < c1 <= w) or r1 - r0 < 2 or c1 - c0 < 2:
-        raise ValueError(
-            f"roi {(r0, r1, c0, c1)} must satisfy 0 <= row0 < row1 <= {h}, "
-            f"0 <= col0 < col1 <= {w}, at least 2 px each way (half-open, px)"
-        )
-    return (r0, r1, c0, c1)
 
 
 def _run_cropped(
@@ -398,12 +153,12 @@ def _check_call(
     """Resolve the method and its params and validate the images, warm start and roi."""
     m = get_flow_method(method)
     p = resolve_flow_params(m, params)
-    a = _check_image(image0, "image0")
-    b = _check_image(image1, "image1")
+    a = check_image(image0, "image0")
+    b = check_image(image1, "image1")
     if a.shape != b.shape:
         raise ShapeError("image1", a.shape, b.shape, f"It must match image0 {a.shape}")
-    init_arr = None if init is None else _check_flow(init, a.shape, init_name)
-    return m, p, a, b, init_arr, _check_roi(roi, a.shape)
+    init_arr = None if init is None else check_flow_field(init, a.shape, init_name)
+    return m, p, a, b, init_arr, check_roi(roi, a.shape)
 
 
 # --------------------------------------------------------------------------------------------
@@ -419,12 +174,10 @@ def _pair_cache_key(
     init_forward: NDArray[np.float32] | None,
     roi: Roi | None,
 ) -> str:
-    import fuse4d  # late import: the package may import this module while initialising
-
     return hash_parts(
         "fuse4d-flow-pair",
         FLOW_CODE_VERSION,
-        getattr(fuse4d, "__version__", "?"),
+        __version__,
         cv2.__version__,
         m.name,
         repr(params),
@@ -491,6 +244,11 @@ def estimate_flow_pair(
 class SequenceFlow:
     """Forward and backward flow of every consecutive pair of a video.
 
+    The one way to hand flows to the fusion (:func:`fuse4d.fuse_sequence` ``flow=``): what
+    :func:`estimate_sequence_flow` returns, or flows computed elsewhere (ground truth, another
+    tool) wrapped as ``SequenceFlow(forward, backward)``; :func:`as_sequence_flow` also accepts
+    a plain ``(forward, backward)`` pair of arrays.
+
     Attributes
     ----------
     forward : (T-1, H, W, 2) ndarray of float32
@@ -498,9 +256,9 @@ class SequenceFlow:
     backward : (T-1, H, W, 2) ndarray of float32
         ``backward[t]`` = s^{t+1,t} on frame t+1's grid, px.
     method : str
-        Registry name of the method that produced it.
-    params : dataclass
-        The parameters used.
+        Registry name of the method that produced it (``"precomputed"`` when unknown).
+    params : dataclass or None
+        The parameters used, if known.
     paper_method : bool
         False when the flow does not come from the paper's tracker (PMBP): results built on it
         must say so (METHOD §2.5 item 7).
@@ -508,14 +266,53 @@ class SequenceFlow:
 
     forward: NDArray[np.float32]
     backward: NDArray[np.float32]
-    method: str
-    params: Any
-    paper_method: bool
+    method: str = "precomputed"
+    params: Any = None
+    paper_method: bool = False
 
     @property
     def num_pairs(self) -> int:
         """Number of frame pairs, T-1."""
         return int(self.forward.shape[0])
+
+
+def as_sequence_flow(flow: Any, shape: tuple[int, int, int] | None = None) -> SequenceFlow:
+    """``flow`` as a :class:`SequenceFlow`, checked against a ``(T, H, W)`` video shape.
+
+    Parameters
+    ----------
+    flow : SequenceFlow, (forward, backward) tuple, or an object with ``.forward``/``.backward``
+        Pair flows, each ``(T-1, H, W, 2)`` px.
+    shape : (T, H, W), optional
+        The video the flows belong to; when given, both arrays must be ``(T-1, H, W, 2)``.
+
+    Returns
+    -------
+    SequenceFlow
+
+    Raises
+    ------
+    TypeError
+        If ``flow`` is none of the accepted forms.
+    ShapeError
+        If an array does not fit ``shape``.
+    """
+    if isinstance(flow, SequenceFlow):
+        result = flow
+    elif isinstance(flow, tuple | list) and len(flow) == 2:
+        result = SequenceFlow(np.asarray(flow[0]), np.asarray(flow[1]))
+    elif hasattr(flow, "forward") and hasattr(flow, "backward"):
+        result = SequenceFlow(np.asarray(flow.forward), np.asarray(flow.backward))
+    else:
+        raise TypeError(
+            "precomputed flows must be a SequenceFlow or a (forward, backward) pair of "
+            f"(T-1, H, W, 2) arrays, got {type(flow).__name__}"
+        )
+    if shape is not None:
+        n, h, w = shape
+        for name, f in (("flow.forward", result.forward), ("flow.backward", result.backward)):
+            check_shape(np.asarray(f), (max(n - 1, 0), h, w, 2), name=name)
+    return result
 
 
 class SequenceFlowEstimator:
@@ -650,28 +447,6 @@ def estimate_sequence_flow(
     )
 
 
-# --------------------------------------------------------------------------------------------
-# Presets and helpers
-# --------------------------------------------------------------------------------------------
-
-
-def default_flow_for_preset(name: str) -> tuple[str, Any]:
-    """``(method, params)`` of the flow stage for a fusion preset.
-
-    - ``"fast"``: DIS with OpenCV's ``medium`` preset (≈ 15 ms per 600×600 pair on 2 threads,
-      0.05 px EPE on the synthetic ball — PEERS.md §6; not the paper's method).
-    - ``"paper"``: PMBP with its default parameters when ``"pmbp"`` is registered, otherwise
-      DeepFlow (the most accurate OpenCV tracker in PEERS.md §6; not the paper's method).
-    """
-    if name == "fast":
-        return "dis", DISParams.from_preset("medium")
-    if name == "paper":
-        if "pmbp" in _REGISTRY:
-            return "pmbp", _REGISTRY["pmbp"].params_type()
-        return "deepflow", DeepFlowParams()
-    raise ValueError(f"unknown fusion preset {name!r}; choose 'fast' or 'paper'")
-
-
 def warp_image(
     image: NDArray[np.floating],
     flow: NDArray[np.float32],
@@ -714,56 +489,3 @@ def warp_image(
         outside = (map_u < 0) | (map_u > w - 1) | (map_v < 0) | (map_v > h - 1)
         out[outside] = np.nan
     return out
-
-
-# --------------------------------------------------------------------------------------------
-# Built-in methods (OpenCV; not the paper's tracker)
-# --------------------------------------------------------------------------------------------
-
-register_flow_method(
-    FlowMethod(
-        name="dis",
-        function=dis_flow,
-        params_type=DISParams,
-        description="OpenCV Dense Inverse Search (fast; presets ultrafast/fast/medium)",
-        supports_init=True,
-        paper_method=False,
-    )
-)
-register_flow_method(
-    FlowMethod(
-        name="farneback",
-        function=farneback_flow,
-        params_type=FarnebackParams,
-        description="OpenCV Farneback polynomial expansion",
-        supports_init=True,
-        paper_method=False,
-    )
-)
-register_flow_method(
-    FlowMethod(
-        name="tvl1",
-        function=tvl1_flow,
-        params_type=TVL1Params,
-        description="OpenCV Dual TV-L1 (slow)",
-        supports_init=True,
-        paper_method=False,
-    )
-)
-register_flow_method(
-    FlowMethod(
-        name="deepflow",
-        function=deepflow_flow,
-        params_type=DeepFlowParams,
-        description="OpenCV DeepFlow (most accurate OpenCV tracker; no warm start)",
-        supports_init=False,
-        paper_method=False,
-    )
-)
-
-# --- PMBP registration (pmbp.py) ---
-# The paper's tracker registers "pmbp" and "pmbp-fast". Kept at the very end: pmbp.py imports
-# FlowMethod / register_flow_method from this module.
-from .pmbp import register as _register_pmbp
-
-_register_pmbp()

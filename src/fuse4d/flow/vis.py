@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ._validation import as_float32, check_shape
+from .._validation import as_float32, check_shape
 
 __all__ = ["flow_to_color", "make_color_wheel"]
 

@@ -92,9 +92,10 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._kernels import pmbp as _k
-from ._validation import as_float32, check_same_shape, check_shape
-from .errors import ShapeError
+from .._kernels import pmbp as _k
+from .._validation import as_float32, check_same_shape, check_shape
+from ._checks import check_image, to_uint8
+from ._registry import FlowMethod, register_flow_method
 
 __all__ = [
     "PMBP_FAST",
@@ -505,16 +506,6 @@ def _config(p: PMBPParams, scale: float, first_level: bool) -> NDArray[np.float6
     return cfg
 
 
-def _check_image(image: ArrayLike, name: str) -> NDArray[np.float32]:
-    arr = as_float32(image, name=name)
-    check_shape(arr, ("H", "W"), name=name, hint="PMBP takes one gray image (H, W) in [0, 1]")
-    if arr.shape[0] < 2 or arr.shape[1] < 2:
-        raise ShapeError(name, ("H", "W"), arr.shape, "Both sides must be at least 2 px")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} contains NaN or inf; intensity must be finite in [0, 1]")
-    return arr
-
-
 def pmbp_flow(
     image0: ArrayLike,
     image1: ArrayLike,
@@ -600,8 +591,8 @@ def _check_inputs(
     p = PMBPParams() if params is None else params
     if not isinstance(p, PMBPParams):
         raise TypeError(f"params must be a PMBPParams, got {type(p).__name__}")
-    a = _check_image(image0, "image0")
-    b = _check_image(image1, "image1")
+    a = check_image(image0, "image0")
+    b = check_image(image1, "image1")
     check_same_shape(a, b, names=("image0", "image1"))
     h, w = a.shape
     init_arr = None
@@ -762,10 +753,6 @@ def _fill_inconsistent(
     return out
 
 
-def _to_uint8(image: NDArray[np.float32]) -> NDArray[np.uint8]:
-    return np.clip(image * np.float32(255.0) + np.float32(0.5), 0.0, 255.0).astype(np.uint8)
-
-
 def _variational_refinement(
     image0: NDArray[np.float32],
     image1: NDArray[np.float32],
@@ -784,7 +771,7 @@ def _variational_refinement(
     ref.setGamma(float(p.variational_refinement_gamma))
     ref.setDelta(float(p.variational_refinement_delta))
     out = np.ascontiguousarray(flow, np.float32).copy()
-    ref.calc(_to_uint8(image0), _to_uint8(image1), out)
+    ref.calc(to_uint8(image0), to_uint8(image1), out)
     return out
 
 
@@ -845,11 +832,9 @@ def pmbp_flow_fast_pair(
 
 
 def register() -> None:
-    """Register ``"pmbp"`` (paper preset, K = 3) and ``"pmbp-fast"`` with :mod:`fuse4d.flow`."""
-    from . import flow as _flow
-
-    _flow.register_flow_method(
-        _flow.FlowMethod(
+    """Register ``"pmbp"`` (paper preset, K = 3) and ``"pmbp-fast"`` ."""
+    register_flow_method(
+        FlowMethod(
             name="pmbp",
             function=pmbp_flow,
             pair_function=pmbp_flow_pair,
@@ -859,8 +844,8 @@ def register() -> None:
             paper_method=True,
         )
     )
-    _flow.register_flow_method(
-        _flow.FlowMethod(
+    register_flow_method(
+        FlowMethod(
             name="pmbp-fast",
             function=pmbp_flow_fast,
             pair_function=pmbp_flow_fast_pair,

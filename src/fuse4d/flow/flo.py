@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputFileError
-from ._atomic import atomic_file
+from ..io._atomic import atomic_file
 
 __all__ = ["FLO_TAG", "FLO_UNKNOWN", "read_flo", "write_flo"]
 

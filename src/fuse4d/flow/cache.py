@@ -11,13 +11,13 @@ writer never leaves a half-written entry; an unreadable entry counts as a miss a
 from __future__ import annotations
 
 import hashlib
-import os
-import tempfile
 from os import PathLike
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+
+from ..io._atomic import atomic_file
 
 __all__ = ["FlowCache", "hash_parts"]
 
@@ -97,14 +97,8 @@ class FlowCache:
         """Write ``array`` under ``key`` atomically (replacing an existing entry)."""
         path = self.path(key)
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".npy")
-        try:
-            with os.fdopen(fd, "wb") as handle:
-                np.save(handle, np.ascontiguousarray(array), allow_pickle=False)
-            Path(tmp).replace(path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        with atomic_file(path, overwrite=True) as tmp, tmp.open("wb") as handle:
+            np.save(handle, np.ascontiguousarray(array), allow_pickle=False)
 
     def clear(self) -> int:
         """Delete every entry; returns the number of files removed."""

@@ -17,12 +17,12 @@ from typing import Any
 
 import numpy as np
 
-from .baselines.temporal import temporal_mean
-from .config import preset as get_preset
-from .evaluation import MethodScore, score_on_ball, self_guided_filter
-from .fusion import fuse_sequence
-from .metrics import ball_roi, roughness_maps
-from .synthetic import make_falling_ball
+from ..baselines.temporal import temporal_mean
+from ..config import preset as get_preset
+from ..fusion import fuse_sequence
+from ..metrics import ball_roi, roughness_maps
+from ..synthetic import make_falling_ball
+from .quality import MethodScore, score_on_ball, self_guided_filter
 
 __all__ = ["DemoResult", "run_demo"]
 
@@ -80,7 +80,7 @@ def run_demo(
     progress : callable, optional
         ``progress(done, total)`` per fused frame.
     """
-    from .plot import save_figure
+    from ..plot import save_figure
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

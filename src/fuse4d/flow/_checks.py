@@ -1,0 +1,58 @@
+"""Input checks and conversions shared by the flow methods and the estimators."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .._validation import as_float32, check_shape
+from ..errors import ShapeError
+from ._registry import Roi
+
+__all__ = ["check_flow_field", "check_image", "check_roi", "to_uint8"]
+
+
+def check_image(image: Any, name: str) -> NDArray[np.float32]:
+    """One gray intensity frame as float32 ``(H, W)``, at least 2 px a side, finite."""
+    arr = as_float32(image, name=name)
+    check_shape(arr, ("H", "W"), name=name, hint="Pass one gray-scale intensity frame")
+    if arr.shape[0] < 2 or arr.shape[1] < 2:
+        raise ShapeError(name, ("H", "W"), arr.shape, "Each side must be at least 2 px")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} contains NaN or inf; intensity must be finite, in [0, 1]")
+    return arr
+
+
+def check_flow_field(flow: Any, shape: tuple[int, int], name: str) -> NDArray[np.float32]:
+    """A finite float32 ``(H, W, 2)`` flow field (px) of the given image shape."""
+    arr = as_float32(flow, name=name)
+    check_shape(arr, (*shape, 2), name=name, hint="A flow field is (H, W, 2) px: du, dv")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} contains NaN or inf")
+    return arr
+
+
+def check_roi(roi: Any, shape: tuple[int, int]) -> Roi | None:
+    """``(row0, row1, col0, col1)`` half-open box inside ``shape`` (px), or None."""
+    if roi is None:
+        return None
+    try:
+        r0, r1, c0, c1 = (int(v) for v in roi)
+    except (TypeError, ValueError):
+        raise ValueError(f"roi must be (row0, row1, col0, col1), got {roi!r}") from None
+    h, w = shape
+    if not (0 <= r0 < r1 <= h and 0 <= c0 < c1 <= w) or r1 - r0 < 2 or c1 - c0 < 2:
+        raise ValueError(
+            f"roi {(r0, r1, c0, c1)} must satisfy 0 <= row0 < row1 <= {h}, "
+            f"0 <= col0 < col1 <= {w}, at least 2 px each way (half-open, px)"
+        )
+    return (r0, r1, c0, c1)
+
+
+def to_uint8(image: NDArray[np.float32]) -> NDArray[np.uint8]:
+    """[0, 1] float → uint8 with rounding and saturation (like ``Mat.convertTo(CV_8U, 255)``)."""
+    out = np.empty(image.shape, np.uint8)
+    np.clip(image * np.float32(255.0) + np.float32(0.5), 0.0, 255.0, out=out, casting="unsafe")
+    return out
