@@ -1,5 +1,6 @@
 """``python -m fuse4d``: the command-line interface."""
 
-from .cli import main
+if __name__ == "__main__":
+    from .cli import main
 
-main()
+    main()

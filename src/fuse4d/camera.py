@@ -33,7 +33,7 @@ class Intrinsics:
     Examples
     --------
     >>> K = Intrinsics(fx=1000.0, fy=1000.0, cx=299.5, cy=299.5, width=600, height=600)
-    >>> K.matrix[0, 2]
+    >>> float(K.matrix[0, 2])
     299.5
     >>> K.scaled(0.5).fx
     500.0

@@ -633,6 +633,34 @@ def fuse_stream(
     (``fusion.future_frames`` frames of latency; zero with ``causal=True``). Memory holds
     ``num_frames`` frames whatever the stream length. ``iterations`` > 1 is not supported in
     streaming (use :func:`fuse_sequence`).
+
+    Parameters
+    ----------
+    frames : iterable of (depth, intensity)
+        ``(H, W)`` depth in mm (NaN or 0 = invalid) and registered intensity in [0, 1], in
+        frame order (e.g. ``fuse4d.io.iter_frames(path)``).
+    intrinsics : Intrinsics
+        Pinhole camera (px); its size fixes the frame shape.
+    fusion : FusionParams, optional
+        Fusion knobs (default ``FusionParams()``).
+    flow : FlowConfig, str, SequenceFlow or (forward, backward), optional
+        Tracker (default: the "fast" preset's DIS) or precomputed flows, as in
+        :class:`FusionEngine`.
+    timings : dict, optional
+        Accumulates seconds per pipeline stage.
+
+    Yields
+    ------
+    FusedFrame
+        Fused points (mm), support and fill masks of frame ``index``.
+
+    Examples
+    --------
+    >>> from fuse4d.synthetic import make_falling_ball
+    >>> seq = make_falling_ball(small=True, num_frames=4)
+    >>> frames = zip(seq.depth, seq.intensity)
+    >>> [f.index for f in fuse_stream(frames, seq.intrinsics, fusion=FusionParams(num_frames=3))]
+    [0, 1, 2, 3]
     """
     params = fusion or FusionParams()
     if params.iterations != 1:

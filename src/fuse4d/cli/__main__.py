@@ -1,5 +1,6 @@
 """``python -m fuse4d.cli``: the command-line interface."""
 
-from . import main
+if __name__ == "__main__":
+    from . import main
 
-main()
+    main()

@@ -21,10 +21,10 @@ from ..experiments.flow_accuracy import (
 from ..flow import (
     estimate_flow,
     flow_params_from_mapping,
-    flow_to_color,
     get_flow_method,
     write_flo,
 )
+from ..flow.vis import write_flow_png
 from ..io import read_intensity_image
 from ._app import app, eprint, fail, out_console, progress_bar, progress_callback
 
@@ -95,13 +95,9 @@ def flow_command(
             f"({a.shape[1]}x{a.shape[0]})"
         )
     flow = estimate_flow(a, b, method=m, params=params)
-    write_flo(flow, output, overwrite=True)
+    write_flo(flow, output, overwrite=force)
     if vis is not None:
-        rgb = flow_to_color(flow, max_magnitude=max_magnitude)
-        ok, encoded = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-        if not ok:
-            fail(f"{vis}: could not encode the PNG")
-        vis.write_bytes(encoded.tobytes())
+        write_flow_png(flow, vis, max_magnitude=max_magnitude, overwrite=force)
     note = "" if m.paper_method else " (not the paper's tracker)"
     eprint(
         f"wrote {output}: {a.shape[1]}x{a.shape[0]} flow, method {m.name}{note}, "

@@ -10,12 +10,17 @@ the ``.flo`` "unknown" code) is black.
 
 from __future__ import annotations
 
+from os import PathLike
+from pathlib import Path
+
 import numpy as np
 from numpy.typing import NDArray
 
 from .._validation import as_float32, check_shape
+from ..io._atomic import atomic_file
+from ..io._images import encode_png
 
-__all__ = ["flow_to_color", "make_color_wheel"]
+__all__ = ["flow_to_color", "make_color_wheel", "write_flow_png"]
 
 #: Segment lengths of the Middlebury wheel: RY, YG, GC, CB, BM, MR.
 _SEGMENTS = (15, 6, 4, 11, 13, 6)
@@ -111,3 +116,34 @@ def flow_to_color(
     rgb = np.floor(255.0 * col).astype(np.uint8)
     rgb[~known] = 0
     return rgb
+
+
+def write_flow_png(
+    flow: NDArray[np.float32],
+    path: str | PathLike[str],
+    *,
+    max_magnitude: float | None = None,
+    overwrite: bool = False,
+) -> Path:
+    """Write the Middlebury colour coding of ``flow`` as an 8-bit RGB PNG, atomically.
+
+    Parameters
+    ----------
+    flow : (H, W, 2) ndarray
+        Flow in px (du, dv).
+    path : str or PathLike
+        Output ``.png``.
+    max_magnitude : float, optional
+        Magnitude (px) drawn fully saturated (default: the field's largest).
+    overwrite : bool, optional
+        Replace an existing file.
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
+    rgb = flow_to_color(flow, max_magnitude=max_magnitude)
+    with atomic_file(path, overwrite=overwrite) as tmp:
+        encode_png(np.ascontiguousarray(rgb[..., ::-1]), tmp)  # OpenCV writes BGR
+    return Path(path)

@@ -1,0 +1,106 @@
+"""The public surface is pinned: ``docs/api.md`` lists exactly each module's ``__all__``."""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+API_PAGE = Path(__file__).resolve().parents[1] / "docs" / "api.md"
+
+
+def _documented() -> dict[str, list[str]]:
+    """Module name → names in its table on the API page, in page order."""
+    sections: dict[str, list[str]] = {}
+    current = None
+    for line in API_PAGE.read_text(encoding="utf-8").splitlines():
+        heading = re.match(r"^## `(fuse4d(?:\.\w+)*)`", line)
+        if heading:
+            current = heading.group(1)
+            sections[current] = []
+            continue
+        row = re.match(r"^\| `([^`]+)` \|", line)
+        if row and current is not None:
+            sections[current].append(row.group(1))
+    return sections
+
+
+SECTIONS = _documented()
+
+
+def test_page_has_the_top_level_and_the_subpackages():
+    assert {"fuse4d", "fuse4d.flow", "fuse4d.io", "fuse4d.metrics", "fuse4d.baselines"} <= set(
+        SECTIONS
+    )
+
+
+@pytest.mark.parametrize("module", sorted(SECTIONS))
+def test_page_matches_all(module):
+    mod = importlib.import_module(module)
+    exported = list(mod.__all__)
+    documented = SECTIONS[module]
+    assert len(documented) == len(set(documented)), f"{module}: a name is listed twice"
+    missing = sorted(set(exported) - set(documented))
+    extra = sorted(set(documented) - set(exported))
+    assert not missing, f"{module}: in __all__ but not on docs/api.md: {missing}"
+    assert not extra, f"{module}: on docs/api.md but not in __all__: {extra}"
+    for name in exported:
+        assert hasattr(mod, name), f"{module}.__all__ names {name!r}, which does not exist"
+
+
+def test_top_level_stays_small():
+    import fuse4d
+
+    assert len(fuse4d.__all__) <= 25
+
+
+def test_public_functions_have_numpydoc_sections():
+    """Every public function of the top level documents its parameters and what it returns."""
+    import fuse4d
+
+    lacking = []
+    for name in fuse4d.__all__:
+        obj = getattr(fuse4d, name)
+        if not inspect.isfunction(obj):
+            continue
+        doc = inspect.getdoc(obj) or ""
+        params = list(inspect.signature(obj).parameters)
+        if params and "Parameters\n----------" not in doc:
+            lacking.append(f"{name}: Parameters")
+        if "Returns\n-------" not in doc and "Yields\n------" not in doc:
+            lacking.append(f"{name}: Returns")
+    assert not lacking, lacking
+
+
+def test_import_is_light():
+    """``import fuse4d`` does not load the baselines (scipy.sparse, Open3D probes)."""
+    code = "import sys, fuse4d; print('fuse4d.baselines' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_lazy_names_resolve():
+    import fuse4d
+
+    assert callable(fuse4d.run_baseline)
+    assert "temporal-mean" in fuse4d.available_baselines()
+    assert fuse4d.metrics.roughness_stats is not None
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        fuse4d.nope  # noqa: B018
+
+
+def test_no_import_cycles_in_flow():
+    """The flow package's modules import nothing from the package root or its __init__."""
+    root = Path(__file__).resolve().parents[1] / "src" / "fuse4d" / "flow"
+    for path in root.glob("*.py"):
+        if path.name == "__init__.py":
+            continue
+        text = path.read_text(encoding="utf-8")
+        assert "import fuse4d\n" not in text, path
+        assert not re.search(r"^from \. import|^from \.\s+import", text, re.M), path
+        assert not re.search(r"^\s*from \.\. import", text, re.M), path
