@@ -1,0 +1,372 @@
+"""Depth-sensor models: what structured-light, active-stereo and time-of-flight cameras do to a
+true depth map (issue 10; SENSORS.md).
+
+fuse4d was tuned on the paper's sensor — continuous Gaussian noise of 0.2 mm. The depth that
+users hold is different, and these models reproduce the effects that matter for fusion, with
+ground truth:
+
+* **structured light** (Kinect v1, Xtion; :data:`KINECT_V1`): depth from the disparity between
+  the IR camera and a projector ``baseline_mm`` to its side, ``z = f b / d``. The disparity is
+  found by block matching, so its noise is *spatially correlated* over the matching window,
+  and it is quantised to ``1/8`` px: depth comes in steps ``Δz = z² q / (f b)`` (≈ 4 mm at
+  1.5 m, ≈ 26 mm at 3 m for f = 580 px, b = 75 mm). Beside every foreground edge, on the side
+  away from the projector, the projector's pattern is shadowed: a band of holes whose width is
+  the disparity difference. Dark and grazing surfaces drop out.
+* **active stereo** (RealSense D4xx; :data:`D435`): the same disparity geometry between two IR
+  cameras 50 mm apart, with 1/32-px subpixel steps and larger correlated noise (subpixel RMS
+  0.08 px); occlusion holes beside foreground edges.
+* **time of flight** (Azure Kinect, Orbbec Femto; :data:`TOF`): depth noise that grows as the
+  returned IR amplitude falls (albedo · cos θ / z²), *flying pixels* between foreground and
+  background at depth edges (mixed returns), dropouts where the amplitude is too low, no
+  quantisation beyond the mm of the file.
+
+Every model ends as the file stores it: depth rounded to whole mm, 0 (here NaN) = invalid,
+outside ``[min_range_mm, max_range_mm]`` invalid.
+
+Examples
+--------
+>>> import numpy as np
+>>> from fuse4d.camera import Intrinsics
+>>> k = Intrinsics(580.0, 580.0, 31.5, 23.5, 64, 48)
+>>> truth = np.full((1, 48, 64), 3000.0, np.float32)
+>>> out = apply_sensor(truth, np.full_like(truth, 0.5), k, KINECT_V1, rng=0)
+>>> steps = np.unique(out.depth[np.isfinite(out.depth)])
+>>> bool(np.all(np.diff(steps) > 20))  # quantised in ~26 mm disparity steps at 3 m
+True
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from .camera import Intrinsics
+
+__all__ = [
+    "D435",
+    "KINECT_V1",
+    "SENSORS",
+    "TOF",
+    "SensorModel",
+    "SensorOutput",
+    "apply_sensor",
+    "depth_step_mm",
+    "get_sensor",
+]
+
+SensorKind = Literal["structured-light", "active-stereo", "tof"]
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """Parameters of a depth-sensor model (see the module docstring).
+
+    Parameters
+    ----------
+    name : str
+        Registry name (``kinect``, ``d435``, ``tof``).
+    kind : {"structured-light", "active-stereo", "tof"}
+        Which physics applies.
+    baseline_mm : float
+        Projector–camera (or camera–camera) baseline b, mm; the projector / second camera sits
+        at +b along the image x axis. Unused for ToF.
+    subpixel : float
+        Disparity quantisation step q, px (Kinect v1: 1/8; D4xx: 1/32). 0 = continuous.
+    disparity_noise_px : float
+        Standard deviation of the block-matching disparity error, px.
+    correlation_px : int
+        Side of the matching window, px: the disparity noise is white noise averaged over it
+        (then rescaled to ``disparity_noise_px``), so neighbouring pixels err together.
+    shadows : bool
+        Holes where the projector (second camera) cannot see the surface.
+    dropout : float
+        Fraction of valid pixels dropped at random (speckle decorrelation, saturation).
+    dark_dropout : float
+        Pixels whose IR return (albedo · cos θ) is below this value drop out.
+    tof_noise_mm : float
+        ToF only: depth noise (mm) at amplitude 1 (albedo 1, facing, at 1 m); grows as
+        1 / amplitude.
+    flying_pixels : float
+        ToF only: probability that a pixel at a depth edge returns a mix of the two depths.
+    min_range_mm, max_range_mm : float
+        Valid depth range of the camera, mm.
+    """
+
+    name: str
+    kind: SensorKind
+    baseline_mm: float = 75.0
+    subpixel: float = 0.125
+    disparity_noise_px: float = 0.07
+    correlation_px: int = 9
+    shadows: bool = True
+    dropout: float = 0.01
+    dark_dropout: float = 0.05
+    tof_noise_mm: float = 0.0
+    flying_pixels: float = 0.0
+    min_range_mm: float = 500.0
+    max_range_mm: float = 6000.0
+    notes: str = field(default="", compare=False)
+
+
+#: Kinect v1 / Asus Xtion-class structured light (Khoshelham & Elberink 2012: 1/8-px
+#: disparity, b = 75 mm, f ≈ 580 px; random error ≈ 1.5 mm at 1 m, ≈ 40 mm at 5 m).
+KINECT_V1 = SensorModel(
+    name="kinect",
+    kind="structured-light",
+    baseline_mm=75.0,
+    subpixel=1.0 / 8.0,
+    disparity_noise_px=0.07,
+    correlation_px=9,
+    shadows=True,
+    dropout=0.01,
+    dark_dropout=0.05,
+    min_range_mm=500.0,
+    max_range_mm=5000.0,
+    notes="Kinect v1 / Xtion structured light",
+)
+#: RealSense D435-class active stereo (b = 50 mm, 1/32-px subpixel, subpixel RMS 0.08 px).
+D435 = SensorModel(
+    name="d435",
+    kind="active-stereo",
+    baseline_mm=50.0,
+    subpixel=1.0 / 32.0,
+    disparity_noise_px=0.08,
+    correlation_px=7,
+    shadows=True,
+    dropout=0.01,
+    dark_dropout=0.03,
+    min_range_mm=300.0,
+    max_range_mm=6000.0,
+    notes="RealSense D4xx active stereo",
+)
+#: Azure Kinect / Orbbec Femto-class ToF (≈ 1 mm noise at 1 m on bright surfaces, flying
+#: pixels at edges).
+TOF = SensorModel(
+    name="tof",
+    kind="tof",
+    baseline_mm=0.0,
+    subpixel=0.0,
+    disparity_noise_px=0.0,
+    correlation_px=1,
+    shadows=False,
+    dropout=0.002,
+    dark_dropout=0.02,
+    tof_noise_mm=0.6,
+    flying_pixels=0.5,
+    min_range_mm=250.0,
+    max_range_mm=5500.0,
+    notes="Azure Kinect / Femto time of flight",
+)
+
+SENSORS: dict[str, SensorModel] = {m.name: m for m in (KINECT_V1, D435, TOF)}
+
+
+def get_sensor(name: str | SensorModel) -> SensorModel:
+    """The sensor model called ``name`` (``kinect``, ``d435``, ``tof``)."""
+    if isinstance(name, SensorModel):
+        return name
+    try:
+        return SENSORS[name]
+    except KeyError:
+        raise ValueError(f"unknown sensor {name!r}; choose one of {', '.join(SENSORS)}") from None
+
+
+def depth_step_mm(model: SensorModel, z_mm: float, focal_px: float) -> float:
+    """Depth quantisation step of a disparity sensor at depth ``z_mm``: ``z² q / (f b)`` (mm).
+
+    Parameters
+    ----------
+    model : SensorModel
+    z_mm : float
+        Depth, mm.
+    focal_px : float
+        Focal length of the depth camera, px.
+
+    Returns
+    -------
+    float
+        Step between neighbouring depth levels, mm (1 for ToF: the mm of the file).
+    """
+    if model.kind == "tof" or model.subpixel <= 0:
+        return 1.0
+    return z_mm * z_mm * model.subpixel / (focal_px * model.baseline_mm)
+
+
+@dataclass(frozen=True)
+class SensorOutput:
+    """What a sensor model returns.
+
+    Attributes
+    ----------
+    depth : (T, H, W) ndarray of float32
+        Sensor depth in mm, whole mm, NaN = invalid (0 in a 16-bit file).
+    shadow : (T, H, W) ndarray of bool
+        Holes from projector / second-camera occlusion.
+    dropout : (T, H, W) ndarray of bool
+        Holes from dark surfaces, random dropout and range limits.
+    flying : (T, H, W) ndarray of bool
+        Flying (mixed) pixels at depth edges (ToF).
+    """
+
+    depth: NDArray[np.float32]
+    shadow: NDArray[np.bool_]
+    dropout: NDArray[np.bool_]
+    flying: NDArray[np.bool_]
+
+
+def apply_sensor(
+    depth: NDArray[np.floating],
+    intensity: NDArray[np.floating],
+    intrinsics: Intrinsics,
+    model: SensorModel | str,
+    *,
+    normal_z: NDArray[np.floating] | None = None,
+    rng: int | np.random.Generator | None = None,
+) -> SensorOutput:
+    """Turn true depth into what ``model`` would record.
+
+    Parameters
+    ----------
+    depth : (T, H, W) ndarray
+        True depth, mm (NaN = no surface).
+    intensity : (T, H, W) ndarray
+        Albedo-like IR reflectance in [0, 1] (the registered intensity of the scene): dark
+        pixels drop out, and ToF noise grows as it falls.
+    intrinsics : Intrinsics
+        The depth camera; its ``fx`` sets the disparity scale.
+    model : SensorModel or str
+        The sensor (:data:`KINECT_V1`, :data:`D435`, :data:`TOF` or their names).
+    normal_z : (T, H, W) ndarray, optional
+        Minus the cosine of the angle between the surface normal and the viewing ray (the Z
+        component of the normal for a surface on the optical axis; -1 = facing the camera):
+        grazing surfaces return less light. Default: facing the camera.
+    rng : int or Generator, optional
+        Seed of the noise.
+
+    Returns
+    -------
+    SensorOutput
+        Sensor depth (mm, NaN holes) and the masks of each kind of hole.
+    """
+    m = get_sensor(model)
+    gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    z = np.asarray(depth, dtype=np.float64)
+    if z.ndim != 3:
+        raise ValueError(f"depth must be (T, H, W), got shape {z.shape}")
+    albedo = np.clip(np.asarray(intensity, dtype=np.float64), 0.0, 1.0)
+    cos = np.ones_like(z) if normal_z is None else np.clip(-np.asarray(normal_z), 0.0, 1.0)
+    t, h, w = z.shape
+    out = np.full(z.shape, np.nan, np.float32)
+    shadow = np.zeros(z.shape, bool)
+    drop = np.zeros(z.shape, bool)
+    flying = np.zeros(z.shape, bool)
+    f = float(intrinsics.fx)
+    for k in range(t):
+        zk = z[k]
+        valid = np.isfinite(zk) & (zk > 0)
+        if m.kind == "tof":
+            dk, fly = _tof_frame(zk, valid, albedo[k] * cos[k], m, gen)
+            flying[k] = fly
+        else:
+            dk, shadow[k] = _disparity_frame(zk, valid, f, m, gen)
+        returned = albedo[k] * cos[k]
+        lost = (returned < m.dark_dropout) | (gen.random((h, w)) < m.dropout)
+        with np.errstate(invalid="ignore"):
+            lost |= ~((dk >= m.min_range_mm) & (dk <= m.max_range_mm))
+        lost &= np.isfinite(dk)
+        drop[k] = lost & ~shadow[k]
+        dk = np.where(lost | shadow[k], np.nan, np.round(dk))
+        out[k] = dk.astype(np.float32)
+    return SensorOutput(depth=out, shadow=shadow, dropout=drop, flying=flying)
+
+
+def _correlated_noise(
+    gen: np.random.Generator, shape: tuple[int, int], window: int, sigma: float
+) -> NDArray[np.float64]:
+    """White noise box-averaged over ``window`` px, rescaled to standard deviation ``sigma``."""
+    white = gen.standard_normal(shape)
+    if window > 1:
+        white = cv2.blur(white, (window, window), borderType=cv2.BORDER_REFLECT) * window
+    return white * sigma
+
+
+def _disparity_frame(
+    z: NDArray[np.float64],
+    valid: NDArray[np.bool_],
+    focal: float,
+    m: SensorModel,
+    gen: np.random.Generator,
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Structured light / active stereo: correlated disparity noise, quantisation, shadows."""
+    fb = focal * m.baseline_mm
+    disparity = np.where(valid, fb / np.where(valid, z, 1.0), 0.0)
+    shadow = _projector_shadow(disparity, valid) if m.shadows else np.zeros_like(valid)
+    noisy = disparity + _correlated_noise(gen, z.shape, m.correlation_px, m.disparity_noise_px)
+    if m.subpixel > 0:
+        noisy = np.round(noisy / m.subpixel) * m.subpixel
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth = np.where(valid & (noisy > 0), fb / noisy, np.nan)
+    return depth, shadow & valid
+
+
+def _projector_shadow(disparity: NDArray[np.float64], valid: NDArray[np.bool_]) -> NDArray:
+    """Pixels the projector (at +b along x) cannot light.
+
+    The projector sees a surface point at column ``u_p = u - d`` (d = disparity, px). Scanning a
+    row from right to left, a pixel is shadowed when its ``u_p`` lies beyond the smallest
+    ``u_p`` of the pixels to its right: a nearer surface to its right
+    covers it from the projector. The band left of a foreground edge is ``d_fg - d_bg`` wide.
+    """
+    w = disparity.shape[1]
+    u = np.arange(w, dtype=np.float64)[None, :]
+    up = np.where(valid, u - disparity, np.inf)
+    # min of u_p over the columns strictly right of each pixel
+    right_min = np.minimum.accumulate(up[:, ::-1], axis=1)[:, ::-1]
+    right_min = np.concatenate([right_min[:, 1:], np.full((up.shape[0], 1), np.inf)], axis=1)
+    return valid & (up > right_min)
+
+
+def _tof_frame(
+    z: NDArray[np.float64],
+    valid: NDArray[np.bool_],
+    returned: NDArray[np.float64],
+    m: SensorModel,
+    gen: np.random.Generator,
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Time of flight: amplitude-dependent noise and flying pixels at depth edges."""
+    zm = np.where(valid, z, np.nan) / 1000.0
+    amplitude = np.maximum(returned, 1e-3) / np.maximum(np.nan_to_num(zm, nan=1.0) ** 2, 1e-6)
+    sigma = m.tof_noise_mm / np.sqrt(amplitude)
+    depth = np.where(valid, z + gen.standard_normal(z.shape) * sigma, np.nan)
+    # flying pixels: a pixel next to a depth jump of > 5 % returns a mix of both depths
+    zf = np.where(valid, z, np.inf)
+    neighbour = np.full_like(zf, np.inf)
+    big = np.zeros(z.shape, bool)
+    for dv, du in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        shifted = _shift(zf, dv, du)
+        with np.errstate(invalid="ignore"):
+            jump = np.abs(shifted - zf) > 0.05 * np.minimum(shifted, zf)
+        farther = jump & (shifted > zf) & np.isfinite(shifted)
+        neighbour = np.where(farther & ~big, shifted, neighbour)
+        big |= farther
+    fly = big & valid & (gen.random(z.shape) < m.flying_pixels)
+    mix = gen.random(z.shape)
+    depth = np.where(fly, mix * z + (1.0 - mix) * neighbour, depth)
+    if not math.isfinite(m.tof_noise_mm):
+        raise ValueError("tof_noise_mm must be finite")
+    return depth, fly
+
+
+def _shift(a: NDArray[np.float64], dv: int, du: int) -> NDArray[np.float64]:
+    """``out[v, u] = a[v - dv, u - du]``, inf where that lies outside the image (no wrap)."""
+    out = np.full_like(a, np.inf)
+    h, w = a.shape
+    out[max(dv, 0) : h + min(dv, 0), max(du, 0) : w + min(du, 0)] = a[
+        max(-dv, 0) : h + min(-dv, 0), max(-du, 0) : w + min(-du, 0)
+    ]
+    return out

@@ -1,0 +1,143 @@
+"""Sensor models (issue 10): quantisation, shadows, correlated noise, ToF effects, and the range
+scenes built on them — each property checked against the physics it claims."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fuse4d import Intrinsics
+from fuse4d.range_scenes import make_range_scene, range_intrinsics
+from fuse4d.sensors import D435, KINECT_V1, TOF, apply_sensor, depth_step_mm, get_sensor
+
+K = Intrinsics(580.0, 580.0, 63.5, 47.5, 128, 96)
+
+
+def _plane(z: float, t: int = 1) -> np.ndarray:
+    return np.full((t, K.height, K.width), z, np.float32)
+
+
+@pytest.mark.parametrize(("model", "z"), [(KINECT_V1, 3000.0), (KINECT_V1, 1500.0), (D435, 3000.0)])
+def test_disparity_sensors_quantise_in_z_squared_steps(model, z):
+    out = apply_sensor(_plane(z), _plane(0.5), K, model, rng=1).depth
+    levels = np.unique(out[np.isfinite(out)])
+    step = depth_step_mm(model, z, K.fx)
+    assert levels.size >= 2
+    # neighbouring levels are one disparity step apart (rounded to whole mm by the file)
+    assert np.median(np.diff(levels)) == pytest.approx(step, abs=1.0)
+
+
+def test_kinect_step_sizes_as_the_literature_says():
+    assert depth_step_mm(KINECT_V1, 3000.0, 580.0) == pytest.approx(25.9, abs=0.1)
+    assert depth_step_mm(D435, 3000.0, 580.0) < depth_step_mm(KINECT_V1, 3000.0, 580.0) / 2
+    assert depth_step_mm(TOF, 3000.0, 580.0) == 1.0
+
+
+def test_projector_shadow_lies_left_of_a_foreground_edge_with_the_disparity_width():
+    depth = _plane(3000.0)
+    depth[0, 30:60, 60:90] = 1500.0  # a box in front of the wall
+    out = apply_sensor(
+        depth,
+        _plane(0.5),
+        K,
+        KINECT_V1.__class__(**{**KINECT_V1.__dict__, "dropout": 0.0, "disparity_noise_px": 0.0}),
+        rng=0,
+    )
+    fb = K.fx * KINECT_V1.baseline_mm
+    width = fb / 1500.0 - fb / 3000.0  # 14.5 px
+    row = out.shadow[0, 45]
+    cols = np.flatnonzero(row)
+    assert cols.max() == 59  # the band ends at the box's left edge
+    assert cols.size == pytest.approx(width, abs=1.0)
+    assert not out.shadow[0, :, 90:].any()  # nothing right of the box
+    assert np.isnan(out.depth[0, 45, cols]).all()
+
+
+def test_disparity_noise_is_spatially_correlated():
+    quiet = KINECT_V1.__class__(**{**KINECT_V1.__dict__, "subpixel": 0.0, "dropout": 0.0})
+    out = apply_sensor(_plane(2500.0), _plane(0.5), K, quiet, rng=3).depth[0]
+    e = out - np.nanmean(out)
+    right = np.nanmean(e[:, :-1] * e[:, 1:]) / np.nanvar(e)
+    far = np.nanmean(e[:, :-20] * e[:, 20:]) / np.nanvar(e)
+    assert right > 0.6  # neighbours err together (9 px matching window)
+    assert abs(far) < 0.15  # beyond the window they do not
+
+
+def test_tof_noise_grows_as_the_return_falls_and_flying_pixels_sit_at_edges():
+    depth = _plane(2000.0, t=1)
+    depth[0, :, 64:] = 3000.0
+    albedo = _plane(0.9)
+    albedo[0, 48:] = 0.1  # dark lower half
+    out = apply_sensor(depth, albedo, K, TOF, rng=5)
+    err = out.depth[0] - depth[0]
+    bright = np.nanstd(err[:40, 5:55])
+    dark = np.nanstd(err[56:, 5:55])
+    assert dark > 2.0 * bright
+    fly_cols = np.flatnonzero(out.flying[0].any(axis=0))
+    assert set(fly_cols) <= {63, 64}
+    mixed = out.depth[0][out.flying[0]]
+    assert np.all((mixed > 1990) & (mixed < 3010))
+
+
+def test_range_limits_and_names():
+    out = apply_sensor(_plane(7000.0), _plane(0.5), K, "kinect", rng=0).depth
+    assert np.isnan(out).all()
+    with pytest.raises(ValueError, match="unknown sensor 'lidar'"):
+        get_sensor("lidar")
+
+
+@pytest.mark.parametrize("scene", ["ball", "body", "room"])
+def test_range_scenes_have_ground_truth(scene):
+    seq = make_range_scene(scene, sensor="kinect", small=True, num_frames=3, rng=2)
+    gt = seq.ground_truth
+    assert seq.intrinsics == range_intrinsics(small=True)
+    assert gt.depth.shape == seq.depth.shape
+    valid = np.isfinite(seq.depth)
+    assert 0.8 < valid.mean() <= 1.0
+    z = gt.depth[np.isfinite(gt.depth)]
+    assert z.min() > 900.0 and z.max() <= 4001.0
+    # sensor depth follows the truth to within a few quantisation steps
+    err = np.abs(seq.depth - gt.depth)[valid]
+    assert np.median(err) < 3 * depth_step_mm(KINECT_V1, float(np.median(z)), seq.intrinsics.fx)
+    if scene == "room":
+        assert not gt.mask.any() and not gt.flow.any()
+    else:
+        assert gt.mask.any()
+
+
+def test_range_scene_flow_is_the_true_motion():
+    seq = make_range_scene("ball", sensor="tof", small=True, num_frames=2, rng=0)
+    gt = seq.ground_truth
+    mask = gt.mask[0]
+    v, u = np.nonzero(mask)
+    du, dv = gt.flow[0][mask].T
+    # the ball moves right by ~1 m/s * (1/30 s) * f / Z = 145 * 33.3 / 2000 = 2.4 px/frame
+    assert np.median(du) == pytest.approx(145 * (1000.0 / 30.0) / 2000.0, rel=0.1)
+    # the ball's texture is found where the flow says (interior pixels, exact render)
+    u1 = np.round(u + du).astype(int)
+    v1 = np.round(v + dv).astype(int)
+    inside = gt.mask[1][np.clip(v1, 0, 119), np.clip(u1, 0, 159)]
+    assert inside.mean() > 0.95
+
+
+def test_range_scene_is_deterministic():
+    a = make_range_scene("body", sensor="d435", small=True, num_frames=2, rng=4)
+    b = make_range_scene("body", sensor="d435", small=True, num_frames=2, rng=4)
+    np.testing.assert_array_equal(a.depth, b.depth)
+    np.testing.assert_array_equal(a.intensity, b.intensity)
+
+
+@pytest.mark.realdata
+def test_kinect_model_matches_the_real_recordings_step_sizes(shared_data):
+    """Depth levels of the real Kinect-class clips are the model's z^2 q / (f b) steps."""
+    from fuse4d import load_sequence
+
+    for name in ("static_room_rgbd", "uva_cv2_person_turning"):
+        seq = load_sequence(shared_data / name)
+        for z in (1000.0, 2000.0):
+            band = seq.depth[(seq.depth > z - 100) & (seq.depth < z + 100)]
+            if band.size < 1000:
+                continue
+            step = np.median(np.diff(np.unique(band)))
+            model = depth_step_mm(KINECT_V1, z, seq.intrinsics.fx)
+            assert step == pytest.approx(model, rel=0.2, abs=1.0), (name, z)
