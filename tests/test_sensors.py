@@ -95,12 +95,14 @@ def test_range_scenes_have_ground_truth(scene):
     valid = np.isfinite(seq.depth)
     assert 0.8 < valid.mean() <= 1.0
     z = gt.depth[np.isfinite(gt.depth)]
-    assert z.min() > 900.0 and z.max() <= 4001.0
+    assert z.min() > 900.0
+    assert z.max() <= 4001.0
     # sensor depth follows the truth to within a few quantisation steps
     err = np.abs(seq.depth - gt.depth)[valid]
     assert np.median(err) < 3 * depth_step_mm(KINECT_V1, float(np.median(z)), seq.intrinsics.fx)
     if scene == "room":
-        assert not gt.mask.any() and not gt.flow.any()
+        assert not gt.mask.any()
+        assert not gt.flow.any()
     else:
         assert gt.mask.any()
 
