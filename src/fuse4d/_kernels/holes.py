@@ -1,0 +1,183 @@
+"""Kernels that fill *sensor* holes (pixels without raw depth) — issue 10, our A26/A27.
+
+Two stages, both private (arrays in, buffers filled; the wrappers in :mod:`fuse4d.holes`
+validate):
+
+* :func:`_temporal_fill_kernel` (A26): a pixel with no depth at t is still tracked through
+  the intensity video (the flow is defined everywhere); where its track lands on valid depth
+  in other frames of the window, those frames' motion-reference points are collected and the
+  weighted least-squares line through them (the A21 trajectory) is evaluated at t.
+* :func:`_spatial_fill_kernel` (A27): small remaining holes get an intensity-weighted mean
+  of valid neighbours taken from the *far* side only (occlusion shadows always belong to the
+  farther surface), so a fill never bridges a depth discontinuity.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._numba import njit_parallel, prange
+from .fusion import ROW_CHUNKS, _round_half_up, _step_limit, _track_step
+
+
+@njit_parallel
+def _temporal_fill_kernel(
+    fwd_ring,
+    bwd_ring,
+    depth_ring,
+    ref_ring,
+    frame_slot,
+    t,
+    first,
+    last,
+    theta,
+    max_step,
+    quad,
+    temporal_weight,
+    min_samples,
+    target,
+    out_points,
+    out_count,
+):
+    """Fill ``target`` pixels of frame t from the other frames along their tracks.
+
+    For each target pixel (no raw depth at t) both directions are chained as in the tracking
+    kernel (sub-pixel accumulation, forward-backward check Eq. 4 per step, stop at the image
+    border); the depth checks start at the first landing with valid depth, after which each
+    valid landing must stay within the depth-step limit of the previous one (A22) or the track
+    ends. Each valid landing x^T contributes the reference point P~^T[x^T] with the temporal
+    weight f(t, T). With at least ``min_samples`` samples the output point is the weighted
+    least-squares line through them evaluated at t (their weighted mean when they do not
+    determine a line); ``out_count`` gets the number of samples (0 = not filled, point NaN).
+    ``frame_slot[T - first]`` is the ring slot of frame T (see :mod:`._kernels.fusion`).
+    """
+    h = depth_ring.shape[1]
+    w = depth_ring.shape[2]
+    n_chunks = min(h, ROW_CHUNKS)
+    for ci in prange(n_chunks):
+        for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
+            for u in range(w):
+                out_count[v, u] = 0
+                if not target[v, u]:
+                    continue
+                s0 = 0.0
+                s1 = 0.0
+                s2 = 0.0
+                # weighted sums of the samples' x, y, z and of tau times them (no per-pixel
+                # allocation inside the parallel loop)
+                ax = 0.0
+                ay = 0.0
+                az = 0.0
+                bx = 0.0
+                by = 0.0
+                bz = 0.0
+                count = 0
+                for direction in (1, -1):
+                    x = float(u)
+                    y = float(v)
+                    prev = np.nan
+                    n_steps = last - t if direction == 1 else t - first
+                    for step in range(1, n_steps + 1):
+                        T = t + direction * step
+                        slot = frame_slot[T - first]
+                        flow_slot = slot if direction == 1 else frame_slot[T + 1 - first]
+                        step_ring = fwd_ring if direction == 1 else bwd_ring
+                        check_ring = bwd_ring if direction == 1 else fwd_ring
+                        ok, nx, ny = _track_step(
+                            step_ring, check_ring, flow_slot, x, y, theta, False
+                        )
+                        if not ok:
+                            break
+                        x = nx
+                        y = ny
+                        r = _round_half_up(ny)
+                        c = _round_half_up(nx)
+                        d1 = depth_ring[slot, r, c]
+                        if np.isnan(d1) or np.isnan(ref_ring[slot, r, c, 2]):
+                            continue  # still no depth here: keep following the intensity
+                        if not np.isnan(prev) and not (
+                            abs(d1 - prev) < _step_limit(prev, max_step, quad)
+                        ):
+                            break
+                        prev = d1
+                        wt = temporal_weight[abs(T - t)]
+                        tau = float(T - t)
+                        s0 += wt
+                        s1 += wt * tau
+                        s2 += wt * tau * tau
+                        px = ref_ring[slot, r, c, 0]
+                        py = ref_ring[slot, r, c, 1]
+                        pz = ref_ring[slot, r, c, 2]
+                        ax += wt * px
+                        ay += wt * py
+                        az += wt * pz
+                        bx += wt * tau * px
+                        by += wt * tau * py
+                        bz += wt * tau * pz
+                        count += 1
+                if count < min_samples or count == 0:
+                    for q in range(3):
+                        out_points[v, u, q] = np.nan
+                    continue
+                out_count[v, u] = min(count, 255)
+                det = s0 * s2 - s1 * s1
+                if det > 1e-9 * s0 * s0:  # line through the samples, evaluated at tau = 0
+                    out_points[v, u, 0] = (ax * s2 - bx * s1) / det
+                    out_points[v, u, 1] = (ay * s2 - by * s1) / det
+                    out_points[v, u, 2] = (az * s2 - bz * s1) / det
+                else:  # one frame only (or all at one tau): their mean
+                    out_points[v, u, 0] = ax / s0
+                    out_points[v, u, 1] = ay / s0
+                    out_points[v, u, 2] = az / s0
+
+
+@njit_parallel
+def _spatial_fill_kernel(
+    depth, intensity, target, radius, inv_2si2, inv_2ss2, max_step, quad, out_depth
+):
+    """Fill ``target`` pixels from valid neighbours on the far side of the hole.
+
+    For each target pixel, the valid pixels of ``depth`` within ``radius`` px are gathered;
+    only those within the depth-step limit (A22) of the *farthest* of them are kept (a hole
+    beside a foreground edge is an occlusion shadow of the background), and their mean is
+    weighted by exp(-dI^2 / 2 sigma_I^2 - r^2 / 2 sigma_s^2). ``out_depth`` gets the result,
+    NaN where no neighbour qualifies; non-target pixels are copied from ``depth``.
+    """
+    h, w = depth.shape
+    n_chunks = min(h, ROW_CHUNKS)
+    for ci in prange(n_chunks):
+        for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
+            for u in range(w):
+                if not target[v, u]:
+                    out_depth[v, u] = depth[v, u]
+                    continue
+                far = -1.0
+                for dv in range(-radius, radius + 1):
+                    for du in range(-radius, radius + 1):
+                        vv = v + dv
+                        uu = u + du
+                        if 0 <= vv < h and 0 <= uu < w:
+                            d = depth[vv, uu]
+                            if d == d and d > far:
+                                far = d
+                if far <= 0.0:
+                    out_depth[v, u] = np.nan
+                    continue
+                limit = _step_limit(far, max_step, quad)
+                acc = 0.0
+                wsum = 0.0
+                i0 = intensity[v, u]
+                for dv in range(-radius, radius + 1):
+                    for du in range(-radius, radius + 1):
+                        vv = v + dv
+                        uu = u + du
+                        if 0 <= vv < h and 0 <= uu < w:
+                            d = depth[vv, uu]
+                            if d == d and far - d < limit:
+                                di = intensity[vv, uu] - i0
+                                wgt = math.exp(-di * di * inv_2si2 - (dv * dv + du * du) * inv_2ss2)
+                                acc += wgt * d
+                                wsum += wgt
+                out_depth[v, u] = acc / wsum if wsum > 0.0 else np.nan

@@ -1,0 +1,128 @@
+"""Sensor-hole filling (issue 10, A26/A27): from time along tracks, then small holes in space."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fuse4d._kernels.holes import _temporal_fill_kernel
+from fuse4d.holes import fill_small_holes, small_hole_mask
+
+
+def _ring(depth, flow_u):
+    """Ring buffers for T frames moving right by ``flow_u`` px/frame (exact, uniform flow)."""
+    t, h, w = depth.shape
+    fwd = np.zeros((t, h, w, 2), np.float32)
+    bwd = np.zeros((t, h, w, 2), np.float32)
+    fwd[1:, ..., 0] = flow_u  # slot T holds pair (T-1, T)
+    bwd[1:, ..., 0] = -flow_u
+    v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+    ref = np.stack([u[None].repeat(t, 0), v[None].repeat(t, 0), depth], axis=-1)
+    return fwd, bwd, ref.astype(np.float32)
+
+
+def _fill(depth, ref, fwd, bwd, t, target, *, min_samples=1, max_step=10.0):
+    n, h, w = depth.shape
+    out = np.full((h, w, 3), -1.0, np.float32)
+    count = np.full((h, w), 99, np.uint8)
+    _temporal_fill_kernel(
+        fwd,
+        bwd,
+        depth,
+        ref,
+        np.arange(n, dtype=np.int64),
+        t,
+        0,
+        n - 1,
+        2.0,
+        max_step,
+        0.0,
+        np.ones(n),
+        min_samples,
+        target,
+        out,
+        count,
+    )
+    return out, count
+
+
+def test_static_hole_is_filled_from_the_frames_where_it_has_depth():
+    depth = np.full((5, 8, 10), 1000.0, np.float32)
+    depth[:, :, 5:] = 1500.0
+    depth[2, 3, 2] = np.nan  # a dropout in frame 2 only
+    fwd, bwd, ref = _ring(depth, 0.0)
+    target = np.isnan(depth[2])
+    out, count = _fill(depth, ref, fwd, bwd, 2, target)
+    assert count[3, 2] == 4
+    assert out[3, 2, 2] == pytest.approx(1000.0)
+    assert np.all(count[~target] == 0)  # only the targets are touched
+
+
+def test_moving_surface_is_interpolated_along_its_trajectory():
+    """A surface receding 5 mm/frame while moving 1 px/frame: the line through the tracked
+    samples gives the depth at t, not a blend of the other frames' values at the pixel."""
+    n, h, w = 5, 6, 20
+    depth = np.empty((n, h, w), np.float32)
+    for k in range(n):
+        depth[k] = 1000.0 + 10.0 * k
+    fwd, bwd, ref = _ring(depth, 1.0)
+    depth[2, 2, 8] = np.nan
+    target = np.isnan(depth[2])
+    out, count = _fill(depth, ref, fwd, bwd, 2, target)
+    assert count[2, 8] == 4
+    assert out[2, 8, 2] == pytest.approx(1010.0, abs=1e-3)
+    assert out[2, 8, 0] == pytest.approx(8.0, abs=1e-3)  # the tracked column at t
+
+
+def test_track_stops_at_a_depth_jump_and_needs_samples():
+    depth = np.full((3, 4, 4), 1000.0, np.float32)
+    depth[2] = 1500.0  # next frame jumps far away: not the same surface
+    depth[0] = 1000.0
+    depth[1, 1, 1] = np.nan
+    fwd, bwd, ref = _ring(depth, 0.0)
+    target = np.isnan(depth[1])
+    out, count = _fill(depth, ref, fwd, bwd, 1, target, min_samples=2)
+    # forward lands on 1500 (first sample of that direction), backward on 1000: both count,
+    # the line through them is their mean at tau = 0 (the gate applies within one direction)
+    assert count[1, 1] == 2
+    depth[0, 1, 1] = np.nan
+    out, count = _fill(depth, ref, fwd, bwd, 1, target, min_samples=2)
+    assert count[1, 1] == 0
+    assert np.isnan(out[1, 1]).all()
+
+
+def test_small_hole_mask_keeps_small_inner_components_only():
+    holes = np.zeros((10, 10), bool)
+    holes[2:4, 2:4] = True  # 4 px, inside
+    holes[5:9, 5:9] = True  # 16 px, inside
+    holes[0, 0] = True  # touches the border
+    assert small_hole_mask(holes, 4).sum() == 4
+    assert small_hole_mask(holes, 16).sum() == 20
+    assert small_hole_mask(holes, 0).sum() == 0
+
+
+def test_spatial_fill_uses_the_far_side_and_never_blends_across_an_edge():
+    d = np.full((12, 12), 3000.0, np.float32)
+    d[:, 7:] = 1500.0  # foreground to the right
+    d[4:8, 5:7] = np.nan  # shadow band left of the foreground edge
+    out, filled = fill_small_holes(d, np.full_like(d, 0.5), radius=3)
+    assert filled.sum() == 8
+    np.testing.assert_allclose(out[filled], 3000.0)
+
+
+def test_spatial_fill_prefers_similar_intensity():
+    d = np.full((9, 9), 2000.0, np.float32)
+    d[:, 5:] = 2004.0  # same surface (2 levels apart), two materials
+    inten = np.where(np.arange(9) < 5, 0.2, 0.8)[None, :].repeat(9, 0).astype(np.float32)
+    d[4, 4] = np.nan
+    out, _ = fill_small_holes(d, inten, radius=2, sigma_intensity=0.05)
+    assert out[4, 4] == pytest.approx(2000.0, abs=0.1)
+
+
+def test_large_or_border_holes_stay_holes():
+    d = np.full((20, 20), 2000.0, np.float32)
+    d[5:15, 5:15] = np.nan  # 100 px
+    d[0:3, 0:3] = np.nan
+    out, filled = fill_small_holes(d, np.full_like(d, 0.5), max_area_px=64)
+    assert not filled.any()
+    assert np.isnan(out[5:15, 5:15]).all()
