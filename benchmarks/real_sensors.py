@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -113,7 +114,7 @@ def main() -> None:
             rows.append(row)
             print(json.dumps(row, indent=None, default=float))
     if args.json:
-        with open(args.json, "w", encoding="utf-8") as handle:
+        with Path(args.json).open("w", encoding="utf-8") as handle:
             json.dump(rows, handle, indent=2, default=float)
 
 

@@ -64,7 +64,7 @@ def test_moving_surface_is_interpolated_along_its_trajectory():
     n, h, w = 5, 6, 20
     depth = np.empty((n, h, w), np.float32)
     for k in range(n):
-        depth[k] = 1000.0 + 10.0 * k
+        depth[k] = 1000.0 + 5.0 * k
     fwd, bwd, ref = _ring(depth, 1.0)
     depth[2, 2, 8] = np.nan
     target = np.isnan(depth[2])

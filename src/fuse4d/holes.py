@@ -73,7 +73,7 @@ def small_hole_mask(holes: ArrayLike, max_area_px: int) -> NDArray[np.bool_]:
     mask = np.asarray(holes, dtype=bool)
     if max_area_px <= 0 or not mask.any():
         return np.zeros(mask.shape, bool)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     x, y, w, h, area = (stats[:, i] for i in range(5))
     height, width = mask.shape
     inside = (x > 0) & (y > 0) & (x + w < width) & (y + h < height)

@@ -160,7 +160,7 @@ def _spatial_fill_kernel(
                         uu = u + du
                         if 0 <= vv < h and 0 <= uu < w:
                             d = depth[vv, uu]
-                            if d == d and d > far:
+                            if not np.isnan(d) and d > far:
                                 far = d
                 if far <= 0.0:
                     out_depth[v, u] = np.nan
@@ -175,7 +175,7 @@ def _spatial_fill_kernel(
                         uu = u + du
                         if 0 <= vv < h and 0 <= uu < w:
                             d = depth[vv, uu]
-                            if d == d and far - d < limit:
+                            if not np.isnan(d) and far - d < limit:
                                 di = intensity[vv, uu] - i0
                                 wgt = math.exp(-di * di * inv_2si2 - (dv * dv + du * du) * inv_2ss2)
                                 acc += wgt * d
