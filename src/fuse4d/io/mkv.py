@@ -261,7 +261,7 @@ class MkvReader(FrameReader):
                 self.path, f"cannot read the packets (truncated or corrupt: {exc})"
             ) from None
         if not d_pts:
-            raise InputFileError(self.path, "the DEPTH track holds no frame")
+            raise InputFileError(self.path, "the DEPTH track holds no frame (truncated file?)")
         tb_d, tb_i = float(self._depth_s.time_base), float(self._inten_s.time_base)
         td = np.asarray(d_pts, dtype=np.float64) * tb_d
         ti = np.asarray(i_pts, dtype=np.float64) * tb_i
@@ -289,6 +289,8 @@ class MkvReader(FrameReader):
     def read_frame(self, index: int) -> Frame:
         k = self._index(index)
         if self._gen is None or k != self._next:
+            if self._gen is not None:
+                self._gen.close()
             self._gen = self._stream(k)
         self._next = k + 1
         try:
@@ -388,7 +390,9 @@ class MkvReader(FrameReader):
         return out
 
     def close(self) -> None:
-        self._gen = None
+        gen, self._gen = self._gen, None
+        if gen is not None:
+            gen.close()
         container, self._container = self._container, None
         if container is not None:
             container.close()

@@ -175,6 +175,7 @@ class RosbagReader(FrameReader):
         self._reader: Any = None
         self._tmpdir: tempfile.TemporaryDirectory[str] | None = None
         self._stream_gen: Iterator[Frame] | None = None
+        self._errors: tuple[type[BaseException], ...] = (OSError,)
         self._next_index = -1
         self._notes: list[str] = []
         self._quirk = False
@@ -191,6 +192,7 @@ class RosbagReader(FrameReader):
     def _open_bag(self) -> None:
         highlevel = require("rosbags.highlevel", what="reading ROS bags")
         typesys = require("rosbags.typesys", what="reading ROS bags")
+        self._errors = _bag_errors()
         if not self.path.exists():
             raise InputFileError(self.path, "file or folder not found")
         kind = bag_kind(self.path)
@@ -211,7 +213,7 @@ class RosbagReader(FrameReader):
         try:
             reader = highlevel.AnyReader([target], default_typestore=typesys.get_typestore(store))
             reader.open()
-        except _bag_errors() as exc:
+        except self._errors as exc:
             raise InputFileError(
                 self.path, f"cannot open the {self.container} (truncated or corrupt: {exc})"
             ) from None
@@ -223,24 +225,28 @@ class RosbagReader(FrameReader):
             yield from self._reader.messages(connections=connections, start=start)
         except InputFileError:
             raise
-        except _bag_errors() as exc:
+        except self._errors as exc:
             topics = ", ".join(c.topic for c in connections)
             raise InputFileError(
                 self.path, f"cannot read messages of {topics} (truncated or corrupt: {exc})"
             ) from None
 
     def _first(self, connection: Any) -> tuple[Any, bytes] | None:
-        for _, _, raw in self._messages([connection]):
-            return self._deserialize(raw, connection), raw
+        gen = self._messages([connection])
+        try:
+            for _, _, raw in gen:
+                return self._deserialize(raw, connection), raw
+        finally:
+            gen.close()
         return None
 
     def _deserialize(self, raw: bytes, connection: Any) -> Any:
         """Deserialize, stripping librealsense 2.47-2.57's 4 undeclared trailing bytes."""
         try:
             return self._reader.deserialize(raw, connection.msgtype)
-        except _bag_errors() as exc:
+        except self._errors as exc:
             if not self.is_ros2 and "size mismatch" in str(exc) and len(raw) > 4:
-                with contextlib.suppress(*_bag_errors()):
+                with contextlib.suppress(*self._errors):
                     msg = self._reader.typestore.deserialize_ros1(raw[:-4], connection.msgtype)
                     self._quirk = True
                     return msg
@@ -642,6 +648,8 @@ class RosbagReader(FrameReader):
     def read_frame(self, index: int) -> Frame:
         k = self._index(index)
         if self._stream_gen is None or k != self._next_index:
+            if self._stream_gen is not None:
+                self._stream_gen.close()
             self._stream_gen = self._stream(k)
         self._next_index = k + 1
         try:
@@ -756,7 +764,7 @@ class RosbagReader(FrameReader):
     def describe_streams(self) -> list[dict[str, Any]]:
         """Image topics of the bag with counts, rate, size and the role fuse4d gives them."""
         dur = None
-        with contextlib.suppress(*_bag_errors()):
+        with contextlib.suppress(*self._errors):
             dur = (self._reader.end_time - self._reader.start_time) * 1e-9
         out = []
         for s in self.streams:
@@ -766,10 +774,12 @@ class RosbagReader(FrameReader):
         return out
 
     def close(self) -> None:
-        self._stream_gen = None
+        gen, self._stream_gen = self._stream_gen, None
+        if gen is not None:
+            gen.close()
         reader, self._reader = self._reader, None
         if reader is not None:
-            with contextlib.suppress(*_bag_errors()):  # already closed or never opened
+            with contextlib.suppress(*self._errors):  # already closed or never opened
                 reader.close()
         if self._tmpdir is not None:
             self._tmpdir.cleanup()
