@@ -494,3 +494,75 @@ def test_not_a_bag(tmp_path):
     bad.write_bytes(b"hello")
     with pytest.raises(InputFileError, match="unknown file type"):
         detect_format(bad)
+
+
+# ----------------------------------------------------------------- RealSense layout, synthetic
+def _realsense_bag(path: Path, *, with_ir: bool, color_shift_m: float = 0.01) -> Path:
+    """librealsense ROS 1 layout: Z16 depth (0.1 mm units), Infrared_1, a 2x larger colour."""
+    from rosbag_factory import BagWriter
+
+    h, w = 24, 32
+    base = "/device_0/sensor_0"
+    with BagWriter(path, "ros1") as bag:
+        f32 = bag.ts.types["std_msgs/msg/Float32"]
+        bag.write(f"{base}/option/Depth Units/value", f32(data=np.float32(1e-4)), 1)
+        bag.write(f"{base}/Depth_0/info/camera_info", bag.camera_info(w, h, 1, K), 1)
+        fx, fy, cx, cy = K
+        color_k = (2 * fx, 2 * fy, 2 * cx + 0.5, 2 * cy + 0.5)
+        bag.write("/device_0/sensor_1/Color_0/info/camera_info",
+                  bag.camera_info(2 * w, 2 * h, 1, color_k), 1)  # fmt: skip
+        tf = bag.ts.types["geometry_msgs/msg/Transform"]
+        vec = bag.ts.types["geometry_msgs/msg/Vector3"]
+        quat = bag.ts.types["geometry_msgs/msg/Quaternion"]
+        bag.write(
+            f"{base}/Depth_0/tf/0",
+            tf(translation=vec(x=0.0, y=0.0, z=0.0), rotation=quat(x=0, y=0, z=0, w=1)),
+            1,
+        )
+        bag.write("/device_0/sensor_1/Color_0/tf/0",
+                  tf(translation=vec(x=color_shift_m, y=0.0, z=0.0),
+                     rotation=quat(x=0, y=0, z=0, w=1)), 1)  # fmt: skip
+        xc = np.arange(2 * w, dtype=np.float64)
+        gray = np.broadcast_to(np.round(xc / (2 * w) * 255), (2 * h, 2 * w)).astype(np.uint8)
+        color = np.repeat(gray[..., None], 3, axis=2)
+        for k in range(3):
+            t = 10**9 + k * 33_333_333
+            depth = np.full((h, w), 10000, np.uint16)  # 1000 mm
+            bag.write(f"{base}/Depth_0/image/data", bag.image(depth, "mono16", t), t)
+            if with_ir:
+                ir = np.full((h, w), 50 + k, np.uint8)
+                bag.write(f"{base}/Infrared_1/image/data", bag.image(ir, "mono8", t), t)
+                bag.write(f"{base}/Infrared_2/image/data", bag.image(ir * 0, "mono8", t), t)
+            bag.write("/device_0/sensor_1/Color_0/image/data", bag.image(color, "rgb8", t), t)
+    return path
+
+
+def test_realsense_layout_ir_default(tmp_path):
+    path = _realsense_bag(tmp_path / "rs.bag", with_ir=True)
+    with open_frames(path) as reader:
+        assert reader.realsense
+        assert reader.depth_unit_mm == pytest.approx(0.1)
+        assert reader._inten.topic == "/device_0/sensor_0/Infrared_1/image/data"
+        frame = reader[2]
+    assert np.all(frame.depth == 1000.0)
+    np.testing.assert_allclose(frame.intensity, 52 / 255, atol=1e-7)
+
+
+def test_realsense_color_alignment(tmp_path):
+    """Colour 2x the depth size, 10 mm to the side: sampled where the depth pixel projects."""
+    path = _realsense_bag(tmp_path / "rs.bag", with_ir=True)
+    with open_frames(path, intensity="color") as reader:
+        frame = reader[0]
+        assert any("resampled onto the depth grid" in n for n in reader.notes)
+    fx = K[0]
+    u = np.arange(32, dtype=np.float64)
+    # stream->reference extrinsics: x_colour = x_depth - 10 mm at Z = 1000 mm
+    x_color = 2 * fx * ((u - K[2]) / fx * 1000.0 - 10.0) / 1000.0 + 2 * K[2] + 0.5
+    want = (
+        np.round(np.floor(x_color) / 64 * 255) / 255
+        + (x_color % 1)
+        * (np.round((np.floor(x_color) + 1) / 64 * 255) - np.round(np.floor(x_color) / 64 * 255))
+        / 255
+    )
+    inside = (x_color >= 0) & (x_color < 63)
+    np.testing.assert_allclose(frame.intensity[5, inside], want[inside], atol=2e-3)

@@ -340,7 +340,8 @@ class RosbagReader(FrameReader):
 
         def score(s: _Stream) -> tuple[int, int]:
             t = s.topic.lower()
-            return (("depth" in t) * 2 - ("aligned" in t), s.count)
+            registered = re.search(r"aligned|registered|to_rgb|to_colou?r", t) is not None
+            return (("depth" in t) * 2 - registered, s.count)
 
         cands.sort(key=score, reverse=True)
         if len(cands) > 1:
