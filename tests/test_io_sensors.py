@@ -380,6 +380,9 @@ def test_ffv1_round_trip_bit_exact(tmp_path, float_sequence):
         fmts = {s.codec_context.pix_fmt for s in container.streams.video}
     assert codecs == {"ffv1"}
     assert fmts == {"gray16le"}
+    with open_frames(path) as reader:  # random access (seek) as well as streaming
+        for k in (2, 0, 1, -1):
+            np.testing.assert_array_equal(reader[k].depth, exact.depth[k])
 
 
 def test_ffv1_unit(tmp_path, float_sequence):

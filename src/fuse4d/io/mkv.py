@@ -318,15 +318,13 @@ class MkvReader(FrameReader):
                 int(self._d_pts[k0]), stream=self._depth_s, backward=True, any_frame=False
             )
             for pkt in self._container.demux(self._depth_s, self._inten_s):
-                if pkt.pts is None:
-                    continue
                 is_depth = pkt.stream.index == self._depth_s.index
                 table = want_d if is_depth else want_i
-                if int(pkt.pts) not in table:
-                    continue
-                for fr in pkt.decode():
-                    arr = fr.to_ndarray()
-                    (depth if is_depth else inten)[table[int(pkt.pts)]] = arr
+                if pkt.pts is not None and int(pkt.pts) not in table:
+                    continue  # intra-only codecs (b16g, FFV1): unneeded packets can be skipped
+                for fr in pkt.decode():  # flush packets (pts None) return delayed frames
+                    if fr.pts is not None and int(fr.pts) in table:
+                        (depth if is_depth else inten)[table[int(fr.pts)]] = fr.to_ndarray()
                 while k < stop and k in depth and k in inten:
                     frame = self._decode(k, depth.pop(k), inten.pop(k))
                     k += 1
