@@ -320,8 +320,8 @@ class MkvReader(FrameReader):
             for pkt in self._container.demux(self._depth_s, self._inten_s):
                 is_depth = pkt.stream.index == self._depth_s.index
                 table = want_d if is_depth else want_i
-                if pkt.pts is not None and int(pkt.pts) not in table:
-                    continue  # intra-only codecs (b16g, FFV1): unneeded packets can be skipped
+                # every packet from the (key frame) seek point is decoded: FFV1 carries its
+                # context state from frame to frame between key frames
                 for fr in pkt.decode():  # flush packets (pts None) return delayed frames
                     if fr.pts is not None and int(fr.pts) in table:
                         (depth if is_depth else inten)[table[int(fr.pts)]] = fr.to_ndarray()

@@ -108,6 +108,7 @@ class DepthVideoWriter:
             s = self._container.add_stream("ffv1", rate=Fraction(round(self.fps or 30)))
             s.width, s.height, s.pix_fmt = k.width, k.height, "gray16le"
             s.time_base = _MS
+            s.codec_context.gop_size = 1  # every frame a key frame: exact seeks, no carried state
             s.metadata["title"] = title
             streams.append(s)
         self._streams = (streams[0], streams[1])
