@@ -3,7 +3,8 @@
 
 No Python package decodes RVL, and the codec is 40 lines of bit twiddling over 32-bit words,
 so it is written here with numba (serial by nature: every value depends on the previous one).
-A 640x480 frame decodes in well under a millisecond.
+A 640x480 frame (10 % holes, 2.5:1 compression) decodes in 6-9 ms on the shared 2-core CI
+machine under load, i.e. > 100 frames/s.
 
 Stream layout: little-endian 32-bit words holding 4-bit nibbles from the most significant end;
 each value is a variable-length code of 3-bit groups (low group first, bit 3 = "more follows").
