@@ -169,7 +169,14 @@ class MkvReader(FrameReader):
         raise InputFileError(self.path, f"no {names[0]} video track (tracks: {have})")
 
     # ------------------------------------------------------------------ metadata
-    def _setup_k4a(self, meta, unit, spec, undistort, notes) -> None:
+    def _setup_k4a(
+        self,
+        meta: dict[str, str],
+        unit: float | None,
+        spec: IntrinsicsLike | None,
+        undistort: bool,
+        notes: list[str],
+    ) -> None:
         self._depth_s = self._track("DEPTH")
         self._inten_s = self._track("IR")
         mode = str(self._depth_s.metadata.get("K4A_DEPTH_MODE", "")).upper()
@@ -227,7 +234,13 @@ class MkvReader(FrameReader):
             "no calibration.json attachment (record with k4arecorder, or pass --intrinsics)",
         )
 
-    def _setup_fuse4d(self, meta, unit, spec, notes) -> None:
+    def _setup_fuse4d(
+        self,
+        meta: dict[str, str],
+        unit: float | None,
+        spec: IntrinsicsLike | None,
+        notes: list[str],
+    ) -> None:
         self._depth_s = self._track("DEPTH")
         self._inten_s = self._track("INTENSITY")
         w, h = int(self._depth_s.codec_context.width), int(self._depth_s.codec_context.height)
