@@ -242,6 +242,9 @@ class RosbagReader(FrameReader):
 
     def _deserialize(self, raw: bytes, connection: Any) -> Any:
         """Deserialize, stripping librealsense 2.47-2.57's 4 undeclared trailing bytes."""
+        if self._quirk and connection.msgtype == _IMAGE:  # known writer: skip the failing try
+            with contextlib.suppress(*self._errors):
+                return self._reader.typestore.deserialize_ros1(raw[:-4], connection.msgtype)
         try:
             return self._reader.deserialize(raw, connection.msgtype)
         except self._errors as exc:
