@@ -319,7 +319,7 @@ def test_save_sequence_infers_format(tmp_path, small_sequence):
     assert save_sequence(small_sequence, tmp_path / "b", depth_unit_mm=0.01).is_dir()
     assert detect_format(tmp_path / "a.npz") == "npz"
     assert detect_format(tmp_path / "b") == "folder"
-    with pytest.raises(ValueError, match="format must be one of npz, folder, got 'tum'"):
+    with pytest.raises(ValueError, match="format must be one of npz, folder, mkv, zarr, got 'tum'"):
         save_sequence(small_sequence, tmp_path / "c", format="tum")
     with pytest.raises(OutputExistsError):
         save_sequence(small_sequence, tmp_path / "a.npz")

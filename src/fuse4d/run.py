@@ -136,6 +136,7 @@ def fuse_file(
     overwrite: bool = False,
     quality: bool = True,
     progress: Callable[[int, int], None] | None = None,
+    reader_options: dict[str, Any] | None = None,
 ) -> RunSummary:
     """Fuse a recording on disk and write the result next to nothing it reads.
 
@@ -145,8 +146,9 @@ def fuse_file(
         ``.npz``, frame folder, TUM folder, cv2-xml or frames-json layout (see
         ``docs/formats.md``).
     output : path
-        ``.npz`` for npz input, otherwise a frame folder. Written under a temporary name and
-        renamed into place at the end, so a failed run leaves nothing half-written.
+        ``.npz`` for npz input; otherwise a frame folder, or by suffix an FFV1 ``.mkv`` depth
+        video or a ``.zarr`` store. Written under a temporary name and renamed into place at
+        the end, so a failed run leaves nothing half-written.
     fusion, flow : optional
         Parameters (default: the "fast" preset).
     overwrite : bool
@@ -155,6 +157,9 @@ def fuse_file(
         Compute the before/after roughness (costs ~2 roughness maps per frame).
     progress : callable, optional
         ``progress(done, total)`` per output frame.
+    reader_options : dict, optional
+        Passed to :func:`~fuse4d.io.open_frames` (``depth_topic``, ``intensity``,
+        ``depth_unit_mm``, ``intrinsics``, ...) for camera recordings.
 
     Returns
     -------
@@ -169,13 +174,15 @@ def fuse_file(
         raise ValueError(f"{dst}: npz input is written as .npz; give an output ending in .npz")
     if fmt != "npz" and dst.suffix.lower() == ".npz":
         raise ValueError(
-            f"{dst}: {fmt} input is written as a frame folder; give a folder name, not .npz"
+            f"{dst}: {fmt} input is written as a frame folder, .mkv or .zarr; not .npz"
         )
     start = time.perf_counter()
     if fmt == "npz":
         summary = _fuse_npz(src, dst, params, flow, overwrite, quality, progress)
     else:
-        summary = _fuse_streaming(src, dst, fmt, params, flow, overwrite, quality, progress)
+        summary = _fuse_streaming(
+            src, dst, fmt, params, flow, overwrite, quality, progress, reader_options or {}
+        )
     summary.seconds = time.perf_counter() - start
     return summary
 
@@ -213,13 +220,16 @@ def _fuse_npz(src, dst, params, flow, overwrite, quality, progress) -> RunSummar
     return summary
 
 
-def _fuse_streaming(src, dst, fmt, params, flow, overwrite, quality, progress) -> RunSummary:
+def _fuse_streaming(
+    src, dst, fmt, params, flow, overwrite, quality, progress, options
+) -> RunSummary:
     if params.iterations != 1:
         raise ValueError(
             "iterations > 1 needs the whole sequence in memory; convert the input to .npz first"
         )
     timings = dict.fromkeys(STAGES, 0.0)
-    with open_frames(src) as reader:
+    writer_cls, out_fmt = _writer_for(dst)
+    with open_frames(src, **options) as reader:
         total = len(reader)
         k = reader.intrinsics
         engine = FusionEngine(k, fusion=params, flow=flow, timings=timings)
@@ -227,7 +237,7 @@ def _fuse_streaming(src, dst, fmt, params, flow, overwrite, quality, progress) -
             input=src,
             output=dst,
             input_format=fmt,
-            output_format="folder",
+            output_format=out_fmt,
             frames=total,
             shape=(k.height, k.width),
             flow_method=engine.flow_config.method,
@@ -237,9 +247,8 @@ def _fuse_streaming(src, dst, fmt, params, flow, overwrite, quality, progress) -
         tally = _QualityTally() if quality else None
         pending: dict[int, Any] = {}  # raw frames waiting for their fused output, by stream order
         done = 0
-        with FrameFolderWriter(
-            dst, k, depth_unit_mm=reader.depth_unit_mm, fps=reader.fps, overwrite=overwrite
-        ) as writer:
+        unit = reader.depth_unit_mm or 1.0  # float-depth inputs (32FC1 bags, zarr): 1 mm steps
+        with writer_cls(dst, k, depth_unit_mm=unit, fps=reader.fps, overwrite=overwrite) as writer:
 
             def emit(frames: list[FusedFrame]) -> None:
                 nonlocal done
@@ -259,3 +268,15 @@ def _fuse_streaming(src, dst, fmt, params, flow, overwrite, quality, progress) -
         if tally is not None:
             tally.fill(summary)
     return summary
+
+
+def _writer_for(dst: Path) -> tuple[type, str]:
+    """Streaming writer by output suffix: ``.mkv`` FFV1 video, ``.zarr`` store, else folder."""
+    from .io import DepthVideoWriter, ZarrWriter
+
+    suffix = dst.suffix.lower()
+    if suffix == ".mkv":
+        return DepthVideoWriter, "mkv"
+    if suffix == ".zarr":
+        return ZarrWriter, "zarr"
+    return FrameFolderWriter, "folder"

@@ -11,6 +11,13 @@ import typer
 from rich.table import Table
 
 from ._app import app, err_console, fail, out_console, progress_bar, progress_callback
+from ._recording_opts import (
+    DepthTopicOpt,
+    IntensityOpt,
+    IntensityTopicOpt,
+    NoUndistortOpt,
+    reader_options,
+)
 
 PresetOpt = Annotated[
     str, typer.Option("--preset", help="Parameter preset: fast (DIS flow) or paper (PMBP).")
@@ -77,8 +84,13 @@ def _resolve(
 
 @app.command("run")
 def run_command(
-    input: Annotated[Path, typer.Argument(help="Recording: .npz, frame folder, TUM, ...")],
-    output: Annotated[Path, typer.Option("-o", "--output", help="Output .npz or folder.")],
+    input: Annotated[
+        Path,
+        typer.Argument(help="Recording: .npz, frame folder, TUM, ROS/RealSense bag, .mkv, ..."),
+    ],
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="Output .npz, folder, .mkv (FFV1) or .zarr.")
+    ],
     preset_name: PresetOpt = "fast",
     window: Annotated[
         int | None, typer.Option("--window", help="Frames fused per output frame (n, paper: 9).")
@@ -117,9 +129,30 @@ def run_command(
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing output.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+    depth_topic: DepthTopicOpt = None,
+    intensity_topic: IntensityTopicOpt = None,
+    intensity: IntensityOpt = None,
+    no_undistort: NoUndistortOpt = False,
+    depth_unit_mm: Annotated[
+        float | None,
+        typer.Option("--depth-unit-mm", "--depth-unit", help="Millimetres per stored depth unit."),
+    ] = None,
+    intrinsics: Annotated[
+        str | None, typer.Option("--intrinsics", help="Camera override: 'fx,fy,cx,cy' or file.")
+    ] = None,
 ) -> None:
-    """Fuse a recording (paper Eq. 2-6) and write the same kind of file or folder."""
+    """Fuse a recording (paper Eq. 2-6) and write the same kind of file or folder.
+
+    Camera recordings (.bag/.db3/.mcap/.mkv) are read directly; the output is a frame folder,
+    an FFV1 .mkv or a .zarr store, chosen by the output's suffix.
+    """
     from ..run import fuse_file
+
+    options = reader_options(depth_topic, intensity_topic, intensity, no_undistort)
+    if depth_unit_mm is not None:
+        options["depth_unit_mm"] = depth_unit_mm
+    if intrinsics is not None:
+        options["intrinsics"] = intrinsics
 
     fusion, flow = _resolve(
         preset_name,
@@ -140,6 +173,7 @@ def run_command(
             flow=flow,
             overwrite=force,
             progress=progress_callback(progress),
+            reader_options=options,
         )
     if as_json:
         print(json.dumps(summary.to_dict(), indent=2))

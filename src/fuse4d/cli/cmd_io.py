@@ -13,6 +13,13 @@ import typer
 from ..camera import depth_to_points
 from ..io import CAMERA_PRESETS, check_output, open_frames, write_ply
 from ._app import app, fail, out_console, track
+from ._recording_opts import (
+    DepthTopicOpt,
+    IntensityOpt,
+    IntensityTopicOpt,
+    NoUndistortOpt,
+    reader_options,
+)
 
 __all__ = ["export_ply_command", "info_command"]
 
@@ -25,19 +32,25 @@ InputArg = Annotated[
     Path,
     typer.Argument(
         metavar="INPUT",
-        help="A .npz file or a sequence folder (frame folder, TUM, cv2-xml, frames-json).",
+        help="A .npz file, a sequence folder (frame folder, TUM, cv2-xml, frames-json), a "
+        "ROS/RealSense .bag/.db3/.mcap, an Azure Kinect or FFV1 .mkv, or a .zarr store.",
         show_default=False,
     ),
 ]
 IntrinsicsOpt = Annotated[str | None, typer.Option("--intrinsics", help=_INTRINSICS_HELP)]
 UnitOpt = Annotated[
     float | None,
-    typer.Option("--depth-unit-mm", help="Millimetres per stored depth unit (overrides the file)."),
+    typer.Option(
+        "--depth-unit-mm",
+        "--depth-unit",
+        help="Millimetres per stored depth unit (overrides the file; e.g. 0.1 for a D405).",
+    ),
 ]
 FormatOpt = Annotated[
     str | None,
     typer.Option(
-        "--format", help="Force the input layout: npz, folder, tum, cv2-xml, frames-json."
+        "--format",
+        help="Force the input layout: npz, folder, tum, cv2-xml, frames-json, rosbag, mkv, zarr.",
     ),
 ]
 
@@ -49,10 +62,22 @@ def info_command(
     depth_unit_mm: UnitOpt = None,
     input_format: FormatOpt = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    depth_topic: DepthTopicOpt = None,
+    intensity_topic: IntensityTopicOpt = None,
+    intensity: IntensityOpt = None,
+    no_undistort: NoUndistortOpt = False,
 ) -> None:
-    """Describe a recording: layout, frames, size, valid fraction, depth range, camera, GT."""
+    """Describe a recording: layout, frames, size, valid fraction, depth range, camera, GT.
+
+    For camera recordings also the streams/topics (messages, rate, size, encoding) and which
+    of them are used as depth and intensity.
+    """
     reader = open_frames(
-        input_path, format=input_format, depth_unit_mm=depth_unit_mm, intrinsics=intrinsics
+        input_path,
+        format=input_format,
+        depth_unit_mm=depth_unit_mm,
+        intrinsics=intrinsics,
+        **reader_options(depth_topic, intensity_topic, intensity, no_undistort),
     )
     with reader:
         n_valid = 0
@@ -82,6 +107,7 @@ def info_command(
             "depth_max_mm": hi if n_valid else None,
             "ground_truth": list(reader.ground_truth_keys),
             "notes": list(reader.notes),
+            "streams": _streams(reader),
         }
     if as_json:
         print(json.dumps(summary))
@@ -111,6 +137,7 @@ def info_command(
         ("ground truth", ", ".join(summary["ground_truth"]) or "none"),
     ]
     rows += [("note", note) for note in summary["notes"]]
+    rows += [("stream", _stream_row(s)) for s in summary["streams"]]
     for key, value in rows:
         out_console.print(f"{key + ':':<14}{value}", highlight=False, markup=False, soft_wrap=True)
 
@@ -131,11 +158,19 @@ def export_ply_command(
     intrinsics: IntrinsicsOpt = None,
     depth_unit_mm: UnitOpt = None,
     input_format: FormatOpt = None,
+    depth_topic: DepthTopicOpt = None,
+    intensity_topic: IntensityTopicOpt = None,
+    intensity: IntensityOpt = None,
+    no_undistort: NoUndistortOpt = False,
 ) -> None:
     """Write one frame as a binary PLY point cloud (mm, camera frame; intensity as gray)."""
     check_output(output, overwrite=force, inputs=[input_path])
     with open_frames(
-        input_path, format=input_format, depth_unit_mm=depth_unit_mm, intrinsics=intrinsics
+        input_path,
+        format=input_format,
+        depth_unit_mm=depth_unit_mm,
+        intrinsics=intrinsics,
+        **reader_options(depth_topic, intensity_topic, intensity, no_undistort),
     ) as reader:
         n = len(reader)
         if not -n <= frame < n:
@@ -148,4 +183,19 @@ def export_ply_command(
         highlight=False,
         markup=False,
         soft_wrap=True,
+    )
+
+
+def _streams(reader: object) -> list[dict[str, object]]:
+    """Streams/topics of a camera recording (empty for other layouts)."""
+    describe = getattr(reader, "describe_streams", None)
+    return describe() if callable(describe) else []
+
+
+def _stream_row(s: dict[str, object]) -> str:
+    rate = s.get("rate_hz")
+    used = f"  <- used as {s['used_as']}" if s.get("used_as") else ""
+    return (
+        f"{s['topic']}  [{s['type']}, {s['encoding'] or '?'}] {s['width']}x{s['height']}, "
+        f"{s['messages']} msgs" + (f", {rate:.3g} Hz" if rate else "") + used
     )

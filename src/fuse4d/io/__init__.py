@@ -1,5 +1,7 @@
 """Reading and writing 3D videos: fuse4d's npz and frame-folder formats, real RGB-D layouts
-(TUM, cv2-xml, frames-json), PLY point clouds (Middlebury ``.flo`` flow files: :mod:`fuse4d.flow.flo`).
+(TUM, cv2-xml, frames-json), camera recordings (ROS 1/ROS 2/MCAP bags and RealSense
+``.bag``/``.db3``, Azure Kinect/Orbbec ``.mkv``; the ``sensors`` extra), FFV1 depth video and
+zarr v3 stores, PLY point clouds (Middlebury ``.flo`` flow files: :mod:`fuse4d.flow.flo`).
 
 In memory: depth (T, H, W) float32 mm with NaN = invalid, intensity (T, H, W) float32 in
 [0, 1]. On disk, 16-bit depth stores ``value * depth_unit_mm`` mm with 0 = invalid. Every
@@ -28,22 +30,31 @@ from .cv2xml import Cv2XmlReader
 from .folder import FolderReader, FrameFolderWriter, read_frame_folder, write_frame_folder
 from .framesjson import FramesJsonReader
 from .mask import read_mask
+from .mkv import MkvReader
 from .npz import NpzReader, read_npz, read_npz_extra, write_npz
 from .ply import read_ply, write_ply
+from .rosbag import RosbagReader
 from .tum import TumReader, associate_timestamps, read_tum
+from .video import DepthVideoWriter, write_depth_video
+from .zarrstore import ZarrReader, ZarrWriter, write_zarr
 
 __all__ = [
     "CAMERA_PRESETS",
     "READ_FORMATS",
     "WRITE_FORMATS",
     "Cv2XmlReader",
+    "DepthVideoWriter",
     "FolderReader",
     "Frame",
     "FrameFolderWriter",
     "FrameReader",
     "FramesJsonReader",
+    "MkvReader",
     "NpzReader",
+    "RosbagReader",
     "TumReader",
+    "ZarrReader",
+    "ZarrWriter",
     "associate_timestamps",
     "check_output",
     "count_frames",
@@ -64,7 +75,9 @@ __all__ = [
     "read_tum",
     "resolve_frames",
     "save_sequence",
+    "write_depth_video",
     "write_frame_folder",
     "write_npz",
     "write_ply",
+    "write_zarr",
 ]

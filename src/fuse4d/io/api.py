@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from os import PathLike
 from pathlib import Path
+from typing import Any
 
 from ..camera import Intrinsics
 from ..errors import InputFileError
@@ -13,8 +14,13 @@ from ._base import Frame, FrameReader, FrameSelection, IntrinsicsLike, ProgressC
 from .cv2xml import Cv2XmlReader, is_cv2_xml_folder
 from .folder import FolderReader, write_frame_folder
 from .framesjson import FramesJsonReader
+from .mkv import MkvReader
 from .npz import NpzReader, write_npz
+from .rosbag import RosbagReader
+from .sensors import check_sensor_options, detect_sensor_format
 from .tum import TumReader
+from .video import write_depth_video
+from .zarrstore import ZarrReader, write_zarr
 
 __all__ = [
     "READ_FORMATS",
@@ -35,9 +41,12 @@ READ_FORMATS: dict[str, type[FrameReader]] = {
     "tum": TumReader,
     "cv2-xml": Cv2XmlReader,
     "frames-json": FramesJsonReader,
+    "rosbag": RosbagReader,
+    "mkv": MkvReader,
+    "zarr": ZarrReader,
 }
 #: Formats :func:`save_sequence` writes.
-WRITE_FORMATS = ("npz", "folder")
+WRITE_FORMATS = ("npz", "folder", "mkv", "zarr")
 
 
 def detect_format(path: str | PathLike[str]) -> str:
@@ -46,7 +55,9 @@ def detect_format(path: str | PathLike[str]) -> str:
     Rules, in order: a ``*.npz`` file → ``npz``; a ``frames.json`` file or a folder holding
     one → ``frames-json``; a folder with ``rgb.txt`` and ``depth.txt`` → ``tum``; a folder
     with a ``depth/`` subfolder → ``folder``; a folder with ``NNNN_depth.png`` next to
-    ``NNNN_camera.xml`` → ``cv2-xml``.
+    ``NNNN_camera.xml`` → ``cv2-xml``. Camera recordings first, by their magic bytes: ROS 1
+    bag, ROS 2 SQLite/MCAP (or a rosbag2 folder) → ``rosbag``; Matroska → ``mkv``; a zarr v3
+    store → ``zarr`` (see :mod:`fuse4d.io.sensors`).
 
     Raises
     ------
@@ -54,12 +65,19 @@ def detect_format(path: str | PathLike[str]) -> str:
         If ``path`` does not exist or matches no layout.
     """
     p = Path(path)
+    sensor = detect_sensor_format(p)
+    if sensor is not None:
+        return sensor
     if p.is_file():
         if p.suffix.lower() == ".npz":
             return "npz"
         if p.name == "frames.json":
             return "frames-json"
-        raise InputFileError(p, "unknown file type (expected a .npz file or a sequence folder)")
+        raise InputFileError(
+            p,
+            "unknown file type (expected .npz, a ROS .bag/.db3/.mcap, an .mkv, or a sequence "
+            "folder)",
+        )
     if not p.is_dir():
         raise InputFileError(p, "file or folder not found")
     if (p / "frames.json").is_file():
@@ -83,6 +101,10 @@ def open_frames(
     format: str | None = None,
     depth_unit_mm: float | None = None,
     intrinsics: IntrinsicsLike | None = None,
+    depth_topic: str | None = None,
+    intensity_topic: str | None = None,
+    intensity: str | None = None,
+    undistort: bool | None = None,
 ) -> FrameReader:
     """Open a recording for lazy, frame-by-frame reading (memory independent of its length).
 
@@ -97,6 +119,13 @@ def open_frames(
         ``depth_scale``, TUM's 0.2 mm). Not allowed for ``npz`` (already mm).
     intrinsics : IntrinsicsLike, optional
         Overrides the stored camera; required for TUM folders without ``camera.json``.
+    depth_topic, intensity_topic : str, optional
+        ``rosbag`` only: topics to use instead of the automatic choice.
+    intensity : {"auto", "ir", "color"}, optional
+        ``rosbag`` only: guide stream (default ``"auto"``: infrared, else colour aligned to
+        depth). See :class:`~fuse4d.io.RosbagReader`.
+    undistort : bool, optional
+        ``mkv`` (Azure Kinect) only: remove lens distortion (default True).
 
     Returns
     -------
@@ -113,6 +142,14 @@ def open_frames(
     fmt = format or detect_format(path)
     if fmt not in READ_FORMATS:
         raise ValueError(f"format must be one of {', '.join(READ_FORMATS)}, got {fmt!r}")
+    options = check_sensor_options(
+        fmt,
+        {"depth_topic": depth_topic, "intensity_topic": intensity_topic,
+         "intensity": intensity, "undistort": undistort},
+    )  # fmt: skip
+    if options or fmt in ("rosbag", "mkv"):
+        cls = READ_FORMATS[fmt]
+        return cls(path, depth_unit_mm=depth_unit_mm, intrinsics=intrinsics, **options)
     if fmt == "npz":
         if depth_unit_mm is not None:
             raise ValueError("depth_unit_mm does not apply to .npz files (depth is stored in mm)")
@@ -131,6 +168,7 @@ def load_sequence(
     intrinsics: IntrinsicsLike | None = None,
     format: str | None = None,
     progress: ProgressCallback | None = None,
+    **options: Any,
 ) -> Sequence:
     """Load a recording in any supported layout into a :class:`~fuse4d.Sequence`.
 
@@ -143,6 +181,9 @@ def load_sequence(
         Contiguous frame range (default: all).
     depth_unit_mm, intrinsics, format
         See :func:`open_frames`.
+    **options
+        Recording options (``depth_topic``, ``intensity_topic``, ``intensity``,
+        ``undistort``); see :func:`open_frames`.
     progress : callable, optional
         ``callback(done, total)`` after each frame.
 
@@ -158,7 +199,9 @@ def load_sequence(
     InputFileError
         Missing, corrupt or inconsistent input, naming the file and frame.
     """
-    reader = open_frames(path, format=format, depth_unit_mm=depth_unit_mm, intrinsics=intrinsics)
+    reader = open_frames(
+        path, format=format, depth_unit_mm=depth_unit_mm, intrinsics=intrinsics, **options
+    )
     with reader:
         return reader.read_sequence(frames, progress=progress)
 
@@ -170,10 +213,11 @@ def iter_frames(
     depth_unit_mm: float | None = None,
     intrinsics: IntrinsicsLike | None = None,
     format: str | None = None,
+    **options: Any,
 ) -> Iterator[Frame]:
     """Yield the frames of a recording one at a time (see :class:`~fuse4d.io.Frame`)."""
     with open_frames(
-        path, format=format, depth_unit_mm=depth_unit_mm, intrinsics=intrinsics
+        path, format=format, depth_unit_mm=depth_unit_mm, intrinsics=intrinsics, **options
     ) as reader:
         yield from reader.iter_frames(frames)
 
@@ -209,20 +253,21 @@ def save_sequence(
     depth_unit_mm: float = 1.0,
     progress: ProgressCallback | None = None,
 ) -> Path:
-    """Write a sequence atomically as ``.npz`` (lossless, keeps ground truth) or a frame folder.
+    """Write a sequence atomically as ``.npz`` (lossless, keeps ground truth), a frame folder,
+    an FFV1 ``.mkv`` (lossless 16-bit depth video) or a ``.zarr`` v3 store (float, lossless).
 
     Parameters
     ----------
     seq : Sequence
         The sequence.
     path : str or PathLike
-        Output; ``format`` defaults to ``npz`` for a ``.npz`` suffix and ``folder`` otherwise.
-    format : {"npz", "folder"}, optional
+        Output; ``format`` follows the suffix (``.npz``, ``.mkv``, ``.zarr``), else ``folder``.
+    format : {"npz", "folder", "mkv", "zarr"}, optional
     overwrite : bool, optional
         Replace an existing output. Default False (:class:`~fuse4d.OutputExistsError`).
     depth_unit_mm : float, optional
-        Folder format only: millimetres per stored unit (default 1.0). Values are rounded and
-        clipped to 16 bit with a ``UserWarning`` on clipping or coarse rounding.
+        Folder and mkv formats: millimetres per stored unit (default 1.0). Values are
+        rounded and clipped to 16 bit with a ``UserWarning`` on clipping or coarse rounding.
     progress : callable, optional
         ``callback(done, total)`` (folder format).
 
@@ -231,9 +276,14 @@ def save_sequence(
     Path
         The written file or folder.
     """
-    fmt = format or ("npz" if Path(path).suffix.lower() == ".npz" else "folder")
+    suffix = Path(path).suffix.lower()
+    fmt = format or {".npz": "npz", ".mkv": "mkv", ".zarr": "zarr"}.get(suffix, "folder")
     if fmt == "npz":
         return write_npz(seq, path, overwrite=overwrite)
+    if fmt == "mkv":
+        return write_depth_video(seq, path, depth_unit_mm=depth_unit_mm, overwrite=overwrite)
+    if fmt == "zarr":
+        return write_zarr(seq, path, overwrite=overwrite)
     if fmt == "folder":
         return write_frame_folder(
             seq, path, depth_unit_mm=depth_unit_mm, overwrite=overwrite, progress=progress

@@ -1,0 +1,58 @@
+"""Command-line options shared by the commands that read camera recordings (info, run, export-ply).
+
+ROS bags and RealSense files: ``--depth-topic``, ``--intensity-topic``, ``--intensity``;
+Azure Kinect ``.mkv``: ``--no-undistort``. :func:`reader_options` turns the given ones into
+keyword arguments of :func:`fuse4d.io.open_frames` (options left unset are not passed, so
+other layouts are unaffected).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+import typer
+
+__all__ = [
+    "DepthTopicOpt",
+    "IntensityOpt",
+    "IntensityTopicOpt",
+    "NoUndistortOpt",
+    "reader_options",
+]
+
+DepthTopicOpt = Annotated[
+    str | None,
+    typer.Option("--depth-topic", help="ROS bag: depth topic (default: chosen by encoding)."),
+]
+IntensityTopicOpt = Annotated[
+    str | None,
+    typer.Option("--intensity-topic", help="ROS bag: intensity topic (default: IR, else colour)."),
+]
+IntensityOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--intensity",
+        help="ROS bag / RealSense: guide stream: auto (IR if recorded, else colour), ir, or "
+        "color (resampled onto the depth grid with the recorded extrinsics).",
+    ),
+]
+NoUndistortOpt = Annotated[
+    bool,
+    typer.Option("--no-undistort", help="Azure Kinect .mkv: keep the lens distortion."),
+]
+
+
+def reader_options(
+    depth_topic: str | None = None,
+    intensity_topic: str | None = None,
+    intensity: str | None = None,
+    no_undistort: bool = False,
+) -> dict[str, Any]:
+    """Keyword arguments for :func:`fuse4d.io.open_frames` from the options that were given."""
+    out: dict[str, Any] = {
+        "depth_topic": depth_topic,
+        "intensity_topic": intensity_topic,
+        "intensity": intensity,
+        "undistort": False if no_undistort else None,
+    }
+    return {k: v for k, v in out.items() if v is not None}

@@ -1,0 +1,216 @@
+"""Lossless 16-bit depth video: FFV1 (``gray16le``) in Matroska through PyAV.
+
+Layout (read back by :class:`~fuse4d.io.mkv.MkvReader`)
+------
+track ``DEPTH``       FFV1 gray16le, depth in units of ``FUSE4D_DEPTH_UNIT_MM`` mm, 0 = invalid
+track ``INTENSITY``   FFV1 gray16le, intensity ``round(65535 i)``
+tags                  ``FUSE4D_INTRINSICS`` (``fx,fy,cx,cy`` px), ``FUSE4D_DEPTH_UNIT_MM``,
+                      ``FUSE4D_FPS``, ``FUSE4D_T0`` (first timestamp, s)
+pts                   milliseconds after ``FUSE4D_T0`` (Matroska's time base is 1 ms)
+
+FFV1 is lossless, so the stored 16-bit values round-trip bit-exactly; depth itself is rounded
+to the unit (as for PNG folders; use ``.npz`` or ``.zarr`` for float depth). The file appears
+under its name only when complete (written under a temporary name, then renamed).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from contextlib import ExitStack
+from fractions import Fraction
+from os import PathLike
+from pathlib import Path
+from typing import Any, Self
+
+import numpy as np
+
+from ..camera import Intrinsics
+from ..sequence import Sequence
+from ._atomic import atomic_file, check_output
+from ._extras import require
+from ._images import QuantizationReport, depth_to_units, intensity_to_uint
+
+__all__ = ["DepthVideoWriter", "write_depth_video"]
+
+_MS = Fraction(1, 1000)
+
+
+class DepthVideoWriter:
+    """Write depth + intensity frame by frame to an FFV1 ``.mkv`` (atomic).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        Output ``.mkv``.
+    intrinsics : Intrinsics
+        Camera; frames must be ``(intrinsics.height, intrinsics.width)``.
+    depth_unit_mm : float, optional
+        Millimetres per stored unit (default 1.0; range up to 65535 units). Rounding and
+        clipping are reported by one ``UserWarning``, as for frame folders.
+    fps : float, optional
+        Frame rate used for pts when frames have no timestamps (default 30).
+    overwrite : bool, optional
+        Replace an existing output.
+    """
+
+    def __init__(
+        self,
+        path: str | PathLike[str],
+        intrinsics: Intrinsics,
+        *,
+        depth_unit_mm: float = 1.0,
+        fps: float | None = None,
+        overwrite: bool = False,
+    ) -> None:
+        if not isinstance(intrinsics, Intrinsics):
+            raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics)}")
+        if not (math.isfinite(depth_unit_mm) and depth_unit_mm > 0):
+            raise ValueError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
+        if fps is not None and not (math.isfinite(fps) and fps > 0):
+            raise ValueError(f"fps must be > 0, got {fps!r}")
+        self._av = require("av", what="writing .mkv depth video")
+        self.path = check_output(path, overwrite=overwrite)
+        self.intrinsics = intrinsics
+        self.depth_unit_mm = float(depth_unit_mm)
+        self.fps = fps
+        self.overwrite = overwrite
+        self.num_written = 0
+        self._report = QuantizationReport(self.depth_unit_mm)
+        self._stack: ExitStack | None = None
+        self._container: Any = None
+        self._streams: tuple[Any, Any] | None = None
+        self._t0: float | None = None
+        self._last_pts = -1
+
+    def __enter__(self) -> Self:
+        self.open()
+        return self
+
+    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+    def open(self) -> None:
+        """Create the temporary file and the two FFV1 tracks (called by ``with``)."""
+        if self._stack is not None:
+            raise RuntimeError("DepthVideoWriter is already open")
+        stack = ExitStack()
+        tmp = stack.enter_context(atomic_file(self.path, overwrite=self.overwrite))
+        self._stack = stack
+        self._tmp = Path(tmp)
+        self._container = self._av.open(str(tmp), mode="w", format="matroska")
+        k = self.intrinsics
+        streams = []
+        for title in ("DEPTH", "INTENSITY"):
+            s = self._container.add_stream("ffv1", rate=Fraction(round(self.fps or 30)))
+            s.width, s.height, s.pix_fmt = k.width, k.height, "gray16le"
+            s.time_base = _MS
+            s.codec_context.gop_size = 1  # every frame a key frame: exact seeks, no carried state
+            s.metadata["title"] = title
+            streams.append(s)
+        self._streams = (streams[0], streams[1])
+        # tags go into the header, which is written with the first packet: set them now
+        meta = self._container.metadata
+        meta["FUSE4D_INTRINSICS"] = ",".join(repr(float(v)) for v in k.as_array())
+        meta["FUSE4D_DEPTH_UNIT_MM"] = repr(self.depth_unit_mm)
+        if self.fps:
+            meta["FUSE4D_FPS"] = repr(float(self.fps))
+
+    def write(
+        self,
+        depth: np.ndarray,
+        intensity: np.ndarray,
+        *,
+        mask: np.ndarray | None = None,
+        timestamp: float | None = None,
+    ) -> None:
+        """Append one frame (depth mm, NaN/<=0 invalid; intensity [0, 1]; mask ignored)."""
+        if self._streams is None:
+            raise RuntimeError("DepthVideoWriter is not open; use it in a `with` block")
+        shape = self.intrinsics.shape
+        for name, arr in (("depth", depth), ("intensity", intensity)):
+            if np.shape(arr) != shape:
+                raise ValueError(
+                    f"{name} of frame {self.num_written} has shape {np.shape(arr)}, expected "
+                    f"{shape} (the intrinsics' height x width)"
+                )
+        if timestamp is not None and self.num_written == 0:
+            self._t0 = float(timestamp)
+            self._container.metadata["FUSE4D_T0"] = repr(self._t0)
+        if self._t0 is not None and timestamp is not None:
+            pts = round((float(timestamp) - self._t0) * 1000.0)
+        else:
+            pts = round(self.num_written * 1000.0 / (self.fps or 30.0))
+        pts = max(pts, self._last_pts + 1)  # strictly increasing (1 ms resolution)
+        self._last_pts = pts
+        planes = (
+            depth_to_units(depth, self.depth_unit_mm, self._report),
+            intensity_to_uint(intensity, 16),
+        )
+        for stream, plane in zip(self._streams, planes, strict=True):
+            frame = self._av.VideoFrame.from_ndarray(
+                np.ascontiguousarray(plane, dtype=np.uint16), format="gray16le"
+            )
+            frame.pts, frame.time_base = pts, _MS
+            for packet in stream.encode(frame):
+                self._container.mux(packet)
+        self.num_written += 1
+
+    def close(self) -> None:
+        """Flush the encoders, write the tags and move the file into place."""
+        if self._stack is None:
+            return
+        if self.num_written == 0:
+            self.abort()
+            raise ValueError(f"{self.path}: no frame was written")
+        stack, self._stack = self._stack, None
+        try:
+            for stream in self._streams or ():
+                for packet in stream.encode():
+                    self._container.mux(packet)
+            self._container.close()
+        except BaseException:
+            self._stack = stack
+            self.abort()
+            raise
+        self._report.warn(str(self.path))
+        stack.close()
+
+    def abort(self) -> None:
+        """Discard the partial output."""
+        if self._stack is None:
+            return
+        stack, self._stack = self._stack, None
+        with contextlib.suppress(self._av.FFmpegError, OSError, ValueError):
+            self._container.close()  # a half-written container may fail to finalise
+        try:
+            with stack:
+                raise _Abort
+        except _Abort:
+            pass
+
+
+class _Abort(Exception):
+    """Raised inside the atomic context to make it delete the temporary file."""
+
+
+def write_depth_video(
+    seq: Sequence,
+    path: str | PathLike[str],
+    *,
+    depth_unit_mm: float = 1.0,
+    overwrite: bool = False,
+) -> Path:
+    """Write a :class:`~fuse4d.Sequence` as FFV1 ``.mkv`` (see :class:`DepthVideoWriter`)."""
+    with DepthVideoWriter(
+        path, seq.intrinsics, depth_unit_mm=depth_unit_mm, fps=seq.fps, overwrite=overwrite
+    ) as writer:
+        ts = seq.timestamps
+        for t in range(seq.num_frames):
+            writer.write(
+                seq.depth[t], seq.intensity[t], timestamp=None if ts is None else float(ts[t])
+            )
+    return Path(path)

@@ -1,0 +1,260 @@
+"""zarr v3 store of a 3D video: chunked float arrays, one chunk per frame.
+
+Layout of ``NAME.zarr/`` (a zarr v3 group)
+------
+``depth``        (T, H, W) float32 mm, NaN = invalid; ``dimension_names = ("t", "y", "x")``
+``intensity``    (T, H, W) float32 in [0, 1]; same dims
+``timestamps``   (T,) float64 s (only when the frames have timestamps)
+chunks           ``(1, H, W)`` (one frame per chunk; zstd-compressed, zarr's default codec)
+group attributes ``fuse4d_format = 1``, ``intrinsics = {fx, fy, cx, cy, width, height}`` (px),
+                 ``depth_unit = "mm"``, ``fps``, ``source`` (free text)
+
+Float depth is stored as is (lossless). Written into a temporary folder renamed into place at
+the end (atomic); frames are appended one at a time, so memory does not grow with T.
+"""
+
+from __future__ import annotations
+
+import math
+from contextlib import ExitStack
+from os import PathLike
+from pathlib import Path
+from typing import Any, Self
+
+import numpy as np
+
+from ..camera import Intrinsics
+from ..errors import InputFileError
+from ..sequence import Sequence
+from ._atomic import atomic_dir, check_output
+from ._base import Frame, FrameReader, IntrinsicsLike, resolve_intrinsics
+from ._extras import require
+
+__all__ = ["ZarrReader", "ZarrWriter", "is_zarr_store", "write_zarr"]
+
+_DIMS = ("t", "y", "x")
+
+
+def is_zarr_store(path: str | PathLike[str]) -> bool:
+    """Whether ``path`` is a folder holding a zarr v3 group (``zarr.json``)."""
+    p = Path(path)
+    return p.is_dir() and (p / "zarr.json").is_file()
+
+
+class ZarrWriter:
+    """Append frames to a new zarr v3 store (atomic; see the module docstring).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        Output folder (conventionally ``*.zarr``).
+    intrinsics : Intrinsics
+        Camera (stored as attributes).
+    depth_unit_mm : float, optional
+        Ignored (depth is stored as float mm); accepted for the writers' common signature.
+    fps : float, optional
+        Stored as an attribute.
+    overwrite : bool, optional
+        Replace an existing output.
+    """
+
+    def __init__(
+        self,
+        path: str | PathLike[str],
+        intrinsics: Intrinsics,
+        *,
+        depth_unit_mm: float | None = None,
+        fps: float | None = None,
+        overwrite: bool = False,
+        source: str = "",
+    ) -> None:
+        if not isinstance(intrinsics, Intrinsics):
+            raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics)}")
+        if fps is not None and not (math.isfinite(fps) and fps > 0):
+            raise ValueError(f"fps must be > 0, got {fps!r}")
+        self._zarr = require("zarr", what="writing zarr stores")
+        self.path = check_output(path, overwrite=overwrite)
+        self.intrinsics = intrinsics
+        self.fps = fps
+        self.overwrite = overwrite
+        self.source = source
+        self.num_written = 0
+        self._stack: ExitStack | None = None
+        self._arrays: dict[str, Any] = {}
+        self._timestamps: list[float | None] = []
+
+    def __enter__(self) -> Self:
+        self.open()
+        return self
+
+    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+    def open(self) -> None:
+        """Create the temporary store with empty (0, H, W) arrays."""
+        if self._stack is not None:
+            raise RuntimeError("ZarrWriter is already open")
+        stack = ExitStack()
+        tmp = stack.enter_context(atomic_dir(self.path, overwrite=self.overwrite))
+        self._stack = stack
+        h, w = self.intrinsics.shape
+        self._group = self._zarr.open_group(str(tmp), mode="w", zarr_format=3)
+        for name in ("depth", "intensity"):
+            self._arrays[name] = self._group.create_array(
+                name,
+                shape=(0, h, w),
+                chunks=(1, h, w),
+                dtype="float32",
+                fill_value=float("nan") if name == "depth" else 0.0,
+                dimension_names=_DIMS,
+            )
+
+    def write(
+        self,
+        depth: np.ndarray,
+        intensity: np.ndarray,
+        *,
+        mask: np.ndarray | None = None,
+        timestamp: float | None = None,
+    ) -> None:
+        """Append one frame (depth mm, NaN invalid; intensity [0, 1]; mask ignored)."""
+        if self._stack is None:
+            raise RuntimeError("ZarrWriter is not open; use it in a `with` block")
+        shape = self.intrinsics.shape
+        d = np.asarray(depth, dtype=np.float32)
+        i = np.asarray(intensity, dtype=np.float32)
+        for name, arr in (("depth", d), ("intensity", i)):
+            if arr.shape != shape:
+                raise ValueError(
+                    f"{name} of frame {self.num_written} has shape {arr.shape}, expected {shape}"
+                )
+        d = np.where(np.isfinite(d) & (d > 0), d, np.float32(np.nan))
+        self._arrays["depth"].append(d[None], axis=0)
+        self._arrays["intensity"].append(np.clip(i, 0.0, 1.0)[None], axis=0)
+        self._timestamps.append(None if timestamp is None else float(timestamp))
+        self.num_written += 1
+
+    def close(self) -> None:
+        """Write timestamps and attributes, then move the store into place."""
+        if self._stack is None:
+            return
+        if self.num_written == 0:
+            self.abort()
+            raise ValueError(f"{self.path}: no frame was written")
+        try:
+            if all(t is not None for t in self._timestamps):
+                ts = np.asarray(self._timestamps, dtype=np.float64)
+                arr = self._group.create_array(
+                    "timestamps", shape=ts.shape, dtype="float64", dimension_names=("t",)
+                )
+                arr[:] = ts
+            k = self.intrinsics
+            attrs = {"fuse4d_format": 1, "intrinsics": k.to_dict(), "depth_unit": "mm"}
+            if self.fps:
+                attrs["fps"] = float(self.fps)
+            if self.source:
+                attrs["source"] = self.source
+            self._group.attrs.update(attrs)
+        except BaseException:
+            self.abort()
+            raise
+        stack, self._stack = self._stack, None
+        stack.close()
+
+    def abort(self) -> None:
+        """Discard the partial store."""
+        if self._stack is None:
+            return
+        stack, self._stack = self._stack, None
+        try:
+            with stack:
+                raise _Abort
+        except _Abort:
+            pass
+
+
+class _Abort(Exception):
+    """Raised inside the atomic context to make it delete the temporary folder."""
+
+
+class ZarrReader(FrameReader):
+    """Frame reader for a zarr v3 store written by :class:`ZarrWriter` (or laid out alike)."""
+
+    format = "zarr"
+
+    def __init__(
+        self,
+        path: str | PathLike[str],
+        *,
+        depth_unit_mm: float | None = None,
+        intrinsics: IntrinsicsLike | None = None,
+    ) -> None:
+        self.path = Path(path)
+        zarr = require("zarr", what="reading zarr stores")
+        if depth_unit_mm is not None:
+            raise ValueError("depth_unit_mm does not apply to zarr stores (depth is float mm)")
+        try:
+            group = zarr.open_group(str(self.path), mode="r")
+            self._depth = group["depth"]
+            self._inten = group["intensity"]
+            attrs = dict(group.attrs)
+        except KeyError as exc:
+            raise InputFileError(self.path, f"zarr store has no array {exc}") from None
+        except (OSError, ValueError, TypeError, LookupError) as exc:
+            raise InputFileError(self.path, f"cannot open the zarr store ({exc})") from None
+        if self._depth.ndim != 3 or self._inten.shape != self._depth.shape:
+            raise InputFileError(
+                self.path,
+                f"depth {self._depth.shape} and intensity {self._inten.shape} must be equal "
+                "(T, H, W)",
+            )
+        t, h, w = self._depth.shape
+        if t < 1:
+            raise InputFileError(self.path, "zarr store holds no frame")
+        unit = attrs.get("depth_unit", "mm")
+        if unit != "mm":
+            raise InputFileError(self.path, f"depth_unit {unit!r} is not supported (only 'mm')")
+        cam = attrs.get("intrinsics")
+        try:
+            if intrinsics is not None:
+                self.intrinsics = resolve_intrinsics(intrinsics, width=w, height=h)
+            elif isinstance(cam, dict):
+                self.intrinsics = Intrinsics(
+                    cam["fx"], cam["fy"], cam["cx"], cam["cy"], width=w, height=h
+                )
+            else:
+                raise InputFileError(self.path, "no 'intrinsics' attribute; pass --intrinsics")
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputFileError(self.path, f"bad 'intrinsics' attribute ({exc})") from None
+        self.fps = float(attrs["fps"]) if attrs.get("fps") else None
+        if "timestamps" in group:
+            self.timestamps = np.asarray(group["timestamps"][:], dtype=np.float64)
+        self._t = int(t)
+        self.notes = ("zarr v3 store, float32 depth in mm",)
+
+    def __len__(self) -> int:
+        return self._t
+
+    def read_frame(self, index: int) -> Frame:
+        k = self._index(index)
+        try:
+            depth = np.asarray(self._depth[k], dtype=np.float32)
+            inten = np.asarray(self._inten[k], dtype=np.float32)
+        except (OSError, ValueError, TypeError, LookupError) as exc:
+            raise InputFileError(self.path, f"cannot read chunk ({exc})", frame=k) from None
+        ts = None if self.timestamps is None else float(self.timestamps[k])
+        return Frame(k, depth, inten, timestamp=ts)
+
+
+def write_zarr(seq: Sequence, path: str | PathLike[str], *, overwrite: bool = False) -> Path:
+    """Write a :class:`~fuse4d.Sequence` as a zarr v3 store (see :class:`ZarrWriter`)."""
+    with ZarrWriter(path, seq.intrinsics, fps=seq.fps, overwrite=overwrite) as writer:
+        ts = seq.timestamps
+        for t in range(seq.num_frames):
+            writer.write(
+                seq.depth[t], seq.intensity[t], timestamp=None if ts is None else float(ts[t])
+            )
+    return Path(path)

@@ -1,0 +1,571 @@
+"""Camera recordings: RealSense .bag/.db3, Azure Kinect .mkv, generic ROS 1/ROS 2/MCAP bags,
+the FFV1 .mkv and zarr writers, and the CLI on them (fixtures read in place, never copied)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fuse4d import Intrinsics, Sequence
+from fuse4d.cli import main
+from fuse4d.errors import InputFileError, OutputExistsError
+from fuse4d.io import (
+    DepthVideoWriter,
+    ZarrWriter,
+    detect_format,
+    load_sequence,
+    open_frames,
+    save_sequence,
+)
+from fuse4d.io._extras import MissingDependencyError, require
+from fuse4d.io.mkv import k4a_depth_camera
+from fuse4d.io.rvl import decode_rvl, encode_rvl
+
+rosbags = pytest.importorskip("rosbags", reason="needs the sensors extra (rosbags)")
+av = pytest.importorskip("av", reason="needs the sensors extra (PyAV)")
+zarr = pytest.importorskip("zarr", reason="needs the sensors extra (zarr)")
+
+from rosbag_factory import (
+    DEPTH_TOPIC,
+    IR_TOPIC,
+    K,
+    depth_frames,
+    ir_frames,
+    write_generic_bag,
+)
+
+
+@pytest.fixture
+def recordings(shared_data: Path) -> Path:
+    path = shared_data / "sensor_recordings"
+    if not path.is_dir():
+        pytest.skip(f"sensor fixtures not found: {path}")
+    return path
+
+
+def _expected_swdev_depth() -> np.ndarray:
+    """README: frame i holds 10000 + i in units of 1e-4 m, i.e. 1000 + 0.1 i mm."""
+    return (1000.0 + 0.1 * np.arange(5)).astype(np.float32)
+
+
+def _run(args: list[str], capsys) -> tuple[int, str, str]:
+    code = main([str(a) for a in args])
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+# ----------------------------------------------------------------- RealSense fixtures
+@pytest.mark.realdata
+@pytest.mark.parametrize(
+    "name",
+    ["rs2551_swdev_5f.bag", "rs2551_swdev_5f_lz4.bag", "rs2591_swdev_5f.db3",
+     "rs2591_swdev_5f_compressed.db3"],
+)  # fmt: skip
+def test_realsense_swdev_fixtures(recordings, name):
+    path = recordings / name
+    assert detect_format(path) == "rosbag"
+    with open_frames(path) as reader:
+        assert len(reader) == 5
+        assert reader.depth_unit_mm == pytest.approx(0.1)  # 1e-4 m, from the file
+        k = reader.intrinsics
+        assert (k.fx, k.fy, k.cx, k.cy, k.width, k.height) == (50, 50, 32, 24, 64, 48)
+        assert reader.fps == 30.0
+        seq = reader.read_sequence()
+        notes = " ".join(reader.notes)
+    assert seq.depth.dtype == np.float32
+    assert seq.intensity.dtype == np.float32
+    np.testing.assert_allclose(seq.depth[:, 10, 10], _expected_swdev_depth(), atol=1e-3)
+    assert np.all(seq.depth == seq.depth[:, :1, :1])  # constant frames
+    # no IR stream in these files: colour (10 i) is used, aligned with the identity extrinsics
+    np.testing.assert_allclose(seq.intensity[:, 5, 5], 10 * np.arange(5) / 255, atol=1e-6)
+    assert "colour is used" in notes
+    assert np.all(np.diff(seq.timestamps) > 0)
+    if "2551" in name:
+        assert reader._quirk  # 2.47-2.57 writer: 4 trailing bytes per Image
+
+
+@pytest.mark.realdata
+def test_realsense_legacy_fixture(recordings):
+    path = recordings / "realsense_legacy_single_depth_color_640x480.bag"
+    with open_frames(path) as reader:
+        assert len(reader) == 2  # 2 depth frames, paired with the single colour frame
+        assert reader.depth_unit_mm == pytest.approx(1.0)  # option Depth Units = 0.001
+        k = reader.intrinsics
+        assert (k.width, k.height) == (640, 480)
+        assert (k.fx, k.cx, k.cy) == pytest.approx((390.4314575, 331.3878784, 242.1873474))
+        assert reader.fps == 6.0
+        seq = reader.read_sequence()
+        assert reader._align is not None  # colour resampled with the recorded extrinsics
+    valid = np.isfinite(seq.depth)
+    assert 0.9 < valid.mean() < 0.96
+    assert np.nanmin(seq.depth) > 300
+    assert np.nanmax(seq.depth) < 4000
+    assert seq.intensity.min() >= 0.0
+    assert seq.intensity.max() <= 1.0
+    assert seq.intensity.mean() > 0.1
+    np.testing.assert_allclose(seq.timestamps, [360.815089, 360.981765])
+
+
+@pytest.mark.realdata
+def test_realsense_intensity_choice(recordings, capsys):
+    path = recordings / "rs2551_swdev_5f.bag"
+    with open_frames(path, intensity="color") as reader:
+        assert reader[4].intensity[0, 0] == pytest.approx(40 / 255)
+    code, _, err = _run(["info", path, "--intensity", "ir"], capsys)
+    assert code == 2
+    assert "no infrared image topic" in err
+    assert "--intensity color" in err
+    assert "Traceback" not in err
+
+
+# ----------------------------------------------------------------- Azure Kinect fixture
+@pytest.mark.realdata
+def test_azure_kinect_fixture(recordings):
+    path = recordings / "azure_kinect_recording.mkv"
+    assert detect_format(path) == "mkv"
+    calib = json.loads((recordings / "azure_kinect_calibration.json").read_text())
+    depth_cam = next(
+        c
+        for c in calib["CalibrationInformation"]["Cameras"]
+        if c["Purpose"] == "CALIBRATION_CameraPurposeDepth"
+    )
+    cx_n, cy_n, fx_n, fy_n = depth_cam["Intrinsics"]["ModelParameters"][:4]
+    with open_frames(path) as reader:
+        assert len(reader) == 1
+        k = reader.intrinsics
+        assert (k.width, k.height) == (640, 576)  # NFOV_UNBINNED
+        assert k.fx == pytest.approx(fx_n * 1024)
+        assert k.fy == pytest.approx(fy_n * 1024)
+        assert k.cx == pytest.approx(cx_n * 1024 - 192 - 0.5)
+        assert k.cy == pytest.approx(cy_n * 1024 - 180 - 0.5)
+        assert reader.depth_unit_mm == 1.0
+        frame = reader[0]
+        assert frame.timestamp == pytest.approx(0.463945)
+        assert any("distortion" in n and "removed" in n for n in reader.notes)
+    assert frame.depth.dtype == np.float32
+    assert 0.8 < np.isfinite(frame.depth).mean() < 0.95
+    assert np.nanmin(frame.depth) > 150
+    assert np.nanmax(frame.depth) < 4000
+    assert frame.intensity.min() >= 0.0
+    assert frame.intensity.max() <= 1.0
+    raw = open_frames(path, undistort=False)
+    with raw:
+        d = raw[0].depth
+    assert np.nanmax(d) == np.nanmax(frame.depth)  # nearest-neighbour resampling keeps values
+    assert not np.array_equal(d, frame.depth, equal_nan=True)
+
+
+@pytest.mark.realdata
+def test_k4a_modes_table(recordings):
+    calib = json.loads((recordings / "azure_kinect_calibration.json").read_text())
+    sizes = {}
+    for mode in ("NFOV_2X2BINNED", "NFOV_UNBINNED", "WFOV_2X2BINNED", "WFOV_UNBINNED"):
+        cam, dist = k4a_depth_camera(calib, mode, path=Path("x"))
+        sizes[mode] = (cam.width, cam.height)
+        assert dist.shape == (8,)
+    assert sizes == {"NFOV_2X2BINNED": (320, 288), "NFOV_UNBINNED": (640, 576),
+                     "WFOV_2X2BINNED": (512, 512), "WFOV_UNBINNED": (1024, 1024)}  # fmt: skip
+
+
+@pytest.mark.realdata
+def test_mkv_without_calibration(recordings, tmp_path, capsys):
+    data = (recordings / "azure_kinect_recording.mkv").read_bytes()
+    bad = tmp_path / "nocal.mkv"
+    bad.write_bytes(data.replace(b"calibration.json", b"calibration.txt_"))
+    out = tmp_path / "out"
+    code, _, err = _run(["run", bad, "-o", out], capsys)
+    assert code == 2
+    assert f"{bad}: no calibration.json attachment" in err
+    assert "--intrinsics" in err
+    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["nocal.mkv"]
+    with open_frames(bad, intrinsics="500,500,320,288") as reader:
+        assert reader.intrinsics.fx == 500.0
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize(
+    "name",
+    ["realsense_legacy_single_depth_color_640x480.bag", "rs2551_swdev_5f.bag",
+     "rs2591_swdev_5f_compressed.db3", "azure_kinect_recording.mkv"],
+)  # fmt: skip
+def test_info_lists_streams(recordings, name, capsys):
+    code, out, _ = _run(["info", recordings / name, "--json"], capsys)
+    assert code == 0
+    summary = json.loads(out)
+    used = {s["used_as"]: s for s in summary["streams"] if s["used_as"]}
+    assert set(used) == {"depth", "intensity"}
+    assert used["depth"]["width"] == summary["width"]
+    assert summary["depth_unit_mm"] is not None
+    assert summary["fps"] > 0
+    assert any(n.startswith("intrinsics:") for n in summary["notes"])
+
+
+# ----------------------------------------------------------------- generic bags
+@pytest.mark.parametrize(
+    ("kind", "options"),
+    [
+        ("ros1", {}),
+        ("ros2", {}),
+        ("mcap", {}),
+        ("ros2", {"compressed": "png"}),
+        ("ros1", {"compressed": "rvl"}),
+        ("ros2", {"encoding": "32FC1"}),
+    ],
+)
+def test_generic_bag(tmp_path, kind, options):
+    name = "rec.bag" if kind == "ros1" else "rec"
+    path = write_generic_bag(tmp_path / name, kind, **options)
+    want = depth_frames(4).astype(np.float32)
+    want[want == 0] = np.nan
+    seq = load_sequence(path)
+    np.testing.assert_allclose(seq.depth, want, rtol=1e-6)
+    np.testing.assert_allclose(seq.intensity, ir_frames(4) / 255.0, atol=1e-6)
+    assert tuple(seq.intrinsics.as_array()) == K
+    assert seq.fps == pytest.approx(30.0, rel=1e-4)
+    assert seq.timestamps[0] == pytest.approx(1.7e9)
+
+
+def test_rosbag2_folder_and_magic_detection(tmp_path):
+    path = write_generic_bag(tmp_path / "rec", "ros2")
+    assert detect_format(tmp_path / "rec") == "rosbag"  # folder with metadata.yaml
+    other = tmp_path / "recording.bin"
+    other.symlink_to(path)  # no telling extension: magic bytes decide
+    assert detect_format(other) == "rosbag"
+    assert load_sequence(other).num_frames == 4
+
+
+def test_mono16_needs_unit(tmp_path, capsys):
+    path = write_generic_bag(tmp_path / "rec", "ros2", encoding="mono16")
+    code, _, err = _run(["info", path], capsys)
+    assert code == 2
+    assert "does not say its depth unit" in err
+    assert DEPTH_TOPIC in err
+    seq = load_sequence(path, depth_unit_mm=0.1)
+    assert np.nanmax(seq.depth[0]) == pytest.approx(0.1 * (1000 + 31))
+
+
+def test_topic_overrides(tmp_path, capsys):
+    path = write_generic_bag(tmp_path / "rec", "ros2")
+    with open_frames(path, depth_topic=DEPTH_TOPIC, intensity_topic=IR_TOPIC) as reader:
+        assert len(reader) == 4
+    code, _, err = _run(["info", path, "--depth-topic", "/nope/depth"], capsys)
+    assert code == 2
+    assert f"{path}: no depth topic /nope/depth in the bag" in err
+    assert DEPTH_TOPIC in err
+    code, _, err = _run(["info", path, "--depth-topic", IR_TOPIC], capsys)
+    assert code == 2
+    assert "not depth images" in err
+    with pytest.raises(ValueError, match="does not apply to npz"):
+        open_frames(tmp_path / "x.npz", format="npz", depth_topic="/a")
+
+
+def test_bag_without_depth(tmp_path, capsys):
+    path = write_generic_bag(tmp_path / "rec", "ros2", with_depth=False)
+    out = tmp_path / "out"
+    code, _, err = _run(["run", path, "-o", out], capsys)
+    assert code == 2
+    assert f"{path}: no depth topic" in err
+    assert IR_TOPIC in err
+    assert "--depth-topic" in err
+    assert "Traceback" not in err
+    assert not out.exists()
+
+
+def test_bag_without_camera_info(tmp_path, capsys):
+    path = write_generic_bag(tmp_path / "rec", "ros1", with_info=False)
+    code, _, err = _run(["info", path], capsys)
+    assert code == 2
+    assert "no camera_info" in err
+    assert "--intrinsics" in err
+    assert load_sequence(path, intrinsics="60,61,15.5,11.5").num_frames == 4
+
+
+def test_mismatched_resolution(tmp_path, capsys):
+    path = write_generic_bag(tmp_path / "rec.bag", "ros1", ir_size=(12, 16))
+    out = tmp_path / "out.zarr"
+    code, _, err = _run(["run", path, "-o", out], capsys)
+    assert code == 2
+    assert f"intensity topic {IR_TOPIC} is 16x12 but depth topic {DEPTH_TOPIC} is 32x24" in err
+    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.bag"]
+
+
+@pytest.mark.parametrize("kind", ["ros1", "ros2"])
+def test_truncated_bag(tmp_path, kind, capsys):
+    path = write_generic_bag(tmp_path / ("rec.bag" if kind == "ros1" else "rec"), kind)
+    data = path.read_bytes()
+    bad = tmp_path / ("cut.bag" if kind == "ros1" else "cut.db3")
+    bad.write_bytes(data[: len(data) // 2])
+    code, _, err = _run(["run", bad, "-o", tmp_path / "out.mkv"], capsys)
+    assert code == 2
+    assert str(bad) in err
+    assert "truncated or corrupt" in err
+    assert "Traceback" not in err
+    assert not (tmp_path / "out.mkv").exists()
+
+
+def test_random_access_matches_streaming(tmp_path):
+    path = write_generic_bag(tmp_path / "rec.bag", "ros1", frames=6)
+    with open_frames(path) as reader:
+        streamed = [f.depth for f in reader]
+        for k in (4, 1, 5, 0, -1):
+            np.testing.assert_array_equal(reader[k].depth, streamed[k], strict=True)
+        assert [f.index for f in reader.iter_frames("2:4")] == [2, 3]
+        with pytest.raises(IndexError):
+            reader[6]
+
+
+def test_pairing_skips_unmatched(tmp_path):
+    from rosbag_factory import BagWriter
+
+    d, ir = depth_frames(5), ir_frames(5)
+    path = tmp_path / "rec"
+    period = 33_333_333
+    with BagWriter(path, "ros2") as bag:
+        for k in range(5):
+            t = 10**18 + k * period
+            bag.write(DEPTH_TOPIC, bag.image(d[k], "16UC1", t), t)
+            bag.write("/camera/depth/camera_info", bag.camera_info(32, 24, t), t)
+            if k >= 3:  # IR starts late (1 ms early): frame 0 is ~3 periods from any IR frame
+                bag.write(IR_TOPIC, bag.image(ir[k], "mono8", t - 10**6), t - 10**6)
+    with open_frames(path) as reader:
+        assert len(reader) == 4  # tolerance 2 periods: frame 0 skipped, frame 1 kept
+        assert any("skipped" in n for n in reader.notes)
+        np.testing.assert_allclose(reader[0].intensity, ir[3] / 255.0, atol=1e-6)
+
+
+# ----------------------------------------------------------------- RVL codec
+def test_rvl_round_trip(rng):
+    img = rng.integers(0, 65536, (30, 40), dtype=np.uint16)
+    img[rng.random(img.shape) < 0.4] = 0
+    img[:2] = 0
+    img[-1, -5:] = [65535, 0, 1, 65535, 0]
+    assert np.array_equal(decode_rvl(encode_rvl(img), 40, 30), img)
+    zeros = np.zeros((3, 5), np.uint16)
+    assert np.array_equal(decode_rvl(encode_rvl(zeros), 5, 3), zeros)
+    with pytest.raises(ValueError, match="truncated"):
+        decode_rvl(encode_rvl(img)[:100], 40, 30)
+
+
+# ----------------------------------------------------------------- writers
+@pytest.fixture
+def float_sequence(rng) -> Sequence:
+    k = Intrinsics(50.0, 51.0, 15.5, 11.5, width=32, height=24)
+    depth = rng.uniform(300, 5000, (3, 24, 32)).astype(np.float32)
+    depth[:, 0, :4] = np.nan
+    intensity = rng.random((3, 24, 32)).astype(np.float32)
+    ts = np.array([5.0, 5.0333, 5.0667])
+    return Sequence(depth, intensity, k, timestamps=ts, fps=30.0)
+
+
+def test_ffv1_round_trip_bit_exact(tmp_path, float_sequence):
+    seq = float_sequence
+    units = np.round(np.nan_to_num(seq.depth, nan=0.0)).astype(np.uint16)
+    exact = seq.with_depth(np.where(units > 0, units, np.nan).astype(np.float32))
+    path = save_sequence(exact, tmp_path / "d.mkv")
+    assert detect_format(path) == "mkv"
+    back = load_sequence(path)
+    np.testing.assert_array_equal(back.depth, exact.depth)  # lossless 16-bit
+    np.testing.assert_allclose(back.intensity, seq.intensity, atol=0.5 / 65535 + 1e-7)
+    assert back.intrinsics == seq.intrinsics
+    assert back.fps == 30.0
+    np.testing.assert_allclose(back.timestamps, seq.timestamps, atol=5e-4)  # 1 ms pts
+    with av.open(str(path)) as container:
+        codecs = {s.codec_context.name for s in container.streams.video}
+        fmts = {s.codec_context.pix_fmt for s in container.streams.video}
+    assert codecs == {"ffv1"}
+    assert fmts == {"gray16le"}
+    with open_frames(path) as reader:  # random access (seek) as well as streaming
+        for k in (2, 0, 1, -1):
+            np.testing.assert_array_equal(reader[k].depth, exact.depth[k])
+
+
+def test_ffv1_unit(tmp_path, float_sequence):
+    path = tmp_path / "d.mkv"
+    with DepthVideoWriter(path, float_sequence.intrinsics, depth_unit_mm=0.25) as w:
+        w.write(np.full((24, 32), 1000.25, np.float32), np.zeros((24, 32), np.float32))
+    with open_frames(path) as reader:
+        assert reader.depth_unit_mm == 0.25
+        assert reader[0].depth[0, 0] == 1000.25
+
+
+def test_zarr_round_trip(tmp_path, float_sequence):
+    seq = float_sequence
+    path = save_sequence(seq, tmp_path / "s.zarr")
+    assert detect_format(path) == "zarr"
+    back = load_sequence(path)
+    np.testing.assert_array_equal(back.depth, seq.depth)
+    np.testing.assert_array_equal(back.intensity, seq.intensity)
+    np.testing.assert_array_equal(back.timestamps, seq.timestamps)
+    assert back.intrinsics == seq.intrinsics
+    assert back.fps == 30.0
+    group = zarr.open_group(str(path), mode="r")
+    assert group["depth"].metadata.dimension_names == ("t", "y", "x")
+    assert group["depth"].chunks == (1, 24, 32)
+    assert group.attrs["depth_unit"] == "mm"
+    assert group.attrs["intrinsics"]["fx"] == 50.0
+
+
+@pytest.mark.parametrize("cls", [DepthVideoWriter, ZarrWriter])
+def test_writers_atomic(tmp_path, float_sequence, cls):
+    path = tmp_path / ("o.mkv" if cls is DepthVideoWriter else "o.zarr")
+    k = float_sequence.intrinsics
+
+    def write_bad_second_frame() -> None:
+        with cls(path, k) as w:
+            w.write(float_sequence.depth[0], float_sequence.intensity[0])
+            w.write(np.zeros((2, 2)), np.zeros((2, 2)))
+
+    with pytest.raises(ValueError, match="shape"):
+        write_bad_second_frame()
+    assert list(tmp_path.iterdir()) == []
+    with cls(path, k) as w:
+        w.write(float_sequence.depth[0], float_sequence.intensity[0])
+    with pytest.raises(OutputExistsError):
+        cls(path, k)
+
+
+def test_run_refuses_to_overwrite_input(tmp_path, float_sequence, capsys):
+    path = save_sequence(float_sequence, tmp_path / "s.mkv", depth_unit_mm=1.0)
+    before = path.read_bytes()
+    code, _, err = _run(["run", path, "-o", path, "--force"], capsys)
+    assert code == 2
+    assert "overwrite the input" in err
+    assert path.read_bytes() == before
+
+
+# ----------------------------------------------------------------- recording -> run -> read
+@pytest.mark.parametrize(("kind", "out_name"), [("ros1", "out.mkv"), ("ros2", "out.zarr"),
+                                                ("mcap", "out")])  # fmt: skip
+def test_recording_run_read_back(tmp_path, kind, out_name, capsys):
+    src = write_generic_bag(tmp_path / ("rec.bag" if kind == "ros1" else "rec"), kind, frames=5)
+    out = tmp_path / out_name
+    code, stdout, err = _run(["run", src, "-o", out, "--window", "3", "--json"], capsys)
+    assert code == 0, err
+    summary = json.loads(stdout)
+    assert summary["input_format"] == "rosbag"
+    assert (
+        summary["output_format"]
+        == {"out.mkv": "mkv", "out.zarr": "zarr", "out": "folder"}[out_name]
+    )
+    back = load_sequence(out)
+    assert back.depth.shape == (5, 24, 32)
+    assert tuple(back.intrinsics.as_array()) == K
+    raw = load_sequence(src).depth
+    valid = np.isfinite(raw)
+    assert np.array_equal(np.isfinite(back.depth)[valid], valid[valid])
+    assert np.nanmax(np.abs(back.depth - raw)) < 20.0  # fused, close to the input
+
+
+@pytest.mark.realdata
+def test_realsense_and_kinect_run(recordings, tmp_path, capsys):
+    out = tmp_path / "rs.zarr"
+    code, _, err = _run(["run", recordings / "rs2591_swdev_5f_compressed.db3", "-o", out], capsys)
+    assert code == 0, err
+    assert load_sequence(out).depth.shape == (5, 48, 64)
+    out = tmp_path / "k4a.mkv"
+    code, _, err = _run(["run", recordings / "azure_kinect_recording.mkv", "-o", out], capsys)
+    assert code == 0, err
+    back = load_sequence(out)
+    assert back.depth.shape == (1, 576, 640)
+    assert back.intrinsics.fx == pytest.approx(504.6076)
+    ply = tmp_path / "f.ply"
+    code, _, err = _run(["export-ply", recordings / "rs2551_swdev_5f.bag", "-o", ply], capsys)
+    assert code == 0
+    assert ply.stat().st_size > 0
+
+
+# ----------------------------------------------------------------- missing extras
+def test_missing_extra_message(monkeypatch, tmp_path, capsys):
+    monkeypatch.setitem(sys.modules, "av", None)  # import av -> ImportError
+    with pytest.raises(MissingDependencyError, match=r'pip install "fuse4d\[sensors\]"'):
+        require("av", what="reading .mkv depth video")
+    src = tmp_path / "v.mkv"
+    src.write_bytes(b"\x1a\x45\xdf\xa3" + b"\0" * 60)
+    code, _, err = _run(["info", src], capsys)
+    assert code == 2
+    assert 'pip install "fuse4d[sensors]"' in err
+
+
+def test_not_a_bag(tmp_path):
+    bad = tmp_path / "x.bag"
+    bad.write_bytes(b"hello")
+    with pytest.raises(InputFileError, match="unknown file type"):
+        detect_format(bad)
+
+
+# ----------------------------------------------------------------- RealSense layout, synthetic
+def _realsense_bag(path: Path, *, with_ir: bool, color_shift_m: float = 0.01) -> Path:
+    """librealsense ROS 1 layout: Z16 depth (0.1 mm units), Infrared_1, a 2x larger colour."""
+    from rosbag_factory import BagWriter
+
+    h, w = 24, 32
+    base = "/device_0/sensor_0"
+    with BagWriter(path, "ros1") as bag:
+        f32 = bag.ts.types["std_msgs/msg/Float32"]
+        bag.write(f"{base}/option/Depth Units/value", f32(data=np.float32(1e-4)), 1)
+        bag.write(f"{base}/Depth_0/info/camera_info", bag.camera_info(w, h, 1, K), 1)
+        fx, fy, cx, cy = K
+        color_k = (2 * fx, 2 * fy, 2 * cx + 0.5, 2 * cy + 0.5)
+        bag.write("/device_0/sensor_1/Color_0/info/camera_info",
+                  bag.camera_info(2 * w, 2 * h, 1, color_k), 1)  # fmt: skip
+        tf = bag.ts.types["geometry_msgs/msg/Transform"]
+        vec = bag.ts.types["geometry_msgs/msg/Vector3"]
+        quat = bag.ts.types["geometry_msgs/msg/Quaternion"]
+        bag.write(
+            f"{base}/Depth_0/tf/0",
+            tf(translation=vec(x=0.0, y=0.0, z=0.0), rotation=quat(x=0, y=0, z=0, w=1)),
+            1,
+        )
+        bag.write("/device_0/sensor_1/Color_0/tf/0",
+                  tf(translation=vec(x=color_shift_m, y=0.0, z=0.0),
+                     rotation=quat(x=0, y=0, z=0, w=1)), 1)  # fmt: skip
+        xc = np.arange(2 * w, dtype=np.float64)
+        gray = np.broadcast_to(np.round(xc / (2 * w) * 255), (2 * h, 2 * w)).astype(np.uint8)
+        color = np.repeat(gray[..., None], 3, axis=2)
+        for k in range(3):
+            t = 10**9 + k * 33_333_333
+            depth = np.full((h, w), 10000, np.uint16)  # 1000 mm
+            bag.write(f"{base}/Depth_0/image/data", bag.image(depth, "mono16", t), t)
+            if with_ir:
+                ir = np.full((h, w), 50 + k, np.uint8)
+                bag.write(f"{base}/Infrared_1/image/data", bag.image(ir, "mono8", t), t)
+                bag.write(f"{base}/Infrared_2/image/data", bag.image(ir * 0, "mono8", t), t)
+            bag.write("/device_0/sensor_1/Color_0/image/data", bag.image(color, "rgb8", t), t)
+    return path
+
+
+def test_realsense_layout_ir_default(tmp_path):
+    path = _realsense_bag(tmp_path / "rs.bag", with_ir=True)
+    with open_frames(path) as reader:
+        assert reader.realsense
+        assert reader.depth_unit_mm == pytest.approx(0.1)
+        assert reader._inten.topic == "/device_0/sensor_0/Infrared_1/image/data"
+        frame = reader[2]
+    assert np.all(frame.depth == 1000.0)
+    np.testing.assert_allclose(frame.intensity, 52 / 255, atol=1e-7)
+
+
+def test_realsense_color_alignment(tmp_path):
+    """Colour 2x the depth size, 10 mm to the side: sampled where the depth pixel projects."""
+    path = _realsense_bag(tmp_path / "rs.bag", with_ir=True)
+    with open_frames(path, intensity="color") as reader:
+        frame = reader[0]
+        assert any("resampled onto the depth grid" in n for n in reader.notes)
+    fx = K[0]
+    u = np.arange(32, dtype=np.float64)
+    # stream->reference extrinsics: x_colour = x_depth - 10 mm at Z = 1000 mm
+    x_color = 2 * fx * ((u - K[2]) / fx * 1000.0 - 10.0) / 1000.0 + 2 * K[2] + 0.5
+    want = (
+        np.round(np.floor(x_color) / 64 * 255) / 255
+        + (x_color % 1)
+        * (np.round((np.floor(x_color) + 1) / 64 * 255) - np.round(np.floor(x_color) / 64 * 255))
+        / 255
+    )
+    inside = (x_color >= 0) & (x_color < 63)
+    np.testing.assert_allclose(frame.intensity[5, inside], want[inside], atol=2e-3)
