@@ -206,7 +206,7 @@ def test_project_to_rays_puts_points_on_their_pixel_ray():
     tangent_u /= np.linalg.norm(tangent_u)
     shifted = (pts + 0.4 * tangent_u).astype(np.float32)  # slid within the plane, off its ray
     out = np.empty_like(shifted)
-    _project_to_rays_kernel(shifted, pts.astype(np.float32), K.fx, K.fy, K.cx, K.cy, 10.0, out)
+    _project_to_rays_kernel(shifted, pts.astype(np.float32), K.fx, K.fy, K.cx, K.cy, 10.0, 0.0, out)
     np.testing.assert_allclose(out, pts, atol=2e-3)
     assert np.abs(shifted - pts).max() > 0.3
 
