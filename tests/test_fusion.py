@@ -13,14 +13,17 @@ from fuse4d._kernels.fusion import (
     _fuse_kernel,
     _project_to_rays_kernel,
     _segment_box_rows_kernel,
-    _track_kernel,
 )
 from fuse4d.bilateral import bilateral_filter_points
 from fuse4d.config import FusionParams
 from fuse4d.flow import SequenceFlow
 from fuse4d.fusion import FusionEngine, fuse_sequence, fuse_stream
+from fuse4d.holes import _fill_holes, fill_holes
 from fuse4d.metrics import roughness_stats
 from fuse4d.motion import (
+    _pair_motion,
+    _pair_ring,
+    _track_window,
     compute_motion_field,
     estimate_noise_quad,
     motion_reference_depth,
@@ -90,14 +93,20 @@ def test_weight_function_is_close_to_exp():
     np.testing.assert_allclose(approx, np.exp(-x), rtol=0.009)
 
 
-def test_segment_box_kernel_matches_oracle(rng):
+@pytest.mark.parametrize("quad", [0.0, 2e-5])
+def test_segment_box_kernel_matches_oracle(rng, quad):
     depth = (500 + rng.normal(0, 1, (6, 30))).astype(np.float32)
     depth[:, 12:] += 50.0  # a depth edge
+    depth[:, 20:] += 9.0 + 4.0 * rng.random((6, 1)).astype(np.float32)  # cut only if quad = 0
     depth[2, 5] = np.nan
     values = depth.copy()
     out = np.empty_like(depth)
-    _segment_box_rows_kernel(values, depth, 3, 10.0, 0.0, out)
-    np.testing.assert_allclose(out, naive.segment_box_rows(values, depth, 3, 10.0), atol=1e-4)
+    _segment_box_rows_kernel(values, depth, 3, 10.0, quad, out)
+    expected = naive.segment_box_rows(values, depth, 3, 10.0, quad)
+    np.testing.assert_allclose(out, expected, atol=1e-4)
+    # quad = 2e-5 mm^-1: limit 2.5 q z^2 = 15 mm at 550 mm joins the 9-13 mm step, not the 50 mm
+    cut = naive.segment_box_rows(values, depth, 3, 10.0, 0.0)
+    assert (np.abs(expected - cut)[:, 17:23].max() > 1.0) == (quad > 0)
 
 
 def test_motion_reference_never_crosses_edges():
@@ -110,23 +119,42 @@ def test_motion_reference_never_crosses_edges():
     assert np.isnan(r[5, 5])
 
 
-def test_track_and_fuse_kernels_match_oracles(rng):
-    n = 5
-    depth = _plane_depth(n)[:, :14, :16] + rng.normal(0, 0.2, (n, 14, 16)).astype(np.float32)
-    depth[2, 4, 4] = np.nan
-    fwd = rng.uniform(-0.7, 0.9, (n - 1, 14, 16, 2)).astype(np.float32)
+def _random_window(rng, n=5, h=14, w=16):
+    """A noisy plane crop with random sub-pixel flows whose FB errors straddle theta = 1 px."""
+    depth = _plane_depth(n)[:, :h, :w] + rng.normal(0, 0.2, (n, h, w)).astype(np.float32)
+    depth[n // 2, 4, 4] = np.nan
+    fwd = rng.uniform(-0.7, 0.9, (n - 1, h, w, 2)).astype(np.float32)
     bwd = (-fwd + rng.normal(0, 0.6, fwd.shape)).astype(np.float32)
+    return depth, fwd, bwd
+
+
+# quad = 1.2e-6 mm^-1 gives a step limit 2.5 q z^2 ~ 0.75-0.8 mm > max_step = 0.6 mm on this
+# ~500-mm plane: the A22 branch of the depth-step rule decides part of the steps
+NOISE_CASES = [
+    pytest.param(0.0, False, 0.0, 0.0, id="no-noise-model"),
+    pytest.param(1.2e-6, False, 0.2, 0.5, id="noise-model"),
+    pytest.param(1.2e-6, True, 0.2, 0.5, id="noise-model-per-step"),
+]
+
+
+@pytest.mark.parametrize(("quad", "per_step", "sigma0", "min_gate"), NOISE_CASES)
+def test_track_and_fuse_kernels_match_oracles(rng, quad, per_step, sigma0, min_gate):
+    n = 5
+    depth, fwd, bwd = _random_window(rng, n)
     t, first, last = 2, 0, 4
-    ring_f = np.concatenate([np.zeros_like(fwd[:1]), fwd])
-    ring_b = np.concatenate([np.zeros_like(bwd[:1]), bwd])
-    rows = np.empty((4, 14, 16), np.int32)
-    cols = np.empty_like(rows)
-    ok = np.empty(rows.shape, bool)
-    slots = np.arange(first, last + 1)
-    _track_kernel(
-        ring_f, ring_b, depth, slots, t, first, last, 1.0, 0.6, 0.0, False, rows, cols, ok
+    slots, rows, cols, ok = _track_window(
+        _pair_ring(fwd),
+        _pair_ring(bwd),
+        depth,
+        t,
+        first,
+        last,
+        fb_threshold=1.0,
+        max_step=0.6,
+        quad=quad,
+        per_step=per_step,
     )
-    oracle = naive.track(fwd, bwd, depth, t, first, last, 1.0, 0.6)
+    oracle = naive.track(fwd, bwd, depth, t, first, last, 1.0, 0.6, quad, per_step)
     others = [T for T in range(first, last + 1) if t != T]
     for k, T in enumerate(others):
         for v in range(14):
@@ -136,6 +164,9 @@ def test_track_and_fuse_kernels_match_oracles(rng):
                 if alive:
                     assert (rows[k, v, u], cols[k, v, u]) == (r, c)
     assert 0 < ok.mean() < 1  # the test exercises both outcomes
+    if quad > 0:  # ... and the noise-model branch of the step rule changed some of them
+        fixed = naive.track(fwd, bwd, depth, t, first, last, 1.0, 0.6, 0.0, per_step)
+        assert any(fixed[key][2] != oracle[key][2] for key in oracle)
     bil = rng.normal(0, 0.3, (n, 14, 16, 3)).astype(np.float32) + 500
     ref = rng.normal(0, 0.3, (n, 14, 16, 3)).astype(np.float32) + 500
     ref[2, 4, 4] = np.nan
@@ -143,6 +174,9 @@ def test_track_and_fuse_kernels_match_oracles(rng):
     out = np.empty((14, 16, 3), np.float32)
     support = np.empty((14, 16), np.uint8)
     hole = np.empty((14, 16), bool)
+    gate_factor = 1.0 if quad == 0 else 3.0
+    sigma0 = 0.8 if quad == 0 else sigma0  # quad = 0: a plain 0.8 mm gate
+    gate = naive.noise_gate(gate_factor, sigma0, quad, min_gate)
     for trajectory in (False, True):
         _fuse_kernel(
             bil,
@@ -155,22 +189,129 @@ def test_track_and_fuse_kernels_match_oracles(rng):
             ok,
             weights,
             1,
-            1.0,
-            0.8,
-            0.0,
-            0.0,
+            gate_factor,
+            sigma0,
+            quad,
+            min_gate,
             trajectory,
             out,
             support,
             hole,
         )
         expected, exp_support = naive.fuse(
-            bil, ref, oracle, t, first, last, weights, 0.8, trajectory=trajectory
+            bil, ref, oracle, t, first, last, weights, gate, trajectory=trajectory
         )
         np.testing.assert_array_equal(support, exp_support)
         fused = support >= 1
         np.testing.assert_allclose(out[fused], expected[fused], atol=1e-4)
         np.testing.assert_array_equal(out[hole], bil[t][hole])  # holes keep B^t (fallback)
+        # the gate rejected some tracked samples, and not all
+        assert 0 < support.sum() < ok[:, np.isfinite(ref[t, ..., 2])].sum()
+
+
+@pytest.mark.parametrize("per_step", [False, True])
+def test_pair_diagnostics_kernel_matches_oracle(rng, per_step):
+    depth, fwd, bwd = _random_window(rng, 2)
+    depth[1, 7:9, 3:6] = np.nan
+    small = Intrinsics(fx=120.0, fy=120.0, cx=7.5, cy=6.5, width=16, height=14)
+    ref = depth_to_points(depth, small) + rng.normal(0, 0.1, (2, 14, 16, 3)).astype(np.float32)
+    quad = 1.2e-6
+    motion, fb = _pair_motion(
+        _pair_ring(fwd),
+        _pair_ring(bwd),
+        ref,
+        depth,
+        0,
+        fb_threshold=1.0,
+        max_step=0.6,
+        quad=quad,
+        per_step=per_step,
+    )
+    exp_fb, exp_motion = naive.pair_motion(
+        fwd[0], bwd[0], ref[0], ref[1], depth[0], depth[1], 1.0, 0.6, quad, per_step
+    )
+    np.testing.assert_array_equal(np.isnan(fb), np.isnan(exp_fb))
+    np.testing.assert_allclose(fb, exp_fb, atol=1e-5)
+    valid = np.isfinite(motion[..., 0])
+    np.testing.assert_array_equal(valid, np.isfinite(exp_motion[..., 0]))
+    np.testing.assert_allclose(motion[valid], exp_motion[valid], atol=1e-4)
+    assert 0 < valid.mean() < 1
+    # validity is exactly the first tracking step of frame 0 (one rule, A22)
+    tracks = naive.track(fwd, bwd, depth, 0, 0, 1, 1.0, 0.6, quad, per_step)
+    first_step = np.array([[tracks[(1, v, u)][2] for u in range(16)] for v in range(14)])
+    np.testing.assert_array_equal(valid, first_step)
+
+
+def _bumpy_surface(rng, h=16, w=18):
+    yy, xx = np.mgrid[0:h, 0:w]
+    depth = 500 + 0.8 * xx + 0.3 * yy + 0.05 * (xx - 8.0) ** 2 + rng.normal(0, 0.05, (h, w))
+    depth[:, 13:] += 30.0  # a depth edge
+    return depth.astype(np.float32), Intrinsics(100, 100, 8.5, 7.5, w, h)
+
+
+def test_fill_holes_kernel_matches_oracle(rng):
+    """Eq. 6 weights, Jacobians, onion order (a 5x5 hole needs 3 passes) and the A20 gate."""
+    depth, k = _bumpy_surface(rng)
+    raw = depth_to_points(depth, k)
+    raw[0, 0] = np.nan
+    hole = np.zeros(depth.shape, bool)
+    hole[4:9, 3:8] = True  # onion: 3 passes
+    hole[12, 10:12] = True
+    hole[2, 12:14] = True  # at the depth edge: extrapolation from the far side is gated out
+    hole[14, 0] = True
+    points = raw + rng.normal(0, 0.05, raw.shape).astype(np.float32)
+    points[hole] += np.float32(0.4)  # fallback values, off the surface
+    for gate in (math.inf, 1.0):
+        fast_points = points.copy()
+        fast_hole = hole.copy()
+        filled = _fill_holes(
+            fast_points,
+            raw,
+            fast_hole,
+            radius=2,
+            sigma=2.0,
+            passes=10,
+            min_neighbours=3,
+            gate=gate,
+        )
+        exp_points, exp_hole, exp_filled = naive.fill_holes(points, raw, hole, 2, 2.0, 10, 3, gate)
+        np.testing.assert_array_equal(filled, exp_filled)
+        np.testing.assert_array_equal(fast_hole, exp_hole)
+        np.testing.assert_allclose(fast_points, exp_points, atol=1e-3)
+        if gate == math.inf:  # literal Eq. 6: every hole with enough neighbours is filled
+            np.testing.assert_array_equal(filled, hole)
+        else:  # A20: the gate refuses part of the fills
+            assert 0 < filled.sum() < hole.sum()
+    # one pass reaches only the outer ring of the 5x5 hole (onion order)
+    one = naive.fill_holes(points, raw, hole, 2, 2.0, 1, 3, math.inf)[2]
+    assert one[4, 3:8].all()
+    assert not one[6, 5]
+    public, public_filled = fill_holes(points, raw, hole, gate=1.0)  # validated face, copy
+    np.testing.assert_array_equal(public_filled, exp_filled)
+    np.testing.assert_allclose(public, exp_points, atol=1e-3)
+    with pytest.raises(ValueError, match="sigma must be > 0"):
+        fill_holes(points, raw, hole, sigma=0.0)
+
+
+def test_project_to_rays_kernel_matches_oracle(rng):
+    depth, k = _bumpy_surface(rng)
+    depth[:, 9:] += 12.0  # a 12 mm step: an edge for quad = 0, continuous for quad = 2e-5
+    depth[5, 5] = np.nan
+    ref = depth_to_points(depth, k)
+    points = ref + rng.normal(0, 0.3, ref.shape).astype(np.float32)
+    for quad in (0.0, 2e-5):
+        out = np.empty_like(points)
+        _project_to_rays_kernel(points, ref, k.fx, k.fy, k.cx, k.cy, 10.0, quad, out)
+        expected = naive.project_to_rays(points, ref, k.fx, k.fy, k.cx, k.cy, 10.0, quad)
+        np.testing.assert_array_equal(np.isnan(out), np.isnan(expected))
+        np.testing.assert_allclose(out, expected, atol=1e-3)
+        cols = np.mgrid[0 : depth.shape[0], 0 : depth.shape[1]][1]
+        on_ray = out[..., 0] / out[..., 2] * k.fx + k.cx
+        np.testing.assert_allclose(
+            on_ray[np.isfinite(on_ray)], cols[np.isfinite(on_ray)], atol=1e-3
+        )
+    step = naive.project_to_rays(points, ref, k.fx, k.fy, k.cx, k.cy, 10.0, 0.0)
+    assert np.abs(step - expected)[:, 8:10].max() > 1e-3  # the step rule decides the normals
 
 
 def test_fill_kernel_extrapolates_a_plane():
