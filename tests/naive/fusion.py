@@ -316,3 +316,91 @@ def project_to_rays(points, ref, fx, fy, cx, cy, max_step, quad):
                             d = cand
             out[v, u] = ray * d
     return out
+
+
+def engine_frame(depth, intensity, fwd, bwd, intrinsics, params, t):
+    """Frame ``t`` of :func:`fuse4d.fuse_sequence` (one iteration) composed from the oracles.
+
+    The per-frame stages that have their own oracle tests (the segment-limited smoothing D~,
+    the 3D bilateral, the noise estimates) are taken from fuse4d; tracking (Eq. 4), the outer
+    sum of Eq. 5 with the temporal gate, hole filling (Eq. 6) and the ray output (A17) are the
+    NumPy oracles above. Returns (points (H, W, 3) mm, support (H, W)).
+    """
+    from fuse4d import depth_to_points
+    from fuse4d.bilateral import bilateral_filter_points
+    from fuse4d.motion import estimate_depth_noise, estimate_noise_quad, motion_reference_depth
+
+    p = params
+    d_all = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan).astype(np.float32)
+    n = d_all.shape[0]
+
+    def smoothed(d, sigma, quad):
+        ref = motion_reference_depth(d, sigma=sigma, max_step=p.max_depth_step, noise_quad=quad)
+        return depth_to_points(ref, intrinsics)
+
+    frames = []
+    for d, inten in zip(d_all, intensity, strict=True):
+        pts = depth_to_points(d, intrinsics)
+        quad = estimate_noise_quad(d)
+        z_med = float(np.median(d[np.isfinite(d)]))
+        smooth = smoothed(d, p.reference_sigma, quad)
+        motion_ref = pts if p.motion_depth == "raw" else smoothed(d, p.motion_sigma, quad)
+        sigma_d = max(p.sigma_distance, p.distance_noise_scale * quad * z_med**2)
+        bil = bilateral_filter_points(
+            pts,
+            inten,
+            radius=p.spatial_radius,
+            sigma_distance=sigma_d,
+            sigma_intensity=p.sigma_intensity,
+            reference=smooth if p.bilateral == "residual" else None,
+        )
+        sigma0 = estimate_depth_noise(d, reference=smooth[..., 2])
+        frames.append((pts, smooth, motion_ref, bil, quad, sigma0, z_med))
+    first = max(0, t - p.past_frames)
+    last = min(n - 1, t + p.future_frames)
+    pts, smooth, _ref, bil_t, quad, sigma0, z_med = frames[t]
+    tracks = track(
+        fwd,
+        bwd,
+        d_all,
+        t,
+        first,
+        last,
+        p.fb_threshold,
+        p.max_depth_step,
+        quad,
+        p.quantize == "per_step",
+    )
+    tw = np.arange(max(p.past_frames, p.future_frames) + 1, dtype=np.float64)
+    weights = (
+        np.ones_like(tw)
+        if math.isinf(p.sigma_temporal)
+        else np.exp(-(tw**2) / (2 * p.sigma_temporal**2))
+    )
+    bil_all = np.stack([f[3] for f in frames])
+    ref_all = np.stack([f[2] for f in frames])
+    gate = noise_gate(p.temporal_gate, sigma0, quad, p.min_gate_mm)
+    out, support = fuse(
+        bil_all,
+        ref_all,
+        tracks,
+        t,
+        first,
+        last,
+        weights,
+        gate,
+        trajectory=p.base == "trajectory",
+    )
+    hole = np.isfinite(ref_all[t, ..., 2]) & (support < p.min_temporal_support)
+    out[hole] = bil_t[hole]
+    if p.fill_holes and hole.any():
+        frame_gate = max(p.temporal_gate * max(sigma0, quad * z_med**2), p.min_gate_mm)
+        out, hole, _filled = fill_holes(
+            out, pts, hole, p.fill_radius, p.sigma_fill, p.fill_passes, 3, frame_gate
+        )
+    if p.fill_fallback == "nan":
+        out[hole] = np.nan
+    if p.output == "ray":
+        k = intrinsics
+        out = project_to_rays(out, smooth, k.fx, k.fy, k.cx, k.cy, p.max_depth_step, quad)
+    return out, support
