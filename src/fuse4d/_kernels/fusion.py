@@ -1,9 +1,12 @@
 """Kernels of the 4D fusion (METHOD.md §3–§6). Private: arrays and scalars in, buffers filled.
 
-Ring-buffer convention shared by the tracking and fusion kernels: frame T lives in slot
-``T % S`` of the ``*_ring`` arrays (S = ring size), and the flows of the pair (T-1, T) live in
-slot ``T % S`` of ``fwd_ring`` (s^{T-1,T}, on frame T-1's grid) and ``bwd_ring`` (s^{T,T-1}, on
-frame T's grid).
+Ring-buffer convention shared by the tracking and fusion kernels (owned by ``fuse4d.motion``,
+whose ``_track_window`` / ``_pair_motion`` are the only Python callers of the tracking
+kernels): frame T lives in slot ``T % S`` of the ``*_ring`` arrays (S = ring size), and the
+flows of the pair (T-1, T) live in slot ``T % S`` of ``fwd_ring`` (s^{T-1,T}, on frame T-1's
+grid) and ``bwd_ring`` (s^{T,T-1}, on frame T's grid). Shared primitives (the depth-step rule
+``_step_limit``, bilinear sampling, rounding, the weight function, the derivative helper) are
+in ``_common.py``; ``docs/equations.md`` maps each kernel to its equation and oracle test.
 """
 
 from __future__ import annotations
