@@ -11,6 +11,8 @@ import pytest
 
 from fuse4d import ShapeError
 from fuse4d._kernels import pmbp as K
+from fuse4d.experiments.flow_accuracy import ball_pairs
+from fuse4d.flow import estimate_flow
 from fuse4d.flow.pmbp import (
     PMBP_FAST,
     PMBPFastParams,
@@ -22,6 +24,7 @@ from fuse4d.flow.pmbp import (
     pmbp_flow,
     pmbp_flow_fast,
     pmbp_flow_pair,
+    register,
 )
 from naive import pmbp as naive
 
@@ -380,17 +383,12 @@ def test_input_errors():
 
 
 def test_registered_with_flow_module():
-    flow_mod = pytest.importorskip("fuse4d.flow")
-    if not hasattr(flow_mod, "estimate_flow"):
-        pytest.skip("fuse4d.flow has no estimate_flow yet")
-    from fuse4d.flow.pmbp import register
-
     register()
     d = (0.5, -0.5)
     a, b = _pair(64, 64, d)
-    flow = flow_mod.estimate_flow(a, b, method="pmbp-fast")  # solved at half resolution
+    flow = estimate_flow(a, b, method="pmbp-fast")  # solved at half resolution
     assert _epe(flow, d, 8) < 0.15
-    flow = flow_mod.estimate_flow(a, b, method="pmbp", params=SMALL)
+    flow = estimate_flow(a, b, method="pmbp", params=SMALL)
     assert _epe(flow, d, 8) < 0.1
 
 
@@ -554,9 +552,8 @@ def _fb_pass_rate(fw, bw, mask):
 
 
 def _ball_acceptance(small):
-    flow_bench = pytest.importorskip("fuse4d.experiments.flow_accuracy")
     for noise, limit in ((0.02, 0.25), (0.10, 0.6)):
-        pair = flow_bench.ball_pairs(intensity_noise=noise, small=small)[0]
+        pair = ball_pairs(intensity_noise=noise, small=small)[0]
         fw = pmbp_flow(pair.image0, pair.image1)
         epe = np.hypot(*(fw - pair.flow_true).transpose(2, 0, 1))[pair.mask].mean()
         assert epe < limit, (noise, epe)

@@ -19,20 +19,22 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._kernels.fusion import (
-    _fill_holes_kernel,
-    _fuse_kernel,
-    _pair_diagnostics_kernel,
-    _project_to_rays_kernel,
-    _track_kernel,
-)
+from ._kernels.fusion import _fuse_kernel, _project_to_rays_kernel
 from ._validation import as_float32, check_shape
 from .bilateral import bilateral_filter_points
 from .camera import Intrinsics, depth_to_points
 from .config import FlowConfig, FusionParams, preset
 from .errors import ShapeError
 from .flow import SequenceFlow, as_sequence_flow
-from .motion import estimate_depth_noise, estimate_noise_quad, motion_reference_depth
+from .holes import _fill_holes
+from .motion import (
+    _pair_motion,
+    _track_window,
+    _window,
+    estimate_depth_noise,
+    estimate_noise_quad,
+    motion_reference_depth,
+)
 from .sequence import normalize_intensity
 
 __all__ = [
@@ -263,14 +265,14 @@ class FusionEngine:
         self._pushed += 1
         out = []
         while self._emitted + self.future < self._pushed:
-            out.append(self._emit(self._emitted, last=self._emitted + self.future))
+            out.append(self._emit(self._emitted))
         return out
 
     def flush(self) -> list[FusedFrame]:
         """End of stream: emit the remaining frames with truncated windows."""
         out = []
         while self._emitted < self._pushed:
-            out.append(self._emit(self._emitted, last=self._pushed - 1))
+            out.append(self._emit(self._emitted))
         self._closed = True
         return out
 
@@ -322,52 +324,38 @@ class FusionEngine:
         self.timings["flow"] += time.perf_counter() - t0
         if self.on_pair is not None:
             p = self.params
-            motion = np.empty((h, w, 3), np.float32)
-            fb = np.empty((h, w), np.float32)
-            _pair_diagnostics_kernel(
+            motion, fb = _pair_motion(
                 self._fwd,
                 self._bwd,
-                slot,
-                self._reference[prev],
-                self._reference[slot],
-                self._depth[prev],
-                self._depth[slot],
-                p.fb_threshold,
-                p.max_depth_step,
-                p.quantize == "per_step",
-                fb,
-                motion,
+                self._reference,
+                self._depth,
+                index - 1,
+                fb_threshold=p.fb_threshold,
+                max_step=p.max_depth_step,
+                quad=self._noise[prev, 1],
+                per_step=p.quantize == "per_step",
             )
             self.on_pair(
                 _PairOutput(index - 1, self._fwd[slot].copy(), self._bwd[slot].copy(), motion, fb)
             )
 
-    def _emit(self, t: int, *, last: int) -> FusedFrame:
+    def _emit(self, t: int) -> FusedFrame:
         p = self.params
         h, w = self.intrinsics.height, self.intrinsics.width
-        first = max(0, t - self.past)
-        k = last - first
+        first, last = _window(t, self.past, self.future, self._pushed)
         t0 = time.perf_counter()
-        rows = np.empty((k, h, w), np.int32)
-        cols = np.empty((k, h, w), np.int32)
-        ok = np.empty((k, h, w), np.bool_)
-        frame_slot = np.arange(first, last + 1, dtype=np.int64) % self.ring
         sigma0, quad, z_med = self._noise[t % self.ring]
-        _track_kernel(
+        frame_slot, rows, cols, ok = _track_window(
             self._fwd,
             self._bwd,
             self._depth,
-            frame_slot,
             t,
             first,
             last,
-            p.fb_threshold,
-            p.max_depth_step,
-            quad,
-            p.quantize == "per_step",
-            rows,
-            cols,
-            ok,
+            fb_threshold=p.fb_threshold,
+            max_step=p.max_depth_step,
+            quad=quad,
+            per_step=p.quantize == "per_step",
         )
         t1 = time.perf_counter()
         points = np.empty((h, w, 3), np.float32)
@@ -395,20 +383,19 @@ class FusionEngine:
             hole,
         )
         t2 = time.perf_counter()
-        filled = np.zeros((h, w), np.bool_)
         if p.fill_holes and hole.any():
-            raw = depth_to_points(self._depth[t % self.ring], self.intrinsics)
-            _fill_holes_kernel(
+            filled = _fill_holes(
                 points,
-                raw,
+                depth_to_points(self._depth[t % self.ring], self.intrinsics),
                 hole,
-                p.fill_radius,
-                1.0 / (2.0 * p.sigma_fill**2),
-                p.fill_passes,
-                3,
-                frame_gate,
-                filled,
+                radius=p.fill_radius,
+                sigma=p.sigma_fill,
+                passes=p.fill_passes,
+                min_neighbours=3,
+                gate=frame_gate,
             )
+        else:
+            filled = np.zeros((h, w), np.bool_)
         if p.fill_fallback == "nan":
             points[hole] = np.nan
         if p.output == "ray":
@@ -422,6 +409,7 @@ class FusionEngine:
                 k.cx,
                 k.cy,
                 p.max_depth_step,
+                quad,
                 on_ray,
             )
             points = on_ray

@@ -1,34 +1,51 @@
-"""Filling sensor holes where the data supports it (issue 10; decisions A26, A27).
+"""Hole filling: the paper's Eq. 6 and the sensor's own holes (METHOD §6.2; issue 10, A26/A27).
 
-Depth cameras leave holes: shadow bands beside foreground edges (structured light, stereo),
-dark or grazing surfaces, specular spots, flying-pixel filters. The paper's Eq. 6 fills only
-pixels *with* depth but without temporal support; the sensor's own holes stayed holes. Two
-stages fill them, each switchable in :class:`fuse4d.FusionParams`:
+Two kinds of holes, one home:
 
-1. **From time** (A26, ``fill_from_time``): a pixel without depth at t is tracked through the
-   intensity video like any other; where the track lands on valid depth in other frames of the
-   window, the motion-trajectory line through those frames' reference points is evaluated at t
-   (the A21 trajectory base, without frame t's own sample). This fills holes that a moving
-   object uncovers or that flicker from frame to frame — the data says what is there.
-2. **In space** (A27, ``fill_max_hole_px``): each remaining hole *component* (8-connected) that
-   is small (at most ``fill_max_hole_px`` pixels) and does not touch the image border (no
-   extrapolation beyond the sensor's field of view) gets an intensity-weighted mean of valid
-   neighbours within ``fill_space_radius`` px, from the far side only: the valid neighbours
-   within the depth-step limit (A22) of the farthest one. A shadow band beside a foreground
-   edge belongs to the background, so the fill never bridges a depth discontinuity.
+* **Eq. 6 holes** (:func:`fill_holes`): pixels *with* valid raw depth but too little temporal
+  support to be fused (Eq. 5). Each gets a weighted average of first-order extrapolations from
+  the fused neighbours n in its (2 r_h + 1)^2 window::
 
-Every filled pixel is flagged (:data:`SOURCE_TIME`, :data:`SOURCE_SPACE` in
-:attr:`fuse4d.FusedFrame.source`), so a user can drop them.
+      p_i = sum_n h(P_i, p_n) (p_n + J_n (x_i - x_n)) / sum_n h(P_i, p_n),
+      h(P_i, p_n) = exp(-|P_i - p_n|^2 / (2 delta_h^2)),
+
+  with J_n the 3x2 Jacobian of the fused surface at n (central / one-sided differences over the
+  fused set F) and P_i the raw point of the hole. Onion peeling: each pass fills the holes with
+  at least ``min_neighbours`` neighbours in F as F stood at the start of the pass, then adds
+  them to F. A fill is accepted only within ``gate`` mm of the hole's current (fallback) value
+  (A20).
+* **Sensor holes** (no raw depth: shadow bands beside foreground edges, dark or grazing
+  surfaces, dropouts). The paper leaves them empty; two stages fill them where the data
+  supports it, each switchable in :class:`fuse4d.FusionParams`:
+
+  1. *From time* (A26, ``fill_from_time``): a pixel without depth at t is tracked through the
+     intensity video like any other; where the track lands on valid depth in other frames of
+     the window, the motion-trajectory line through those frames' reference points is
+     evaluated at t (the A21 trajectory base, without frame t's own sample). This fills holes
+     that a moving object uncovers or that flicker from frame to frame.
+  2. *In space* (A27, ``fill_max_hole_px``, :func:`fill_small_holes`): each remaining hole
+     component (8-connected) that is small and does not touch the image border (no
+     extrapolation beyond the sensor's field of view) gets an intensity-weighted mean of valid
+     neighbours from the far side only: those within the depth-step limit (A22) of the
+     farthest one. A shadow band beside a foreground edge belongs to the background, so the
+     fill never bridges a depth discontinuity.
+
+  Every filled pixel is flagged (:data:`SOURCE_TIME`, :data:`SOURCE_SPACE` in
+  :attr:`fuse4d.FusedFrame.source`), so a user can drop them.
 """
 
 from __future__ import annotations
+
+import math
 
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._kernels.fusion import _fill_holes_kernel
 from ._kernels.holes import _spatial_fill_kernel
 from ._validation import as_float32, check_shape
+from .config import FusionParams
 
 __all__ = [
     "SOURCE_FUSED",
@@ -36,6 +53,7 @@ __all__ = [
     "SOURCE_NONE",
     "SOURCE_SPACE",
     "SOURCE_TIME",
+    "fill_holes",
     "fill_small_holes",
     "small_hole_mask",
 ]
@@ -151,3 +169,109 @@ def fill_small_holes(
         )
     filled = target & np.isfinite(out)
     return out, filled
+
+
+# ----------------------------------------------------------------------------- Eq. 6
+def _fill_holes(
+    points: NDArray[np.float32],
+    raw_points: NDArray[np.float32],
+    hole: NDArray[np.bool_],
+    *,
+    radius: int,
+    sigma: float,
+    passes: int,
+    min_neighbours: int,
+    gate: float,
+) -> NDArray[np.bool_]:
+    """Unvalidated Eq. 6, in place on ``points`` and ``hole`` (cleared where filled).
+
+    Returns the (H, W) bool mask of the pixels filled.
+    """
+    filled = np.zeros(hole.shape, np.bool_)
+    _fill_holes_kernel(
+        points,
+        raw_points,
+        hole,
+        int(radius),
+        1.0 / (2.0 * sigma**2),
+        int(passes),
+        int(min_neighbours),
+        float(gate),
+        filled,
+    )
+    return filled
+
+
+def fill_holes(
+    points: ArrayLike,
+    raw_points: ArrayLike,
+    hole: ArrayLike,
+    *,
+    radius: int = FusionParams.fill_radius,
+    sigma: float = FusionParams.sigma_fill,
+    passes: int = FusionParams.fill_passes,
+    min_neighbours: int = 3,
+    gate: float = math.inf,
+) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+    """Fill the holes of a fused point map by gradient-directed extrapolation (Eq. 6).
+
+    Parameters
+    ----------
+    points : (H, W, 3) ndarray
+        Fused points in mm; holes hold their fallback value (the engine uses the bilateral-only
+        point B^t), NaN = no depth (never filled, never used).
+    raw_points : (H, W, 3) ndarray
+        Raw points P^t in mm (the weights compare a hole's raw point with its neighbours).
+    hole : (H, W) bool ndarray
+        Pixels to fill.
+    radius : int
+        r_h in px (default ``FusionParams.fill_radius``).
+    sigma : float
+        delta_h in mm (default ``FusionParams.sigma_fill``).
+    passes : int
+        Maximum onion-peeling passes (default ``FusionParams.fill_passes``).
+    min_neighbours : int
+        Fused neighbours a hole needs in its window to be filled in a pass.
+    gate : float
+        A20 acceptance gate in mm: a fill farther than this from the hole's current value is
+        rejected (the engine uses the frame's temporal gate); ``math.inf`` = literal Eq. 6.
+
+    Returns
+    -------
+    points : (H, W, 3) ndarray of float32
+        A copy of ``points`` with the accepted fills (mm).
+    filled : (H, W) ndarray of bool
+        Holes that were filled; ``hole & ~filled`` keep their fallback value.
+
+    Examples
+    --------
+    >>> p = np.zeros((5, 5, 3), np.float32); p[..., 2] = 500.0 + np.arange(5)
+    >>> hole = np.zeros((5, 5), bool); hole[2, 2] = True
+    >>> out, filled = fill_holes(np.where(hole[..., None], 0, p), p, hole)
+    >>> bool(filled[2, 2]), round(float(out[2, 2, 2]), 3)
+    (True, 502.0)
+    """
+    pts = as_float32(points, name="points").copy()
+    check_shape(pts, ("H", "W", 3), name="points")
+    raw = as_float32(raw_points, name="raw_points")
+    check_shape(raw, pts.shape, name="raw_points")
+    mask = np.array(hole, dtype=np.bool_, copy=True)
+    check_shape(mask, pts.shape[:2], name="hole")
+    for name, value in (("radius", radius), ("passes", passes), ("min_neighbours", min_neighbours)):
+        if isinstance(value, bool) or int(value) != value or value < 0:
+            raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
+    if not sigma > 0:
+        raise ValueError(f"sigma must be > 0 mm, got {sigma}")
+    if not gate > 0:
+        raise ValueError(f"gate must be > 0 mm, got {gate}")
+    filled = _fill_holes(
+        pts,
+        raw,
+        mask,
+        radius=radius,
+        sigma=sigma,
+        passes=passes,
+        min_neighbours=min_neighbours,
+        gate=gate,
+    )
+    return pts, filled

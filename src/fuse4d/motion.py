@@ -1,9 +1,17 @@
-"""Tracks and 3D motion fields from 2D flow (paper Eq. 2–4, METHOD.md §3–§4).
+"""Tracks and 3D motion fields from 2D flow (paper Eq. 3–4, METHOD.md §3–§4): their one home.
 
 Everything here works on the pixel grid: a pixel x_i of frame t is followed through the
 consecutive flows with sub-pixel accumulation (bilinear flow sampling), validated per step by
-the forward–backward check (Eq. 4, in px), valid depth and a depth-jump gate, and looked up at
-the rounded position ``floor(X + 0.5)``.
+the forward–backward check (Eq. 4, in px), valid depth and the depth-step rule
+``max(max_depth_step, 2.5 quad z^2)`` (A22), and looked up at the rounded position
+``floor(X + 0.5)``.
+
+Layers: the public :func:`track_frame` / :func:`compute_motion_field` validate their input and
+call the private, unvalidated :func:`_track_window` / :func:`_pair_motion`, which the streaming
+engine (:class:`fuse4d.FusionEngine`) calls directly on its ring buffers. This module owns the
+ring-slot convention of those helpers: with ring size S, frame T lives in slot ``T % S`` of the
+depth and point rings, and the flows of the pair (T-1, T) live in slot ``T % S`` of the flow
+rings (forward s^{T-1,T} on frame T-1's grid, backward s^{T,T-1} on frame T's grid).
 """
 
 from __future__ import annotations
@@ -33,7 +41,11 @@ __all__ = [
 
 
 def motion_reference_depth(
-    depth: ArrayLike, *, sigma: float = 12.0, max_step: float = 10.0, noise_quad: float = 0.0
+    depth: ArrayLike,
+    *,
+    sigma: float = FusionParams.motion_sigma,
+    max_step: float = FusionParams.max_depth_step,
+    noise_quad: float = 0.0,
 ) -> NDArray[np.float32]:
     """Edge-limited smoothing of one depth frame: the motion-reference depth D~ (A3).
 
@@ -46,21 +58,22 @@ def motion_reference_depth(
     depths differ by less than ``max_step`` mm. Windows are truncated at segment ends and
     renormalised. Compared with METHOD's centre-relative range gate this is identical on smooth
     surfaces, likewise never crosses a depth discontinuity or a hole, and costs O(1) per pixel
-    (prefix sums) instead of O(sigma), which matters at sigma_m = 12 px (our deviation; see the
-    ``FusionParams.motion_sigma`` docs).
+    (prefix sums) instead of O(sigma^2) (A3' in docs/method_notes.md).
 
     Parameters
     ----------
     depth : (H, W) ndarray
         Depth in mm, NaN = invalid.
     sigma : float
-        sigma_m in px (box radius r with (2r+1)^2 = 6 sigma^2 + 1, at least 1).
+        sigma_m in px (box radius r with (2r+1)^2 = 6 sigma^2 + 1, at least 1); default
+        ``FusionParams.motion_sigma`` (3 px, METHOD's value).
     max_step : float
-        tau_jump in mm: a larger step between neighbouring pixels ends a segment.
+        tau_jump in mm (default ``FusionParams.max_depth_step``): a larger step between
+        neighbouring pixels ends a segment.
     noise_quad : float
-        Quadratic depth-noise coefficient (mm^-1, see :func:`estimate_noise_model`): at depth z
-        the step limit is ``max(max_step, 2.5 * noise_quad * z^2)``, so quantisation steps of far
-        structured-light depth do not cut segments.
+        Quadratic depth-noise coefficient (mm^-1, see :func:`estimate_noise_quad`): at depth z
+        the step limit is ``max(max_step, 2.5 * noise_quad * z^2)`` (A22, the rule tracking
+        uses), so quantisation steps of far structured-light depth do not cut segments.
 
     Returns
     -------
@@ -159,8 +172,134 @@ class Tracks:
 
 
 def _pair_ring(flow: NDArray[np.float32]) -> NDArray[np.float32]:
-    """(T-1,H,W,2) pair flows -> (T,H,W,2) ring where slot T holds pair (T-1, T)."""
+    """(T-1, H, W, 2) pair flows -> (T, H, W, 2) ring of size T: slot T holds pair (T-1, T)."""
     return np.concatenate([np.zeros_like(flow[:1]), flow], axis=0)
+
+
+def _window(t: int, past: int, future: int, available: int) -> tuple[int, int]:
+    """First and last frame of frame ``t``'s temporal window, truncated to frames
+    0..available-1 (A13)."""
+    return max(0, t - past), min(available - 1, t + future)
+
+
+def _track_window(
+    fwd_ring: NDArray[np.float32],
+    bwd_ring: NDArray[np.float32],
+    depth_ring: NDArray[np.float32],
+    t: int,
+    first: int,
+    last: int,
+    *,
+    fb_threshold: float,
+    max_step: float,
+    quad: float,
+    per_step: bool,
+) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int32], NDArray[np.bool_]]:
+    """Tracks of every pixel of frame ``t`` through frames ``first..last`` (Eq. 4 per step).
+
+    Private and unvalidated: rings follow the module's slot convention (ring size S =
+    ``depth_ring.shape[0]``), float32 (S, H, W, 2) flows and (S, H, W) depth in mm.
+    ``quad`` is frame t's depth-noise coefficient (mm^-1) of the step rule (A22).
+
+    Returns
+    -------
+    frame_slot : (K + 1,) ndarray of int64
+        Ring slot of each frame first..last.
+    rows, cols : (K, H, W) ndarray of int32
+        Rounded landing pixel of the track in each other frame (increasing, t excluded).
+    ok : (K, H, W) ndarray of bool
+        nu^{t,T}: AND of the per-step checks along the chain.
+    """
+    _s, h, w = depth_ring.shape
+    k = last - first
+    frame_slot = np.arange(first, last + 1, dtype=np.int64) % depth_ring.shape[0]
+    rows = np.empty((k, h, w), np.int32)
+    cols = np.empty((k, h, w), np.int32)
+    ok = np.empty((k, h, w), np.bool_)
+    _track_kernel(
+        fwd_ring,
+        bwd_ring,
+        depth_ring,
+        frame_slot,
+        t,
+        first,
+        last,
+        float(fb_threshold),
+        float(max_step),
+        float(quad),
+        bool(per_step),
+        rows,
+        cols,
+        ok,
+    )
+    return frame_slot, rows, cols, ok
+
+
+def _pair_motion(
+    fwd_ring: NDArray[np.float32],
+    bwd_ring: NDArray[np.float32],
+    ref_ring: NDArray[np.float32],
+    depth_ring: NDArray[np.float32],
+    t: int,
+    *,
+    fb_threshold: float,
+    max_step: float,
+    quad: float,
+    per_step: bool,
+    motion: NDArray[np.float32] | None = None,
+    fb_error: NDArray[np.float32] | None = None,
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """One-step 3D motion m^{t,t+1} (Eq. 3) and FB error (Eq. 4) of the pair (t, t+1).
+
+    Private and unvalidated: rings follow the module's slot convention (ring size S =
+    ``depth_ring.shape[0]``); ``ref_ring`` (S, H, W, 3) holds the motion-reference points P~ in
+    mm. A step is valid exactly when the first step of :func:`_track_window` from frame t is
+    (same FB check, same depth-step rule with frame t's ``quad``), so the motion field shows
+    the validity nu the fusion uses.
+
+    Returns
+    -------
+    motion : (H, W, 3) ndarray of float32
+        P~^{t+1}[x^] - P~^t[x] in mm, NaN where the step is invalid.
+    fb_error : (H, W) ndarray of float32
+        Forward-backward error in px, NaN where the step leaves the image.
+    """
+    s, h, w = depth_ring.shape
+    if motion is None:
+        motion = np.empty((h, w, 3), np.float32)
+    if fb_error is None:
+        fb_error = np.empty((h, w), np.float32)
+    st, s1 = t % s, (t + 1) % s
+    _pair_diagnostics_kernel(
+        fwd_ring,
+        bwd_ring,
+        s1,
+        ref_ring[st],
+        ref_ring[s1],
+        depth_ring[st],
+        depth_ring[s1],
+        float(fb_threshold),
+        float(max_step),
+        float(quad),
+        bool(per_step),
+        fb_error,
+        motion,
+    )
+    return motion, fb_error
+
+
+def _check_flows(
+    flow_forward: ArrayLike, flow_backward: ArrayLike, depth: ArrayLike
+) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
+    """Validated float32 copies: depth (T, H, W), flows (T-1, H, W, 2) each."""
+    d = as_float32(depth, name="depth")
+    check_shape(d, ("T", "H", "W"), name="depth")
+    n, h, w = d.shape
+    fwd = as_float32(flow_forward, name="flow_forward")
+    bwd = as_float32(flow_backward, name="flow_backward")
+    check_shape(fwd, (n - 1, h, w, 2), name="flow_forward")
+    check_shape(bwd, (n - 1, h, w, 2), name="flow_backward")
+    return fwd, bwd, d
 
 
 def track_frame(
@@ -193,39 +332,26 @@ def track_frame(
     Notes
     -----
     The depth-jump gate is ``max(max_depth_step, 2.5 quad z^2)`` with ``quad`` from
-    :func:`estimate_noise_quad` on frame t, exactly as in the fusion engine (A22).
+    :func:`estimate_noise_quad` on frame t, exactly as in the fusion engine (A22): both call
+    the same private ``_track_window``.
     """
     params = params or FusionParams()
-    d = as_float32(depth, name="depth")
-    check_shape(d, ("T", "H", "W"), name="depth")
-    n, h, w = d.shape
-    fwd = as_float32(flow_forward, name="flow_forward")
-    bwd = as_float32(flow_backward, name="flow_backward")
-    check_shape(fwd, (n - 1, h, w, 2), name="flow_forward")
-    check_shape(bwd, (n - 1, h, w, 2), name="flow_backward")
+    fwd, bwd, d = _check_flows(flow_forward, flow_backward, depth)
+    n = d.shape[0]
     if not 0 <= t < n:
         raise ValueError(f"t must be in [0, {n - 1}], got {t}")
-    first = max(0, t - params.past_frames)
-    last = min(n - 1, t + params.future_frames)
-    k = last - first
-    rows = np.empty((k, h, w), np.int32)
-    cols = np.empty((k, h, w), np.int32)
-    valid = np.empty((k, h, w), np.bool_)
-    _track_kernel(
+    first, last = _window(t, params.past_frames, params.future_frames, n)
+    _slots, rows, cols, valid = _track_window(
         _pair_ring(fwd),
         _pair_ring(bwd),
         d,
-        np.arange(first, last + 1, dtype=np.int64),
         t,
         first,
         last,
-        params.fb_threshold,
-        params.max_depth_step,
-        estimate_noise_quad(d[t]),
-        params.quantize == "per_step",
-        rows,
-        cols,
-        valid,
+        fb_threshold=params.fb_threshold,
+        max_step=params.max_depth_step,
+        quad=estimate_noise_quad(d[t]),
+        per_step=params.quantize == "per_step",
     )
     frames = np.array([T for T in range(first, last + 1) if t != T], dtype=np.int64)
     return Tracks(t=t, frames=frames, rows=rows, cols=cols, valid=valid)
@@ -255,28 +381,24 @@ def compute_motion_field(
     Returns
     -------
     motion : (T-1, H, W, 3) ndarray of float32
-        P~^{t+1}[x^] - P~^t[x] in mm (scene flow), NaN where the step is invalid.
+        P~^{t+1}[x^] - P~^t[x] in mm (scene flow), NaN where the step is invalid: the same
+        validity nu^{t,t+1} as the tracks of :func:`track_frame` and the fusion engine (FB
+        check and the depth-step rule ``max(max_depth_step, 2.5 quad z^2)`` with frame t's
+        ``quad``, A22).
     fb_error : (T-1, H, W) ndarray of float32
         |s^{t,t+1}(x) + s^{t+1,t}(x + s^{t,t+1}(x))| in px; NaN where the step leaves the image.
     """
     params = params or FusionParams()
-    d = as_float32(depth, name="depth")
-    check_shape(d, ("T", "H", "W"), name="depth")
+    fwd, bwd, d = _check_flows(flow_forward, flow_backward, depth)
     n, h, w = d.shape
-    fwd = as_float32(flow_forward, name="flow_forward")
-    bwd = as_float32(flow_backward, name="flow_backward")
-    check_shape(fwd, (n - 1, h, w, 2), name="flow_forward")
-    check_shape(bwd, (n - 1, h, w, 2), name="flow_backward")
+    quads = [estimate_noise_quad(f) for f in d]
     if params.motion_depth == "smoothed":
         ref_depth = np.stack(
             [
                 motion_reference_depth(
-                    f,
-                    sigma=params.motion_sigma,
-                    max_step=params.max_depth_step,
-                    noise_quad=estimate_noise_quad(f),
+                    f, sigma=params.motion_sigma, max_step=params.max_depth_step, noise_quad=q
                 )
-                for f in d
+                for f, q in zip(d, quads, strict=True)
             ]
         )
     else:
@@ -287,18 +409,17 @@ def compute_motion_field(
     fwd_ring = _pair_ring(fwd)
     bwd_ring = _pair_ring(bwd)
     for t in range(n - 1):
-        _pair_diagnostics_kernel(
+        _pair_motion(
             fwd_ring,
             bwd_ring,
-            t + 1,
-            ref[t],
-            ref[t + 1],
-            d[t],
-            d[t + 1],
-            params.fb_threshold,
-            params.max_depth_step,
-            params.quantize == "per_step",
-            fb[t],
-            motion[t],
+            ref,
+            d,
+            t,
+            fb_threshold=params.fb_threshold,
+            max_step=params.max_depth_step,
+            quad=quads[t],
+            per_step=params.quantize == "per_step",
+            motion=motion[t],
+            fb_error=fb[t],
         )
     return motion, fb

@@ -36,7 +36,12 @@ def bilateral3d(points, intensity, radius, sigma_d, sigma_g, reference=None):
     return out
 
 
-def segment_box_rows(values, depth, radius, max_step):
+def step_limit(z, max_step, quad):
+    """The depth-step rule (A22): max(tau_jump, 2.5 quad z^2), mm."""
+    return max(max_step, 2.5 * quad * float(z) ** 2)
+
+
+def segment_box_rows(values, depth, radius, max_step, quad=0.0):
     """One local-linear box pass along rows limited to depth-continuous segments."""
     h, w = depth.shape
     out = np.full((h, w), np.nan)
@@ -46,7 +51,12 @@ def segment_box_rows(values, depth, radius, max_step):
         for u in range(w):
             if np.isnan(depth[v, u]):
                 continue
-            if u == 0 or segment[u - 1] < 0 or not abs(depth[v, u] - depth[v, u - 1]) < max_step:
+            if (
+                u == 0
+                or segment[u - 1] < 0
+                or not abs(depth[v, u] - depth[v, u - 1])
+                < step_limit(depth[v, u - 1], max_step, quad)
+            ):
                 sid += 1
             segment[u] = sid
         for u in range(w):
@@ -80,8 +90,33 @@ def bilinear(field, x, y):
     return top * (1 - fy) + bottom * fy
 
 
-def track(fwd, bwd, depth, t, first, last, theta, max_step):
-    """Chained tracks (METHOD §4.1, quantize='final'): {T: (row, col, valid)} per pixel."""
+def _nearest(field, x, y):
+    return field[math.floor(y + 0.5), math.floor(x + 0.5)].astype(np.float64)
+
+
+def flow_step(step, check, x, y, theta, per_step):
+    """One tracking step with the FB check (Eq. 4): (ok, new_x, new_y)."""
+    h, w = step.shape[:2]
+    sample = _nearest if per_step else bilinear
+    s = sample(step, x, y)
+    nx, ny = x + s[0], y + s[1]
+    if not (0 <= nx <= w - 1 and 0 <= ny <= h - 1):
+        return False, nx, ny
+    c = sample(check, nx, ny)
+    if not math.hypot(s[0] + c[0], s[1] + c[1]) < theta:
+        return False, nx, ny
+    if per_step:
+        nx, ny = float(math.floor(nx + 0.5)), float(math.floor(ny + 0.5))
+    return True, nx, ny
+
+
+def track(fwd, bwd, depth, t, first, last, theta, max_step, quad=0.0, per_step=False):
+    """Chained tracks (METHOD §4.1): {(T, v, u): (row, col, valid)} per pixel.
+
+    ``per_step=False``: sub-pixel accumulation, rounding for lookup only (A6); ``True``: the
+    literal rounding after every step. Depth steps are limited by :func:`step_limit`, evaluated
+    at the depth the step starts from (A22).
+    """
     _n, h, w = depth.shape
     result = {}
     for v in range(h):
@@ -98,16 +133,12 @@ def track(fwd, bwd, depth, t, first, last, theta, max_step):
                             step, check, prev = fwd[T - 1], bwd[T - 1], T - 1
                         else:
                             step, check, prev = bwd[T], fwd[T], T + 1
-                        s = bilinear(step, x, y)
-                        nx, ny = x + s[0], y + s[1]
-                        ok = 0 <= nx <= w - 1 and 0 <= ny <= h - 1
-                        if ok:
-                            c = bilinear(check, nx, ny)
-                            ok = math.hypot(s[0] + c[0], s[1] + c[1]) < theta
+                        ok, nx, ny = flow_step(step, check, x, y, theta, per_step)
                         if ok:
                             r, cc = math.floor(ny + 0.5), math.floor(nx + 0.5)
+                            d0 = depth[prev, pr, pc]
                             d1 = depth[T, r, cc]
-                            ok = not np.isnan(d1) and abs(d1 - depth[prev, pr, pc]) < max_step
+                            ok = not np.isnan(d1) and abs(d1 - d0) < step_limit(d0, max_step, quad)
                         if ok:
                             x, y, pr, pc = nx, ny, r, cc
                         else:
@@ -116,9 +147,38 @@ def track(fwd, bwd, depth, t, first, last, theta, max_step):
     return result
 
 
+def pair_motion(fwd, bwd, ref_t, ref_t1, depth_t, depth_t1, theta, max_step, quad, per_step):
+    """FB error map (bilinear at the unrounded landing, px) and one-step motion (Eq. 3, mm)."""
+    h, w = depth_t.shape
+    fb = np.full((h, w), np.nan)
+    motion = np.full((h, w, 3), np.nan)
+    for v in range(h):
+        for u in range(w):
+            s = fwd[v, u].astype(np.float64)
+            nx, ny = u + s[0], v + s[1]
+            if not (0 <= nx <= w - 1 and 0 <= ny <= h - 1):
+                continue
+            c = bilinear(bwd, nx, ny)
+            fb[v, u] = math.hypot(s[0] + c[0], s[1] + c[1])
+            if np.isnan(depth_t[v, u]):
+                continue
+            ok, lx, ly = flow_step(fwd, bwd, float(u), float(v), theta, per_step)
+            if not ok:
+                continue
+            r, cc = math.floor(ly + 0.5), math.floor(lx + 0.5)
+            d0, d1 = depth_t[v, u], depth_t1[r, cc]
+            if np.isnan(d1) or not abs(d1 - d0) < step_limit(d0, max_step, quad):
+                continue
+            motion[v, u] = ref_t1[r, cc].astype(np.float64) - ref_t[v, u]
+    return fb, motion
+
+
 def fuse(bilateral, reference, tracks, t, first, last, weights, gate, *, trajectory=False):
     """Outer sum of Eq. 5 along given tracks, with the temporal range gate (A19) and,
-    optionally, the trajectory base (A21: least-squares line through the motion vectors)."""
+    optionally, the trajectory base (A21: least-squares line through the motion vectors).
+
+    ``gate``: mm, or a function of frame t's reference depth z (mm) giving the gate in mm.
+    """
     _n, h, w, _ = bilateral.shape
     out = np.full((h, w, 3), np.nan)
     support = np.zeros((h, w), int)
@@ -127,6 +187,7 @@ def fuse(bilateral, reference, tracks, t, first, last, weights, gate, *, traject
             if np.isnan(reference[t, v, u, 2]):
                 continue
             own = bilateral[t, v, u] - reference[t, v, u]
+            g = gate(float(reference[t, v, u, 2])) if callable(gate) else gate
             taus, wts, details, motions = [0.0], [weights[0]], [own], [np.zeros(3)]
             for T in range(first, last + 1):
                 if t == T:
@@ -135,7 +196,7 @@ def fuse(bilateral, reference, tracks, t, first, last, weights, gate, *, traject
                 if not ok:
                     continue
                 detail = bilateral[T, r, c] - reference[T, r, c]
-                if not np.linalg.norm(detail - own) < gate:
+                if not np.linalg.norm(detail - own) < g:
                     continue
                 taus.append(float(T - t))
                 wts.append(weights[abs(T - t)])
@@ -157,4 +218,189 @@ def fuse(bilateral, reference, tracks, t, first, last, weights, gate, *, traject
             out[v, u] = (
                 reference[t, v, u] + base + np.average(np.array(details), axis=0, weights=wts_a)
             )
+    return out, support
+
+
+def noise_gate(gate_factor, sigma0, quad, min_gate):
+    """The temporal gate of a frame as a function of depth z (A19, A22), mm."""
+    return lambda z: max(gate_factor * max(sigma0, quad * z * z), min_gate)
+
+
+def _diff(points, v, u, dv, du, plus, minus):
+    if plus and minus:
+        return True, 0.5 * (points[v + dv, u + du] - points[v - dv, u - du])
+    if plus:
+        return True, points[v + dv, u + du] - points[v, u]
+    if minus:
+        return True, points[v, u] - points[v - dv, u - du]
+    return False, np.zeros(3)
+
+
+def fill_holes(points, raw_points, hole, radius, sigma, passes, min_neighbours, gate):
+    """Eq. 6 with onion peeling and the A20 acceptance gate: (points, hole, filled), copies.
+
+    Each pass fills, from the fused set F as it stood at the start of the pass, every hole
+    with at least ``min_neighbours`` members of F in its window, accepting a fill only within
+    ``gate`` mm of the hole's current value.
+    """
+    pts = points.astype(np.float64)
+    hole = hole.copy()
+    h, w = hole.shape
+    filled = np.zeros_like(hole)
+    in_f = ~hole & np.isfinite(points[..., 2])
+    for _ in range(passes):
+        f_now = in_f.copy()
+        new = {}
+        for v, u in zip(*np.nonzero(hole), strict=True):
+            window = [
+                (nv, nu)
+                for nv in range(max(v - radius, 0), min(v + radius + 1, h))
+                for nu in range(max(u - radius, 0), min(u + radius + 1, w))
+                if f_now[nv, nu]
+            ]
+            if len(window) < min_neighbours:
+                continue
+            acc = np.zeros(3)
+            wsum = 0.0
+            for nv, nu in window:
+                q = pts[nv, nu]
+                wgt = math.exp(-np.sum((q - raw_points[v, u]) ** 2) / (2 * sigma**2))
+                inside = [
+                    (a, b) for a, b in ((nv, nu + 1), (nv, nu - 1), (nv + 1, nu), (nv - 1, nu))
+                ]
+                ok = [0 <= a < h and 0 <= b < w and f_now[a, b] for a, b in inside]
+                _, ju = _diff(pts, nv, nu, 0, 1, ok[0], ok[1])
+                _, jv = _diff(pts, nv, nu, 1, 0, ok[2], ok[3])
+                acc += wgt * (q + ju * (u - nu) + jv * (v - nv))
+                wsum += wgt
+            if wsum > 1e-30 and np.linalg.norm(acc / wsum - pts[v, u]) < gate:
+                new[(v, u)] = acc / wsum
+        if not new:
+            break
+        for (v, u), value in new.items():
+            pts[v, u] = value
+            hole[v, u] = False
+            filled[v, u] = True
+            in_f[v, u] = True
+    return pts, hole, filled
+
+
+def project_to_rays(points, ref, fx, fy, cx, cy, max_step, quad):
+    """A17: each point moved along the reference surface's tangent plane onto its pixel ray."""
+    h, w = points.shape[:2]
+    out = np.full(points.shape, np.nan)
+    for v in range(h):
+        for u in range(w):
+            p = points[v, u].astype(np.float64)
+            if np.isnan(p[2]):
+                continue
+            ray = np.array([(u - cx) / fx, (v - cy) / fy, 1.0])
+            d = p[2]
+            zc = ref[v, u, 2]
+            if not np.isnan(zc):
+                limit = step_limit(zc, max_step, quad)
+
+                def near(a, b, zc=zc, limit=limit):
+                    return 0 <= a < h and 0 <= b < w and abs(ref[a, b, 2] - zc) < limit
+
+                ok_u, ju = _diff(ref, v, u, 0, 1, near(v, u + 1), near(v, u - 1))
+                ok_v, jv = _diff(ref, v, u, 1, 0, near(v + 1, u), near(v - 1, u))
+                if ok_u and ok_v:
+                    n = np.cross(ju.astype(np.float64), jv.astype(np.float64))
+                    denom = n @ ray
+                    if np.linalg.norm(n) > 0 and abs(denom) > 0.05 * np.linalg.norm(
+                        n
+                    ) * np.linalg.norm(ray):
+                        cand = (n @ p) / denom
+                        if abs(cand - p[2]) < max_step:
+                            d = cand
+            out[v, u] = ray * d
+    return out
+
+
+def engine_frame(depth, intensity, fwd, bwd, intrinsics, params, t):
+    """Frame ``t`` of :func:`fuse4d.fuse_sequence` (one iteration) composed from the oracles.
+
+    The per-frame stages that have their own oracle tests (the segment-limited smoothing D~,
+    the 3D bilateral, the noise estimates) are taken from fuse4d; tracking (Eq. 4), the outer
+    sum of Eq. 5 with the temporal gate, hole filling (Eq. 6) and the ray output (A17) are the
+    NumPy oracles above. Returns (points (H, W, 3) mm, support (H, W)).
+    """
+    from fuse4d import depth_to_points
+    from fuse4d.bilateral import bilateral_filter_points
+    from fuse4d.motion import estimate_depth_noise, estimate_noise_quad, motion_reference_depth
+
+    p = params
+    d_all = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan).astype(np.float32)
+    n = d_all.shape[0]
+
+    def smoothed(d, sigma, quad):
+        ref = motion_reference_depth(d, sigma=sigma, max_step=p.max_depth_step, noise_quad=quad)
+        return depth_to_points(ref, intrinsics)
+
+    frames = []
+    for d, inten in zip(d_all, intensity, strict=True):
+        pts = depth_to_points(d, intrinsics)
+        quad = estimate_noise_quad(d)
+        z_med = float(np.median(d[np.isfinite(d)]))
+        smooth = smoothed(d, p.reference_sigma, quad)
+        motion_ref = pts if p.motion_depth == "raw" else smoothed(d, p.motion_sigma, quad)
+        sigma_d = max(p.sigma_distance, p.distance_noise_scale * quad * z_med**2)
+        bil = bilateral_filter_points(
+            pts,
+            inten,
+            radius=p.spatial_radius,
+            sigma_distance=sigma_d,
+            sigma_intensity=p.sigma_intensity,
+            reference=smooth if p.bilateral == "residual" else None,
+        )
+        sigma0 = estimate_depth_noise(d, reference=smooth[..., 2])
+        frames.append((pts, smooth, motion_ref, bil, quad, sigma0, z_med))
+    first = max(0, t - p.past_frames)
+    last = min(n - 1, t + p.future_frames)
+    pts, smooth, _ref, bil_t, quad, sigma0, z_med = frames[t]
+    tracks = track(
+        fwd,
+        bwd,
+        d_all,
+        t,
+        first,
+        last,
+        p.fb_threshold,
+        p.max_depth_step,
+        quad,
+        p.quantize == "per_step",
+    )
+    tw = np.arange(max(p.past_frames, p.future_frames) + 1, dtype=np.float64)
+    weights = (
+        np.ones_like(tw)
+        if math.isinf(p.sigma_temporal)
+        else np.exp(-(tw**2) / (2 * p.sigma_temporal**2))
+    )
+    bil_all = np.stack([f[3] for f in frames])
+    ref_all = np.stack([f[2] for f in frames])
+    gate = noise_gate(p.temporal_gate, sigma0, quad, p.min_gate_mm)
+    out, support = fuse(
+        bil_all,
+        ref_all,
+        tracks,
+        t,
+        first,
+        last,
+        weights,
+        gate,
+        trajectory=p.base == "trajectory",
+    )
+    hole = np.isfinite(ref_all[t, ..., 2]) & (support < p.min_temporal_support)
+    out[hole] = bil_t[hole]
+    if p.fill_holes and hole.any():
+        frame_gate = max(p.temporal_gate * max(sigma0, quad * z_med**2), p.min_gate_mm)
+        out, hole, _filled = fill_holes(
+            out, pts, hole, p.fill_radius, p.sigma_fill, p.fill_passes, 3, frame_gate
+        )
+    if p.fill_fallback == "nan":
+        out[hole] = np.nan
+    if p.output == "ray":
+        k = intrinsics
+        out = project_to_rays(out, smooth, k.fx, k.fy, k.cx, k.cy, p.max_depth_step, quad)
     return out, support

@@ -9,8 +9,8 @@ import math
 
 import numpy as np
 
+from ._common import ROW_CHUNKS
 from ._numba import njit, njit_parallel, prange
-from .fusion import ROW_CHUNKS
 
 __all__ = [
     "_block_match_kernel",

@@ -1,9 +1,12 @@
 """Kernels of the 4D fusion (METHOD.md §3–§6). Private: arrays and scalars in, buffers filled.
 
-Ring-buffer convention shared by the tracking and fusion kernels: frame T lives in slot
-``T % S`` of the ``*_ring`` arrays (S = ring size), and the flows of the pair (T-1, T) live in
-slot ``T % S`` of ``fwd_ring`` (s^{T-1,T}, on frame T-1's grid) and ``bwd_ring`` (s^{T,T-1}, on
-frame T's grid).
+Ring-buffer convention shared by the tracking and fusion kernels (owned by ``fuse4d.motion``,
+whose ``_track_window`` / ``_pair_motion`` are the only Python callers of the tracking
+kernels): frame T lives in slot ``T % S`` of the ``*_ring`` arrays (S = ring size), and the
+flows of the pair (T-1, T) live in slot ``T % S`` of ``fwd_ring`` (s^{T-1,T}, on frame T-1's
+grid) and ``bwd_ring`` (s^{T,T-1}, on frame T's grid). Shared primitives (the depth-step rule
+``_step_limit``, bilinear sampling, rounding, the weight function, the derivative helper) are
+in ``_common.py``; ``docs/equations.md`` maps each kernel to its equation and oracle test.
 """
 
 from __future__ import annotations
@@ -12,55 +15,15 @@ import math
 
 import numpy as np
 
+from ._common import (
+    ROW_CHUNKS,
+    _bilinear2,
+    _difference,
+    _exp_neg_fast,
+    _round_half_up,
+    _step_limit,
+)
 from ._numba import njit, njit_parallel, prange
-
-
-@njit(inline="always")
-def _bilinear2(ring, slot, x, y):
-    """Bilinear sample of both components of ``ring[slot]`` (H, W, 2) at (x = column, y = row).
-
-    The 2x2 stencil is clamped at the last row/column (METHOD §4.1); callers ensure
-    0 <= x <= W-1 and 0 <= y <= H-1.
-    """
-    h = ring.shape[1]
-    w = ring.shape[2]
-    x0 = min(max(int(math.floor(x)), 0), max(w - 2, 0))
-    y0 = min(max(int(math.floor(y)), 0), max(h - 2, 0))
-    x1 = min(x0 + 1, w - 1)
-    y1 = min(y0 + 1, h - 1)
-    fx = x - x0 if w > 1 else 0.0
-    fy = y - y0 if h > 1 else 0.0
-    w00 = (1.0 - fx) * (1.0 - fy)
-    w01 = fx * (1.0 - fy)
-    w10 = (1.0 - fx) * fy
-    w11 = fx * fy
-    a = (
-        w00 * ring[slot, y0, x0, 0]
-        + w01 * ring[slot, y0, x1, 0]
-        + w10 * ring[slot, y1, x0, 0]
-        + w11 * ring[slot, y1, x1, 0]
-    )
-    b = (
-        w00 * ring[slot, y0, x0, 1]
-        + w01 * ring[slot, y0, x1, 1]
-        + w10 * ring[slot, y1, x0, 1]
-        + w11 * ring[slot, y1, x1, 1]
-    )
-    return a, b
-
-
-@njit(inline="always")
-def _step_limit(z, max_step, quad):
-    """Largest plausible depth change (mm) between neighbours at depth z: the fixed
-    ``max_step`` or, on quantised/noisy far depth, 2.5 noise levels of the frame's depth-noise
-    model sigma(z) = quad * z^2 (A22), whichever is larger."""
-    return max(max_step, 2.5 * quad * z * z)
-
-
-@njit(inline="always")
-def _round_half_up(x):
-    """floor(x + 0.5): METHOD §4.1 rounding (not round-half-to-even)."""
-    return np.int64(math.floor(x + 0.5))
 
 
 @njit(inline="always")
@@ -102,24 +65,6 @@ def _track_step(step_ring, check_ring, slot, x, y, theta, per_step):
 
 
 # --------------------------------------------------------------------------- per-frame stages
-#: parallel loops run over this many row chunks (scratch buffers are allocated per chunk:
-#: allocating inside a prange body per row serialises the threads on the allocator)
-ROW_CHUNKS = 64
-
-#: exp(-x) ~ (1 - x / EXP_POWER) ** EXP_POWER (10 squarings): relative error x^2 / 2048, i.e.
-#: 0.05 % at x = 1 and 0.8 % at x = 4; exactly 0 beyond x = EXP_POWER. Pure arithmetic, so the
-#: bilateral loops vectorise (a table lookup or a libm call would not).
-EXP_POWER = 1024.0
-
-
-@njit(inline="always")
-def _exp_neg_fast(x):
-    t = max(np.float32(1.0) - x * np.float32(1.0 / EXP_POWER), np.float32(0.0))
-    for _ in range(10):
-        t = t * t
-    return t
-
-
 @njit
 def _bilateral_row_kernel(cx, cy, cz, ci, nx, ny, nz, ni, qx, qy, qz, a, b, ax, ay, az, ws):
     """Accumulate one neighbour offset for one row (1D slices; this loop vectorises)."""
@@ -203,6 +148,7 @@ def _pair_diagnostics_kernel(
     depth_t1,
     theta,
     max_step,
+    quad,
     per_step,
     fb_error,
     motion,
@@ -211,7 +157,8 @@ def _pair_diagnostics_kernel(
 
     fb_error (H,W): |s_fwd(x) + s_bwd(x + s_fwd(x))| px, NaN if the landing leaves the image.
     motion (H,W,3): P~^{t+1}[round(x')] - P~^t[x] in mm where the step is valid (Eq. 3, 4), NaN
-    elsewhere.
+    elsewhere. Validity is exactly the first step of :func:`_track_kernel`: in image, FB error
+    < theta, valid depth at both ends, depth step < ``_step_limit(depth_t, max_step, quad)``.
     """
     h, w = depth_t.shape
     for v in prange(h):
@@ -236,7 +183,8 @@ def _pair_diagnostics_kernel(
             iu = _round_half_up(lx)
             iv = _round_half_up(ly)
             d1 = depth_t1[iv, iu]
-            if np.isnan(d1) or not (abs(d1 - depth_t[v, u]) < max_step):
+            limit = _step_limit(depth_t[v, u], max_step, quad)
+            if np.isnan(d1) or not (abs(d1 - depth_t[v, u]) < limit):
                 continue
             for c in range(3):
                 motion[v, u, c] = ref_t1[iv, iu, c] - ref_t[v, u, c]
@@ -452,21 +400,7 @@ def _jacobian_column(points, in_set, v, u, dv, du):
     vm, um = v - dv, u - du
     plus = 0 <= vp < h and 0 <= up < w and in_set[vp, up]
     minus = 0 <= vm < h and 0 <= um < w and in_set[vm, um]
-    gx = 0.0
-    gy = 0.0
-    gz = 0.0
-    if plus and minus:
-        gx = 0.5 * (points[vp, up, 0] - points[vm, um, 0])
-        gy = 0.5 * (points[vp, up, 1] - points[vm, um, 1])
-        gz = 0.5 * (points[vp, up, 2] - points[vm, um, 2])
-    elif plus:
-        gx = points[vp, up, 0] - points[v, u, 0]
-        gy = points[vp, up, 1] - points[v, u, 1]
-        gz = points[vp, up, 2] - points[v, u, 2]
-    elif minus:
-        gx = points[v, u, 0] - points[vm, um, 0]
-        gy = points[v, u, 1] - points[vm, um, 1]
-        gz = points[v, u, 2] - points[vm, um, 2]
+    _ok, gx, gy, gz = _difference(points, v, u, dv, du, plus, minus)
     return gx, gy, gz
 
 
@@ -569,47 +503,29 @@ def _fill_holes_kernel(
 
 # --------------------------------------------------------------------------- output on pixel rays
 @njit(inline="always")
-def _ref_difference(ref, v, u, dv, du, max_step):
-    """Derivative of the reference surface along (dv, du), gated by depth jumps (None = 0s)."""
+def _ref_difference(ref, v, u, dv, du, max_step, quad):
+    """Derivative of the reference surface along (dv, du) over depth-continuous neighbours
+    (depth step < ``_step_limit``, A22); ``(ok, gx, gy, gz)`` as :func:`_difference`."""
     h = ref.shape[0]
     w = ref.shape[1]
     zc = ref[v, u, 2]
+    limit = _step_limit(zc, max_step, quad)
     vp, up = v + dv, u + du
     vm, um = v - dv, u - du
-    plus = 0 <= vp < h and 0 <= up < w and abs(ref[vp, up, 2] - zc) < max_step
-    minus = 0 <= vm < h and 0 <= um < w and abs(ref[vm, um, 2] - zc) < max_step
-    if plus and minus:
-        return (
-            True,
-            0.5 * (ref[vp, up, 0] - ref[vm, um, 0]),
-            0.5 * (ref[vp, up, 1] - ref[vm, um, 1]),
-            0.5 * (ref[vp, up, 2] - ref[vm, um, 2]),
-        )
-    if plus:
-        return (
-            True,
-            ref[vp, up, 0] - ref[v, u, 0],
-            ref[vp, up, 1] - ref[v, u, 1],
-            ref[vp, up, 2] - ref[v, u, 2],
-        )
-    if minus:
-        return (
-            True,
-            ref[v, u, 0] - ref[vm, um, 0],
-            ref[v, u, 1] - ref[vm, um, 1],
-            ref[v, u, 2] - ref[vm, um, 2],
-        )
-    return False, 0.0, 0.0, 0.0
+    plus = 0 <= vp < h and 0 <= up < w and abs(ref[vp, up, 2] - zc) < limit
+    minus = 0 <= vm < h and 0 <= um < w and abs(ref[vm, um, 2] - zc) < limit
+    return _difference(ref, v, u, dv, du, plus, minus)
 
 
 @njit_parallel
-def _project_to_rays_kernel(points, ref, fx, fy, cx, cy, max_step, out):
+def _project_to_rays_kernel(points, ref, fx, fy, cx, cy, max_step, quad, out):
     """Move each fused point along the local tangent plane onto its own pixel's ray (A17).
 
     The plane passes through the fused point p^ with the normal of the (smooth) reference
     surface P~ at the pixel; the output is ray_i * d with d = (n . p^) / (n . ray_i). Where the
-    normal is undefined (isolated pixel, depth edge on both sides) or the ray grazes the plane
-    (|cos| < 0.05), or the correction exceeds max_step, the point keeps its Z: ray_i * p^_z.
+    normal is undefined (isolated pixel, depth edge on both sides: steps of
+    ``_step_limit(z, max_step, quad)`` or more) or the ray grazes the plane (|cos| < 0.05), or
+    the correction exceeds max_step, the point keeps its Z: ray_i * p^_z.
     """
     h = points.shape[0]
     w = points.shape[1]
@@ -625,8 +541,8 @@ def _project_to_rays_kernel(points, ref, fx, fy, cx, cy, max_step, out):
             rx = (u - cx) / fx
             d = pz
             if not np.isnan(ref[v, u, 2]):
-                ok_u, ax, ay, az = _ref_difference(ref, v, u, 0, 1, max_step)
-                ok_v, bx, by, bz = _ref_difference(ref, v, u, 1, 0, max_step)
+                ok_u, ax, ay, az = _ref_difference(ref, v, u, 0, 1, max_step, quad)
+                ok_v, bx, by, bz = _ref_difference(ref, v, u, 1, 0, max_step, quad)
                 if ok_u and ok_v:
                     nx = ay * bz - az * by
                     ny = az * bx - ax * bz

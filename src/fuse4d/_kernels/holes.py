@@ -18,8 +18,9 @@ import math
 
 import numpy as np
 
+from ._common import ROW_CHUNKS, _round_half_up, _step_limit
 from ._numba import njit_parallel, prange
-from .fusion import ROW_CHUNKS, _round_half_up, _step_limit, _track_step
+from .fusion import _track_step
 
 
 @njit_parallel

@@ -27,9 +27,9 @@ import math
 
 import numpy as np
 
+from ._common import ROW_CHUNKS
+from ._common import _exp_neg_fast as _exp_neg
 from ._numba import njit, njit_parallel, prange
-from .fusion import ROW_CHUNKS
-from .fusion import _exp_neg_fast as _exp_neg
 
 __all__ = ["_joint_bilateral_kernel"]
 
