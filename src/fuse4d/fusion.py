@@ -128,8 +128,6 @@ class FusionEngine:
     ) -> None:
         self.intrinsics = intrinsics
         self.params = fusion or FusionParams()
-        if self.params.num_frames > 256:
-            raise ValueError("num_frames must be <= 256 (support is stored as uint8)")
         self.precomputed: SequenceFlow | None = None
         if isinstance(flow, str):
             flow = FlowConfig(flow)
