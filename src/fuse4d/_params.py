@@ -47,6 +47,7 @@ __all__ = [
     "coerce_kwargs",
     "coerce_value",
     "param",
+    "parse_assignments",
     "validate",
 ]
 
@@ -55,6 +56,35 @@ _FALSE = {"0", "false", "no", "off"}
 _NONE = {"none", "null", ""}
 _KIND = {int: "integers", float: "numbers", bool: "booleans", str: "strings"}
 _INF = {"inf", "+inf", "infinity", "+infinity"}
+
+
+def parse_assignments(items: Iterable[str] | None, *, what: str = "parameter") -> dict[str, str]:
+    """Split command-line ``KEY=VALUE`` items into a mapping (values stay strings).
+
+    Parameters
+    ----------
+    items : iterable of str or None
+        E.g. ``["num_iter=3", "schedule=lines"]``; a later key overrides an earlier one.
+    what : str
+        The option's name for the error message (``"--set"``).
+
+    Returns
+    -------
+    dict of str to str
+        Key → value, both stripped.
+
+    Raises
+    ------
+    ValueError
+        For an item without ``=`` or with an empty key.
+    """
+    out: dict[str, str] = {}
+    for item in items or ():
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"{what} must look like KEY=VALUE, got {item!r}")
+        out[key.strip()] = value.strip()
+    return out
 
 
 def coerce_fields(

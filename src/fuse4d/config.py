@@ -285,24 +285,15 @@ def load_config(path: str | PathLike[str], *, base: str | None = None) -> Preset
             FusionParams, dict(data.get("fusion", {})), owner="[fusion] of the config file"
         )
         fusion = start.fusion.replace(**fusion_data)
-        flow_data = dict(data.get("flow", {}))
-        bad = set(flow_data) - {"method", "params", "cache_dir", "roi"}
-        if bad:
-            raise ValueError(
-                f"unknown [flow] key(s) {sorted(bad)}; expected method, cache_dir, roi, "
-                "[flow.params]"
-            )
-        method = str(flow_data.get("method", start.flow.method))
+        flow_data = coerce_fields(
+            FlowConfig, dict(data.get("flow", {})), owner="[flow] of the config file"
+        )
+        method = flow_data.get("method", start.flow.method)
         params = dict(
             flow_data.get("params", start.flow.params if method == start.flow.method else {})
         )
-        roi = flow_data.get("roi")
-        cache_dir = flow_data.get("cache_dir")
         flow = FlowConfig(
-            method,
-            params,
-            cache_dir=None if cache_dir is None else str(cache_dir),
-            roi=None if roi is None else tuple(int(v) for v in roi),
+            method, params, cache_dir=flow_data.get("cache_dir"), roi=flow_data.get("roi")
         )
         flow.build_params()
     except (TypeError, ValueError) as exc:

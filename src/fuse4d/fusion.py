@@ -33,7 +33,7 @@ from .config import FlowConfig, FusionParams, preset
 from .errors import ShapeError
 from .flow import SequenceFlow, as_sequence_flow
 from .motion import estimate_depth_noise, estimate_noise_quad, motion_reference_depth
-from .sequence import normalize_intensity
+from .sequence import check_unit_intensity, normalize_intensity
 
 __all__ = [
     "FusedFrame",
@@ -215,7 +215,7 @@ class FusionEngine:
         inten = (
             normalize_intensity(inten)
             if inten.dtype.kind != "f"
-            else as_float32(inten, name="intensity")
+            else check_unit_intensity(inten, name=f"intensity (frame {index})")
         )
         slot = index % self.ring
         p = self.params

@@ -160,7 +160,8 @@ def adaptive_gaussian(
     intrinsics : Intrinsics
         Camera (for the normals of the raw point map).
     size : float, default 1
-        Kernel scale ``s`` (σ_s = s·σ_L(θ) px, radius ⌈3 s σ_L⌉). Sweep 1, 1.5, 2, 3, 4, 6.
+        ``kernel_scale``: scale ``s`` (σ_s = s·σ_L(θ) px, radius ⌈3 s σ_L⌉). Sweep 1, 1.5,
+        2, 3, 4, 6.
     iterations : int, default 1
         Repeated application to its own output (normals and σ from the raw input).
     noise_sigma : float, optional
@@ -290,7 +291,7 @@ def adaptive_bilateral(
     intrinsics : Intrinsics
         Camera (shape check only).
     size : int, default 4
-        Window radius r (px); σ_s = r/2. Sweep 1, 2, 3, 4, 6, 8, 12.
+        ``spatial_radius``: window radius r (px); σ_s = r/2. Sweep 1, 2, 3, 4, 6, 8, 12.
     iterations : int, default 1
         Repeated application (repair + filter) to its own output.
     noise_sigma : float, optional
@@ -382,7 +383,7 @@ def adaptive_joint_bilateral(
     intrinsics : Intrinsics
         Camera (shape check only).
     size : int, default 4
-        Window radius r (px); σ_s = r/2. Sweep 1–12.
+        ``spatial_radius``: window radius r (px); σ_s = r/2. Sweep 1–12.
     iterations : int, default 1
         Repeated application to its own output.
     noise_sigma : float, optional
@@ -452,7 +453,8 @@ def dnbf(
     intrinsics : Intrinsics
         Camera (shape check only).
     size : int, default 3
-        Spatial radius r (px); σ_s = 2r/3 px (2 px at the default). Sweep 1–12.
+        ``spatial_radius``: window radius r (px); σ_s = 2r/3 px (2 px at the default).
+        Sweep 1–12.
     iterations : int, default 1
         Repeated application to its own output sequence.
     noise_sigma : float, optional

@@ -337,7 +337,8 @@ def embedded_deformation(
     intrinsics : Intrinsics
         Camera.
     size : int, default 4
-        Temporal radius (9 frames, truncated at the ends).
+        ``temporal_radius`` k: frames t−k..t+k (9 frames at the default, truncated at the
+        ends).
     iterations : int, default 1
         Repeated application to its own fused depth (z of the fused points).
     node_spacing : float, default 8

@@ -33,7 +33,7 @@ def guided(
     intrinsics : Intrinsics
         Camera (shape check only).
     size : int, default 4
-        Box radius r (px). Sweep 2, 4, 8, 12, 16.
+        ``spatial_radius``: box radius r (px). Sweep 2, 4, 8, 12, 16.
     iterations : int, default 1
         Repeated application to its own output.
     eps : float, default 0.01

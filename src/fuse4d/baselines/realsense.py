@@ -76,7 +76,8 @@ def realsense_chain(
     intrinsics : Intrinsics
         Camera (passed to the software sensor's stream profile).
     size : int, default 2
-        ``filter_magnitude`` of the spatial filter (number of its passes, 1–5; SDK default 2).
+        ``filter_passes``: the SDK's ``filter_magnitude`` of the spatial filter (number of
+        its passes, 1–5; SDK default 2).
     iterations : int, default 1
         Repeated application of the whole chain (fresh filter state each time).
     depth_unit : float, optional

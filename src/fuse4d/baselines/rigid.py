@@ -343,7 +343,8 @@ def kinectfusion(
     intrinsics : Intrinsics
         Camera.
     size : int, default 4
-        Temporal radius (window 2·size+1 = 9 frames, truncated at the ends).
+        ``temporal_radius`` k: frames t−k..t+k (9 frames at the default, truncated at the
+        ends).
     iterations : int, default 1
         Repeated application to its own (ray-cast) depth.
     backend : {"auto", "projective", "open3d", "box"}, default "auto"

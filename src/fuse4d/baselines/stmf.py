@@ -99,7 +99,8 @@ def spatio_temporal_median(
     intrinsics : Intrinsics
         Camera (shape check only).
     size : int, default 2
-        k, the temporal half window (2k+1 frames, truncated at the ends). Sweep 1–4.
+        ``temporal_radius`` k: frames t−k..t+k (2k+1 frames, truncated at the ends).
+        Sweep 1–4.
     iterations : int, default 1
         Repeated application to its own output (the motion is estimated once). Sweep 1–3.
     half_window : int, default 1

@@ -37,7 +37,7 @@ def temporal_average(
     intrinsics : Intrinsics
         Camera (shape check only).
     size : int, default 5
-        N, frames in the causal window (truncated at the start). Sweep 2–9.
+        ``num_frames`` N: frames in the causal window (truncated at the start). Sweep 2–9.
     iterations : int, default 1
         Repeated application to its own output sequence.
     noise_sigma : float, optional
@@ -88,7 +88,7 @@ def temporal_mean(
     intrinsics : Intrinsics
         Camera (shape check only).
     size : int, default 9
-        Number of frames n; the window is [t − ⌊(n−1)/2⌋, t + ⌈(n−1)/2⌉]. Sweep 2–9.
+        ``num_frames`` n: the window is [t − ⌊(n−1)/2⌋, t + ⌈(n−1)/2⌉]. Sweep 2–9.
     iterations : int, default 1
         Repeated application to its own output sequence.
 
