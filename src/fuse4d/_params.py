@@ -1,14 +1,23 @@
-"""One parameter layer: typed values for fuse4d's frozen parameter dataclasses.
+"""One parameter layer: typed, validated values for fuse4d's frozen parameter dataclasses.
 
-Every parameter object (``FusionParams``, the flow methods' ``DISParams`` / ``PMBPParams`` / ...,
-the baselines' knobs) is a frozen dataclass. Values reach them from three places: Python (typed
-already), TOML files (typed, but ``"inf"`` is a string there) and the command line (``--set
-k=v``, ``--flow-param k=v``: always strings). :func:`coerce_fields` converts such a mapping
-to the field types of a dataclass, reading the annotations (``int``, ``float``, ``bool``,
-``str``, ``Literal[...]``, ``X | None``, ``tuple[X, ...]``); the dataclass's own
-``__post_init__`` then validates ranges with the small checkers below (:func:`check_int`,
-:func:`check_number`, :func:`check_bool`, :func:`check_choice`), so a bad value gives the same
-message whichever way it came in.
+Every parameter object (``FusionParams``, the flow methods' ``DISParams`` / ``PMBPParams`` / ...)
+is a frozen dataclass, and the baselines take keyword arguments. Values reach them from three
+places: Python (typed already), TOML files (typed, but ``"inf"`` is a string there) and the
+command line (``--set k=v``, ``--flow-param k=v``, ``fuse4d flow -p``, ``fuse4d baseline -p``:
+always strings, split by :func:`parse_assignments`).
+
+Coercion (strings → field types) is one function for every path: :func:`coerce_fields` for a
+dataclass and :func:`coerce_kwargs` for a function's keywords, both reading the annotations
+(``int``, ``float``, ``bool``, ``str``, ``Literal[...]``, ``X | None``, ``tuple[X, ...]``)
+through :func:`coerce_value`.
+
+Validation is one function too: a field declares its range with :func:`param` (``x: float =
+param(1.0, gt=0)``) and ``__post_init__`` calls :func:`validate`, which checks every field
+against its annotation and bounds and normalises it (numpy scalars → Python, int → float in
+float fields). Cross-field rules stay explicit in the class. Keyword knobs (the baselines) use
+the same checkers directly: :func:`check_int`, :func:`check_number`, :func:`check_bool`,
+:func:`check_choice`. Every message reads ``Owner.field must be <bound>, got <value>``, so a bad
+value gives the same message whichever way it came in.
 
 Examples
 --------
