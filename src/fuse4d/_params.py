@@ -36,6 +36,7 @@ Examples
 from __future__ import annotations
 
 import dataclasses
+import functools
 import inspect
 import math
 import types
@@ -332,21 +333,41 @@ def validate(obj: Any, *, finite: bool = False) -> None:
         A non-number in a float field, a non-bool in a bool field, a non-string in a str field.
     """
     cls = type(obj)
-    hints = typing.get_type_hints(cls)
-    for f in fields(obj):
-        meta = {"finite": finite, **_bounds(cls, f.name)}
-        value = getattr(obj, f.name)
-        checked = check_value(cls.__name__, f.name, value, hints[f.name], **meta)
+    for name, check in _field_checkers(cls, finite):
+        value = getattr(obj, name)
+        checked = check(value)
         if checked is not value:
-            object.__setattr__(obj, f.name, checked)
+            object.__setattr__(obj, name, checked)
 
 
-def _bounds(cls: type, name: str) -> Mapping[str, Any]:
-    for klass in cls.__mro__:
-        f = getattr(klass, "__dataclass_fields__", {}).get(name)
-        if f is not None and f.metadata:
-            return f.metadata
-    return {}
+@functools.cache
+def _field_checkers(cls: type, finite: bool) -> tuple[tuple[str, Callable[[Any], Any]], ...]:
+    """(name, value -> checked value) per field of ``cls``; bounds looked up along the MRO."""
+    hints = typing.get_type_hints(cls)
+    out = []
+    for f in fields(cls):
+        bounds: Mapping[str, Any] = {}
+        for klass in cls.__mro__:
+            spec = getattr(klass, "__dataclass_fields__", {}).get(f.name)
+            if spec is not None and spec.metadata:
+                bounds = spec.metadata
+                break
+        hint = hints[f.name]
+        kwargs = {"finite": finite, **bounds}
+        if hint is float:  # the common case, without the annotation dispatch
+            check = functools.partial(check_number, cls.__name__, f.name, **kwargs)
+        elif hint is int:
+            check = functools.partial(
+                check_int, cls.__name__, f.name, minimum=bounds.get("ge"), maximum=bounds.get("le")
+            )
+        else:
+            check = functools.partial(_check_hinted, cls.__name__, f.name, hint, kwargs)
+        out.append((f.name, check))
+    return tuple(out)
+
+
+def _check_hinted(owner: str, name: str, hint: Any, bounds: Mapping[str, Any], value: Any) -> Any:
+    return check_value(owner, name, value, hint, **bounds)
 
 
 def check_value(owner: str, name: str, value: Any, hint: Any, **bounds: Any) -> Any:
