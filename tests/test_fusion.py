@@ -714,7 +714,9 @@ def test_bad_input_messages():
         )
     with pytest.raises(ValueError, match="unknown flow method 'nope'; available methods: "):
         fuse_sequence(depth, inten, K, flow="nope")
-    with pytest.raises(ValueError, match=r"FusionParams.num_frames must be an integer >= 1, got 0"):
+    with pytest.raises(
+        ValueError, match=r"FusionParams.num_frames must be an integer in \[1, 256\], got 0"
+    ):
         FusionParams(num_frames=0)
     with pytest.raises(ValueError, match=r"FusionParams\.motion_depth must be one of"):
         FusionParams(motion_depth="smooth")

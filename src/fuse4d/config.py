@@ -24,7 +24,7 @@ from os import PathLike
 from pathlib import Path
 from typing import Any, Literal
 
-from ._params import coerce_fields
+from ._params import coerce_fields, param, validate
 
 __all__ = ["PRESETS", "FlowConfig", "FusionParams", "load_config", "preset"]
 
@@ -46,8 +46,9 @@ class FusionParams:
     Parameters
     ----------
     num_frames : int
-        Frames fused per output frame, n (paper: 9). Window T in [t - floor((n-1)/2),
-        t + ceil((n-1)/2)] (even n: one extra future frame, A14); truncated at the ends (A13).
+        Frames fused per output frame, n (paper: 9), 1..256 (the per-pixel support count is
+        stored as uint8). Window T in [t - floor((n-1)/2), t + ceil((n-1)/2)] (even n: one
+        extra future frame, A14); truncated at the ends (A13).
     spatial_radius : int
         Radius r (px) of the (2r+1)^2 window of the intensity-guided 3D bilateral (inner sum of
         Eq. 5).
@@ -131,68 +132,34 @@ class FusionParams:
         may sit off the pixel's ray (their Z then mixes in lateral shifts on slanted surfaces).
     """
 
-    num_frames: int = 9
-    spatial_radius: int = 3
-    sigma_distance: float = 2.0
-    distance_noise_scale: float = 1.5
-    sigma_intensity: float = 0.1
-    sigma_temporal: float = 3.0
-    fb_threshold: float = 2.0
-    max_depth_step: float = 10.0
-    motion_sigma: float = 3.0
-    reference_sigma: float = 3.0
-    temporal_gate: float = 3.0
-    min_gate_mm: float = 0.05
+    num_frames: int = param(9, ge=1, le=256)
+    spatial_radius: int = param(3, ge=0)
+    sigma_distance: float = param(2.0, gt=0)
+    distance_noise_scale: float = param(1.5, ge=0)
+    sigma_intensity: float = param(0.1, gt=0)
+    sigma_temporal: float = param(3.0, gt=0)
+    fb_threshold: float = param(2.0, gt=0)
+    max_depth_step: float = param(10.0, gt=0)
+    motion_sigma: float = param(3.0, gt=0)
+    reference_sigma: float = param(3.0, gt=0)
+    temporal_gate: float = param(3.0, gt=0)
+    min_gate_mm: float = param(0.05, gt=0)
     base: Literal["trajectory", "frame"] = "trajectory"
     motion_depth: MotionDepth = "smoothed"
     quantize: Quantize = "final"
-    min_temporal_support: int = 1
+    min_temporal_support: int = param(1, ge=0)
     fill_holes: bool = True
-    fill_radius: int = 2
-    sigma_fill: float = 2.0
-    fill_passes: int = 10
+    fill_radius: int = param(2, ge=0)
+    sigma_fill: float = param(2.0, gt=0)
+    fill_passes: int = param(10, ge=0)
     fill_fallback: FillFallback = "bilateral"
     causal: bool = False
-    iterations: int = 1
+    iterations: int = param(1, ge=1)
     bilateral: BilateralMode = "residual"
     output: Output = "ray"
 
     def __post_init__(self) -> None:
-        _positive_int(self, "num_frames")
-        _positive_int(self, "iterations")
-        for name in ("spatial_radius", "fill_radius", "min_temporal_support", "fill_passes"):
-            _nonnegative_int(self, name)
-        for name in (
-            "sigma_distance",
-            "sigma_intensity",
-            "sigma_temporal",
-            "fb_threshold",
-            "max_depth_step",
-            "motion_sigma",
-            "reference_sigma",
-            "sigma_fill",
-            "temporal_gate",
-            "min_gate_mm",
-        ):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise TypeError(f"FusionParams.{name} must be a number, got {value!r}")
-            if not (value > 0):
-                raise ValueError(f"FusionParams.{name} must be > 0, got {value}")
-            object.__setattr__(self, name, float(value))
-        scale = self.distance_noise_scale
-        if isinstance(scale, bool) or not isinstance(scale, int | float) or not scale >= 0:
-            raise ValueError(f"FusionParams.distance_noise_scale must be >= 0, got {scale!r}")
-        object.__setattr__(self, "distance_noise_scale", float(scale))
-        _choice(self, "motion_depth", ("smoothed", "raw"))
-        _choice(self, "base", ("trajectory", "frame"))
-        _choice(self, "quantize", ("final", "per_step"))
-        _choice(self, "fill_fallback", ("bilateral", "nan"))
-        _choice(self, "output", ("ray", "points"))
-        _choice(self, "bilateral", ("residual", "points"))
-        for name in ("fill_holes", "causal"):
-            if not isinstance(getattr(self, name), bool):
-                raise TypeError(f"FusionParams.{name} must be true or false")
+        validate(self)
 
     @property
     def past_frames(self) -> int:
@@ -340,24 +307,15 @@ def load_config(path: str | PathLike[str], *, base: str | None = None) -> Preset
             FusionParams, dict(data.get("fusion", {})), owner="[fusion] of the config file"
         )
         fusion = start.fusion.replace(**fusion_data)
-        flow_data = dict(data.get("flow", {}))
-        bad = set(flow_data) - {"method", "params", "cache_dir", "roi"}
-        if bad:
-            raise ValueError(
-                f"unknown [flow] key(s) {sorted(bad)}; expected method, cache_dir, roi, "
-                "[flow.params]"
-            )
-        method = str(flow_data.get("method", start.flow.method))
+        flow_data = coerce_fields(
+            FlowConfig, dict(data.get("flow", {})), owner="[flow] of the config file"
+        )
+        method = flow_data.get("method", start.flow.method)
         params = dict(
             flow_data.get("params", start.flow.params if method == start.flow.method else {})
         )
-        roi = flow_data.get("roi")
-        cache_dir = flow_data.get("cache_dir")
         flow = FlowConfig(
-            method,
-            params,
-            cache_dir=None if cache_dir is None else str(cache_dir),
-            roi=None if roi is None else tuple(int(v) for v in roi),
+            method, params, cache_dir=flow_data.get("cache_dir"), roi=flow_data.get("roi")
         )
         flow.build_params()
     except (TypeError, ValueError) as exc:
@@ -366,27 +324,6 @@ def load_config(path: str | PathLike[str], *, base: str | None = None) -> Preset
 
 
 # ----------------------------------------------------------------------------- helpers
-def _positive_int(obj: Any, name: str) -> None:
-    value = getattr(obj, name)
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"{type(obj).__name__}.{name} must be an integer >= 1, got {value!r}")
-
-
-def _nonnegative_int(obj: Any, name: str) -> None:
-    value = getattr(obj, name)
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise ValueError(f"{type(obj).__name__}.{name} must be an integer >= 0, got {value!r}")
-
-
-def _choice(obj: Any, name: str, options: tuple[str, ...]) -> None:
-    value = getattr(obj, name)
-    if value not in options:
-        raise ValueError(
-            f"{type(obj).__name__}.{name} must be one of {', '.join(map(repr, options))}, "
-            f"got {value!r}"
-        )
-
-
 def _jsonable(value: Any) -> Any:
     if isinstance(value, float) and math.isinf(value):
         return "inf"

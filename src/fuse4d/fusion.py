@@ -35,7 +35,7 @@ from .motion import (
     estimate_noise_quad,
     motion_reference_depth,
 )
-from .sequence import normalize_intensity
+from .sequence import check_unit_intensity, normalize_intensity
 
 __all__ = [
     "FusedFrame",
@@ -130,8 +130,6 @@ class FusionEngine:
     ) -> None:
         self.intrinsics = intrinsics
         self.params = fusion or FusionParams()
-        if self.params.num_frames > 256:
-            raise ValueError("num_frames must be <= 256 (support is stored as uint8)")
         self.precomputed: SequenceFlow | None = None
         if isinstance(flow, str):
             flow = FlowConfig(flow)
@@ -219,7 +217,7 @@ class FusionEngine:
         inten = (
             normalize_intensity(inten)
             if inten.dtype.kind != "f"
-            else as_float32(inten, name="intensity")
+            else check_unit_intensity(inten, name=f"intensity (frame {index})")
         )
         slot = index % self.ring
         p = self.params

@@ -13,7 +13,13 @@ from ._validation import as_float32, check_shape
 from .camera import Intrinsics, depth_to_points
 from .errors import ShapeError
 
-__all__ = ["GroundTruth", "Sequence", "normalize_intensity", "sanitize_depth"]
+__all__ = [
+    "GroundTruth",
+    "Sequence",
+    "check_unit_intensity",
+    "normalize_intensity",
+    "sanitize_depth",
+]
 
 
 def sanitize_depth(depth: np.ndarray) -> NDArray[np.float32]:
@@ -43,6 +49,46 @@ def normalize_intensity(intensity: np.ndarray) -> NDArray[np.float32]:
     if finite_max > 1.0:
         out = out / np.float32(finite_max)
     return out
+
+
+def check_unit_intensity(intensity: np.ndarray, *, name: str = "intensity") -> NDArray[np.float32]:
+    """Float intensity as float32, refusing values outside [0, 1] (METHOD A16).
+
+    The fusion's intensity kernel (``sigma_intensity``) and the flow methods expect [0, 1];
+    a float frame in 0-255 would silently make every intensity weight ~0. NaN is passed
+    through (the flow methods reject it with their own message).
+
+    Parameters
+    ----------
+    intensity : ndarray
+        Float intensity of one frame or a sequence.
+    name : str
+        How to name it in the error, e.g. ``"intensity (frame 3)"``.
+
+    Returns
+    -------
+    ndarray of float32
+        The intensity (no copy when it already is float32).
+
+    Raises
+    ------
+    ValueError
+        If a finite or infinite value lies outside [0, 1]; the message says how to rescale.
+    """
+    arr = as_float32(intensity, name=name)
+    if arr.size:
+        lo, hi = float(arr.min()), float(arr.max())
+        if np.isnan(lo) or np.isnan(hi):
+            values = arr[~np.isnan(arr)]
+            lo, hi = (float(values.min()), float(values.max())) if values.size else (0.0, 0.0)
+        if lo < 0.0 or hi > 1.0:
+            raise ValueError(
+                f"{name} is float with values in [{lo:.4g}, {hi:.4g}], outside [0, 1]; "
+                "rescale it to [0, 1] (e.g. divide 8-bit values by 255, or use "
+                "fuse4d.sequence.normalize_intensity on the whole sequence), or pass integer "
+                "intensity, which is divided by its dtype maximum"
+            )
+    return arr
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,23 @@ Every method has the signature::
 and is registered by name. Enumerate them with :func:`available_baselines`, run one with
 :func:`run_baseline`.
 
+``size`` is the one knob swept for every method (EVALUATION E3), but it is a different
+quantity per method, so each method also gives it a real name (``BaselineInfo.size_name``),
+one meaning per name, accepted by :func:`run_baseline` and ``fuse4d baseline -p``:
+
+=================== ======================================= ==================================
+``size_name``       meaning                                 methods
+=================== ======================================= ==================================
+``kernel_scale``    scale s of the noise-model kernel       adgf
+``spatial_radius``  pixel radius r of the (2r+1)^2 window   adbf, guided, dnbf, adjbf
+``num_frames``      frames in the temporal window           ta, temporal-mean
+``temporal_radius`` k frames either side (2k+1 frames)      stmf, kinectfusion, ed
+``filter_passes``   passes of the spatial filter (1..5)     realsense
+=================== ======================================= ==================================
+
+Knobs given as strings (command line) are converted to the annotated types of the method's
+keywords by :func:`fuse4d._params.coerce_kwargs`, then validated by the method.
+
 Examples
 --------
 >>> import numpy as np
@@ -22,13 +39,14 @@ True
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._params import coerce_kwargs
 from ..camera import Intrinsics
 from ._common import estimate_noise_sigma
 from .bilateral import adaptive_bilateral, adaptive_gaussian, adaptive_joint_bilateral, dnbf
@@ -79,8 +97,11 @@ class BaselineInfo:
         The defaults of the two sweep knobs.
     size_sweep, iterations_sweep : tuple
         Sweep lists (BASELINES.md / EVALUATION.md E3).
+    size_name : str
+        The real name of ``size`` for this method (table in the module docstring); accepted
+        by :func:`run_baseline` in place of ``size``.
     size_meaning : str
-        What ``size`` is for this method.
+        What ``size`` is for this method, with its unit.
     reference : str
         Citation.
     """
@@ -94,6 +115,7 @@ class BaselineInfo:
     default_iterations: int = 1
     size_sweep: tuple[float, ...] = ()
     iterations_sweep: tuple[int, ...] = (1, 2, 3, 4, 5)
+    size_name: str = "size"
     size_meaning: str = ""
     reference: str = ""
     fills_holes: bool = False
@@ -103,6 +125,40 @@ class BaselineInfo:
     def available(self) -> bool:
         """True when the optional package this method needs is importable."""
         return self._available()
+
+    def knobs(self, params: Mapping[str, Any]) -> dict[str, Any]:
+        """Keyword arguments for :attr:`function` from ``params`` (typed or strings).
+
+        ``size_name`` is renamed to ``size``; strings are converted to the annotated types
+        (:func:`fuse4d._params.coerce_kwargs`); values are validated by the method itself.
+
+        Parameters
+        ----------
+        params : Mapping
+            Knob name → value.
+
+        Returns
+        -------
+        dict
+            The keyword arguments.
+
+        Raises
+        ------
+        ValueError
+            For an unknown knob (the message lists the valid ones), ``size`` given twice, or a
+            string that cannot be read as the knob's type.
+        """
+        values = dict(params)
+        if self.size_name != "size" and self.size_name in values:
+            if "size" in values:
+                raise ValueError(f"baseline {self.name!r}: give size or {self.size_name}, not both")
+            values["size"] = values.pop(self.size_name)
+        try:
+            return coerce_kwargs(self.function, values, owner=f"baseline {self.name!r}")
+        except ValueError as exc:
+            if self.size_name == "size":
+                raise
+            raise ValueError(f"{exc} (size = {self.size_name})") from None
 
 
 _REGISTRY: dict[str, BaselineInfo] = {
@@ -114,7 +170,8 @@ _REGISTRY: dict[str, BaselineInfo] = {
             "Ad-GF: adaptive Gaussian from the Kinect noise model (normal-angle sigmas)",
             default_size=1.0,
             size_sweep=(1, 1.5, 2, 3, 4, 6),
-            size_meaning="kernel scale s (sigma_s = s * sigma_L(theta))",
+            size_name="kernel_scale",
+            size_meaning="kernel scale s, unitless (sigma_s = s * sigma_L(theta) px)",
             reference="Nguyen, Izadi, Lovell, 3DIMPVT 2012",
         ),
         BaselineInfo(
@@ -123,7 +180,8 @@ _REGISTRY: dict[str, BaselineInfo] = {
             "Ad-BF: region-growing hole repair + depth-adaptive bilateral filter",
             default_size=4,
             size_sweep=(1, 2, 3, 4, 6, 8, 12),
-            size_meaning="window radius r px (sigma_s = r/2)",
+            size_name="spatial_radius",
+            size_meaning="pixel radius r of the (2r+1)^2 window, px (sigma_s = r/2)",
             reference="Chen, Lin, Li, ICPR 2012",
             fills_holes=True,
         ),
@@ -133,7 +191,8 @@ _REGISTRY: dict[str, BaselineInfo] = {
             "Guided filter of depth with the intensity guide (cv2.ximgproc.guidedFilter)",
             default_size=4,
             size_sweep=(2, 4, 8, 12, 16),
-            size_meaning="box radius r px",
+            size_name="spatial_radius",
+            size_meaning="pixel radius r of the (2r+1)^2 box, px",
             reference="He, Sun, Tang, TPAMI 2013",
         ),
         BaselineInfo(
@@ -142,7 +201,8 @@ _REGISTRY: dict[str, BaselineInfo] = {
             "DNBF: causal spatio-temporal bilateral, divisively normalised depth range",
             default_size=3,
             size_sweep=(1, 2, 3, 4, 6, 8, 12),
-            size_meaning="spatial radius r px (sigma_s = 2r/3)",
+            size_name="spatial_radius",
+            size_meaning="pixel radius r of the (2r+1)^2 window, px (sigma_s = 2r/3)",
             reference="Fu, Wang, Lu, Li, Zeng, ISCAS 2012",
         ),
         BaselineInfo(
@@ -151,7 +211,8 @@ _REGISTRY: dict[str, BaselineInfo] = {
             "TA: causal per-pixel temporal average with a depth-range constraint",
             default_size=5,
             size_sweep=(2, 3, 4, 5, 6, 7, 8, 9),
-            size_meaning="number of frames N",
+            size_name="num_frames",
+            size_meaning="frames N in the causal window [t-N+1, t]",
             reference="Wasza, Bauer, Hornegger, ICCV Workshops 2011",
         ),
         BaselineInfo(
@@ -160,7 +221,8 @@ _REGISTRY: dict[str, BaselineInfo] = {
             "Ad-JBF: joint bilateral (intensity + depth-adaptive range kernel)",
             default_size=4,
             size_sweep=(1, 2, 3, 4, 6, 8, 12),
-            size_meaning="window radius r px (sigma_s = r/2)",
+            size_name="spatial_radius",
+            size_meaning="pixel radius r of the (2r+1)^2 window, px (sigma_s = r/2)",
             reference="Camplani, Mantecon, Salgado, IEEE T-Cybernetics 2013",
         ),
         BaselineInfo(
@@ -170,7 +232,8 @@ _REGISTRY: dict[str, BaselineInfo] = {
             default_size=2,
             size_sweep=(1, 2, 3, 4),
             iterations_sweep=(1, 2, 3),
-            size_meaning="temporal half window k (2k+1 frames)",
+            size_name="temporal_radius",
+            size_meaning="temporal radius k, frames (2k+1 frames, truncated at the ends)",
             reference="Matyunin, Vatolin, Berdnikov, Smirnov, 3DTV-CON 2011",
             fills_holes=True,
         ),
@@ -183,7 +246,8 @@ _REGISTRY: dict[str, BaselineInfo] = {
             default_size=4,
             size_sweep=(1, 2, 3, 4),
             iterations_sweep=(1, 2, 3),
-            size_meaning="temporal radius (2*size+1 frames)",
+            size_name="temporal_radius",
+            size_meaning="temporal radius k, frames (2k+1 frames, truncated at the ends)",
             reference="Newcombe et al., ISMAR 2011 / Izadi et al., UIST 2011",
             fills_holes=True,
         ),
@@ -195,7 +259,8 @@ _REGISTRY: dict[str, BaselineInfo] = {
             default_size=4,
             size_sweep=(1, 2, 3, 4),
             iterations_sweep=(1, 2, 3),
-            size_meaning="temporal radius (2*size+1 frames)",
+            size_name="temporal_radius",
+            size_meaning="temporal radius k, frames (2k+1 frames, truncated at the ends)",
             reference="Dou, Taylor, Fuchs, Fitzgibbon, Izadi, CVPR 2015; Sumner et al. 2007",
             fills_holes=True,
         ),
@@ -205,7 +270,8 @@ _REGISTRY: dict[str, BaselineInfo] = {
             "Plain per-pixel mean over a centred window (no motion compensation)",
             default_size=9,
             size_sweep=(2, 3, 4, 5, 6, 7, 8, 9),
-            size_meaning="number of frames n",
+            size_name="num_frames",
+            size_meaning="frames n in the centred window",
             reference="reference practice",
         ),
         BaselineInfo(
@@ -216,7 +282,8 @@ _REGISTRY: dict[str, BaselineInfo] = {
             default_size=2,
             size_sweep=(1, 2, 3, 4, 5),
             iterations_sweep=(1, 2, 3),
-            size_meaning="spatial filter magnitude (passes)",
+            size_name="filter_passes",
+            size_meaning="passes of the spatial filter (RealSense filter_magnitude, 1..5)",
             reference="Intel RealSense SDK 2.0 post-processing filters",
             fills_holes=True,
             _available=have_pyrealsense2,
@@ -266,7 +333,9 @@ def run_baseline(
     intrinsics : Intrinsics
         Camera.
     **params
-        ``size``, ``iterations`` and method-specific knobs (``noise_sigma`` etc.).
+        ``size`` (or its real name ``info.size_name``, e.g. ``spatial_radius``),
+        ``iterations`` and method-specific knobs (``noise_sigma`` etc.); strings are
+        converted to the knobs' types.
 
     Returns
     -------
@@ -281,4 +350,4 @@ def run_baseline(
         When the optional package of the method is missing.
     """
     info = get_baseline(name)
-    return info.function(depth, intensity, intrinsics, **params)
+    return info.function(depth, intensity, intrinsics, **info.knobs(params))

@@ -8,12 +8,12 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._params import check_int, check_number
 from .._validation import as_float32, check_same_shape, check_shape
 from ..camera import Intrinsics
 
 __all__ = [
     "check_inputs",
-    "check_positive_int",
     "estimate_noise_sigma",
     "frame_median_depth",
     "iterate",
@@ -53,13 +53,6 @@ def check_inputs(
     i = as_float32(intensity, name="intensity")
     check_same_shape(d, i, names=("depth", "intensity"))
     return d, i
-
-
-def check_positive_int(value: object, *, name: str, minimum: int = 1) -> int:
-    """Return ``value`` as int, raising ``ValueError`` naming ``name`` if it is < ``minimum``."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
 
 
 def estimate_noise_sigma(depth: ArrayLike) -> float:
@@ -104,16 +97,18 @@ def estimate_noise_sigma(depth: ArrayLike) -> float:
     return float(_MAD_TO_SIGMA * np.median(dev) / _NEIGHBOUR_FACTOR)
 
 
-def resolve_noise_sigma(depth: NDArray[np.float32], noise_sigma: float | None) -> float:
-    """``noise_sigma`` if given (oracle mode, mm), else :func:`estimate_noise_sigma`; > 0."""
+def resolve_noise_sigma(
+    depth: NDArray[np.float32], noise_sigma: float | None, *, owner: str = "baseline"
+) -> float:
+    """``noise_sigma`` if given (oracle mode, mm, > 0), else :func:`estimate_noise_sigma`.
+
+    ``owner`` names the calling method in the error message.
+    """
     if noise_sigma is None:
         sigma = estimate_noise_sigma(depth)
         # A noise-free input estimates 0: keep a tiny positive scale so range kernels exist.
         return max(sigma, 1e-3)
-    sigma = float(noise_sigma)
-    if not sigma > 0:
-        raise ValueError(f"noise_sigma must be > 0 mm, got {noise_sigma!r}")
-    return sigma
+    return check_number(owner, "noise_sigma", noise_sigma, gt=0)
 
 
 def frame_median_depth(frame: NDArray[np.float32]) -> float:
@@ -148,9 +143,14 @@ def iterate(
     step: Callable[[NDArray[np.float32]], NDArray[np.float32]],
     depth: NDArray[np.float32],
     iterations: int,
+    *,
+    owner: str = "baseline",
 ) -> NDArray[np.float32]:
-    """Apply ``step`` ``iterations`` times to its own output (the E3 ``iterations`` knob)."""
-    iterations = check_positive_int(iterations, name="iterations")
+    """Apply ``step`` ``iterations`` (>= 1) times to its own output (the E3 knob).
+
+    ``owner`` names the calling method in the error message.
+    """
+    iterations = check_int(owner, "iterations", iterations, minimum=1)
     out = depth
     for _ in range(iterations):
         out = step(out)

@@ -15,10 +15,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._kernels.baselines import _pca_view_angle_kernel
 from .._kernels.joint_bilateral import _joint_bilateral_kernel
+from .._params import check_bool, check_int, check_number
 from ..camera import Intrinsics, depth_to_points
 from ._common import (
     check_inputs,
-    check_positive_int,
     frame_median_depth,
     iterate,
     resolve_noise_sigma,
@@ -160,7 +160,8 @@ def adaptive_gaussian(
     intrinsics : Intrinsics
         Camera (for the normals of the raw point map).
     size : float, default 1
-        Kernel scale ``s`` (σ_s = s·σ_L(θ) px, radius ⌈3 s σ_L⌉). Sweep 1, 1.5, 2, 3, 4, 6.
+        ``kernel_scale``: scale ``s`` (σ_s = s·σ_L(θ) px, radius ⌈3 s σ_L⌉). Sweep 1, 1.5,
+        2, 3, 4, 6.
     iterations : int, default 1
         Repeated application to its own output (normals and σ from the raw input).
     noise_sigma : float, optional
@@ -178,10 +179,8 @@ def adaptive_gaussian(
     σ_z(i) = σ̂_d · σ_z^K(1 m, θ_i) / σ_z^K(1 m, 0); depth gate 3 σ_z(i).
     """
     d, _ = check_inputs(depth, intensity, intrinsics)
-    scale = float(size)
-    if not scale > 0:
-        raise ValueError(f"size (kernel scale s) must be > 0, got {size!r}")
-    sigma_d = resolve_noise_sigma(d, noise_sigma)
+    scale = check_number("adaptive_gaussian", "size", size, gt=0)
+    sigma_d = resolve_noise_sigma(d, noise_sigma, owner="adaptive_gaussian")
     points = depth_to_points(d, intrinsics)
     params = []
     for t in range(d.shape[0]):
@@ -200,7 +199,7 @@ def adaptive_gaussian(
             )
         return out
 
-    return iterate(step, d, iterations)
+    return iterate(step, d, iterations, owner="adaptive_gaussian")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -292,7 +291,7 @@ def adaptive_bilateral(
     intrinsics : Intrinsics
         Camera (shape check only).
     size : int, default 4
-        Window radius r (px); σ_s = r/2. Sweep 1, 2, 3, 4, 6, 8, 12.
+        ``spatial_radius``: window radius r (px); σ_s = r/2. Sweep 1, 2, 3, 4, 6, 8, 12.
     iterations : int, default 1
         Repeated application (repair + filter) to its own output.
     noise_sigma : float, optional
@@ -310,8 +309,9 @@ def adaptive_bilateral(
     [R] (BASELINES §2): σ_r(i) = 3 σ̂_d (D(i)/D_med)², D_med = median valid depth of the frame.
     """
     d, g = check_inputs(depth, intensity, intrinsics)
-    radius = check_positive_int(size, name="size")
-    sigma_d = resolve_noise_sigma(d, noise_sigma)
+    radius = check_int("adaptive_bilateral", "size", size, minimum=1)
+    check_bool("adaptive_bilateral", "hole_repair", hole_repair)
+    sigma_d = resolve_noise_sigma(d, noise_sigma, owner="adaptive_bilateral")
 
     def step(cur: F32) -> F32:
         out = np.empty_like(cur)
@@ -327,7 +327,7 @@ def adaptive_bilateral(
             )
         return out
 
-    return iterate(step, d, iterations)
+    return iterate(step, d, iterations, owner="adaptive_bilateral")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -383,7 +383,7 @@ def adaptive_joint_bilateral(
     intrinsics : Intrinsics
         Camera (shape check only).
     size : int, default 4
-        Window radius r (px); σ_s = r/2. Sweep 1–12.
+        ``spatial_radius``: window radius r (px); σ_s = r/2. Sweep 1–12.
     iterations : int, default 1
         Repeated application to its own output.
     noise_sigma : float, optional
@@ -399,10 +399,10 @@ def adaptive_joint_bilateral(
         Filtered depth (mm), NaN where the input is NaN.
     """
     d, g = check_inputs(depth, intensity, intrinsics)
-    radius = check_positive_int(size, name="size")
-    if not float(sigma_intensity) > 0:
-        raise ValueError(f"sigma_intensity must be > 0, got {sigma_intensity!r}")
-    sigma_d = resolve_noise_sigma(d, noise_sigma)
+    radius = check_int("adaptive_joint_bilateral", "size", size, minimum=1)
+    check_number("adaptive_joint_bilateral", "sigma_intensity", sigma_intensity, gt=0)
+    check_bool("adaptive_joint_bilateral", "temporal", temporal)
+    sigma_d = resolve_noise_sigma(d, noise_sigma, owner="adaptive_joint_bilateral")
 
     def step(cur: F32) -> F32:
         out = np.empty_like(cur)
@@ -422,7 +422,7 @@ def adaptive_joint_bilateral(
             out = _kalman_depth(out, sig, sigma_d)
         return out
 
-    return iterate(step, d, iterations)
+    return iterate(step, d, iterations, owner="adaptive_joint_bilateral")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -453,7 +453,8 @@ def dnbf(
     intrinsics : Intrinsics
         Camera (shape check only).
     size : int, default 3
-        Spatial radius r (px); σ_s = 2r/3 px (2 px at the default). Sweep 1–12.
+        ``spatial_radius``: window radius r (px); σ_s = 2r/3 px (2 px at the default).
+        Sweep 1–12.
     iterations : int, default 1
         Repeated application to its own output sequence.
     noise_sigma : float, optional
@@ -474,11 +475,10 @@ def dnbf(
     is our choice: the spec fixes σ_s = 2 px only at the default radius 3.
     """
     d, _ = check_inputs(depth, intensity, intrinsics)
-    radius = check_positive_int(size, name="size")
-    k = check_positive_int(num_previous, name="num_previous", minimum=0)
-    if not float(sigma_temporal) > 0:
-        raise ValueError(f"sigma_temporal must be > 0 frames, got {sigma_temporal!r}")
-    sigma_d = resolve_noise_sigma(d, noise_sigma)
+    radius = check_int("dnbf", "size", size, minimum=1)
+    k = check_int("dnbf", "num_previous", num_previous, minimum=0)
+    check_number("dnbf", "sigma_temporal", sigma_temporal, gt=0)
+    sigma_d = resolve_noise_sigma(d, noise_sigma, owner="dnbf")
     sigma_s = 2.0 * radius / 3.0
 
     def step(cur: F32) -> F32:
@@ -501,4 +501,4 @@ def dnbf(
             )
         return out
 
-    return iterate(step, d, iterations)
+    return iterate(step, d, iterations, owner="dnbf")

@@ -17,8 +17,9 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 
+from .._params import check_int, check_number
 from ..camera import Intrinsics, depth_to_points
-from ._common import check_inputs, check_positive_int, iterate
+from ._common import check_inputs, iterate
 from ._fusion import grid_normals, projective_fuse
 
 __all__ = ["EDWarp", "embedded_deformation", "estimate_ed_warp"]
@@ -336,7 +337,8 @@ def embedded_deformation(
     intrinsics : Intrinsics
         Camera.
     size : int, default 4
-        Temporal radius (9 frames, truncated at the ends).
+        ``temporal_radius`` k: frames t−k..t+k (9 frames at the default, truncated at the
+        ends).
     iterations : int, default 1
         Repeated application to its own fused depth (z of the fused points).
     node_spacing : float, default 8
@@ -359,8 +361,10 @@ def embedded_deformation(
     points within ``band`` mm of the per-pixel median z.
     """
     d, _ = check_inputs(depth, intensity, intrinsics)
-    radius = check_positive_int(size, name="size", minimum=0)
-    check_positive_int(stride, name="stride")
+    radius = check_int("embedded_deformation", "size", size, minimum=0)
+    check_int("embedded_deformation", "stride", stride, minimum=1)
+    check_number("embedded_deformation", "node_spacing", node_spacing, gt=0)
+    check_number("embedded_deformation", "band", band, gt=0)
     n = d.shape[0]
 
     def fuse(cur: NDArray[np.float32]) -> NDArray[np.float32]:
@@ -399,5 +403,5 @@ def embedded_deformation(
         state["points"] = fuse(cur)
         return state["points"][..., 2]
 
-    iterate(step, d, iterations)
+    iterate(step, d, iterations, owner="embedded_deformation")
     return state["points"]

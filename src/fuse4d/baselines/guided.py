@@ -6,8 +6,9 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._params import check_int, check_number
 from ..camera import Intrinsics
-from ._common import check_inputs, check_positive_int, iterate, normalized_convolution_fill
+from ._common import check_inputs, iterate, normalized_convolution_fill
 
 __all__ = ["guided"]
 
@@ -32,7 +33,7 @@ def guided(
     intrinsics : Intrinsics
         Camera (shape check only).
     size : int, default 4
-        Box radius r (px). Sweep 2, 4, 8, 12, 16.
+        ``spatial_radius``: box radius r (px). Sweep 2, 4, 8, 12, 16.
     iterations : int, default 1
         Repeated application to its own output.
     eps : float, default 0.01
@@ -52,9 +53,8 @@ def guided(
     intensity texture is copied into depth; this artefact is part of the method.
     """
     d, g = check_inputs(depth, intensity, intrinsics)
-    radius = check_positive_int(size, name="size")
-    if not float(eps) > 0:
-        raise ValueError(f"eps must be > 0 (guide units squared), got {eps!r}")
+    radius = check_int("guided", "size", size, minimum=1)
+    check_number("guided", "eps", eps, gt=0)
     valid = np.isfinite(d)
 
     def step(cur: NDArray[np.float32]) -> NDArray[np.float32]:
@@ -66,4 +66,4 @@ def guided(
             )
         return np.where(valid, out, np.nan).astype(np.float32)
 
-    return iterate(step, d, iterations)
+    return iterate(step, d, iterations, owner="guided")

@@ -19,8 +19,9 @@ import importlib.util
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._params import check_choice, check_int
 from ..camera import Intrinsics
-from ._common import check_inputs, check_positive_int, iterate
+from ._common import check_inputs, iterate
 
 __all__ = ["have_pyrealsense2", "realsense_chain"]
 
@@ -75,7 +76,8 @@ def realsense_chain(
     intrinsics : Intrinsics
         Camera (passed to the software sensor's stream profile).
     size : int, default 2
-        ``filter_magnitude`` of the spatial filter (number of its passes, 1–5; SDK default 2).
+        ``filter_passes``: the SDK's ``filter_magnitude`` of the spatial filter (number of
+        its passes, 1–5; SDK default 2).
     iterations : int, default 1
         Repeated application of the whole chain (fresh filter state each time).
     depth_unit : float, optional
@@ -98,11 +100,8 @@ def realsense_chain(
         output is 0.
     """
     d, _ = check_inputs(depth, intensity, intrinsics)
-    magnitude = check_positive_int(size, name="size")
-    if magnitude > 5:
-        raise ValueError(f"size (spatial filter magnitude) must be in 1..5, got {size}")
-    if hole_filling is not None and hole_filling not in _HOLE_MODES:
-        raise ValueError(f"hole_filling must be one of {sorted(_HOLE_MODES)} or None")
+    magnitude = check_int("realsense_chain", "size", size, minimum=1, maximum=5)
+    check_choice("realsense_chain", "hole_filling", hole_filling, (*_HOLE_MODES, None))
     rs = _import_rs()
     finite_max = float(np.nanmax(d)) if np.isfinite(d).any() else 1.0
     unit_mm = float(depth_unit) if depth_unit is not None else max(0.02, finite_max / 65000.0)
@@ -166,4 +165,4 @@ def realsense_chain(
             sensor.close()
         return out
 
-    return iterate(step, d, iterations)
+    return iterate(step, d, iterations, owner="realsense_chain")

@@ -38,8 +38,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._kernels.tsdf import _surface_bounds_kernel, _tsdf_raycast_kernel
+from .._params import check_choice, check_int, check_number
 from ..camera import Intrinsics, depth_to_points
-from ._common import check_inputs, check_positive_int, iterate
+from ._common import check_inputs, iterate
 from ._fusion import apply_rigid, projective_fuse, projective_icp
 
 __all__ = ["have_open3d", "kinectfusion", "rigid_pair_transforms", "tsdf_raycast"]
@@ -69,10 +70,7 @@ def _import_open3d():
 
 def _resolve_backend(backend: str) -> str:
     """Fusion backend: "auto" is the numba projective TSDF (it never hangs; module docstring)."""
-    if backend not in _BACKENDS:
-        raise ValueError(
-            f"backend must be one of {', '.join(map(repr, _BACKENDS))}, got {backend!r}"
-        )
+    check_choice("kinectfusion", "backend", backend, _BACKENDS)
     if backend == "auto":
         return "projective"
     if backend == "open3d" and not have_open3d():
@@ -82,8 +80,7 @@ def _resolve_backend(backend: str) -> str:
 
 def _resolve_icp(icp: str) -> str:
     """ICP implementation: "auto" is Open3D's ``registration_icp`` when installed, else NumPy."""
-    if icp not in _ICPS:
-        raise ValueError(f"icp must be one of {', '.join(map(repr, _ICPS))}, got {icp!r}")
+    check_choice("kinectfusion", "icp", icp, _ICPS)
     if icp == "auto":
         return "open3d" if have_open3d() else "projective"
     if icp == "open3d" and not have_open3d():
@@ -346,7 +343,8 @@ def kinectfusion(
     intrinsics : Intrinsics
         Camera.
     size : int, default 4
-        Temporal radius (window 2·size+1 = 9 frames, truncated at the ends).
+        ``temporal_radius`` k: frames t−k..t+k (9 frames at the default, truncated at the
+        ends).
     iterations : int, default 1
         Repeated application to its own (ray-cast) depth.
     backend : {"auto", "projective", "open3d", "box"}, default "auto"
@@ -377,12 +375,11 @@ def kinectfusion(
     iterations). T_{T→t} is composed from the consecutive-pair transforms.
     """
     d, _ = check_inputs(depth, intensity, intrinsics)
-    radius = check_positive_int(size, name="size", minimum=0)
-    check_positive_int(icp_stride, name="icp_stride")
-    if not float(voxel_size) > 0:
-        raise ValueError(f"voxel_size must be > 0 mm, got {voxel_size!r}")
-    if not float(trunc_voxels) > 0:
-        raise ValueError(f"trunc_voxels must be > 0, got {trunc_voxels!r}")
+    radius = check_int("kinectfusion", "size", size, minimum=0)
+    check_int("kinectfusion", "icp_stride", icp_stride, minimum=1)
+    check_number("kinectfusion", "voxel_size", voxel_size, gt=0)
+    check_number("kinectfusion", "trunc_voxels", trunc_voxels, gt=0)
+    check_number("kinectfusion", "max_distance", max_distance, gt=0)
     resolved = _resolve_backend(backend)
     resolved_icp = _resolve_icp(icp)
     trunc = float(trunc_voxels) * float(voxel_size)
@@ -415,5 +412,5 @@ def kinectfusion(
                 out[t] = projective_fuse(pts, intrinsics, band=trunc)[..., 2]
         return out
 
-    fused_depth = iterate(step, d, iterations)
+    fused_depth = iterate(step, d, iterations, owner="kinectfusion")
     return depth_to_points(fused_depth, intrinsics)

@@ -9,8 +9,9 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import median_filter
 
 from .._kernels.baselines import _block_match_kernel, _stmf_median_kernel
+from .._params import check_int, check_number
 from ..camera import Intrinsics
-from ._common import check_inputs, check_positive_int, iterate
+from ._common import check_inputs, iterate
 
 __all__ = ["block_match", "sorting_network", "spatio_temporal_median"]
 
@@ -98,7 +99,8 @@ def spatio_temporal_median(
     intrinsics : Intrinsics
         Camera (shape check only).
     size : int, default 2
-        k, the temporal half window (2k+1 frames, truncated at the ends). Sweep 1–4.
+        ``temporal_radius`` k: frames t−k..t+k (2k+1 frames, truncated at the ends).
+        Sweep 1–4.
     iterations : int, default 1
         Repeated application to its own output (the motion is estimated once). Sweep 1–3.
     half_window : int, default 1
@@ -120,10 +122,11 @@ def spatio_temporal_median(
     |I_τ(x + v_τ(x) + o) − I_t(x + o)| < τ_I; output = their median.
     """
     d, g = check_inputs(depth, intensity, intrinsics)
-    k = check_positive_int(size, name="size", minimum=0)
-    a = check_positive_int(half_window, name="half_window", minimum=0)
-    if not float(intensity_tol) > 0:
-        raise ValueError(f"intensity_tol must be > 0, got {intensity_tol!r}")
+    k = check_int("spatio_temporal_median", "size", size, minimum=0)
+    a = check_int("spatio_temporal_median", "half_window", half_window, minimum=0)
+    check_number("spatio_temporal_median", "intensity_tol", intensity_tol, gt=0)
+    check_int("spatio_temporal_median", "block", block, minimum=1)
+    check_int("spatio_temporal_median", "search", search, minimum=0)
     n, h, w = d.shape
     # Motion from every neighbour to every frame: depends on intensity only, computed once.
     vectors: dict[tuple[int, int], NDArray[np.int32]] = {}
@@ -153,4 +156,4 @@ def spatio_temporal_median(
             out[t] = buf
         return out
 
-    return iterate(step, d, iterations)
+    return iterate(step, d, iterations, owner="spatio_temporal_median")

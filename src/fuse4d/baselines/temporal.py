@@ -6,8 +6,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._kernels.baselines import _temporal_average_kernel
+from .._params import check_int, check_number
 from ..camera import Intrinsics
-from ._common import check_inputs, check_positive_int, iterate, resolve_noise_sigma
+from ._common import check_inputs, iterate, resolve_noise_sigma
 
 __all__ = ["temporal_average", "temporal_mean"]
 
@@ -36,7 +37,7 @@ def temporal_average(
     intrinsics : Intrinsics
         Camera (shape check only).
     size : int, default 5
-        N, frames in the causal window (truncated at the start). Sweep 2–9.
+        ``num_frames`` N: frames in the causal window (truncated at the start). Sweep 2–9.
     iterations : int, default 1
         Repeated application to its own output sequence.
     noise_sigma : float, optional
@@ -50,10 +51,9 @@ def temporal_average(
         Filtered depth (mm), NaN where the input is NaN.
     """
     d, _ = check_inputs(depth, intensity, intrinsics)
-    n = check_positive_int(size, name="size")
-    if not float(sigma_temporal) > 0:
-        raise ValueError(f"sigma_temporal must be > 0 frames, got {sigma_temporal!r}")
-    sigma_r = 3.0 * resolve_noise_sigma(d, noise_sigma)
+    n = check_int("temporal_average", "size", size, minimum=1)
+    check_number("temporal_average", "sigma_temporal", sigma_temporal, gt=0)
+    sigma_r = 3.0 * resolve_noise_sigma(d, noise_sigma, owner="temporal_average")
     coeff_r = 0.5 / sigma_r**2
     coeff_t = 0.0 if np.isinf(sigma_temporal) else 0.5 / float(sigma_temporal) ** 2
 
@@ -62,7 +62,7 @@ def temporal_average(
         _temporal_average_kernel(np.ascontiguousarray(cur), n, coeff_t, coeff_r, out)
         return out
 
-    return iterate(step, d, iterations)
+    return iterate(step, d, iterations, owner="temporal_average")
 
 
 def temporal_mean(
@@ -88,7 +88,7 @@ def temporal_mean(
     intrinsics : Intrinsics
         Camera (shape check only).
     size : int, default 9
-        Number of frames n; the window is [t − ⌊(n−1)/2⌋, t + ⌈(n−1)/2⌉]. Sweep 2–9.
+        ``num_frames`` n: the window is [t − ⌊(n−1)/2⌋, t + ⌈(n−1)/2⌉]. Sweep 2–9.
     iterations : int, default 1
         Repeated application to its own output sequence.
 
@@ -98,7 +98,7 @@ def temporal_mean(
         Averaged depth (mm).
     """
     d, _ = check_inputs(depth, intensity, intrinsics)
-    n = check_positive_int(size, name="size")
+    n = check_int("temporal_mean", "size", size, minimum=1)
     before = (n - 1) // 2
     after = n - 1 - before
 
@@ -116,4 +116,4 @@ def temporal_mean(
             out = total / count
         return np.where(valid, out, np.nan).astype(np.float32)
 
-    return iterate(step, d, iterations)
+    return iterate(step, d, iterations, owner="temporal_mean")

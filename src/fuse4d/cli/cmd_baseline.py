@@ -10,6 +10,7 @@ import numpy as np
 import typer
 from rich.table import Table
 
+from .._params import parse_assignments
 from ..baselines import available_baselines, get_baseline
 from ..io import load_sequence, save_sequence
 from ._app import app, eprint, fail, out_console
@@ -19,21 +20,36 @@ __all__ = ["baseline_command"]
 
 def _list_table() -> Table:
     table = Table(title="fuse4d baselines")
-    for col in ("name", "description", "size (default, sweep)", "output", "available"):
+    for col in (
+        "name",
+        "description",
+        "size: name, meaning (default; sweep)",
+        "output",
+        "available",
+    ):
         table.add_column(col)
     for name, info in available_baselines().items():
         avail = "yes" if info.available else f"no: pip install 'fuse4d[{info.needs}]'"
-        if name == "kinectfusion" and not info.available:
-            avail = "fallback (NumPy): pip install 'fuse4d[6d]' for Open3D"
         sweep = ", ".join(f"{s:g}" for s in info.size_sweep)
         table.add_row(
             name,
             info.description,
-            f"{info.size_meaning}: {info.default_size:g} ({sweep})",
+            f"{info.size_name}: {info.size_meaning} ({info.default_size:g}; {sweep})",
             "points" if info.returns_points else "depth",
             avail,
         )
     return table
+
+
+def _size_help() -> str:
+    names: dict[str, list[str]] = {}
+    for name, info in available_baselines().items():
+        names.setdefault(info.size_name, []).append(name)
+    per_name = "; ".join(f"{k} ({', '.join(v)})" for k, v in names.items())
+    return (
+        "The method's size knob, a different quantity per method: "
+        f"{per_name}. See --list for units and sweeps; -p NAME=VALUE sets it by name."
+    )
 
 
 @app.command("baseline")
@@ -48,11 +64,19 @@ def baseline_command(
     output: Annotated[
         Path | None, typer.Option("--output", "-o", help="Output .npz file or folder.")
     ] = None,
-    size: Annotated[
-        float | None, typer.Option("--size", help="The method's size knob (see --list).")
-    ] = None,
+    size: Annotated[str | None, typer.Option("--size", help=_size_help())] = None,
     iterations: Annotated[
-        int | None, typer.Option("--iterations", help="Repeated applications (>= 1).")
+        str | None, typer.Option("--iterations", help="Repeated applications (>= 1).")
+    ] = None,
+    knobs: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--param",
+            "-p",
+            help="Method knob KEY=VALUE (repeatable): a keyword of the method, e.g. "
+            "noise_sigma=0.5, or its size by name (spatial_radius=6).",
+            show_default=False,
+        ),
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite OUTPUT.")] = False,
     depth_unit_mm: Annotated[
@@ -64,7 +88,9 @@ def baseline_command(
 ) -> None:
     """Run a comparison method (BASELINES.md) on a recording and save the filtered depth.
 
-    6D methods return 3D points; their Z (depth along the optical axis) is saved.
+    6D methods return 3D points; their Z (depth along the optical axis) is saved. --size is
+    each method's own size knob (a pixel radius, a frame count, a temporal radius or a kernel
+    scale): --list shows its name, meaning and unit per method.
     """
     if list_methods:
         out_console.print(_list_table())
@@ -72,18 +98,19 @@ def baseline_command(
     if name is None or input_path is None or output is None:
         fail("usage: fuse4d baseline NAME INPUT -o OUTPUT (or fuse4d baseline --list)")
     info = get_baseline(name)
-    if info.needs is not None and not info.available and name != "kinectfusion":
+    if info.needs is not None and not info.available:
         fail(f"baseline {name!r} needs the optional extra: pip install 'fuse4d[{info.needs}]'")
     if output.exists() and not force:
         fail(f"{output}: output exists (use --force to overwrite)")
-    params: dict[str, float | int] = {}
+    params: dict[str, str] = parse_assignments(knobs, what="--param")
     if size is not None:
-        params["size"] = int(size) if float(size).is_integer() and name != "adgf" else size
+        params["size"] = size
     if iterations is not None:
         params["iterations"] = iterations
+    kwargs = info.knobs(params)  # strings to the method's keyword types, before reading input
     seq = load_sequence(input_path)
     start = time.perf_counter()
-    result = info.function(seq.depth, seq.intensity, seq.intrinsics, **params)
+    result = info.function(seq.depth, seq.intensity, seq.intrinsics, **kwargs)
     elapsed = time.perf_counter() - start
     depth = result[..., 2] if info.returns_points else result
     depth = np.where(np.isfinite(depth), depth, np.nan).astype(np.float32)

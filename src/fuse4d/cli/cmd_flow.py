@@ -11,6 +11,7 @@ import cv2
 import typer
 from rich.table import Table
 
+from .._params import parse_assignments
 from ..experiments.flow_accuracy import (
     ball_pairs,
     default_bench_entries,
@@ -30,13 +31,7 @@ from ._app import app, eprint, fail, out_console, progress_bar, progress_callbac
 
 
 def _parse_params(method: str, items: list[str]) -> object:
-    mapping = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            fail(f"--param expects KEY=VALUE, got {item!r}")
-        mapping[key.strip()] = value
-    return flow_params_from_mapping(method, mapping)
+    return flow_params_from_mapping(method, parse_assignments(items, what="--param"))
 
 
 def _check_out(path: Path, force: bool, inputs: tuple[Path, ...]) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 from rich.table import Table
@@ -24,17 +24,6 @@ PresetOpt = Annotated[
 ]
 
 
-def _parse_assignments(items: list[str] | None, what: str) -> dict[str, Any]:
-    """``["a=1", "b=x"]`` → ``{"a": "1", "b": "x"}`` (values converted by the receiver)."""
-    out: dict[str, Any] = {}
-    for item in items or []:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            fail(f"{what} must look like KEY=VALUE, got {item!r}")
-        out[key.strip()] = value.strip()
-    return out
-
-
 def _resolve(
     preset_name: str,
     config: Path | None,
@@ -46,13 +35,15 @@ def _resolve(
     flow_cache: Path | None = None,
     flow_roi: str | None = None,
 ):
-    from .._params import coerce_fields
+    from .._params import coerce_fields, parse_assignments
     from ..config import FlowConfig, FusionParams, load_config, preset
 
     chosen = load_config(config, base=preset_name) if config else preset(preset_name)
     fusion = chosen.fusion
     changes = coerce_fields(
-        FusionParams, _parse_assignments(sets, "--set"), owner="the fusion (--set, FusionParams)"
+        FusionParams,
+        parse_assignments(sets, what="--set"),
+        owner="the fusion (--set, FusionParams)",
     )
     if window is not None:
         changes["num_frames"] = window
@@ -61,7 +52,7 @@ def _resolve(
     if changes:
         fusion = fusion.replace(**changes)
     flow = chosen.flow
-    extra = _parse_assignments(flow_params, "--flow-param")
+    extra = parse_assignments(flow_params, what="--flow-param")
     if flow_method is not None or extra:
         method = flow_method or flow.method
         base = dict(flow.params) if method == flow.method else {}
@@ -69,9 +60,9 @@ def _resolve(
     if flow_cache is not None:
         flow = dataclasses.replace(flow, cache_dir=str(flow_cache))
     if flow_roi is not None:
-        parts = flow_roi.replace(",", " ").split()
+        text = ",".join(flow_roi.replace(",", " ").split())
         try:
-            roi = tuple(int(v) for v in parts)
+            roi = coerce_fields(FlowConfig, {"roi": text})["roi"] or ()
         except ValueError:
             roi = ()
         if len(roi) != 4:

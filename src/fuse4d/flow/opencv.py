@@ -41,6 +41,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from .._params import param, validate
 from ._checks import to_uint8
 from ._registry import FlowMethod, register_flow_method
 
@@ -56,24 +57,6 @@ __all__ = [
 ]
 
 DISPreset = Literal["ultrafast", "fast", "medium"]
-
-
-def _check_int(name: str, value: Any, minimum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-
-
-def _check_float(name: str, value: Any, *, minimum: float = 0.0, strict: bool = True) -> None:
-    ok = isinstance(value, int | float | np.floating) and not isinstance(value, bool)
-    ok = ok and np.isfinite(value) and (value > minimum if strict else value >= minimum)
-    if not ok:
-        op = ">" if strict else ">="
-        raise ValueError(f"{name} must be a finite number {op} {minimum}, got {value!r}")
-
-
-def _check_bool(name: str, value: Any) -> None:
-    if not isinstance(value, bool | np.bool_):
-        raise TypeError(f"{name} must be True or False, got {value!r}")
 
 
 def _init_or_none(init: NDArray[np.float32] | None) -> NDArray[np.float32] | None:
@@ -119,15 +102,15 @@ class DISParams:
         Propagate good patch matches to neighbours.
     """
 
-    finest_scale: int = 2
-    patch_size: int = 8
-    patch_stride: int = 4
-    gradient_descent_iterations: int = 16
-    variational_refinement_iterations: int = 5
-    variational_refinement_alpha: float = 20.0
-    variational_refinement_gamma: float = 10.0
-    variational_refinement_delta: float = 5.0
-    variational_refinement_epsilon: float = 0.01
+    finest_scale: int = param(2, ge=0)
+    patch_size: int = param(8, ge=2)
+    patch_stride: int = param(4, ge=1)
+    gradient_descent_iterations: int = param(16, ge=1)
+    variational_refinement_iterations: int = param(5, ge=0)
+    variational_refinement_alpha: float = param(20.0, ge=0)
+    variational_refinement_gamma: float = param(10.0, ge=0)
+    variational_refinement_delta: float = param(5.0, ge=0)
+    variational_refinement_epsilon: float = param(0.01, gt=0)
     use_mean_normalization: bool = True
     use_spatial_propagation: bool = True
 
@@ -149,27 +132,12 @@ class DISParams:
     }
 
     def __post_init__(self) -> None:
-        _check_int("finest_scale", self.finest_scale, 0)
-        _check_int("patch_size", self.patch_size, 2)
-        _check_int("patch_stride", self.patch_stride, 1)
+        validate(self, finite=True)
         if self.patch_stride > self.patch_size:
             raise ValueError(
-                f"patch_stride ({self.patch_stride}) must not exceed patch_size ({self.patch_size})"
+                f"DISParams.patch_stride must be <= patch_size ({self.patch_size}), "
+                f"got {self.patch_stride!r}"
             )
-        _check_int("gradient_descent_iterations", self.gradient_descent_iterations, 1)
-        _check_int("variational_refinement_iterations", self.variational_refinement_iterations, 0)
-        _check_float(
-            "variational_refinement_alpha", self.variational_refinement_alpha, strict=False
-        )
-        _check_float(
-            "variational_refinement_gamma", self.variational_refinement_gamma, strict=False
-        )
-        _check_float(
-            "variational_refinement_delta", self.variational_refinement_delta, strict=False
-        )
-        _check_float("variational_refinement_epsilon", self.variational_refinement_epsilon)
-        _check_bool("use_mean_normalization", self.use_mean_normalization)
-        _check_bool("use_spatial_propagation", self.use_spatial_propagation)
 
     @classmethod
     def from_preset(cls, preset: DISPreset, **overrides: Any) -> DISParams:
@@ -240,24 +208,16 @@ class FarnebackParams:
         Use a Gaussian instead of a box window (``OPTFLOW_FARNEBACK_GAUSSIAN``).
     """
 
-    pyr_scale: float = 0.5
-    levels: int = 5
-    winsize: int = 15
-    iterations: int = 3
-    poly_n: int = 5
-    poly_sigma: float = 1.1
+    pyr_scale: float = param(0.5, gt=0, lt=1)
+    levels: int = param(5, ge=1)
+    winsize: int = param(15, ge=1)
+    iterations: int = param(3, ge=1)
+    poly_n: int = param(5, ge=1)
+    poly_sigma: float = param(1.1, gt=0)
     gaussian_window: bool = False
 
     def __post_init__(self) -> None:
-        _check_float("pyr_scale", self.pyr_scale)
-        if self.pyr_scale >= 1.0:
-            raise ValueError(f"pyr_scale must be in (0, 1), got {self.pyr_scale!r}")
-        _check_int("levels", self.levels, 1)
-        _check_int("winsize", self.winsize, 1)
-        _check_int("iterations", self.iterations, 1)
-        _check_int("poly_n", self.poly_n, 1)
-        _check_float("poly_sigma", self.poly_sigma)
-        _check_bool("gaussian_window", self.gaussian_window)
+        validate(self, finite=True)
 
 
 def farneback_flow(
@@ -325,34 +285,24 @@ class TVL1Params:
         Median-filter size applied to the flow between warps (odd; 1 = off) [medianFiltering].
     """
 
-    tau: float = 0.25
-    data_weight: float = 0.15
-    theta: float = 0.3
-    num_scales: int = 5
-    num_warps: int = 5
-    epsilon: float = 0.01
-    inner_iterations: int = 30
-    outer_iterations: int = 10
-    scale_step: float = 0.8
-    gamma: float = 0.0
-    median_filtering: int = 5
+    tau: float = param(0.25, gt=0)
+    data_weight: float = param(0.15, gt=0)
+    theta: float = param(0.3, gt=0)
+    num_scales: int = param(5, ge=1)
+    num_warps: int = param(5, ge=1)
+    epsilon: float = param(0.01, gt=0)
+    inner_iterations: int = param(30, ge=1)
+    outer_iterations: int = param(10, ge=1)
+    scale_step: float = param(0.8, gt=0, lt=1)
+    gamma: float = param(0.0, ge=0)
+    median_filtering: int = param(5, ge=1)
 
     def __post_init__(self) -> None:
-        _check_float("tau", self.tau)
-        _check_float("data_weight", self.data_weight)
-        _check_float("theta", self.theta)
-        _check_int("num_scales", self.num_scales, 1)
-        _check_int("num_warps", self.num_warps, 1)
-        _check_float("epsilon", self.epsilon)
-        _check_int("inner_iterations", self.inner_iterations, 1)
-        _check_int("outer_iterations", self.outer_iterations, 1)
-        _check_float("scale_step", self.scale_step)
-        if self.scale_step >= 1.0:
-            raise ValueError(f"scale_step must be in (0, 1), got {self.scale_step!r}")
-        _check_float("gamma", self.gamma, strict=False)
-        _check_int("median_filtering", self.median_filtering, 1)
+        validate(self, finite=True)
         if self.median_filtering % 2 == 0:
-            raise ValueError(f"median_filtering must be odd, got {self.median_filtering!r}")
+            raise ValueError(
+                f"TVL1Params.median_filtering must be odd, got {self.median_filtering!r}"
+            )
 
 
 def tvl1_flow(

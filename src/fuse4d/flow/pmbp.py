@@ -93,6 +93,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._kernels import pmbp as _k
+from .._params import check_int, param, validate
 from .._validation import as_float32, check_same_shape, check_shape
 from ._checks import check_image, to_uint8
 from ._registry import FlowMethod, register_flow_method
@@ -111,22 +112,6 @@ __all__ = [
 Schedule = Literal["parallel", "lines", "sequential"]
 _MAX_PARTICLES = 16
 _MIN_LEVEL_SIZE = 32  # px: no pyramid level smaller than this (small images get fewer levels)
-
-
-def _check_int(name: str, value: Any, minimum: int, maximum: int | None = None) -> None:
-    ok = isinstance(value, int | np.integer) and not isinstance(value, bool)
-    ok = ok and value >= minimum and (maximum is None or value <= maximum)
-    if not ok:
-        rng = f">= {minimum}" if maximum is None else f"in [{minimum}, {maximum}]"
-        raise ValueError(f"PMBPParams.{name} must be an integer {rng}, got {value!r}")
-
-
-def _check_float(name: str, value: Any, *, minimum: float = 0.0, strict: bool = True) -> None:
-    ok = isinstance(value, int | float | np.floating | np.integer) and not isinstance(value, bool)
-    ok = ok and math.isfinite(value) and (value > minimum if strict else value >= minimum)
-    if not ok:
-        op = ">" if strict else ">="
-        raise ValueError(f"PMBPParams.{name} must be a finite number {op} {minimum}, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -260,124 +245,51 @@ class PMBPParams:
     # checkerboard schedule); the "lines" schedule then gave Middlebury 0.37, ball 0.10 / 0.46.
     # Decision A23 (2026-11-23, same benchmark): FB check + fill and variational refinement
     # on, λ 0.05 → 0.01, r_min 0.05 → 0.2 px: Middlebury 0.373 → 0.184, ball 0.03 / 0.20.
-    num_particles: int = 3
-    patch_radius: int = 2
-    gradient_weight: float = 0.9
-    trunc_intensity: float = 0.3
-    trunc_gradient: float = 0.1
-    asw_gamma: float = 0.1
-    border_factor: float = 0.85
-    pairwise_weight: float = 0.01
-    pairwise_trunc: float = 4.0
-    max_motion: float = 16.0
-    num_iter: int = 1
-    coarse_num_iter: int | None = 2
-    search_radius0: float | None = None
-    refine_radius: float = 1.0
-    min_search_radius: float = 0.2
-    pyramid_levels: int = 3
-    finest_level: int = 0
+    num_particles: int = param(3, ge=1, le=_MAX_PARTICLES)
+    patch_radius: int = param(2, ge=0, le=15)
+    gradient_weight: float = param(0.9, ge=0, le=1)
+    trunc_intensity: float = param(0.3, gt=0)
+    trunc_gradient: float = param(0.1, gt=0)
+    asw_gamma: float = param(0.1, gt=0)
+    border_factor: float = param(0.85, ge=0)
+    pairwise_weight: float = param(0.01, ge=0)
+    pairwise_trunc: float = param(4.0, gt=0)
+    max_motion: float = param(16.0, gt=0)
+    num_iter: int = param(1, ge=0)
+    coarse_num_iter: int | None = param(2, ge=0)
+    search_radius0: float | None = param(None, gt=0)
+    refine_radius: float = param(1.0, gt=0)
+    min_search_radius: float = param(0.2, gt=0)
+    pyramid_levels: int = param(3, ge=1, le=8)
+    finest_level: int = param(0, ge=0)
     schedule: Schedule = "lines"
     early_termination: bool = True
     search_best_only: bool = False
     inside_target: bool = False
-    presmooth_sigma: float = 1.0
-    data_sweeps: int = 1
+    presmooth_sigma: float = param(1.0, ge=0)
+    data_sweeps: int = param(1, ge=0)
     consistency_check: bool = True
-    consistency_threshold: float = 1.0
-    fill_radius: int = 10
-    fill_sigma_intensity: float = 0.05
-    fill_sigma_space: float = 5.0
-    variational_refinement_iterations: int = 10
-    variational_refinement_sor_iterations: int = 10
-    variational_refinement_alpha: float = 20.0
-    variational_refinement_gamma: float = 10.0
-    variational_refinement_delta: float = 5.0
+    consistency_threshold: float = param(1.0, gt=0)
+    fill_radius: int = param(10, ge=1, le=64)
+    fill_sigma_intensity: float = param(0.05, gt=0)
+    fill_sigma_space: float = param(5.0, gt=0)
+    variational_refinement_iterations: int = param(10, ge=0)
+    variational_refinement_sor_iterations: int = param(10, ge=1)
+    variational_refinement_alpha: float = param(20.0, ge=0)
+    variational_refinement_gamma: float = param(10.0, ge=0)
+    variational_refinement_delta: float = param(5.0, ge=0)
     roi: tuple[int, int, int, int] | None = None
-    seed: int = 0
+    seed: int = param(0, ge=0)
 
     def __post_init__(self) -> None:
-        _check_int("num_particles", self.num_particles, 1, _MAX_PARTICLES)
-        _check_int("patch_radius", self.patch_radius, 0, 15)
-        _check_float("gradient_weight", self.gradient_weight, strict=False)
-        if self.gradient_weight > 1.0:
+        validate(self, finite=True)
+        owner = type(self).__name__
+        check_int(owner, "finest_level", self.finest_level, maximum=self.pyramid_levels - 1)
+        roi = self.roi
+        if roi is not None and not (0 <= roi[0] < roi[1] and 0 <= roi[2] < roi[3]):
             raise ValueError(
-                f"PMBPParams.gradient_weight must be in [0, 1], got {self.gradient_weight!r}"
+                f"{owner}.roi must satisfy 0 <= row0 < row1 and 0 <= col0 < col1, got {roi!r}"
             )
-        _check_float("trunc_intensity", self.trunc_intensity)
-        _check_float("trunc_gradient", self.trunc_gradient)
-        _check_float("asw_gamma", self.asw_gamma)
-        _check_float("border_factor", self.border_factor, strict=False)
-        _check_float("pairwise_weight", self.pairwise_weight, strict=False)
-        _check_float("pairwise_trunc", self.pairwise_trunc)
-        _check_float("max_motion", self.max_motion)
-        _check_int("num_iter", self.num_iter, 0)
-        if self.coarse_num_iter is not None:
-            _check_int("coarse_num_iter", self.coarse_num_iter, 0)
-        if self.search_radius0 is not None:
-            _check_float("search_radius0", self.search_radius0)
-        _check_int("data_sweeps", self.data_sweeps, 0)
-        _check_float("presmooth_sigma", self.presmooth_sigma, strict=False)
-        _check_float("refine_radius", self.refine_radius)
-        _check_float("min_search_radius", self.min_search_radius)
-        _check_int("pyramid_levels", self.pyramid_levels, 1, 8)
-        _check_int("finest_level", self.finest_level, 0, self.pyramid_levels - 1)
-        if self.schedule not in ("parallel", "lines", "sequential"):
-            raise ValueError(
-                "PMBPParams.schedule must be 'parallel', 'lines' or 'sequential', "
-                f"got {self.schedule!r}"
-            )
-        if not isinstance(self.early_termination, bool | np.bool_):
-            raise TypeError(
-                f"PMBPParams.early_termination must be True or False, "
-                f"got {self.early_termination!r}"
-            )
-        if not isinstance(self.search_best_only, bool | np.bool_):
-            raise TypeError(
-                f"PMBPParams.search_best_only must be True or False, got {self.search_best_only!r}"
-            )
-        if not isinstance(self.inside_target, bool | np.bool_):
-            raise TypeError(
-                f"PMBPParams.inside_target must be True or False, got {self.inside_target!r}"
-            )
-        if not isinstance(self.consistency_check, bool | np.bool_):
-            raise TypeError(
-                f"PMBPParams.consistency_check must be True or False, "
-                f"got {self.consistency_check!r}"
-            )
-        _check_float("consistency_threshold", self.consistency_threshold)
-        _check_int("fill_radius", self.fill_radius, 1, 64)
-        _check_float("fill_sigma_intensity", self.fill_sigma_intensity)
-        _check_float("fill_sigma_space", self.fill_sigma_space)
-        _check_int("variational_refinement_iterations", self.variational_refinement_iterations, 0)
-        _check_int(
-            "variational_refinement_sor_iterations", self.variational_refinement_sor_iterations, 1
-        )
-        _check_float(
-            "variational_refinement_alpha", self.variational_refinement_alpha, strict=False
-        )
-        _check_float(
-            "variational_refinement_gamma", self.variational_refinement_gamma, strict=False
-        )
-        _check_float(
-            "variational_refinement_delta", self.variational_refinement_delta, strict=False
-        )
-        if self.roi is not None:
-            roi = tuple(self.roi)
-            if len(roi) != 4 or not all(
-                isinstance(v, int | np.integer) and not isinstance(v, bool) for v in roi
-            ):
-                raise ValueError(
-                    f"PMBPParams.roi must be None or 4 integers (row0, row1, col0, col1), "
-                    f"got {self.roi!r}"
-                )
-            if not (0 <= roi[0] < roi[1] and 0 <= roi[2] < roi[3]):
-                raise ValueError(
-                    f"PMBPParams.roi must satisfy 0 <= row0 < row1 and 0 <= col0 < col1, "
-                    f"got {self.roi!r}"
-                )
-            object.__setattr__(self, "roi", tuple(int(v) for v in roi))
-        _check_int("seed", self.seed, 0)
 
     def to_dict(self) -> dict[str, Any]:
         """Field name → value (for caches and reports)."""

@@ -1,0 +1,327 @@
+"""The one parameter layer (fuse4d._params): validation, coercion, and the paths that use it
+(API, TOML, ``run --set/--flow-param``, ``flow -p``, ``baseline --size/-p``)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import pytest
+
+from fuse4d import FlowConfig, FusionEngine, FusionParams, Intrinsics, Sequence, fuse_sequence
+from fuse4d._params import (
+    check_value,
+    coerce_fields,
+    coerce_kwargs,
+    param,
+    parse_assignments,
+    validate,
+)
+from fuse4d.baselines import available_baselines, get_baseline, guided, run_baseline
+from fuse4d.cli import main
+from fuse4d.config import load_config
+from fuse4d.errors import InputFileError
+from fuse4d.flow import (
+    DISParams,
+    PMBPFastParams,
+    PMBPParams,
+    TVL1Params,
+    estimate_flow,
+    flow_params_from_mapping,
+    read_flo,
+)
+from fuse4d.io import load_sequence, save_sequence
+
+# ------------------------------------------------------------------------------- validate
+
+
+@pytest.mark.parametrize(
+    ("factory", "error", "message"),
+    [
+        (lambda: FusionParams(num_frames=0), ValueError, r"num_frames must be an integer in \[1, 256\], got 0"),
+        (lambda: FusionParams(num_frames=257), ValueError, r"FusionParams\.num_frames .* got 257"),
+        (lambda: FusionParams(sigma_distance=0), ValueError, r"sigma_distance must be a number > 0, got 0"),
+        (lambda: FusionParams(sigma_fill=math.nan), ValueError, r"sigma_fill must be a number > 0, got nan"),
+        (lambda: FusionParams(distance_noise_scale=-1), ValueError, r"must be a number >= 0, got -1"),
+        (lambda: FusionParams(sigma_intensity="0.1"), TypeError, r"sigma_intensity must be a number, got '0.1'"),
+        (lambda: FusionParams(fill_holes=1), TypeError, r"fill_holes must be True or False, got 1"),
+        (lambda: FusionParams(base="x"), ValueError, r"base must be one of 'trajectory', 'frame', got 'x'"),
+        (lambda: PMBPParams(num_particles=17), ValueError, r"PMBPParams\.num_particles must be an integer in \[1, 16\], got 17"),
+        (lambda: PMBPParams(num_particles=2.0), ValueError, r"num_particles must be an integer"),
+        (lambda: PMBPParams(max_motion=math.inf), ValueError, r"max_motion must be a finite number > 0, got inf"),
+        (lambda: PMBPParams(coarse_num_iter="3"), ValueError, r"coarse_num_iter must be None or an integer >= 0, got '3'"),
+        (lambda: PMBPParams(search_radius0=0.0), ValueError, r"search_radius0 must be None or a finite number > 0"),
+        (lambda: PMBPParams(finest_level=3), ValueError, r"finest_level must be an integer in \[0, 2\], got 3"),
+        (lambda: PMBPParams(roi=(0, 4, 0)), ValueError, r"roi must be None or a tuple of 4 integers"),
+        (lambda: PMBPParams(roi=(4, 0, 0, 4)), ValueError, r"roi must satisfy 0 <= row0 < row1"),
+        (lambda: PMBPFastParams(num_particles=0), ValueError, r"PMBPFastParams\.num_particles must be an integer in \[1, 16\]"),
+        (lambda: DISParams(patch_stride=9), ValueError, r"DISParams\.patch_stride must be <= patch_size \(8\), got 9"),
+        (lambda: DISParams(finest_scale=-1), ValueError, r"DISParams\.finest_scale must be an integer >= 0, got -1"),
+        (lambda: TVL1Params(scale_step=1.0), ValueError, r"TVL1Params\.scale_step must be a finite number in \(0, 1\), got 1.0"),
+    ],
+)  # fmt: skip
+def test_validation_names_class_field_bound_and_value(factory, error, message):
+    with pytest.raises(error, match=message):
+        factory()
+
+
+def test_validation_normalises_values():
+    p = FusionParams(sigma_distance=2, num_frames=np.int64(5), fill_holes=np.bool_(False))
+    assert type(p.sigma_distance) is float
+    assert type(p.num_frames) is int
+    assert p.fill_holes is False
+    assert FusionParams(sigma_temporal=math.inf).sigma_temporal == math.inf  # inf allowed here
+    assert FusionParams(num_frames=256).num_frames == 256
+    assert PMBPParams(roi=[0, 8, 0, 8]).roi == (0, 8, 0, 8)
+    assert PMBPParams(coarse_num_iter=None).coarse_num_iter is None
+    assert PMBPFastParams() == PMBPFastParams(num_particles=1, finest_level=1, num_iter=2)
+    assert FusionParams() == FusionParams().replace()  # defaults unchanged
+
+
+def test_param_metadata_on_any_dataclass():
+    @dataclass(frozen=True)
+    class Knobs:
+        radius: int = param(2, ge=1, le=5)
+        scale: float | None = param(None, gt=0, lt=1)
+        ratio: float = param(0.5, ge=0, le=1, finite=True)
+        mode: str = "a"
+
+        def __post_init__(self):
+            validate(self)
+
+    assert Knobs(scale=0.5).scale == 0.5
+    with pytest.raises(ValueError, match=r"Knobs\.radius must be an integer in \[1, 5\], got 6"):
+        Knobs(radius=6)
+    with pytest.raises(ValueError, match=r"Knobs\.scale must be None or a number in \(0, 1\)"):
+        Knobs(scale=1.0)
+    with pytest.raises(TypeError, match=r"Knobs\.mode must be text, got 3"):
+        Knobs(mode=3)
+    assert check_value("X", "t", [1, 2], tuple[int, ...]) == (1, 2)
+
+
+# ------------------------------------------------------------------------------- coerce
+
+
+def test_coerce_fields_reads_every_annotation_kind():
+    values = coerce_fields(
+        FusionParams,
+        {"sigma_temporal": "inf", "fill_holes": "false", "base": "frame", "num_frames": "5"},
+    )
+    assert values == {
+        "sigma_temporal": math.inf,
+        "fill_holes": False,
+        "base": "frame",
+        "num_frames": 5,
+    }
+    p = FusionParams(**values)
+    assert (p.sigma_temporal, p.fill_holes, p.base) == (math.inf, False, "frame")
+    with pytest.raises(ValueError, match=r"parameter base: 'nope' is not one of trajectory, frame"):
+        coerce_fields(FusionParams, {"base": "nope"})
+    with pytest.raises(
+        ValueError, match=r"parameter fill_holes: cannot read 'maybe' as true/false"
+    ):
+        coerce_fields(FusionParams, {"fill_holes": "maybe"})
+    # X | None fields (bug b1)
+    p = flow_params_from_mapping("pmbp", {"coarse_num_iter": "3", "search_radius0": "none"})
+    assert (p.coarse_num_iter, p.search_radius0) == (3, None)
+    assert coerce_fields(PMBPParams, {"roi": "0,8,0,8"}) == {"roi": (0, 8, 0, 8)}
+
+
+def test_parse_assignments():
+    assert parse_assignments(["a=1", " b = x ", "a=2"]) == {"a": "2", "b": "x"}
+    assert parse_assignments(None) == {}
+    with pytest.raises(ValueError, match="--set must look like KEY=VALUE, got 'a'"):
+        parse_assignments(["a"], what="--set")
+
+
+def test_coerce_kwargs_reads_function_keywords():
+    assert coerce_kwargs(guided, {"size": "8", "eps": "0.01", "iterations": "2"}) == {
+        "size": 8,
+        "eps": 0.01,
+        "iterations": 2,
+    }
+    with pytest.raises(ValueError, match=r"unknown parameter\(s\) bogus for guided; valid: size"):
+        coerce_kwargs(guided, {"bogus": 1})
+
+
+# ------------------------------------------------------------------------------- TOML
+
+
+def test_toml_goes_through_the_coercer(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text(
+        'preset = "paper"\n[fusion]\nsigma_temporal = "inf"\nfill_holes = false\nbase = "frame"\n'
+        "[flow]\nroi = [0, 16, 0, 16]\n[flow.params]\ncoarse_num_iter = 3\n"
+        'search_radius0 = "none"\n',
+        encoding="utf-8",
+    )
+    cfg = load_config(path)
+    assert cfg.fusion == FusionParams(sigma_temporal=math.inf, fill_holes=False, base="frame")
+    assert cfg.flow.roi == (0, 16, 0, 16)
+    assert cfg.flow.build_params() == PMBPParams(coarse_num_iter=3)
+    path.write_text('[flow]\nmethod = "dis"\nbogus = 1\n', encoding="utf-8")
+    with pytest.raises(InputFileError, match=r"unknown parameter\(s\) bogus for \[flow\]"):
+        load_config(path)
+    path.write_text("[fusion]\nnum_frames = 300\n", encoding="utf-8")
+    with pytest.raises(InputFileError, match=r"FusionParams\.num_frames must be an integer in"):
+        load_config(path)
+
+
+# ------------------------------------------------------------------------------- CLI, end to end
+
+
+H = W = 64
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    """3 frames of a textured plane at ~500 mm moving 1 px right per frame, 64x64 px."""
+    rng = np.random.default_rng(3)
+    k = Intrinsics(fx=100.0, fy=100.0, cx=31.5, cy=31.5, width=W, height=H)
+    yy, xx = np.mgrid[0:H, 0 : W + 4]
+    tex = (0.5 + 0.25 * np.sin(xx / 2.5) * np.cos(yy / 3.0)).astype(np.float32)
+    intensity = np.stack([tex[:, 2 - t : 2 - t + W] for t in range(3)])
+    depth = (500.0 + 0.3 * xx[:, :W] + rng.normal(0, 0.3, (3, H, W))).astype(np.float32)
+    return Sequence(depth, intensity, k)
+
+
+#: PMBP settings that keep the run short (no post-steps), with the b1 field set from a string
+_PMBP = {"coarse_num_iter": "3", "consistency_check": "false", "variational_refinement_iterations": "0"}  # fmt: skip
+
+
+def test_run_flow_param_optional_int_end_to_end(tiny, tmp_path, capsys):
+    """Bug b1: ``run --flow pmbp --flow-param coarse_num_iter=3`` failed with 'must be an
+    integer >= 0, got '3''; now it runs and equals the API call with the typed value."""
+    src = save_sequence(tiny, tmp_path / "in.npz")
+    out = tmp_path / "out.npz"
+    args = ["run", str(src), "-o", str(out), "--window", "3", "--flow", "pmbp"]
+    for key, value in _PMBP.items():
+        args += ["--flow-param", f"{key}={value}"]
+    assert main(args) == 0, capsys.readouterr().err
+    typed = {"coarse_num_iter": 3, "consistency_check": False, "variational_refinement_iterations": 0}  # fmt: skip
+    api = fuse_sequence(
+        tiny.depth,
+        tiny.intensity,
+        tiny.intrinsics,
+        fusion=FusionParams(num_frames=3),
+        flow=FlowConfig("pmbp", typed),
+    )
+    np.testing.assert_array_equal(load_sequence(out).depth, api.depth)
+    assert main([*args[:-2], "--flow-param", "coarse_num_iter=three", "--force"]) == 2
+    assert "parameter coarse_num_iter: cannot read 'three' as an integer" in capsys.readouterr().err
+
+
+def test_run_set_inf_bool_and_literal(tiny, tmp_path, capsys):
+    src = save_sequence(tiny, tmp_path / "in.npz")
+    out = tmp_path / "out.npz"
+    sets = ["sigma_temporal=inf", "fill_holes=false", "base=frame", "spatial_radius=2"]
+    args = ["run", str(src), "-o", str(out), "--window", "3"]
+    assert main([*args, *(a for s in sets for a in ("--set", s))]) == 0, capsys.readouterr().err
+    fusion = FusionParams(
+        num_frames=3, sigma_temporal=math.inf, fill_holes=False, base="frame", spatial_radius=2
+    )
+    api = fuse_sequence(tiny.depth, tiny.intensity, tiny.intrinsics, fusion=fusion)
+    np.testing.assert_array_equal(load_sequence(out).depth, api.depth)
+    assert main([*args, "--force", "--set", "base=middle"]) == 2
+    assert "'middle' is not one of trajectory, frame" in capsys.readouterr().err
+    assert main([*args, "--force", "--window", "300"]) == 2
+    assert "num_frames must be an integer in [1, 256], got 300" in capsys.readouterr().err
+
+
+def test_flow_command_param_optional_int(tiny, tmp_path, capsys):
+    paths = []
+    for t in (0, 1):
+        paths.append(tmp_path / f"f{t}.png")
+        cv2.imwrite(str(paths[-1]), np.round(255 * tiny.intensity[t]).astype(np.uint8))
+    out = tmp_path / "f.flo"
+    args = ["flow", str(paths[0]), str(paths[1]), "-o", str(out), "-m", "pmbp"]
+    for key, value in _PMBP.items():
+        args += ["-p", f"{key}={value}"]
+    assert main(args) == 0, capsys.readouterr().err
+    images = [cv2.imread(str(p), cv2.IMREAD_UNCHANGED).astype(np.float32) / 255 for p in paths]
+    params = PMBPParams(
+        coarse_num_iter=3, consistency_check=False, variational_refinement_iterations=0
+    )
+    expected = estimate_flow(images[0], images[1], method="pmbp", params=params)
+    np.testing.assert_allclose(read_flo(out), expected, atol=1e-6)
+
+
+# ------------------------------------------------------------------------------- baselines
+
+
+def test_every_baseline_names_its_size():
+    meanings = {
+        "kernel_scale": "kernel scale",
+        "spatial_radius": "pixel radius",
+        "num_frames": "frames",
+        "temporal_radius": "temporal radius",
+        "filter_passes": "passes",
+    }
+    for name, info in available_baselines().items():
+        assert info.size_name in meanings, name
+        assert meanings[info.size_name] in info.size_meaning, name
+    assert get_baseline("adgf").size_name == "kernel_scale"
+    assert {n for n, i in available_baselines().items() if i.size_name == "temporal_radius"} == {
+        "stmf",
+        "kinectfusion",
+        "ed",
+    }
+
+
+def test_baseline_size_by_name_and_from_strings(tiny):
+    d, i, k = tiny.depth, tiny.intensity, tiny.intrinsics
+    ref = run_baseline("guided", d, i, k, size=3, eps=0.01)
+    np.testing.assert_array_equal(run_baseline("guided", d, i, k, spatial_radius=3, eps=0.01), ref)
+    np.testing.assert_array_equal(run_baseline("guided", d, i, k, size="3", eps="0.01"), ref)
+    with pytest.raises(ValueError, match="give size or spatial_radius, not both"):
+        run_baseline("guided", d, i, k, size=3, spatial_radius=3)
+    with pytest.raises(ValueError, match=r"unknown parameter\(s\) radius for baseline 'guided'"):
+        run_baseline("guided", d, i, k, radius=3)
+    with pytest.raises(ValueError, match=r"guided\.size must be an integer >= 1, got 0"):
+        run_baseline("guided", d, i, k, size=0)
+    with pytest.raises(ValueError, match=r"adaptive_gaussian\.size must be a number > 0"):
+        run_baseline("adgf", d, i, k, kernel_scale=0.0)
+
+
+def test_cli_baseline_size_and_knobs(tiny, tmp_path, capsys):
+    src = save_sequence(tiny, tmp_path / "in.npz")
+    d, i, k = tiny.depth, tiny.intensity, tiny.intrinsics
+    cases = [
+        ("guided", ["--size", "3", "-p", "eps=0.01"], {"size": 3, "eps": 0.01}),
+        ("guided", ["-p", "spatial_radius=3", "-p", "eps=0.01"], {"size": 3, "eps": 0.01}),
+        ("adgf", ["--size", "1.5", "-p", "noise_sigma=0.3"], {"size": 1.5, "noise_sigma": 0.3}),
+        ("ta", ["-p", "num_frames=3", "--iterations", "2"], {"size": 3, "iterations": 2}),
+    ]
+    for n, (name, options, kwargs) in enumerate(cases):
+        out = tmp_path / f"out{n}.npz"
+        assert main(["baseline", name, str(src), "-o", str(out), *options]) == 0
+        expected = run_baseline(name, d, i, k, **kwargs)
+        np.testing.assert_array_equal(load_sequence(out).depth, expected)
+    capsys.readouterr()
+    out = str(tmp_path / "bad.npz")
+    assert main(["baseline", "guided", str(src), "-o", out, "--size", "2.5"]) == 2
+    assert "parameter size: cannot read '2.5' as an integer" in capsys.readouterr().err
+    assert main(["baseline", "guided", str(src), "-o", out, "-p", "bogus=1"]) == 2
+    assert "unknown parameter(s) bogus for baseline 'guided'" in capsys.readouterr().err
+    assert main(["baseline", "--list"]) == 0
+    assert "spatial_radius" in capsys.readouterr().out
+
+
+# ------------------------------------------------------------------------------- intensity
+
+
+def test_float_intensity_above_one_is_refused_naming_the_frame(tiny):
+    d, k = tiny.depth, tiny.intrinsics
+    scaled = tiny.intensity.copy()
+    scaled[1] *= 255.0
+    with pytest.raises(ValueError, match=r"intensity \(frame 1\) is float with values in .*"
+                       r"outside \[0, 1\]; rescale it to \[0, 1\] \(e\.g\. divide 8-bit"):  # fmt: skip
+        fuse_sequence(d, scaled, k, flow="dis")
+    engine = FusionEngine(k)
+    with pytest.raises(ValueError, match=r"intensity \(frame 0\) is float with values in \[-0\.2"):
+        engine.push(d[0], tiny.intensity[0] - 0.5)
+    # integers are still divided by their dtype maximum
+    as_uint8 = np.round(255 * tiny.intensity).astype(np.uint8)
+    assert fuse_sequence(d, as_uint8, k, flow="dis").depth.shape == d.shape
