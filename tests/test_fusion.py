@@ -18,7 +18,7 @@ from fuse4d.bilateral import bilateral_filter_points
 from fuse4d.config import FusionParams
 from fuse4d.flow import SequenceFlow
 from fuse4d.fusion import FusionEngine, fuse_sequence, fuse_stream
-from fuse4d.holes import _fill_holes, fill_holes
+from fuse4d.holes import SOURCE_NONE, SOURCE_TIME, _fill_holes, fill_holes
 from fuse4d.metrics import roughness_stats
 from fuse4d.motion import (
     _pair_motion,
@@ -360,6 +360,8 @@ LITERAL = {
     "temporal_gate": math.inf,
     "base": "frame",
     "distance_noise_scale": 0.0,
+    "fill_from_time": False,
+    "fill_max_hole_px": 0,
 }
 SWITCHES = {
     "default": {},
@@ -393,6 +395,8 @@ def _switch_scene(rng, n=5, h=16, w=20):
 
 # small enough that the noise model (2.5 q z^2 ~ 0.8 mm) decides part of the depth steps
 SWITCH_BASE = FusionParams(
+    fill_from_time=False,  # the sensor-hole fill (A26/A27) has its own tests (test_holes.py)
+    fill_max_hole_px=0,
     num_frames=5,
     spatial_radius=2,
     fb_threshold=1.0,
@@ -520,13 +524,23 @@ def test_nan_propagation(rng):
     depth[2, 10:13, 10:13] = np.nan  # a hole in the centre frame
     depth[1, 20, 30] = np.nan  # a hole in another frame
     inten = np.broadcast_to(_texture(H, W), (n, H, W)).copy()
-    res = fuse_sequence(depth, inten, K, flow=_zero_flow(n))
+    no_fill = FusionParams(fill_from_time=False, fill_max_hole_px=0)
+    res = fuse_sequence(depth, inten, K, flow=_zero_flow(n), fusion=no_fill)
     assert np.isnan(res.depth[2, 10:13, 10:13]).all()
     assert np.isfinite(res.depth[2, 9, 9:14]).all()  # no spreading
     assert np.isfinite(res.depth[2, 20, 30])  # other frame's hole only lowers support:
     assert res.support[2, 20, 30] == 2  # frames 1 and 0 (behind it) are lost, 3 and 4 kept
     assert res.support[2, 20, 31] == 4
     assert np.isnan(res.points[2, 11, 11]).all()
+    assert (res.source[2, 10:13, 10:13] == SOURCE_NONE).all()
+    # default: the sensor hole of frame 2 is filled from frames 0, 1, 3, 4 along its track (A26)
+    filled = fuse_sequence(depth, inten, K, flow=_zero_flow(n))
+    assert (filled.source[2, 10:13, 10:13] == SOURCE_TIME).all()
+    truth = _plane_depth(n)[2, 10:13, 10:13]
+    assert np.abs(filled.depth[2, 10:13, 10:13] - truth).max() < 0.5  # 0.2 mm noise, 4 frames
+    np.testing.assert_allclose(filled.confidence[2, 10:13, 10:13], 4 / 9)
+    # measured pixels are untouched by the sensor-hole fill
+    np.testing.assert_array_equal(filled.depth[2, 9, 9:14], res.depth[2, 9, 9:14])
 
 
 def test_literal_motion_is_much_rougher_than_regularised(rng):
@@ -728,9 +742,14 @@ def test_all_nan_frame_and_single_frame_are_graceful():
     depth = _plane_depth(4)
     depth[1] = np.nan
     inten = np.broadcast_to(_texture(H, W), (4, H, W)).copy()
-    res = fuse_sequence(depth, inten, K, flow=_zero_flow(4))
+    no_fill = FusionParams(fill_from_time=False, fill_max_hole_px=0)
+    res = fuse_sequence(depth, inten, K, flow=_zero_flow(4), fusion=no_fill)
     assert np.isnan(res.depth[1]).all()
     assert np.isfinite(res.depth[0]).all()
+    # with the sensor-hole fill, the empty frame takes its depth from frames 0, 2 and 3
+    filled = fuse_sequence(depth, inten, K, flow=_zero_flow(4))
+    assert (filled.source[1] == SOURCE_TIME).all()
+    np.testing.assert_allclose(filled.depth[1], depth[0], atol=0.05)  # the smoothed reference
     # tracks are never re-acquired (METHOD §4.1): an empty frame 1 cuts frame 0 off the rest
     assert (res.support[0] == 0).all()
     assert (res.support[3, 5:-5, 5:-5] == 1).all()

@@ -39,9 +39,10 @@ BilateralMode = Literal["residual", "points"]
 class FusionParams:
     """Knobs of the spatio-temporal fusion (paper Eq. 4–6; METHOD.md §5.3 defaults).
 
-    fuse4d's own decisions (docs/method_notes.md, A17–A25) are defaults; the literal paper
+    fuse4d's own decisions (docs/method_notes.md, A17–A27) are defaults; the literal paper
     (METHOD A3 "raw" ablation) is ``FusionParams(motion_depth="raw", bilateral="points",
-    output="points", temporal_gate=math.inf, base="frame", distance_noise_scale=0)``.
+    output="points", temporal_gate=math.inf, base="frame", distance_noise_scale=0,
+    fill_from_time=False, fill_max_hole_px=0)``.
 
     Parameters
     ----------
@@ -114,6 +115,17 @@ class FusionParams:
         Maximum onion-peeling passes.
     fill_fallback : {"bilateral", "nan"}
         Value of holes left after the passes: the frame's bilateral-only point, or NaN.
+    fill_from_time : bool
+        Our A26: fill *sensor* holes (no raw depth at t) from the other frames of the window
+        along the pixel's track through the intensity video (the trajectory line through the
+        tracked reference points, evaluated at t). Off = sensor holes stay NaN unless filled in
+        space. See :mod:`fuse4d.holes`.
+    fill_max_hole_px : int
+        Our A27: sensor-hole components (8-connected) of at most this many pixels that do not
+        touch the image border are filled from their far-side neighbours (never across a depth
+        discontinuity). 0 = off.
+    fill_space_radius : int
+        Neighbourhood radius (px) of the A27 spatial fill.
     causal : bool
         Online mode for live cameras: the window is [t - n + 1, t] (zero look-ahead), so frame
         t is emitted as soon as it arrives.
@@ -153,6 +165,9 @@ class FusionParams:
     sigma_fill: float = param(2.0, gt=0)
     fill_passes: int = param(10, ge=0)
     fill_fallback: FillFallback = "bilateral"
+    fill_from_time: bool = True
+    fill_max_hole_px: int = param(64, ge=0)
+    fill_space_radius: int = param(4, ge=1)
     causal: bool = False
     iterations: int = param(1, ge=1)
     bilateral: BilateralMode = "residual"

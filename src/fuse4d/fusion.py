@@ -26,7 +26,16 @@ from .camera import Intrinsics, depth_to_points
 from .config import FlowConfig, FusionParams, preset
 from .errors import ShapeError
 from .flow import SequenceFlow, as_sequence_flow
-from .holes import _fill_holes
+from .holes import (
+    SOURCE_FUSED,
+    SOURCE_MEASURED,
+    SOURCE_NONE,
+    SOURCE_SPACE,
+    SOURCE_TIME,
+    _fill_from_time,
+    _fill_holes,
+    _fill_small_holes,
+)
 from .motion import (
     _pair_motion,
     _track_window,
@@ -64,6 +73,15 @@ class FusedFrame:
         Pixels without temporal support whose value comes from hole filling (Eq. 6).
     unfilled : (H, W) ndarray of bool
         Holes that hole filling could not reach (they hold the fallback value).
+    source : (H, W) ndarray of uint8
+        Where each value comes from: :data:`fuse4d.holes.SOURCE_NONE` (0, no depth),
+        ``SOURCE_MEASURED`` (1, raw depth without temporal support), ``SOURCE_FUSED`` (2,
+        fused with >= 1 tracked frame), ``SOURCE_TIME`` (3, a sensor hole filled from other
+        frames, A26), ``SOURCE_SPACE`` (4, a small sensor hole filled in space, A27).
+    confidence : (H, W) ndarray of float32
+        Fraction of the n window frames that measured the value: (1 + support) / n for raw
+        pixels, (tracked frames with depth) / n for time-filled holes, 0 for space-filled
+        holes and pixels without depth.
     """
 
     index: int
@@ -71,6 +89,8 @@ class FusedFrame:
     support: NDArray[np.uint8]
     filled: NDArray[np.bool_]
     unfilled: NDArray[np.bool_]
+    source: NDArray[np.uint8] | None = None
+    confidence: NDArray[np.float32] | None = None
 
     @property
     def depth(self) -> NDArray[np.float32]:
@@ -151,6 +171,8 @@ class FusionEngine:
         h, w = intrinsics.height, intrinsics.width
         s = self.ring
         self._depth = np.full((s, h, w), np.nan, np.float32)
+        # (x_n, y_n, 1) of every pixel: depth z on the pixel's ray is z * ray (filled holes)
+        self._rays = depth_to_points(np.ones((h, w), np.float32), intrinsics)
         # per-frame depth-noise model sigma(z) = max(sigma0, quad z^2) (A22) and median depth z_med
         # (mm, for the gate and delta_d): (sigma0, quad, z_med)
         self._noise = np.zeros((s, 3), np.float64)
@@ -411,12 +433,76 @@ class FusionEngine:
                 on_ray,
             )
             points = on_ray
+        source, confidence = self._fill_sensor_holes(t, first, last, frame_slot, points, support)
         t3 = time.perf_counter()
         self.timings["tracking"] += t1 - t0
         self.timings["fusion"] += t2 - t1
         self.timings["fill"] += t3 - t2
         self._emitted += 1
-        return FusedFrame(index=t, points=points, support=support, filled=filled, unfilled=hole)
+        return FusedFrame(
+            index=t,
+            points=points,
+            support=support,
+            filled=filled,
+            unfilled=hole,
+            source=source,
+            confidence=confidence,
+        )
+
+    def _fill_sensor_holes(self, t, first, last, frame_slot, points, support):
+        """Fill frame t's sensor holes in place (A26 from time, then A27 in space); returns
+        the per-pixel source codes and confidence (see :class:`FusedFrame`)."""
+        p = self.params
+        n = float(p.num_frames)
+        slot = t % self.ring
+        measured = ~np.isnan(self._depth[slot])
+        source = np.where(measured, SOURCE_MEASURED, SOURCE_NONE).astype(np.uint8)
+        source[measured & (support > 0)] = SOURCE_FUSED
+        confidence = np.where(measured, (1.0 + support) / n, 0.0).astype(np.float32)
+        holes = ~measured
+        if not holes.any():
+            return source, confidence
+        _, quad, _ = self._noise[slot]
+        if p.fill_from_time and last > first:
+            filled_points, count = _fill_from_time(
+                self._fwd,
+                self._bwd,
+                self._depth,
+                self._reference,
+                frame_slot,
+                t,
+                first,
+                last,
+                holes,
+                fb_threshold=p.fb_threshold,
+                max_step=p.max_depth_step,
+                quad=quad,
+                temporal_weight=self._temporal_weight,
+            )
+            got = count > 0
+            if got.any():
+                if p.output == "ray":  # the trajectory's depth on the pixel's own ray
+                    points[got] = self._rays[got] * filled_points[got][:, 2:3]
+                else:
+                    points[got] = filled_points[got]
+                source[got] = SOURCE_TIME
+                confidence[got] = count[got] / n
+                holes &= ~got
+        if p.fill_max_hole_px > 0 and holes.any():
+            depth, got = _fill_small_holes(
+                np.ascontiguousarray(points[..., 2]),
+                self._intensity[slot],
+                holes,
+                max_area_px=p.fill_max_hole_px,
+                radius=p.fill_space_radius,
+                sigma_intensity=p.sigma_intensity,
+                max_step=p.max_depth_step,
+                quad=quad,
+            )
+            if got.any():
+                points[got] = self._rays[got] * depth[got][:, None]
+                source[got] = SOURCE_SPACE
+        return source, confidence
 
 
 @dataclass
@@ -426,13 +512,19 @@ class FusionResult:
     Attributes
     ----------
     points : (T, H, W, 3) ndarray of float32
-        Fused 3D points in mm (paper p^_i^t); NaN where the raw depth was invalid.
+        Fused 3D points in mm (paper p^_i^t); NaN where there is no depth (a sensor hole
+        that A26/A27 did not fill).
     depth : (T, H, W) ndarray of float32
         Z of ``points`` in mm.
     support : (T, H, W) ndarray of uint8
         Temporal support: other frames whose track passed every check.
     filled : (T, H, W) ndarray of bool
         Pixels filled by Eq. 6 (valid raw depth, no temporal support).
+    source : (T, H, W) ndarray of uint8
+        Where each value comes from (measured / fused / filled from time / filled in space;
+        codes in :mod:`fuse4d.holes`, see :class:`FusedFrame`).
+    confidence : (T, H, W) ndarray of float32
+        Fraction of the window's frames that measured the value (see :class:`FusedFrame`).
     flow_forward, flow_backward : (T-1, H, W, 2) ndarray of float32
         The flows used (px).
     motion : (T-1, H, W, 3) ndarray of float32
@@ -457,11 +549,16 @@ class FusionResult:
     timings: dict[str, float] = field(default_factory=dict)
     params: FusionParams = field(default_factory=FusionParams)
     flow_method: str = ""
+    source: NDArray[np.uint8] | None = None
+    confidence: NDArray[np.float32] | None = None
 
     @property
     def support_fraction(self) -> float:
-        """Fraction of valid output pixels with temporal support >= 1 (tracked into another frame)."""
+        """Fraction of measured output pixels with temporal support >= 1 (tracked into another
+        frame); sensor holes filled by A26/A27 do not count."""
         valid = np.isfinite(self.depth)
+        if self.source is not None:
+            valid &= (self.source == SOURCE_MEASURED) | (self.source == SOURCE_FUSED)
         return float((self.support[valid] > 0).mean()) if valid.any() else 0.0
 
 
@@ -543,6 +640,8 @@ def fuse_sequence(
     current_points: NDArray[np.float32] | None = None
     support = np.zeros((n, h, w), np.uint8)
     filled = np.zeros((n, h, w), np.bool_)
+    source = np.zeros((n, h, w), np.uint8)
+    confidence = np.zeros((n, h, w), np.float32)
     flow_method = precomputed.method if precomputed is not None else ""
     for iteration in range(params.iterations):
 
@@ -585,6 +684,8 @@ def fuse_sequence(
             out_points[fr.index] = fr.points
             support[fr.index] = fr.support
             filled[fr.index] |= fr.filled
+            source[fr.index] = fr.source
+            confidence[fr.index] = fr.confidence
             done += 1
             if progress is not None:
                 progress(done, total)
@@ -595,6 +696,8 @@ def fuse_sequence(
         depth=np.ascontiguousarray(current_points[..., 2]),
         support=support,
         filled=filled,
+        source=source,
+        confidence=confidence,
         flow_forward=fwd_all,
         flow_backward=bwd_all,
         motion=motion_all,

@@ -43,7 +43,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._kernels.fusion import _fill_holes_kernel
-from ._kernels.holes import _spatial_fill_kernel
+from ._kernels.holes import _spatial_fill_kernel, _temporal_fill_kernel
 from ._validation import as_float32, check_shape
 from .config import FusionParams
 
@@ -100,6 +100,80 @@ def small_hole_mask(holes: ArrayLike, max_area_px: int) -> NDArray[np.bool_]:
     return keep[labels] & mask
 
 
+def _fill_from_time(
+    fwd_ring: NDArray[np.float32],
+    bwd_ring: NDArray[np.float32],
+    depth_ring: NDArray[np.float32],
+    ref_ring: NDArray[np.float32],
+    frame_slot: NDArray[np.int64],
+    t: int,
+    first: int,
+    last: int,
+    target: NDArray[np.bool_],
+    *,
+    fb_threshold: float,
+    max_step: float,
+    quad: float,
+    temporal_weight: NDArray[np.float64],
+    min_samples: int = 1,
+) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
+    """Unvalidated A26 on the engine's ring buffers (ring convention of
+    :mod:`fuse4d._kernels.fusion`): the trajectory points (mm) of the ``target`` pixels of
+    frame t and the number of frames that gave a sample (0 = not filled)."""
+    h, w = target.shape
+    points = np.empty((h, w, 3), np.float32)
+    count = np.empty((h, w), np.uint8)
+    _temporal_fill_kernel(
+        fwd_ring,
+        bwd_ring,
+        depth_ring,
+        ref_ring,
+        frame_slot,
+        int(t),
+        int(first),
+        int(last),
+        float(fb_threshold),
+        float(max_step),
+        float(quad),
+        temporal_weight,
+        int(min_samples),
+        target,
+        points,
+        count,
+    )
+    return points, count
+
+
+def _fill_small_holes(
+    depth: NDArray[np.float32],
+    intensity: NDArray[np.float32],
+    holes: NDArray[np.bool_],
+    *,
+    max_area_px: int,
+    radius: int,
+    sigma_intensity: float,
+    max_step: float,
+    quad: float,
+    sigma_space: float = 2.0,
+) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+    """Unvalidated A27: fill the small components of ``holes`` in ``depth`` (mm)."""
+    target = small_hole_mask(holes, int(max_area_px))
+    out = depth.copy()
+    if target.any():
+        _spatial_fill_kernel(
+            depth,
+            intensity,
+            target,
+            int(radius),
+            1.0 / (2.0 * sigma_intensity**2),
+            1.0 / (2.0 * sigma_space**2),
+            float(max_step),
+            float(quad),
+            out,
+        )
+    return out, target & np.isfinite(out)
+
+
 def fill_small_holes(
     depth: ArrayLike,
     intensity: ArrayLike,
@@ -153,22 +227,17 @@ def fill_small_holes(
     check_shape(d, ("H", "W"), name="depth")
     inten = as_float32(intensity, name="intensity")
     check_shape(inten, d.shape, name="intensity")
-    target = small_hole_mask(np.isnan(d), int(max_area_px))
-    out = d.copy()
-    if target.any():
-        _spatial_fill_kernel(
-            d,
-            inten,
-            target,
-            int(radius),
-            1.0 / (2.0 * sigma_intensity**2),
-            1.0 / (2.0 * sigma_space**2),
-            float(max_step),
-            float(noise_quad),
-            out,
-        )
-    filled = target & np.isfinite(out)
-    return out, filled
+    return _fill_small_holes(
+        d,
+        inten,
+        np.isnan(d),
+        max_area_px=max_area_px,
+        radius=radius,
+        sigma_intensity=sigma_intensity,
+        sigma_space=sigma_space,
+        max_step=max_step,
+        quad=noise_quad,
+    )
 
 
 # ----------------------------------------------------------------------------- Eq. 6
