@@ -113,11 +113,19 @@ def run_command(
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing output.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+    report: Annotated[
+        Path | None,
+        typer.Option("--report", help="Also write an HTML report folder (see fuse4d report)."),
+    ] = None,
 ) -> None:
     """Fuse a recording (paper Eq. 2-6) and write the same kind of file or folder."""
     from ..run import fuse_file
 
     fusion, flow = _resolve(preset_name, config, num_frames, causal, sets, flow_method, flow_params)
+    if report is not None:
+        from ..io import check_output
+
+        check_output(report, overwrite=force, inputs=[input, output])  # fail before fusing
     with progress_bar("fusing", None) as progress:
         summary = fuse_file(
             input,
@@ -127,6 +135,14 @@ def run_command(
             overwrite=force,
             progress=progress_callback(progress),
         )
+    if report is not None:
+        from .cmd_report import make_report
+
+        params = {**fusion.to_dict(), "flow_method": summary.flow_method, "preset": preset_name}
+        page = make_report(
+            input, output, report, params=params, fusion_seconds=summary.seconds, overwrite=force
+        )
+        err_console.print(f"wrote {page}")
     if as_json:
         print(json.dumps(summary.to_dict(), indent=2))
         return
