@@ -107,6 +107,8 @@ class FusedSource:
         self._support = None if support is None else np.asarray(support)
         self._filled = None if filled is None else np.asarray(filled, dtype=bool)
         self.params: dict[str, Any] | None = None
+        #: mm per stored depth step of a fused frame folder (None: float depth)
+        self.depth_unit_mm: float | None = None
         self.seconds: float | None = None
         self.name = "in-memory result"
         if isinstance(data, FusionResult):
@@ -123,6 +125,7 @@ class FusedSource:
 
             self._reader = open_frames(data)
             self.name = str(data)
+            self.depth_unit_mm = self._reader.depth_unit_mm
             self._keys: set[str] = set()
             members = getattr(self._reader, "_members", None)
             if isinstance(members, dict):  # NpzReader: support/filled are memory-mapped members

@@ -15,6 +15,7 @@ __all__ = [
     "cloud_figure",
     "flicker_figure",
     "png_bytes",
+    "regions_figure",
     "roughness_figure",
     "support_figure",
     "timeseries_figure",
@@ -51,9 +52,7 @@ def _masked(a: NDArray[np.floating]) -> np.ma.MaskedArray:
 def _cmap(name: str):
     import matplotlib
 
-    cmap = matplotlib.colormaps[name].copy()
-    cmap.set_bad("#303030")
-    return cmap
+    return matplotlib.colormaps[name].with_extremes(bad="#303030")
 
 
 def xt_figure(
@@ -83,7 +82,7 @@ def xt_figure(
     names = list(slices)
     t, n = next(iter(slices.values())).shape
     aspect = max(0.25, min(4.0, n / max(t, 1)))
-    width = min(4.2 * len(names), 18.0)
+    width = min(max(5.5 * len(names), 11.0), 18.0)
     height = 2 * width / len(names) / aspect + 1.2
     fig = _figure(width, min(height, 11.0))
     axes = fig.subplots(2, len(names), squeeze=False, sharex=True, sharey=True)
@@ -179,7 +178,7 @@ def timeseries_figure(
                 linewidth=2.0 if name == "fused" else 1,
                 label=name,
             )
-        ax.set_title(f"pixel (row {r}, col {c}): {label}", fontsize=9)
+        ax.set_title(f"{k + 1}: pixel (row {r}, col {c}), {label}", fontsize=9)
         ax.ticklabel_format(axis="y", useOffset=False, style="plain")
         ax.set_xlabel("frame")
         ax.set_ylabel("depth (mm)")
@@ -216,7 +215,8 @@ def roughness_figure(
             mean = float((hist[name] * centers).sum() / total)
             ax.axvline(mean, color=method_color(name, j), linestyle=":", linewidth=1)
     ax.set_xlabel("roughness Π (mm), ROI pixels of all frames")
-    ax.set_ylabel("pixels")
+    ax.set_ylabel("pixels (log scale)")
+    ax.set_yscale("log")
     ax.legend(fontsize=8)
     return png_bytes(fig)
 
@@ -258,4 +258,51 @@ def cloud_figure(renders: dict[str, NDArray[np.uint8]], *, frame: int) -> bytes:
         ax.imshow(renders[name], interpolation="lanczos")
         ax.set_title(f"{name}, frame {frame}")
         ax.set_axis_off()
+    return png_bytes(fig)
+
+
+def regions_figure(
+    intensity: NDArray[np.float32],
+    static: NDArray[np.bool_],
+    planes: list[NDArray[np.bool_]],
+    *,
+    line_axis: str,
+    line: int,
+    pixels: list[tuple[int, int, str]],
+    roi: tuple[int, int, int, int] | None,
+) -> bytes:
+    """Where the numbers come from: static pixels, plane regions, x–t line, picked pixels."""
+    h, w = intensity.shape
+    fig = _figure(6.4, 6.4 * h / w + 0.3)
+    ax = fig.add_subplot(1, 1, 1)
+    gray = np.clip(np.nan_to_num(np.asarray(intensity, dtype=np.float32)), 0, 1)
+    rgb = np.repeat(0.25 + 0.6 * gray[..., None], 3, axis=-1)
+    rgb[static] = 0.55 * rgb[static] + 0.45 * np.array([0.1, 0.8, 0.2])
+    ax.imshow(rgb, interpolation="nearest")
+    for k, mask in enumerate(planes):
+        if mask.any():
+            ax.contour(
+                mask.astype(np.float32), levels=[0.5], colors=[_OTHERS[k % 6]], linewidths=1.5
+            )
+    if line_axis == "row":
+        ax.axhline(line, color="red", linewidth=1.2)
+    else:
+        ax.axvline(line, color="red", linewidth=1.2)
+    for k, (r, c, _) in enumerate(pixels):
+        ax.plot(c, r, "o", markersize=7, markerfacecolor="none", markeredgecolor="yellow")
+        ax.annotate(
+            str(k + 1),
+            (c, r),
+            xytext=(5, 5),
+            textcoords="offset points",
+            color="yellow",
+            fontsize=10,
+            fontweight="bold",
+        )
+    if roi is not None:
+        r0, r1, c0, c1 = roi
+        ax.plot([c0, c1, c1, c0, c0], [r0, r0, r1, r1, r0], color="white", linestyle="--")
+    ax.set_xlim(-0.5, w - 0.5)
+    ax.set_ylim(h - 0.5, -0.5)
+    ax.set_axis_off()
     return png_bytes(fig)

@@ -44,6 +44,8 @@ class VideoLayout:
         Upper end of the support colour range (frames).
     panel_width : (int, int), optional
         Panels are scaled (nearest neighbour up, area down) to a width in this range (px).
+    show_support : bool, optional
+        Draw the support colour bar (False when the fused result stores no support).
     """
 
     def __init__(
@@ -53,7 +55,8 @@ class VideoLayout:
         depth_range: tuple[float, float],
         diff_max: float,
         support_max: float,
-        panel_width: tuple[int, int] = (300, 480),
+        panel_width: tuple[int, int] = (300, 400),
+        show_support: bool = True,
     ) -> None:
         h, w = shape
         lo, hi = panel_width
@@ -68,6 +71,7 @@ class VideoLayout:
         self.depth_range = depth_range
         self.diff_max = diff_max
         self.support_max = max(support_max, 1.0)
+        self.show_support = show_support
         self.gap = 6
         self.title_h = 22
         self.bar_h = 36
@@ -126,8 +130,9 @@ class VideoLayout:
         lo, hi = self.depth_range
         self._bar(img, self._x(0), by, 2 * self.pw + self.gap, lo, hi, "turbo", "mm")
         self._bar(img, self._x(2), by, self.pw, 0.0, self.diff_max, "magma", "mm")
-        by = self._y(1) + self.ph
-        self._bar(img, self._x(2), by, self.pw, 0.0, self.support_max, "viridis", "frames")
+        if self.show_support:
+            by = self._y(1) + self.ph
+            self._bar(img, self._x(2), by, self.pw, 0.0, self.support_max, "viridis", "frames")
         return img
 
     def _fit(self, panel: NDArray[np.uint8]) -> NDArray[np.uint8]:
@@ -156,7 +161,7 @@ class VideoLayout:
             row, col = divmod(k, 3)
             x, y = self._x(col), self._y(row)
             if panel is None:
-                self._text(img, "not stored", x + 10, y + self.ph // 2, 0.5)
+                self._text(img, "not stored in the fused input", x + 10, y + self.ph // 2, 0.5)
                 continue
             img[y : y + self.ph, x : x + self.pw] = self._fit(panel)
         return img

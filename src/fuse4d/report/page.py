@@ -130,7 +130,8 @@ def render_page(
     video_note : str
         Caption of the video (HTML allowed: written by fuse4d, not by users).
     figures : dict of str to (png bytes, caption HTML)
-        Keys ``xt``, ``flicker``, ``timeseries``, ``roughness``, ``support``, ``cloud``.
+        Keys ``regions``, ``xt``, ``flicker``, ``timeseries``, ``roughness``, ``support``,
+        ``cloud`` (shown in this order after the metrics table).
     metric_rows : list of dict
         ``name``, ``values`` (method -> number), ``unit``, ``meaning``, optional ``digits``.
     method_names : list of str
@@ -143,6 +144,7 @@ def render_page(
         Fusion parameters used; None when the fused input does not record them.
     """
     sections = [
+        ("regions", "Where the numbers come from", ""),
         (
             "xt",
             "x–t slice",

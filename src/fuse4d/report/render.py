@@ -19,6 +19,7 @@ __all__ = [
     "colorize",
     "normal_map",
     "shade_normals",
+    "shade_points",
     "splat_points",
 ]
 
@@ -63,13 +64,17 @@ def colorize(
     >>> colorize(np.array([[0.0, 1.0, np.nan]]), vmin=0.0, vmax=1.0, cmap="gray")[0].tolist()
     [[0, 0, 0], [255, 255, 255], [48, 48, 48]]
     """
+    import cv2
+
     v = np.asarray(values, dtype=np.float32)
     if not (math.isfinite(vmin) and math.isfinite(vmax) and vmax > vmin):
         raise ValueError(f"need finite vmin < vmax, got vmin={vmin!r}, vmax={vmax!r}")
     finite = np.isfinite(v)
-    scaled = np.where(finite, (v - np.float32(vmin)) * np.float32(255.0 / (vmax - vmin)), 0.0)
-    index = np.clip(np.rint(scaled), 0, 255).astype(np.uint8)
-    out = _lut(cmap)[index]
+    scaled = (v - np.float32(vmin)) * np.float32(255.0 / (vmax - vmin))
+    np.clip(scaled, 0.0, 255.0, out=scaled)  # NaN stays NaN here ...
+    scaled[~finite] = 0.0  # ... and is replaced before the cast
+    index = np.rint(scaled).astype(np.uint8)
+    out = cv2.LUT(cv2.merge([index, index, index]), _lut(cmap)[None])  # (H, W, 3) RGB
     out[~finite] = INVALID_RGB
     return out
 
@@ -90,16 +95,24 @@ def normal_map(points: ArrayLike) -> NDArray[np.float32]:
     """
     p = as_float32(points, name="points")
     check_shape(p, ("H", "W", 3), name="points")
-    du = np.full_like(p, np.nan)
-    dv = np.full_like(p, np.nan)
-    du[:, 1:-1] = p[:, 2:] - p[:, :-2]  # (H, W, 3): d p / d column
-    dv[1:-1, :] = p[2:, :] - p[:-2, :]  # (H, W, 3): d p / d row
-    n = np.cross(du, dv)
+    h, w = p.shape[:2]
+    n = np.full((h, w, 3), np.nan, dtype=np.float32)
+    if h < 3 or w < 3:
+        return n
+    du = p[1:-1, 2:] - p[1:-1, :-2]  # (H-2, W-2, 3): d p / d column
+    dv = p[2:, 1:-1] - p[:-2, 1:-1]  # (H-2, W-2, 3): d p / d row
+    nx = du[..., 1] * dv[..., 2] - du[..., 2] * dv[..., 1]
+    ny = du[..., 2] * dv[..., 0] - du[..., 0] * dv[..., 2]
+    nz = du[..., 0] * dv[..., 1] - du[..., 1] * dv[..., 0]
     with np.errstate(invalid="ignore", divide="ignore"):
-        n /= np.linalg.norm(n, axis=-1, keepdims=True)
-        flip = np.sum(n * p, axis=-1) > 0
-    n[flip] *= -1.0
-    return n.astype(np.float32, copy=False)
+        inv = 1.0 / np.sqrt(nx * nx + ny * ny + nz * nz)
+        centre = p[1:-1, 1:-1]
+        facing = nx * centre[..., 0] + ny * centre[..., 1] + nz * centre[..., 2]
+        inv = np.where(facing > 0, -inv, inv)  # orient towards the camera
+    n[1:-1, 1:-1, 0] = nx * inv
+    n[1:-1, 1:-1, 1] = ny * inv
+    n[1:-1, 1:-1, 2] = nz * inv
+    return n
 
 
 def shade_normals(
@@ -123,14 +136,50 @@ def shade_normals(
     """
     n = np.asarray(normals, dtype=np.float32)
     lvec = _LIGHT if light is None else np.asarray(light, dtype=np.float64)
-    lvec = (lvec / np.linalg.norm(lvec)).astype(np.float32)
-    with np.errstate(invalid="ignore"):
-        lambert = np.clip(n @ lvec, 0.0, 1.0)
+    lx, ly, lz = (np.float32(c) for c in lvec / np.linalg.norm(lvec))
+    lambert = n[..., 0] * lx + n[..., 1] * ly + n[..., 2] * lz
     finite = np.isfinite(lambert)
-    gray = np.where(finite, ambient + (1.0 - ambient) * lambert, 0.0)
-    g = np.clip(np.rint(255.0 * gray), 0, 255).astype(np.uint8)
-    out = np.repeat(g[..., None], 3, axis=-1)
+    lambert[~finite] = 0.0
+    np.clip(lambert, 0.0, 1.0, out=lambert)
+    g = np.rint(np.float32(255 * ambient) + np.float32(255 * (1.0 - ambient)) * lambert)
+    g = g.astype(np.uint8)
+    out = np.dstack((g, g, g))
     out[~finite] = INVALID_RGB
+    return out
+
+
+def shade_points(
+    points: ArrayLike, *, light: ArrayLike | None = None, ambient: float = 0.12
+) -> NDArray[np.uint8]:
+    """Normal-shaded rendering of a point map: :func:`normal_map` then :func:`shade_normals`.
+
+    One compiled pass (about 1 ms at 640x480) instead of the NumPy pair (the oracle).
+
+    Parameters
+    ----------
+    points : (H, W, 3) ndarray
+        Points in mm (camera frame), NaN = invalid.
+    light : (3,) array, optional
+        Direction towards the light (default: up-left of the camera).
+    ambient : float, optional
+        Gray level (in [0, 1]) of surfaces facing away from the light.
+
+    Returns
+    -------
+    (H, W, 3) ndarray of uint8
+        Gray RGB; pixels without a normal are :data:`INVALID_RGB`.
+    """
+    from .._kernels.render import _shade_points_kernel
+
+    p = np.ascontiguousarray(as_float32(points, name="points"))
+    check_shape(p, ("H", "W", 3), name="points")
+    lvec = _LIGHT if light is None else np.asarray(light, dtype=np.float64)
+    lvec = lvec / np.linalg.norm(lvec)
+    out = np.empty(p.shape, dtype=np.uint8)
+    invalid = np.array(INVALID_RGB, dtype=np.uint8)
+    _shade_points_kernel(
+        p, float(lvec[0]), float(lvec[1]), float(lvec[2]), float(ambient), invalid, out
+    )
     return out
 
 
@@ -147,11 +196,12 @@ def splat_points(
     *,
     normals: ArrayLike | None = None,
     size: tuple[int, int] = (360, 480),
-    yaw_deg: float = 35.0,
-    pitch_deg: float = -25.0,
+    yaw_deg: float = 30.0,
+    pitch_deg: float = -20.0,
     center: ArrayLike | None = None,
     scale: float | None = None,
-) -> tuple[NDArray[np.uint8], float]:
+    offset: tuple[float, float] | None = None,
+) -> tuple[NDArray[np.uint8], float, tuple[float, float]]:
     """Render a point cloud from an oblique viewpoint: z-buffered splats with normal shading.
 
     The cloud is rotated about ``center`` (yaw about the camera's Y axis, then pitch about its
@@ -171,10 +221,12 @@ def splat_points(
     yaw_deg, pitch_deg : float, optional
         Viewpoint rotation in degrees.
     center : (3,) array, optional
-        Rotation centre in mm (default: median of the valid points). Pass the same centre
-        (and ``scale``) to render several clouds of one frame from the identical viewpoint.
+        Rotation centre in mm (default: median of the valid points). Pass the same centre,
+        ``scale`` and ``offset`` to render several clouds of one frame from the same viewpoint.
     scale : float, optional
         Image pixels per projected unit (default: fit the cloud into ``size``).
+    offset : (float, float), optional
+        Projected coordinates drawn at the image centre (default: the bounding-box centre).
 
     Returns
     -------
@@ -182,6 +234,8 @@ def splat_points(
         Gray shaded render on a dark background.
     scale : float
         The scale used (pass it back for a matching render of another cloud).
+    offset : (float, float)
+        The offset used.
     """
     p = as_float32(points, name="points")
     check_shape(p, ("H", "W", 3), name="points")
@@ -191,7 +245,7 @@ def splat_points(
     image[:] = (24, 24, 28)
     good = np.all(np.isfinite(p), axis=-1)
     if not good.any():
-        return image, 1.0 if scale is None else scale
+        return image, 1.0 if scale is None else scale, offset or (0.0, 0.0)
     pts = p[good].astype(np.float64)  # (N, 3)
     nrm = n[good].astype(np.float64)  # (N, 3), NaN normals stay NaN (drawn at ambient)
     c = np.median(pts, axis=0) if center is None else np.asarray(center, dtype=np.float64)
@@ -203,13 +257,16 @@ def splat_points(
     q, z, nrm = q[keep], z[keep], nrm[keep]
     x = q[:, 0] / z  # perspective projection, unit focal length
     y = q[:, 1] / z
-    if scale is None:
-        half_x = float(np.percentile(np.abs(x), 99.5))
-        half_y = float(np.percentile(np.abs(y), 99.5))
-        span = max(2.0 * half_x / (0.94 * cols), 2.0 * half_y / (0.94 * rows), 1e-12)
-        scale = 1.0 / span
-    u = cols / 2.0 + scale * x  # the centre projects to the image centre
-    v = rows / 2.0 + scale * y
+    if offset is None:  # centre the image on the cloud's bounding box (robust percentiles)
+        x0, x1 = np.percentile(x, [0.5, 99.5])
+        y0, y1 = np.percentile(y, [0.5, 99.5])
+        offset = (float(x0 + x1) / 2.0, float(y0 + y1) / 2.0)
+        if scale is None:
+            scale = 0.94 / max(float(x1 - x0) / cols, float(y1 - y0) / rows, 1e-12)
+    elif scale is None:
+        raise ValueError("give scale together with offset (both from a previous render)")
+    u = cols / 2.0 + scale * (x - offset[0])
+    v = rows / 2.0 + scale * (y - offset[1])
     # splat size: enough to close the gaps between neighbouring samples
     spacing = scale * float(np.median(np.abs(np.diff(pts[:, 0])))) / dist if len(pts) > 1 else 1
     k = int(np.clip(math.ceil(spacing * 1.2), 1, 4))
@@ -229,4 +286,4 @@ def splat_points(
     winner = order[first]
     flat = image.reshape(-1, 3)
     flat[lin[winner]] = gg[winner][:, None]
-    return image, float(scale)
+    return image, float(scale), offset

@@ -71,9 +71,10 @@ class Mp4Writer:
         self._stream.height = self.height
         self._stream.pix_fmt = "yuv420p"
         if self.codec == "libx264":
-            self._stream.options = {"crf": "20", "preset": "veryfast"}
+            self._stream.options = {"crf": "21", "preset": "superfast"}
         else:
             self._stream.bit_rate = 8_000_000
+        self._stream.thread_type = "AUTO"
 
     def write(self, rgb: NDArray[np.uint8]) -> None:
         """Append one frame.

@@ -63,7 +63,8 @@ def choose_line(energy: ArrayLike, *, margin: int = 2, smooth: int = 5) -> int:
     window = s[lo:hi]
     if not np.any(window > 0):
         return n // 2
-    return lo + int(np.argmax(window))
+    ties = np.flatnonzero(window >= window.max() * (1.0 - 1e-12))
+    return lo + int(ties[np.argmax(e[lo + ties])])
 
 
 class XtSlice:
