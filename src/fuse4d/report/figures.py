@@ -279,7 +279,13 @@ def regions_figure(
     rgb = np.repeat(0.25 + 0.6 * gray[..., None], 3, axis=-1)
     rgb[static] = 0.55 * rgb[static] + 0.45 * np.array([0.1, 0.8, 0.2])
     ax.imshow(rgb, interpolation="nearest")
-    for k, mask in enumerate(planes):
+    import cv2
+
+    for k, plane_mask in enumerate(planes):
+        # outline of the region (closed for display: outlier pixels inside are not drawn)
+        mask = cv2.morphologyEx(
+            plane_mask.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((9, 9), np.uint8)
+        ).astype(bool)
         if mask.any():
             ax.contour(
                 mask.astype(np.float32), levels=[0.5], colors=[_OTHERS[k % 6]], linewidths=1.5

@@ -81,6 +81,7 @@ def detect_planes(
     points: NDArray[np.floating],
     *,
     noise_mm: float,
+    allowed: NDArray[np.bool_] | None = None,
     max_planes: int = 2,
     min_fraction: float = 0.05,
     iterations: int = 256,
@@ -94,6 +95,8 @@ def detect_planes(
         Points in mm, NaN = invalid (a raw frame).
     noise_mm : float
         Typical depth noise (mm); the inlier threshold is ``3 * noise_mm`` (at least 0.5 mm).
+    allowed : (H, W) ndarray of bool, optional
+        Pixels a plane may use (e.g. the static ones: a flat target, not a moving torso).
     max_planes : int, optional
         At most this many planes (each found after removing the previous one's inliers).
     min_fraction : float, optional
@@ -106,7 +109,8 @@ def detect_planes(
     Returns
     -------
     list of Plane
-        Largest first; each mask is the largest connected inlier region, eroded by 2 px.
+        Largest first; each mask holds the inliers of the largest connected inlier region
+        (closed, then eroded by 2 px so that edges are left out).
     """
     import cv2
 
@@ -114,6 +118,8 @@ def detect_planes(
     p = np.asarray(points, dtype=np.float64)
     valid = np.all(np.isfinite(p), axis=-1)
     total = int(valid.sum())
+    if allowed is not None:
+        valid &= allowed
     threshold = max(3.0 * float(noise_mm), 0.5) if np.isfinite(noise_mm) else 2.0
     planes: list[Plane] = []
     free = valid.copy()
@@ -138,14 +144,16 @@ def detect_planes(
         on = np.zeros(valid.size, dtype=bool)
         on[idx] = np.abs(flat[idx] @ normal - offset) < threshold
         on = on.reshape(valid.shape)
+        kernel = np.ones((5, 5), np.uint8)
+        closed = cv2.morphologyEx(on.astype(np.uint8), cv2.MORPH_CLOSE, kernel) & valid
         count, labels, stats, _ = cv2.connectedComponentsWithStats(
-            on.astype(np.uint8), connectivity=4
+            closed.astype(np.uint8), connectivity=4
         )
         if count < 2:
             break
         largest = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
         region = labels == largest
-        region = cv2.erode(region.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+        region = cv2.erode(region.astype(np.uint8), kernel).astype(bool) & on
         free &= ~on
         if region.sum() < min_fraction * total:
             continue

@@ -31,6 +31,11 @@ INVALID_RGB = (48, 48, 48)
 _LIGHT = np.array([-0.35, -0.5, -1.0]) / math.sqrt(0.35**2 + 0.5**2 + 1.0)
 
 
+#: Light of the point-cloud render: more grazing, so that flat surfaces are not saturated and
+#: their noise shows.
+_SPLAT_LIGHT = np.array([-0.7, -0.5, -0.5])
+
+
 @lru_cache(maxsize=16)
 def _lut(cmap: str) -> NDArray[np.uint8]:
     """(256, 3) uint8 colour table of a matplotlib colour map."""
@@ -270,7 +275,7 @@ def splat_points(
     # splat size: enough to close the gaps between neighbouring samples
     spacing = scale * float(np.median(np.abs(np.diff(pts[:, 0])))) / dist if len(pts) > 1 else 1
     k = int(np.clip(math.ceil(spacing * 1.2), 1, 4))
-    shade = shade_normals((nrm @ rot.T)[None].astype(np.float32))[0, :, 0]  # (N,) gray
+    shade = shade_normals((nrm @ rot.T)[None].astype(np.float32), light=_SPLAT_LIGHT)[0, :, 0]
     offsets = np.arange(k) - (k - 1) // 2
     du, dv = np.meshgrid(offsets, offsets)
     ui = (np.rint(u)[:, None] + du.ravel()[None]).ravel().astype(np.int64)  # (N * k * k,)
