@@ -368,3 +368,26 @@ def test_xt_slice_and_line_choice():
     energy[30:33] = [2.0, 5.0, 2.0]
     assert choose_line(energy) == 31  # ties of the smoothed energy: the busiest line wins
     assert choose_line(np.zeros(10)) == 5
+
+
+def test_rerun_recording_has_every_frame(run_with_report, tmp_path):
+    from fuse4d.report.rerun import have_rerun, write_rerun
+
+    if not have_rerun():
+        pytest.skip("rerun-sdk not installed (optional extra fuse4d[viz])")
+    raw, fused, _ = run_with_report
+    out = write_rerun(raw, fused, tmp_path / "out.rrd")
+    assert out.stat().st_size > 100_000  # 2 x 6 depth frames of 150 x 150 float32 at least
+    with pytest.raises(OutputExistsError):
+        write_rerun(raw, fused, out)
+
+
+def test_rerun_missing_is_one_line_cli_error(run_with_report, tmp_path, capsys, monkeypatch):
+    import fuse4d.report.rerun as rr_mod
+
+    monkeypatch.setattr(rr_mod, "have_rerun", lambda: False)
+    raw, fused, _ = run_with_report
+    out = tmp_path / "r"
+    assert main(["report", str(raw), str(fused), "-o", str(out), "--rerun", "x.rrd"]) == 2
+    assert "fuse4d[viz]" in capsys.readouterr().err
+    assert not out.exists()

@@ -9,7 +9,7 @@ from typing import Annotated, Any
 import typer
 from rich.table import Table
 
-from ._app import app, err_console, out_console, progress_bar, progress_callback
+from ._app import app, err_console, fail, out_console, progress_bar, progress_callback
 
 __all__ = ["make_report", "report_command"]
 
@@ -61,12 +61,23 @@ def report_command(
         typer.Option("--frame", help="Frame of the maps and point cloud (default: middle)."),
     ] = None,
     fps: Annotated[float | None, typer.Option("--fps", help="Video frame rate.")] = None,
+    rerun: Annotated[
+        Path | None,
+        typer.Option("--rerun", help="Also log raw/fused depth to a Rerun .rrd (fuse4d[viz])."),
+    ] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace an existing report.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print metrics.json to stdout.")] = False,
 ) -> None:
     """Write DIR/report.html (self-contained), DIR/compare.mp4 and DIR/metrics.json."""
     from ..report import parse_roi
 
+    if rerun is not None:
+        from ..io import check_output
+        from ..report.rerun import have_rerun
+
+        if not have_rerun():
+            fail("--rerun needs rerun-sdk: pip install 'fuse4d[viz]'")
+        check_output(rerun, overwrite=force, inputs=[input, fused])  # fail before the report
     page = make_report(
         input,
         fused,
@@ -80,6 +91,12 @@ def report_command(
         fps=fps,
         overwrite=force,
     )
+    if rerun is not None:
+        from ..report.rerun import write_rerun
+
+        with progress_bar("rerun", None) as bar:
+            write_rerun(input, fused, rerun, overwrite=force, progress=progress_callback(bar))
+        err_console.print(f"wrote {rerun} (open it with: rerun {rerun})")
     print_report_summary(page, as_json=as_json)
 
 

@@ -49,9 +49,10 @@ def _fit(points: NDArray[np.float64]) -> tuple[NDArray[np.float64], float, float
     """Total-least-squares plane of (N, 3) points: (normal, offset, RMS residual in mm)."""
     c = points.mean(axis=0)
     q = points - c
-    _, s, vt = np.linalg.svd(q, full_matrices=False)
-    n = vt[-1]
-    rms = float(s[-1] / np.sqrt(max(len(points), 1)))
+    scatter = q.T @ q  # (3, 3)
+    values, vectors = np.linalg.eigh(scatter)  # ascending eigenvalues
+    n = vectors[:, 0]
+    rms = float(np.sqrt(max(values[0], 0.0) / max(len(points), 1)))
     return n, float(n @ c), rms
 
 

@@ -212,8 +212,8 @@ def splat_points(
     The cloud is rotated about ``center`` (yaw about the camera's Y axis, then pitch about its
     X axis), projected with a perspective camera looking at it from the original viewing
     distance, and fitted into the image. Each point is drawn as a k x k square (k from the
-    point density) and the nearest point wins every pixel (sort by depth, keep the first per
-    pixel: vectorised, no Python loop over points).
+    point density) and the nearest point wins every pixel (a z-buffer filled with
+    ``np.minimum.at``: vectorised, no Python loop over points).
 
     Parameters
     ----------
@@ -285,10 +285,9 @@ def splat_points(
     inside = (ui >= 0) & (ui < cols) & (vi >= 0) & (vi < rows)
     lin = vi[inside] * cols + ui[inside]
     zz, gg = zz[inside], gg[inside]
-    order = np.lexsort((zz, lin))  # by pixel, then nearest first
-    first = np.ones(order.size, dtype=bool)
-    first[1:] = lin[order][1:] != lin[order][:-1]
-    winner = order[first]
+    zbuf = np.full(rows * cols, np.inf)
+    np.minimum.at(zbuf, lin, zz)  # z-buffer: nearest depth per pixel
+    winner = zz <= zbuf[lin]  # the splats that are nearest at their pixel
     flat = image.reshape(-1, 3)
     flat[lin[winner]] = gg[winner][:, None]
     return image, float(scale), offset

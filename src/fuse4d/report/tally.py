@@ -34,7 +34,8 @@ class MetricTally:
     planes : list of Plane
         Regions for the spatial precision.
     roughness_bins : (B + 1,) ndarray
-        Histogram edges of the roughness (mm); values above the last edge go to the last bin.
+        Uniform histogram edges of the roughness (mm); values above the last edge go to the
+        last bin.
     window : int, optional
         Roughness window (px).
     edge_mm : float, optional
@@ -122,10 +123,7 @@ class MetricTally:
                 vals = pis[n][roi].astype(np.float64)
                 self.frame_pi[n].append(float(vals.sum() / count))
                 self.frame_rms[n].append(float(rmss[n][roi].astype(np.float64).sum() / count))
-                idx = np.clip(np.searchsorted(self.bins, vals, side="right") - 1, 0, None)
-                self.hist[n] += np.bincount(
-                    np.minimum(idx, self.bins.size - 2), minlength=self.bins.size - 1
-                )
+                self.hist[n] += self._bin_counts(vals)
             else:
                 self.frame_pi[n].append(math.nan)
                 self.frame_rms[n].append(math.nan)
@@ -163,6 +161,13 @@ class MetricTally:
                     )
                 self._bad[n] += int(gt_ok.sum() - good.sum())
         return pis
+
+    def _bin_counts(self, values: NDArray[np.float64]) -> NDArray[np.int64]:
+        """Histogram counts on the uniform bins; out-of-range values go to the end bins."""
+        nbins = self.bins.size - 1
+        width = (self.bins[-1] - self.bins[0]) / nbins
+        idx = np.floor((values - self.bins[0]) / width).astype(np.int64)
+        return np.bincount(np.clip(idx, 0, nbins - 1), minlength=nbins)
 
     def std_map(self, name: str) -> NDArray[np.float32]:
         """Per-pixel temporal std (ddof = 0, mm) on pixels valid in every frame of every method."""
