@@ -63,7 +63,9 @@ def report_command(
     fps: Annotated[float | None, typer.Option("--fps", help="Video frame rate.")] = None,
     rerun: Annotated[
         Path | None,
-        typer.Option("--rerun", help="Also log raw/fused depth to a Rerun .rrd (fuse4d[viz])."),
+        typer.Option(
+            "--rerun", help="Also log raw/fused depth to a Rerun .rrd (needs the viz extra)."
+        ),
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace an existing report.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print metrics.json to stdout.")] = False,
