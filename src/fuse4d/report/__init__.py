@@ -571,18 +571,22 @@ def _write(
                     if fil is not None and filled_sum is not None:
                         filled_sum += fil
                         filled_count += int(fil[ok].sum())
+                    fit = layout.fit_values  # colour-map at the panel size (cheaper)
                     panels = (
-                        colorize(d_raw, vmin=lo, vmax=hi),
-                        colorize(depths["fused"], vmin=lo, vmax=hi),
+                        colorize(fit(d_raw), vmin=lo, vmax=hi),
+                        colorize(fit(depths["fused"]), vmin=lo, vmax=hi),
                         colorize(
-                            np.abs(d_raw - depths["fused"]), vmin=0.0, vmax=diff_max, cmap="magma"
+                            fit(np.abs(d_raw - depths["fused"])),
+                            vmin=0.0,
+                            vmax=diff_max,
+                            cmap="magma",
                         ),
-                        shade_points(points["raw"]),
+                        shade_points(points["raw"]),  # normals need the full resolution
                         shade_points(points["fused"]),
                         None
                         if sup is None
                         else colorize(
-                            np.where(ok, sup.astype(np.float32), np.nan),
+                            fit(np.where(ok, sup.astype(np.float32), np.nan)),
                             vmin=0.0,
                             vmax=support_max,
                             cmap="viridis",

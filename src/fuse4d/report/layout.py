@@ -135,10 +135,22 @@ class VideoLayout:
             self._bar(img, self._x(2), by, self.pw, 0.0, self.support_max, "viridis", "frames")
         return img
 
+    def fit_values(self, values: NDArray[np.floating]) -> NDArray[np.float32]:
+        """A scalar map (H, W) resampled (nearest neighbour) to the panel size.
+
+        Colour-mapping after this is cheaper when panels are smaller than the frames.
+        """
+        import cv2
+
+        v = np.asarray(values, dtype=np.float32)
+        if v.shape == (self.ph, self.pw):
+            return v
+        return cv2.resize(v, (self.pw, self.ph), interpolation=cv2.INTER_NEAREST)
+
     def _fit(self, panel: NDArray[np.uint8]) -> NDArray[np.uint8]:
         import cv2
 
-        if self.scale == 1.0:
+        if panel.shape[:2] == (self.ph, self.pw):
             return panel
         interp = cv2.INTER_NEAREST if self.scale > 1 else cv2.INTER_AREA
         return cv2.resize(panel, (self.pw, self.ph), interpolation=interp)
@@ -153,7 +165,8 @@ class VideoLayout:
     ) -> NDArray[np.uint8]:
         """One video frame from six (H, W, 3) uint8 panels (row-major order, see module doc).
 
-        A panel may be None (drawn as "not available").
+        Panels of another size than the panel size are resampled. A panel may be None
+        (drawn as "not stored").
         """
         img = self._template.copy()
         self._text(img, f"frame {index + 1} / {total}   {label}", self.gap, 19, 0.55)
