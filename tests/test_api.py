@@ -133,6 +133,7 @@ MODULES = [
     ("fuse4d.errors", "fuse4d's error types"),
     ("fuse4d.plot", "Figures"),
     ("fuse4d.run", "File in, file out (what `fuse4d run` calls)"),
+    ("fuse4d.report", "The HTML report: video, x-t slices, flicker, roughness, point clouds"),
 ]
 
 

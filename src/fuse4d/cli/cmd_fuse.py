@@ -131,6 +131,10 @@ def run_command(
     intrinsics: Annotated[
         str | None, typer.Option("--intrinsics", help="Camera override: 'fx,fy,cx,cy' or file.")
     ] = None,
+    report: Annotated[
+        Path | None,
+        typer.Option("--report", help="Also write an HTML report folder (see fuse4d report)."),
+    ] = None,
 ) -> None:
     """Fuse a recording (paper Eq. 2-6) and write the same kind of file or folder.
 
@@ -156,6 +160,10 @@ def run_command(
         flow_cache,
         flow_roi,
     )
+    if report is not None:
+        from ..io import check_output
+
+        check_output(report, overwrite=force, inputs=[input, output])  # fail before fusing
     with progress_bar("fusing", None) as progress:
         summary = fuse_file(
             input,
@@ -166,6 +174,14 @@ def run_command(
             progress=progress_callback(progress),
             reader_options=options,
         )
+    if report is not None:
+        from .cmd_report import make_report
+
+        params = {**fusion.to_dict(), "flow_method": summary.flow_method, "preset": preset_name}
+        page = make_report(
+            input, output, report, params=params, fusion_seconds=summary.seconds, overwrite=force
+        )
+        err_console.print(f"wrote {page}")
     if as_json:
         print(json.dumps(summary.to_dict(), indent=2))
         return

@@ -1,0 +1,210 @@
+"""Chunked access to the report's inputs: files of any layout, or arrays already in memory."""
+
+from __future__ import annotations
+
+import warnings
+from contextlib import contextmanager
+from dataclasses import dataclass
+from os import PathLike
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..camera import Intrinsics
+from ..errors import InputFileError, ShapeError
+from ..fusion import FusionResult
+from ..sequence import Sequence
+
+__all__ = ["FusedChunk", "FusedSource", "RawSource", "open_fused", "open_raw"]
+
+PathOrSequence = str | PathLike[str] | Sequence
+
+
+@contextmanager
+def _quiet_chunks():
+    """Chunks are re-read pieces of an input already accepted: repeat no warning per chunk."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="only .* of depth pixels are valid")
+        yield
+
+
+class RawSource:
+    """The raw recording, read in chunks of frames (with ground truth where stored)."""
+
+    def __init__(self, data: PathOrSequence) -> None:
+        self._seq: Sequence | None = None
+        self._reader: Any = None
+        if isinstance(data, Sequence):
+            self._seq = data
+            self.intrinsics: Intrinsics = data.intrinsics
+            self.num_frames = data.num_frames
+            self.fps = data.fps
+            self.name = data.name or "in-memory sequence"
+            self.has_ground_truth = (
+                data.ground_truth is not None and data.ground_truth.depth is not None
+            )
+        else:
+            from ..io import open_frames
+
+            self._reader = open_frames(data)
+            self.intrinsics = self._reader.intrinsics
+            self.num_frames = len(self._reader)
+            self.fps = self._reader.fps
+            self.name = str(data)
+            self.has_ground_truth = "depth" in self._reader.ground_truth_keys
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Frame shape (H, W)."""
+        return self.intrinsics.shape
+
+    def chunk(self, start: int, stop: int) -> Sequence:
+        """Frames ``start:stop`` as a :class:`~fuse4d.Sequence` (ground truth included)."""
+        with _quiet_chunks():
+            if self._seq is not None:
+                return self._seq.frames(start, stop)
+            return self._reader.read_sequence((start, stop))
+
+    def close(self) -> None:
+        """Close the file reader (if any)."""
+        if self._reader is not None:
+            self._reader.close()
+
+
+@dataclass
+class FusedChunk:
+    """Fused frames ``start:stop``.
+
+    Attributes
+    ----------
+    depth : (C, H, W) ndarray of float32
+        Fused depth in mm, NaN = invalid.
+    support : (C, H, W) ndarray of uint8 or None
+        Frames fused per pixel (temporal support), when the result stores it.
+    filled : (C, H, W) ndarray of bool or None
+        Pixels filled by hole filling (Eq. 6), when stored.
+    """
+
+    depth: NDArray[np.float32]
+    support: NDArray[np.uint8] | None
+    filled: NDArray[np.bool_] | None
+
+
+class FusedSource:
+    """The fused result, in chunks: a file (``.npz`` or any readable layout) or arrays."""
+
+    def __init__(
+        self,
+        data: str | PathLike[str] | Sequence | FusionResult | ArrayLike,
+        *,
+        support: ArrayLike | None = None,
+        filled: ArrayLike | None = None,
+    ) -> None:
+        self._reader: Any = None
+        self._depth: NDArray[np.float32] | None = None
+        self._support = None if support is None else np.asarray(support)
+        self._filled = None if filled is None else np.asarray(filled, dtype=bool)
+        self.params: dict[str, Any] | None = None
+        #: mm per stored depth step of a fused frame folder (None: float depth)
+        self.depth_unit_mm: float | None = None
+        self.seconds: float | None = None
+        self.name = "in-memory result"
+        if isinstance(data, FusionResult):
+            self._depth = data.depth
+            self._support = data.support if self._support is None else self._support
+            self._filled = data.filled if self._filled is None else self._filled
+            self.params = {**data.params.to_dict(), "flow_method": data.flow_method}
+            self.seconds = float(sum(data.timings.values())) if data.timings else None
+        elif isinstance(data, Sequence):
+            self._depth = data.depth
+            self.name = data.name or self.name
+        elif isinstance(data, str | PathLike):
+            from ..io import open_frames
+
+            self._reader = open_frames(data)
+            self.name = str(data)
+            self.depth_unit_mm = self._reader.depth_unit_mm
+            self._keys: set[str] = set()
+            members = getattr(self._reader, "_members", None)
+            if isinstance(members, dict):  # NpzReader: support/filled are memory-mapped members
+                self._keys = {k for k in ("support", "filled") if k in members}
+        else:
+            depth = np.asarray(data, dtype=np.float32)
+            if depth.ndim != 3:
+                raise ShapeError("fused", ("T", "H", "W"), depth.shape, "fused depth in mm")
+            self._depth = np.where(np.isfinite(depth) & (depth > 0), depth, np.float32(np.nan))
+        if self._reader is not None:
+            self.num_frames = len(self._reader)
+            self.shape = self._reader.intrinsics.shape
+        else:
+            assert self._depth is not None
+            self.num_frames = int(self._depth.shape[0])
+            self.shape = (int(self._depth.shape[1]), int(self._depth.shape[2]))
+        for name, arr in (("support", self._support), ("filled", self._filled)):
+            if arr is not None and arr.shape != (self.num_frames, *self.shape):
+                raise ShapeError(name, (self.num_frames, *self.shape), arr.shape, "one per frame")
+
+    @property
+    def has_support(self) -> bool:
+        """Whether support and filled maps are available."""
+        if self._reader is not None:
+            return "support" in self._keys
+        return self._support is not None
+
+    def _member(self, key: str, start: int, stop: int) -> np.ndarray | None:
+        if key not in self._keys:
+            return None
+        return np.array(self._reader._array(key)[start:stop])  # memory-mapped npz member
+
+    def chunk(self, start: int, stop: int) -> FusedChunk:
+        """Fused frames ``start:stop``."""
+        if self._reader is not None:
+            with _quiet_chunks():
+                seq = self._reader.read_sequence((start, stop))
+            support = self._member("support", start, stop)
+            filled = self._member("filled", start, stop)
+            return FusedChunk(
+                seq.depth,
+                None if support is None else support.astype(np.uint8),
+                None if filled is None else filled.astype(bool),
+            )
+        assert self._depth is not None
+        s = None if self._support is None else self._support[start:stop].astype(np.uint8)
+        f = None if self._filled is None else self._filled[start:stop]
+        return FusedChunk(np.asarray(self._depth[start:stop], dtype=np.float32), s, f)
+
+    def close(self) -> None:
+        """Close the file reader (if any)."""
+        if self._reader is not None:
+            self._reader.close()
+
+
+def open_raw(data: PathOrSequence) -> RawSource:
+    """Open the raw input (see :class:`RawSource`)."""
+    if not isinstance(data, Sequence | str | PathLike):
+        raise TypeError(
+            f"input must be a path or a fuse4d.Sequence, got {type(data).__name__}; wrap arrays "
+            "as Sequence(depth, intensity, intrinsics)"
+        )
+    return RawSource(data)
+
+
+def open_fused(
+    data: Any, raw: RawSource, *, support: ArrayLike | None, filled: ArrayLike | None
+) -> FusedSource:
+    """Open the fused result and check it matches the raw input frame for frame."""
+    fused = FusedSource(data, support=support, filled=filled)
+    if fused.num_frames != raw.num_frames or tuple(fused.shape) != raw.shape:
+        name = fused.name
+        problem = (
+            f"fused result has {fused.num_frames} frames of {fused.shape[0]}x{fused.shape[1]} "
+            f"but the input {raw.name} has {raw.num_frames} of {raw.shape[0]}x{raw.shape[1]}; "
+            "give the output of fusing exactly this input"
+        )
+        fused.close()
+        if isinstance(data, str | PathLike):
+            raise InputFileError(Path(data), problem)
+        raise ValueError(f"{name}: {problem}")
+    return fused

@@ -1,0 +1,393 @@
+"""Tests of ``fuse4d report`` / :func:`fuse4d.report.write_report` (issue 14).
+
+The page is opened in headless Chromium (Debian's ``chromium`` package; skipped with the reason
+when the binary is absent): every image and the video must load, with no script error. The MP4
+must decode to one frame per input frame, and the numbers of ``metrics.json`` must equal those of
+the :mod:`fuse4d.metrics` functions (and ``fuse4d metrics``) on the same pixels.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fuse4d import depth_to_points, fuse_sequence, load_sequence
+from fuse4d.cli import main
+from fuse4d.errors import OutputExistsError
+from fuse4d.metrics import (
+    bad_pixel_fraction,
+    default_roi,
+    depth_rmse,
+    roughness,
+    roughness_stats,
+    static_mask_from_ground_truth,
+    temporal_flicker,
+)
+from fuse4d.report import count_video_frames, parse_roi, write_report
+from fuse4d.report.render import (
+    INVALID_RGB,
+    colorize,
+    normal_map,
+    shade_normals,
+    shade_points,
+    splat_points,
+)
+from fuse4d.report.xt import XtSlice, choose_line
+from fuse4d.synthetic import make_falling_ball
+
+FRAMES = 6
+
+
+@pytest.fixture(scope="module")
+def run_with_report(tmp_path_factory):
+    """``fuse4d synth`` + ``fuse4d run ... --report``: (raw npz, fused npz, report folder)."""
+    root = tmp_path_factory.mktemp("report")
+    raw, fused, rep = root / "ball.npz", root / "fused.npz", root / "rep"
+    assert main(["synth", "ball", "--small", "--frames", str(FRAMES), "-o", str(raw)]) == 0
+    args = ["run", str(raw), "-o", str(fused), "--window", "5", "--report", str(rep), "--json"]
+    assert main(args) == 0
+    return raw, fused, rep
+
+
+@pytest.fixture(scope="module")
+def small_ball():
+    return make_falling_ball(small=True, num_frames=4)
+
+
+@pytest.fixture(scope="module")
+def small_fused(small_ball):
+    return fuse_sequence(small_ball.depth, small_ball.intensity, small_ball.intrinsics)
+
+
+def _metrics(rep: Path) -> dict:
+    return json.loads((rep / "metrics.json").read_text())
+
+
+# --------------------------------------------------------------------------- files and numbers
+def test_report_folder_holds_page_video_metrics_and_clouds(run_with_report):
+    _, _, rep = run_with_report
+    names = sorted(p.name for p in rep.iterdir())
+    assert names == [
+        "cloud_fused.ply",
+        "cloud_raw.ply",
+        "compare.mp4",
+        "metrics.json",
+        "report.html",
+    ]
+    page = (rep / "report.html").read_text()
+    assert "http://" not in page
+    assert "https://" not in page  # self-contained: no CDN, no network
+    assert page.count("data:image/png;base64,") == 7
+    m = _metrics(rep)
+    assert m["methods"] == ["raw", "fused"]
+    assert m["params"]["num_frames"] == 5  # recorded by fuse4d run --report
+    assert m["timing"]["fusion_ms_per_frame"] > 0
+    assert m["timing"]["report_ms_per_frame"] > 0
+    assert 0.5 < m["fusion"]["support_fraction"] <= 1.0
+    assert m["xt_slice"]["how"].startswith("auto")
+
+
+def test_mp4_decodes_to_one_frame_per_input_frame(run_with_report):
+    _, _, rep = run_with_report
+    assert count_video_frames(rep / "compare.mp4") == FRAMES
+    m = _metrics(rep)
+    assert m["video"]["frames"] == FRAMES
+    height, width = m["video"]["size"]
+    assert height % 2 == 0
+    assert width % 2 == 0
+
+
+def test_metrics_equal_the_library_functions_on_the_same_pixels(run_with_report):
+    raw_path, fused_path, rep = run_with_report
+    m = _metrics(rep)["metrics"]
+    raw = load_sequence(raw_path)
+    fused = load_sequence(fused_path)
+    k = raw.intrinsics
+    p_raw, p_fused = depth_to_points(raw.depth, k), depth_to_points(fused.depth, k)
+    # Eq. 7 roughness on the default ROI of the raw frame where Pi is defined for both
+    roi = default_roi(raw.depth) & np.isfinite(roughness(p_raw)) & np.isfinite(roughness(p_fused))
+    for name, pts in (("raw", p_raw), ("fused", p_fused)):
+        stats = roughness_stats(pts, roi=roi)
+        assert m[name]["roughness_mean"] == pytest.approx(stats.mean, rel=1e-9)
+        assert m[name]["roughness_std"] == pytest.approx(stats.std, rel=1e-6, abs=1e-12)
+        assert m[name]["rms_residual"] == pytest.approx(stats.rms_mean, rel=1e-9)
+    assert m["fused"]["roughness_mean"] < 0.6 * m["raw"]["roughness_mean"]
+    # flicker on GT-static pixels valid in every frame of both
+    both = np.all(np.isfinite(raw.depth), axis=0) & np.all(np.isfinite(fused.depth), axis=0)
+    static = static_mask_from_ground_truth(raw.ground_truth) & both
+    for name, seq in (("raw", raw), ("fused", fused)):
+        flick = temporal_flicker(seq.depth, static_mask=static)
+        assert m[name]["flicker_median"] == pytest.approx(flick.median, rel=1e-6)
+        assert m[name]["flicker_mean"] == pytest.approx(flick.mean, rel=1e-6)
+    assert m["fused"]["flicker_median"] < 0.5 * m["raw"]["flicker_median"]
+    # ground truth: RMSE on pixels valid in both, bad pixels with missing = bad
+    gt = raw.ground_truth.depth
+    common = np.isfinite(raw.depth) & np.isfinite(fused.depth)
+    for name, seq in (("raw", raw), ("fused", fused)):
+        assert m[name]["rmse"] == pytest.approx(depth_rmse(gt, seq.depth, mask=common), rel=1e-9)
+        assert m[name]["bad_pixels"] == pytest.approx(bad_pixel_fraction(gt, seq.depth), rel=1e-12)
+        assert m[name]["fill_rate"] == pytest.approx(float(np.isfinite(seq.depth).mean()))
+
+
+def test_metrics_agree_with_fuse4d_metrics_cli(run_with_report, capsys):
+    raw_path, fused_path, rep = run_with_report
+    m = _metrics(rep)["metrics"]
+    capsys.readouterr()
+    for name, path in (("raw", raw_path), ("fused", fused_path)):
+        assert main(["metrics", str(path), "--json", "--no-shape"]) == 0
+        cli = json.loads(capsys.readouterr().out)
+        # the ball's raw depth is valid everywhere, so "valid in all methods" = "valid in one"
+        assert m[name]["flicker_median"] == pytest.approx(cli["flicker"], rel=1e-6)
+        assert m[name]["rmse"] == pytest.approx(cli["rmse"], rel=1e-9)
+        assert m[name]["bad_pixels"] == pytest.approx(cli["bad_1mm"], rel=1e-12)
+
+
+# --------------------------------------------------------------------------- the browser
+def _chromium() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        found = shutil.which(name)
+        if found:
+            return found
+    return None
+
+
+def _chromium_run(binary: str, *args: str) -> subprocess.CompletedProcess[str]:
+    with tempfile.TemporaryDirectory() as profile:
+        return subprocess.run(
+            [
+                binary,
+                "--headless",
+                "--no-sandbox",
+                "--disable-gpu",
+                "--disable-quic",
+                "--no-first-run",
+                "--disable-background-networking",
+                "--disable-component-update",
+                "--disable-sync",
+                "--enable-logging=stderr",
+                "--v=0",
+                f"--user-data-dir={profile}",
+                "--virtual-time-budget=10000",
+                *args,
+            ],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            check=False,
+            env={**os.environ, "HOME": profile},
+        )
+
+
+@pytest.mark.slow
+def test_page_loads_in_headless_chromium(run_with_report, tmp_path):
+    binary = _chromium()
+    if binary is None:
+        pytest.skip("no chromium binary on PATH (Debian: apt-get install -y chromium)")
+    _, _, rep = run_with_report
+    url = (rep / "report.html").resolve().as_uri()
+    shot = tmp_path / "report.png"
+    done = _chromium_run(binary, f"--screenshot={shot}", "--window-size=1400,2400", url)
+    assert shot.is_file(), done.stderr[-2000:]
+    assert shot.stat().st_size > 50_000  # a rendered page, not a blank one
+    dom = _chromium_run(binary, "--dump-dom", url)
+    assert dom.returncode == 0, dom.stderr[-2000:]
+    start = dom.stdout.index('<pre id="load-status">') + len('<pre id="load-status">')
+    status = json.loads(dom.stdout[start : dom.stdout.index("</pre>", start)])
+    assert status["images"] == 7
+    assert status["images_ok"] == status["images"], status
+    assert status["videos"] == 1
+    if _metrics(rep)["video"]["codec"] == "libx264":  # MPEG-4 part 2 does not play in browsers
+        assert status["videos_ok"] == 1, status
+    assert status["errors"] == []
+    console = [
+        line
+        for line in done.stderr.splitlines() + dom.stderr.splitlines()
+        if "CONSOLE" in line or "Uncaught" in line
+    ]
+    assert console == []
+
+
+# --------------------------------------------------------------------------- Python API
+@pytest.mark.slow
+def test_api_with_arrays_compare_column_and_roi(small_ball, small_fused, tmp_path):
+    out = tmp_path / "rep"
+    page = write_report(
+        small_ball,
+        small_fused.depth,
+        out,
+        support=small_fused.support,
+        filled=small_fused.filled,
+        compare=["temporal-mean"],
+        col=75,
+        roi=(118, 146, 4, 40),  # the static wall below-left of the ball
+        chunk_frames=3,
+    )
+    assert page == out / "report.html"
+    m = _metrics(out)
+    assert m["methods"] == ["raw", "fused", "temporal-mean"]
+    assert m["xt_slice"] == {"axis": "col", "index": 75, "how": "given"}
+    assert [p["source"] for p in m["planes"]] == ["given"]
+    sp = {n: m["metrics"][n]["spatial_precision"] for n in m["methods"]}
+    assert sp["fused"] < sp["raw"]  # the wall is flatter after fusion
+    assert 0.15 < sp["raw"] < 0.25  # sigma_d = 0.2 mm on a fronto-parallel wall
+    assert 0 < m["flicker"]["static_pixels"] <= 28 * 36
+    assert m["fusion"]["support_fraction"] is not None
+    assert count_video_frames(out / "compare.mp4") == 4
+
+
+@pytest.mark.slow
+def test_chunked_equals_unchunked(small_ball, small_fused, tmp_path):
+    a = write_report(small_ball, small_fused, tmp_path / "a", chunk_frames=1)
+    b = write_report(small_ball, small_fused, tmp_path / "b", chunk_frames=64)
+    ma, mb = _metrics(a.parent)["metrics"], _metrics(b.parent)["metrics"]
+    for name in ("raw", "fused"):
+        for key in ("roughness_mean", "flicker_median", "rmse", "bad_pixels", "fill_rate"):
+            assert ma[name][key] == pytest.approx(mb[name][key], rel=1e-12), key
+
+
+def test_bad_input_raises_and_leaves_no_report(small_ball, small_fused, tmp_path):
+    out = tmp_path / "rep"
+    with pytest.raises(ValueError, match="frames"):
+        write_report(small_ball, small_fused.depth[:3], out)
+    with pytest.raises(ValueError, match="not both"):
+        write_report(small_ball, small_fused, out, row=3, col=4)
+    with pytest.raises(ValueError, match="unknown baseline"):
+        write_report(small_ball, small_fused, out, compare=["nope"])
+    with pytest.raises(ValueError, match="not a non-empty region"):
+        write_report(small_ball, small_fused, out, roi=(0, 10, 140, 200))
+    with pytest.raises(ValueError, match="row must be"):
+        write_report(small_ball, small_fused, out, row=999)
+    assert not out.exists()
+    assert list(tmp_path.iterdir()) == []
+    out.mkdir()
+    with pytest.raises(OutputExistsError):
+        write_report(small_ball, small_fused, out)
+
+
+def test_failure_midway_leaves_no_report(small_ball, small_fused, tmp_path, monkeypatch):
+    from fuse4d.report import figures
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(figures, "xt_figure", broken)
+    with pytest.raises(RuntimeError, match="boom"):
+        write_report(small_ball, small_fused, tmp_path / "rep")
+    assert list(tmp_path.iterdir()) == []  # neither the report nor its temporary folder
+
+
+def test_cli_report_errors_are_one_line(run_with_report, tmp_path, capsys):
+    raw, fused, _ = run_with_report
+    code = main(["report", str(raw), str(fused), "-o", str(tmp_path / "r"), "--compare", "x"])
+    assert code == 2
+    assert "unknown baseline" in capsys.readouterr().err
+    assert main(["report", str(raw), str(fused), "-o", str(tmp_path / "r"), "--roi", "3"]) == 2
+    assert "R0:R1,C0:C1" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+
+
+# --------------------------------------------------------------------------- pieces
+def test_parse_roi():
+    assert parse_roi("10:20,30:45") == (10, 20, 30, 45)
+    with pytest.raises(ValueError, match="R0:R1,C0:C1"):
+        parse_roi("10:20")
+
+
+def test_colorize_fixed_range_and_invalid():
+    img = colorize(np.array([[-5.0, 0.0, 0.5, 1.0, 7.0, np.nan]]), vmin=0.0, vmax=1.0, cmap="gray")
+    assert img[0, :, 0].tolist() == [0, 0, 128, 255, 255, INVALID_RGB[0]]
+    with pytest.raises(ValueError, match="vmin < vmax"):
+        colorize(np.zeros((2, 2)), vmin=1.0, vmax=1.0)
+
+
+def test_shade_points_kernel_matches_numpy_oracle(small_ball):
+    pts = depth_to_points(small_ball.depth[0], small_ball.intrinsics)
+    pts[40:50, 60:70] = np.nan
+    fast = shade_points(pts).astype(int)
+    slow = shade_normals(normal_map(pts)).astype(int)
+    assert np.abs(fast - slow).max() <= 1  # float32 vs float64 rounding of the gray level
+    assert (fast == slow).mean() > 0.999
+    assert (fast[0] == INVALID_RGB).all()  # border: no central difference
+
+
+def test_normals_face_the_camera_and_light_is_lambert():
+    from fuse4d import Intrinsics
+
+    k = Intrinsics(fx=100.0, fy=100.0, cx=9.5, cy=9.5, width=20, height=20)
+    pts = depth_to_points(np.full((20, 20), 500.0), k)
+    n = normal_map(pts)
+    np.testing.assert_allclose(n[10, 10], [0.0, 0.0, -1.0], atol=1e-6)
+    gray = shade_normals(n, light=[0.0, 0.0, -1.0], ambient=0.0)
+    assert gray[10, 10, 0] == 255
+    assert shade_normals(n, light=[1.0, 0.0, 0.0], ambient=0.2)[10, 10, 0] == round(0.2 * 255)
+
+
+def test_splat_zbuffer_keeps_the_nearest_surface():
+    from fuse4d import Intrinsics
+
+    k = Intrinsics(fx=100.0, fy=100.0, cx=19.5, cy=19.5, width=40, height=40)
+    depth = np.full((40, 40), 1000.0)
+    depth[10:30, 10:30] = 500.0  # a near square in front of a far wall
+    pts = depth_to_points(depth, k)
+    normals = np.zeros_like(pts)
+    normals[..., 2] = -1.0
+    normals[10:30, 10:30] = [1.0, 0.0, 0.0]  # near square: lit from the side -> ambient gray
+    img, scale, offset = splat_points(
+        pts, normals=normals, size=(80, 80), yaw_deg=0.0, pitch_deg=0.0
+    )
+    assert scale > 0
+    same, _, _ = splat_points(
+        pts,
+        normals=normals,
+        size=(80, 80),
+        yaw_deg=0.0,
+        pitch_deg=0.0,
+        scale=scale,
+        offset=offset,
+    )
+    np.testing.assert_array_equal(same, img)
+    centre = img[40, 40, 0]
+    assert centre == round(0.12 * 255)  # the near square wins the z-buffer at the centre
+    assert img[5, 40, 0] > centre  # the far wall (facing the camera) elsewhere
+
+
+def test_xt_slice_and_line_choice():
+    xt = XtSlice(2, axis="col")
+    for t in range(3):
+        xt.add(np.full((4, 5), float(t)))
+    assert xt.image().shape == (3, 4)
+    assert xt.image()[:, 0].tolist() == [0.0, 1.0, 2.0]
+    energy = np.zeros(50)
+    energy[30:33] = [2.0, 5.0, 2.0]
+    assert choose_line(energy) == 31  # ties of the smoothed energy: the busiest line wins
+    assert choose_line(np.zeros(10)) == 5
+
+
+def test_rerun_recording_has_every_frame(run_with_report, tmp_path):
+    from fuse4d.report.rerun import have_rerun, write_rerun
+
+    if not have_rerun():
+        pytest.skip("rerun-sdk not installed (optional extra fuse4d[viz])")
+    raw, fused, _ = run_with_report
+    out = write_rerun(raw, fused, tmp_path / "out.rrd")
+    assert out.stat().st_size > 100_000  # 2 x 6 depth frames of 150 x 150 float32 at least
+    with pytest.raises(OutputExistsError):
+        write_rerun(raw, fused, out)
+
+
+def test_rerun_missing_is_one_line_cli_error(run_with_report, tmp_path, capsys, monkeypatch):
+    import fuse4d.report.rerun as rr_mod
+
+    monkeypatch.setattr(rr_mod, "have_rerun", lambda: False)
+    raw, fused, _ = run_with_report
+    out = tmp_path / "r"
+    assert main(["report", str(raw), str(fused), "-o", str(out), "--rerun", "x.rrd"]) == 2
+    assert "fuse4d[viz]" in capsys.readouterr().err
+    assert not out.exists()
