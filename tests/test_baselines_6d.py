@@ -104,8 +104,8 @@ def test_static_plane_noise_and_rmse_fall_well_below_raw(icp):
     gt = seq.ground_truth
     roi, _ = scene_roi(seq)
     pts = kinectfusion(seq.depth, None, seq.intrinsics, size=4, icp=icp)
-    raw_rmse = depth_rmse(gt.depth, seq.depth, mask=gt.mask)
-    rmse = depth_rmse(gt.depth, pts[..., 2], mask=gt.mask)
+    raw_rmse = depth_rmse(gt.depth, seq.depth, roi=gt.mask)
+    rmse = depth_rmse(gt.depth, pts[..., 2], roi=gt.mask)
     raw_rough = roughness_stats(seq.points(), roi=roi).mean
     rough = roughness_stats(pts, roi=roi).mean
     assert rmse < 0.6 * raw_rmse, (rmse, raw_rmse)
@@ -117,8 +117,8 @@ def test_moving_ball_is_badly_fused():
     seq = make_falling_ball(small=True, num_frames=9, depth_noise=0.2, rng=0)
     gt = seq.ground_truth
     pts = kinectfusion(seq.depth, None, seq.intrinsics, size=4, icp="projective")
-    raw_rmse = depth_rmse(gt.depth, seq.depth, mask=gt.mask)
-    rmse = depth_rmse(gt.depth, pts[..., 2], mask=gt.mask)
+    raw_rmse = depth_rmse(gt.depth, seq.depth, roi=gt.mask)
+    rmse = depth_rmse(gt.depth, pts[..., 2], roi=gt.mask)
     assert rmse > 10 * raw_rmse, (rmse, raw_rmse)
 
 
