@@ -18,6 +18,14 @@ PresetOpt = Annotated[
 ]
 
 
+#: What the columns of the ``demo`` and ``bench --quality`` tables mean.
+QUALITY_CAPTION = (
+    "roughness: Eq. 7 (5x5, mm) on the ball ROI, on the pixels where it is defined in raw and "
+    "the method alike; std over frames; RMSE to GT on the same ROI pixels; '>1 mm': GT-valid "
+    "pixels of the whole image more than 1 mm off (missing = bad); C_3D: Eq. 8 (MLESAC)"
+)
+
+
 def _parse_assignments(items: list[str] | None, what: str) -> dict[str, Any]:
     """``["a=1", "b=x"]`` → ``{"a": "1", "b": "x"}`` (values converted by the receiver)."""
     out: dict[str, Any] = {}
@@ -294,8 +302,8 @@ def demo_command(
             progress=progress_callback(progress),
         )
     table = Table(
-        title=f"falling ball, {result.frames} frames, 0.2 mm / 2 % noise "
-        "(ball ROI; '>1 mm' over all pixels)"
+        title=f"falling ball, {result.frames} frames, 0.2 mm / 2 % noise",
+        caption=QUALITY_CAPTION,
     )
     for col in ("method", "roughness mean (mm)", "RMSE (mm)", ">1 mm off (%)"):
         table.add_column(col, justify="left" if col == "method" else "right")
@@ -332,7 +340,8 @@ def _quality(names: list[str], small: bool, intensity_noise: float, as_json: boo
         for label, scores in (("all frames", r.all_frames), ("interior frames", r.interior)):
             table = Table(
                 title=f"ball {r.frames} frames, sigma_d {r.depth_noise} mm, sigma_I "
-                f"{r.intensity_noise:.0%}, {label} (flow {r.flow_method})"
+                f"{r.intensity_noise:.0%}, {label} (flow {r.flow_method})",
+                caption=QUALITY_CAPTION,
             )
             for col in (
                 "method",
