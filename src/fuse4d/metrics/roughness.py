@@ -102,7 +102,7 @@ def roughness(
     --------
     >>> from fuse4d import Intrinsics, depth_to_points
     >>> K = Intrinsics(fx=100.0, fy=100.0, cx=4.5, cy=4.5, width=10, height=10)
-    >>> plane = np.fromfunction(lambda v, u: 500.0 + 2.0 * u, (10, 10))
+    >>> plane = np.fromfunction(lambda v, u: 500.0 / (1.0 - 0.2 * (u - 4.5) / 100.0), (10, 10))
     >>> pi = roughness(depth_to_points(plane, K))
     >>> bool(np.nanmax(pi) < 1e-3)
     True
