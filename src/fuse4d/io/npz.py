@@ -240,7 +240,8 @@ class NpzReader(FrameReader):
             scene, rest = split_scene_extra(values)
         except KeyError as exc:
             raise InputFileError(
-                self.path, f"ground truth of scene {values.get('scene')!r} lacks gt_ keys {exc.args[0]}"
+                self.path,
+                f"ground truth of scene {values.get('scene')!r} lacks gt_ keys {exc.args[0]}",
             ) from None
         extra = {
             k: (
