@@ -116,7 +116,10 @@ METRIC_MEANINGS: dict[str, tuple[str, str]] = {
     "roughness_std": ("roughness std over frames", "mm"),
     "rms_residual": ("RMS plane-fit residual (spatial precision)", "mm, on the ROI"),
     "flicker_step_mean": ("flicker: frame-to-frame |Δ|", "mm, static pixels"),
-    "flicker_std_median": ("flicker: per-pixel std over time, median", "mm, static pixels"),
+    "flicker_std_median": (
+        "flicker: per-pixel std over time (temporal precision), median",
+        "mm, static pixels",
+    ),
     "rmse_roi": ("RMSE to ground truth", "mm, on the ROI"),
     "rmse": ("RMSE to ground truth, all pixels", "mm"),
     "bad_1mm": ("pixels > 1 mm off ground truth", "fraction, missing = bad"),
