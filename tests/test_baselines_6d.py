@@ -64,7 +64,7 @@ def test_raycast_round_trip_noise_free_plane():
 def test_raycast_fuses_a_known_rigid_motion():
     """Noise-free falling ball with its true rigid motion: the ball interior is reproduced."""
     seq = make_falling_ball(small=True, num_frames=5, depth_noise=0.0, rng=0)
-    centre = seq.ground_truth.extra["center_mm"]
+    centre = seq.ground_truth.scene.center_mm
     t = 2
     to_ref = np.stack([_translation(centre[t] - centre[f]) for f in range(5)])
     out = tsdf_raycast(seq.depth, to_ref, seq.intrinsics)
