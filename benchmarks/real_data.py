@@ -215,8 +215,12 @@ def person(path: Path, chosen) -> dict:
     roi = inner & default_roi(seq.depth)
     background = ~mask.any(axis=0)
     mean9 = temporal_mean(seq.depth, None, seq.intrinsics)
-    fused = evaluate(res.depth, raw=seq, roi=roi, static=background)
-    averaged = evaluate(mean9, raw=seq, roi=roi, static=background)
+    # a given ROI restricts every metric, the flicker too: the person ROI for the roughness,
+    # the never-masked background (no ROI) for the flicker
+    fused = evaluate(res.depth, raw=seq, roi=roi)
+    averaged = evaluate(mean9, raw=seq, roi=roi)
+    fused_bg = evaluate(res.depth, raw=seq, static=background)
+    averaged_bg = evaluate(mean9, raw=seq, static=background)
     band = np.stack(
         [ndi.binary_dilation(m, iterations=6) & ~ndi.binary_erosion(m, iterations=6) for m in mask]
     )
@@ -239,13 +243,14 @@ def person(path: Path, chosen) -> dict:
             "band_pixels": int(valid.sum()),
         },
         "flicker_median_background_mm": {
-            "raw": fused.raw.flicker.median,
-            "fused": fused.output.flicker.median,
+            "raw": fused_bg.raw.flicker.median,
+            "fused": fused_bg.output.flicker.median,
         },
         "flicker_step_mean_background_mm": {
-            "raw": fused.raw.flicker.step_mean,
-            "fused": fused.output.flicker.step_mean,
-            "temporal_mean_9": averaged.output.flicker.step_mean,
+            "raw": fused_bg.raw.flicker.step_mean,
+            "fused": fused_bg.output.flicker.step_mean,
+            "temporal_mean_9": averaged_bg.output.flicker.step_mean,
+            "pixels": fused_bg.raw.flicker.num_pixels,
         },
         "support_fraction": res.support_fraction,
         "ms_per_frame": 1000 * seconds / seq.num_frames,
