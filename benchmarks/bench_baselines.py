@@ -41,8 +41,8 @@ def _evaluate(seq, depth: np.ndarray, points: np.ndarray, roi: np.ndarray) -> di
     return {
         "rough": stats.mean,
         "rms": stats.rms_mean,
-        "rmse": depth_rmse(gt.depth, depth, mask=mask),
-        "bad": 100.0 * bad_pixel_fraction(gt.depth, depth, threshold=1.0, mask=mask),
+        "rmse": depth_rmse(gt.depth, depth, roi=mask),
+        "bad": 100.0 * bad_pixel_fraction(gt.depth, depth, threshold=1.0, roi=mask),
     }
 
 

@@ -2,8 +2,8 @@
 
 * ``static_room_rgbd`` (static scene, 12 frames, slightly moving hand-held camera): per-pixel
   temporal flicker (std over time) of raw vs fused depth, on pixels valid in every frame, also
-  restricted to planar pixels (walls/floor: default roughness ROI, 5x5 window valid and depth
-  range <= 10 mm). The camera turns ~0.13 deg and moves ~1 mm per frame (1-3 px of image
+  restricted to planar pixels (walls/floor: in the default roughness ROI of the raw depth in
+  every frame: 5x5 window valid, no step between neighbours above the noise model's limit). The camera turns ~0.13 deg and moves ~1 mm per frame (1-3 px of image
   motion), so a fixed pixel does not see a fixed surface point; the *pose-compensated* flicker
   first warps every frame into frame 0 (backward, bilinear) with the camera poses and then
   takes the per-pixel std. Pose errors add the same flicker to raw and fused, so both the
@@ -16,6 +16,8 @@
   the fraction of pixels whose fused depth is more than 50 mm from the raw depth (a trail would
   put person depth on background pixels or the reverse), next to the same figure for a plain
   9-frame temporal mean.
+
+Every figure comes from :func:`fuse4d.metrics.evaluate`, raw and fused on the same pixels.
 
 Usage: python benchmarks/real_data.py [--data ../shared/data] [--preset fast] [--json]
 """
@@ -33,7 +35,7 @@ from scipy import ndimage as ndi
 
 from fuse4d import depth_to_points, fuse_sequence, load_sequence, preset
 from fuse4d.baselines.temporal import temporal_mean
-from fuse4d.metrics import default_roi, roughness_stats, temporal_flicker
+from fuse4d.metrics import default_roi, evaluate
 
 
 def _poses(path: Path) -> list[np.ndarray]:
@@ -140,13 +142,18 @@ def _compensated_flicker(raw, fused, intrinsics, poses, planar, selections) -> l
     """Pose-compensated median flicker, raw vs fused, for each frame selection (slices)."""
     raw0 = _warp_to_reference(raw, intrinsics, poses)
     fused0 = _warp_to_reference(fused, intrinsics, poses)
-    mask = planar & np.isfinite(raw0).all(axis=0) & np.isfinite(fused0).all(axis=0)
     out = []
     for frames in selections:
-        a = temporal_flicker(raw0[frames], static_mask=mask).median
-        b = temporal_flicker(fused0[frames], static_mask=mask).median
-        out.append({"raw": a, "fused": b, "ratio": b / a, "pixels": int(mask.sum())})
+        rep = evaluate(fused0, raw=raw0, intrinsics=intrinsics, static=planar, frames=frames)
+        a, b = rep.raw.flicker.median, rep.output.flicker.median
+        out.append({"raw": a, "fused": b, "ratio": b / a, "pixels": rep.raw.flicker.num_pixels})
     return out
+
+
+def _pair(report, key: str, **more) -> dict:
+    """``{"raw": ..., "fused": ..., "ratio": ...}`` of one flicker statistic of a report."""
+    a, b = getattr(report.raw.flicker, key), getattr(report.output.flicker, key)
+    return {"raw": a, "fused": b, "ratio": b / a, **more}
 
 
 def static_room(path: Path, chosen) -> dict:
@@ -156,12 +163,10 @@ def static_room(path: Path, chosen) -> dict:
         seq.depth, seq.intensity, seq.intrinsics, fusion=chosen.fusion, flow=chosen.flow
     )
     seconds = time.perf_counter() - t0
-    raw = temporal_flicker(seq.depth)
-    fused = temporal_flicker(res.depth)
-    planar = default_roi(seq.depth).all(axis=0)
-    raw_p = temporal_flicker(seq.depth, static_mask=planar)
-    fused_p = temporal_flicker(res.depth, static_mask=planar)
-    roi = default_roi(seq.depth)
+    everything = np.ones(seq.shape, bool)  # a static scene: every pixel is static
+    whole = evaluate(res.depth, raw=seq, static=everything)
+    planar = whole.roi.all(axis=0)
+    flat = evaluate(res.depth, raw=seq, static=planar)
     n = seq.num_frames
     half = chosen.fusion.past_frames
     full = slice(half, n - chosen.fusion.future_frames)  # frames with the whole window
@@ -181,20 +186,15 @@ def static_room(path: Path, chosen) -> dict:
             out[f"pose_compensated_flicker_median_planar_mm[{name} poses, {label}]"] = result
     out.update(
         {
-            "flicker_median_mm (uncompensated)": {
-                "raw": raw.median,
-                "fused": fused.median,
-                "ratio": fused.median / raw.median,
-            },
-            "flicker_median_planar_mm (uncompensated)": {
-                "raw": raw_p.median,
-                "fused": fused_p.median,
-                "ratio": fused_p.median / raw_p.median,
-                "pixels": int(planar.sum()),
-            },
+            "flicker_median_mm (uncompensated)": _pair(whole, "median"),
+            "flicker_median_planar_mm (uncompensated)": _pair(
+                flat, "median", pixels=flat.raw.flicker.num_pixels
+            ),
+            "flicker_step_mean_planar_mm (uncompensated)": _pair(flat, "step_mean"),
             "roughness_mm": {
-                "raw": roughness_stats(seq.points(), roi=roi).mean,
-                "fused": roughness_stats(res.points, roi=roi).mean,
+                "raw": whole.raw.roughness.mean,
+                "fused": whole.output.roughness.mean,
+                "roi": whole.roi_description,
             },
             "support_fraction": res.support_fraction,
             "ms_per_frame": 1000 * seconds / n,
@@ -213,7 +213,14 @@ def person(path: Path, chosen) -> dict:
     seconds = time.perf_counter() - t0
     inner = np.stack([ndi.binary_erosion(m, iterations=3) for m in mask])
     roi = inner & default_roi(seq.depth)
+    background = ~mask.any(axis=0)
     mean9 = temporal_mean(seq.depth, None, seq.intrinsics)
+    # a given ROI restricts every metric, the flicker too: the person ROI for the roughness,
+    # the never-masked background (no ROI) for the flicker
+    fused = evaluate(res.depth, raw=seq, roi=roi)
+    averaged = evaluate(mean9, raw=seq, roi=roi)
+    fused_bg = evaluate(res.depth, raw=seq, static=background)
+    averaged_bg = evaluate(mean9, raw=seq, static=background)
     band = np.stack(
         [ndi.binary_dilation(m, iterations=6) & ~ndi.binary_erosion(m, iterations=6) for m in mask]
     )
@@ -226,11 +233,9 @@ def person(path: Path, chosen) -> dict:
     return {
         "frames": seq.num_frames,
         "roughness_person_mm": {
-            "raw": roughness_stats(seq.points(), roi=roi).mean,
-            "fused": roughness_stats(res.points, roi=roi).mean,
-            "temporal_mean_9": roughness_stats(
-                depth_to_points(mean9, seq.intrinsics), roi=roi
-            ).mean,
+            "raw": fused.raw.roughness.mean,
+            "fused": fused.output.roughness.mean,
+            "temporal_mean_9": averaged.output.roughness.mean,
         },
         "silhouette_band_off_by_50mm": {
             "fused": trail(res.depth),
@@ -238,8 +243,14 @@ def person(path: Path, chosen) -> dict:
             "band_pixels": int(valid.sum()),
         },
         "flicker_median_background_mm": {
-            "raw": temporal_flicker(seq.depth, static_mask=~mask.any(axis=0)).median,
-            "fused": temporal_flicker(res.depth, static_mask=~mask.any(axis=0)).median,
+            "raw": fused_bg.raw.flicker.median,
+            "fused": fused_bg.output.flicker.median,
+        },
+        "flicker_step_mean_background_mm": {
+            "raw": fused_bg.raw.flicker.step_mean,
+            "fused": fused_bg.output.flicker.step_mean,
+            "temporal_mean_9": averaged_bg.output.flicker.step_mean,
+            "pixels": fused_bg.raw.flicker.num_pixels,
         },
         "support_fraction": res.support_fraction,
         "ms_per_frame": 1000 * seconds / seq.num_frames,

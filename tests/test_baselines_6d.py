@@ -64,7 +64,7 @@ def test_raycast_round_trip_noise_free_plane():
 def test_raycast_fuses_a_known_rigid_motion():
     """Noise-free falling ball with its true rigid motion: the ball interior is reproduced."""
     seq = make_falling_ball(small=True, num_frames=5, depth_noise=0.0, rng=0)
-    centre = seq.ground_truth.extra["center_mm"]
+    centre = seq.ground_truth.scene.center_mm
     t = 2
     to_ref = np.stack([_translation(centre[t] - centre[f]) for f in range(5)])
     out = tsdf_raycast(seq.depth, to_ref, seq.intrinsics)
@@ -104,8 +104,8 @@ def test_static_plane_noise_and_rmse_fall_well_below_raw(icp):
     gt = seq.ground_truth
     roi, _ = scene_roi(seq)
     pts = kinectfusion(seq.depth, None, seq.intrinsics, size=4, icp=icp)
-    raw_rmse = depth_rmse(gt.depth, seq.depth, mask=gt.mask)
-    rmse = depth_rmse(gt.depth, pts[..., 2], mask=gt.mask)
+    raw_rmse = depth_rmse(gt.depth, seq.depth, roi=gt.mask)
+    rmse = depth_rmse(gt.depth, pts[..., 2], roi=gt.mask)
     raw_rough = roughness_stats(seq.points(), roi=roi).mean
     rough = roughness_stats(pts, roi=roi).mean
     assert rmse < 0.6 * raw_rmse, (rmse, raw_rmse)
@@ -117,8 +117,8 @@ def test_moving_ball_is_badly_fused():
     seq = make_falling_ball(small=True, num_frames=9, depth_noise=0.2, rng=0)
     gt = seq.ground_truth
     pts = kinectfusion(seq.depth, None, seq.intrinsics, size=4, icp="projective")
-    raw_rmse = depth_rmse(gt.depth, seq.depth, mask=gt.mask)
-    rmse = depth_rmse(gt.depth, pts[..., 2], mask=gt.mask)
+    raw_rmse = depth_rmse(gt.depth, seq.depth, roi=gt.mask)
+    rmse = depth_rmse(gt.depth, pts[..., 2], roi=gt.mask)
     assert rmse > 10 * raw_rmse, (rmse, raw_rmse)
 
 

@@ -63,7 +63,8 @@ def test_run_folder_streams_to_folder(tmp_path, capsys):
     out = tmp_path / "rec_fused"
     assert main(["run", str(src), "-o", str(out), "--causal", "--set", "spatial_radius=2"]) == 0
     text = capsys.readouterr().out
-    assert "roughness raw -> fused" in text
+    assert "roughness (Eq. 7)" in text
+    assert "raw -> fused" in text
     fused = load_sequence(out)
     assert fused.num_frames == 5
     raw = load_sequence(src)

@@ -150,7 +150,7 @@ def test_default_roi_excludes_edges_borders_and_holes():
     d = np.full((12, 12), 500.0)
     d[:, 7:] = 520.0  # a 20 mm step between columns 6 and 7
     d[2, 2] = np.nan
-    roi = default_roi(d, window=3, edge_mm=10.0)
+    roi = default_roi(d, window=3, max_step=10.0, noise_quad=0.0)
     assert not roi[0].any()
     assert not roi[:, 0].any()
     assert not roi[5, 6]
@@ -159,7 +159,37 @@ def test_default_roi_excludes_edges_borders_and_holes():
     assert roi[5, 8]
     assert not roi[1:4, 1:4].any()
     assert roi[5, 4]
-    assert default_roi(d, window=3, edge_mm=30.0)[5, 6]
+    assert default_roi(d, window=3, max_step=30.0, noise_quad=0.0)[5, 6]
+
+
+def test_default_roi_follows_the_noise_model_on_quantised_slopes():
+    """A staircase of 30 mm quantisation steps at 3 m is one surface, not a field of edges."""
+    from fuse4d._kernels.fusion import _step_limit
+    from fuse4d.metrics import step_limit
+
+    z = 3000.0 + 30.0 * np.floor(np.arange(40) / 4.0)  # a slanted floor, quantised
+    d = np.broadcast_to(z[:, None], (40, 20)).copy()
+    q = 30.0 / 1.65 / 3000.0**2  # one quantisation level per 1.65 noise levels (A22)
+    assert default_roi(d, window=5, noise_quad=0.0)[2:-2, 2:-2].mean() < 0.1  # plateaus only
+    assert default_roi(d, window=5, noise_quad=q)[2:-2, 2:-2].all()
+    d[20:, :] += 400.0  # a real depth edge stays an edge
+    assert not default_roi(d, window=5, noise_quad=q)[18:22].any()
+    for zz, step, quad in ((500.0, 10.0, 0.0), (3000.0, 10.0, q), (1000.0, 2.0, 1e-6)):
+        assert step_limit(zz, max_step=step, noise_quad=quad) == pytest.approx(
+            _step_limit(zz, step, quad)
+        )
+
+
+def test_static_pixels_excludes_a_passing_object_not_sensor_noise(rng):
+    from fuse4d.metrics import static_pixels
+
+    d = 2500.0 + 30.0 * rng.integers(-1, 2, size=(10, 16, 16)).astype(np.float64)
+    d[3:6, 4:8, 4:8] = 1500.0  # someone walks through
+    d[:, 0, 0] = np.nan
+    static = static_pixels(d, noise_quad=30.0 / 1.65 / 2500.0**2)
+    assert not static[4:8, 4:8].any()
+    assert not static[0, 0]
+    assert static.sum() == 16 * 16 - 16 - 1
 
 
 def test_ball_roi_small():
@@ -169,7 +199,7 @@ def test_ball_roi_small():
     assert roi.shape == (3, 150, 150)
     assert not (roi & ~gt.mask).any()
     vv, uu = np.nonzero(roi[2])
-    dist = np.hypot(uu - gt.extra["center_col"], vv - gt.extra["center_row"][2])
+    dist = np.hypot(uu - gt.scene.center_col, vv - gt.scene.center_row[2])
     assert dist.max() <= 25.0
     assert dist.max() > 24.0
     assert roi[0].sum() == roi[2].sum()  # pure translation, same ROI size
@@ -247,19 +277,19 @@ def test_sphere_fit_errors():
 
 def test_shape_correctness_noise_free_ball_is_one():
     seq = make_falling_ball(small=True, num_frames=2, depth_noise=0.0)
-    sc = shape_correctness(seq.points(), seq)
+    sc = shape_correctness(seq, seq.points())
     np.testing.assert_allclose(sc.c_3d, 1.0, atol=1e-4)
     np.testing.assert_allclose(sc.c_profile, 1.0, atol=2e-3)
     assert (sc.num_points > 3000).all()
     # a scaled ball (radius 140 * 1.01) gives C = 0.99
-    sc2 = shape_correctness(seq.points() * 1.01, seq)
+    sc2 = shape_correctness(seq, seq.points() * 1.01)
     np.testing.assert_allclose(sc2.c_3d, 0.99, atol=2e-4)
 
 
 def test_shape_correctness_needs_ball_ground_truth():
     plane = make_static_plane(small=True, num_frames=2)
     with pytest.raises(ValueError, match="needs the falling-ball ground truth"):
-        shape_correctness(plane.points(), plane)
+        shape_correctness(plane, plane.points())
 
 
 # ---------------------------------------------------------------------------- accuracy
@@ -270,8 +300,12 @@ def test_depth_rmse_and_bad_pixels():
     assert bad_pixel_fraction(truth, test) == pytest.approx(2 / 3)  # NaN counts as bad
     assert bad_pixel_fraction(truth, test, threshold=5.0) == pytest.approx(1 / 3)
     mask = np.array([[True, False], [True, True]])
-    assert depth_rmse(truth, test, mask=mask) == 0.0
-    assert math.isnan(depth_rmse(truth, test, mask=np.zeros((2, 2), bool)))
+    assert depth_rmse(truth, test, roi=mask) == 0.0
+    assert math.isnan(depth_rmse(truth, test, roi=np.zeros((2, 2), bool)))
+    with pytest.warns(DeprecationWarning, match="called roi="):
+        assert depth_rmse(truth, test, mask=mask) == 0.0
+    with pytest.raises(TypeError, match="give roi= only"):
+        depth_rmse(truth, test, roi=mask, mask=mask)
     with pytest.raises(ShapeError, match="depth_test must have shape"):
         depth_rmse(truth, np.zeros((3, 2)))
 
@@ -281,7 +315,7 @@ def test_temporal_flicker_matches_std(rng):
     depth[3, 0, 0] = np.nan
     static = np.ones((6, 7), bool)
     static[5] = False
-    f = temporal_flicker(depth, static_mask=static)
+    f = temporal_flicker(depth, static=static)
     ref = depth[:, :5].std(axis=0).ravel()[1:]
     assert f.num_pixels == 34
     assert f.median == pytest.approx(np.median(ref), rel=1e-5)
@@ -305,7 +339,7 @@ def test_flow_errors():
     one[..., 0] = 1.0
     assert flow_angular_error(np.zeros((1, 1, 1, 2)), one) == pytest.approx(45.0)
     mask = np.zeros((1, 2, 3), bool)
-    assert math.isnan(flow_endpoint_error(truth, test, mask=mask))
+    assert math.isnan(flow_endpoint_error(truth, test, roi=mask))
 
 
 # ---------------------------------------------------------------------------- acceptance
@@ -337,12 +371,15 @@ def test_cli_metrics_json_on_synthetic_ball(tmp_path, capsys):
     res = json.loads(capsys.readouterr().out)
     assert res["roi"]["description"].startswith("ball ROI")
     assert res["roi"]["pixels"] > 4000
-    assert 3.0 < res["roughness_mean"] < 5.0
-    assert 0.15 < res["rms_residual"] < 0.21
-    assert res["rmse"] == pytest.approx(0.2, rel=0.05)
-    assert res["bad_1mm"] < 1e-3
-    assert 0.1 < res["flicker"] < 0.25
-    assert res["shape"]["c_3d_mean"] > 0.999
+    out = res["output"]
+    assert "raw" not in res
+    assert 3.0 < out["roughness_mean"] < 5.0
+    assert 0.15 < out["rms_residual"] < 0.21
+    assert out["rmse"] == pytest.approx(0.2, rel=0.05)
+    assert out["bad_1mm"] < 1e-3
+    assert 0.1 < out["flicker_std_median"] < 0.25
+    assert res["static"]["description"].startswith("static in the ground truth")
+    assert out["shape"]["c_3d_mean"] > 0.999
 
 
 def test_cli_metrics_default_and_file_roi(tmp_path, capsys):
@@ -353,9 +390,9 @@ def test_cli_metrics_default_and_file_roi(tmp_path, capsys):
     write_npz(seq.with_depth(seq.depth).__class__(seq.depth, seq.intensity, seq.intrinsics), path)
     assert main(["metrics", str(path), "--json", "--frames", "1:3"]) == 0
     res = json.loads(capsys.readouterr().out)
-    assert res["roi"]["description"].startswith("default")
+    assert res["roi"]["description"].startswith("5x5 windows fully valid")
     assert res["frames"] == [1, 3]
-    assert "rmse" not in res
+    assert res["output"]["rmse"] is None
     roi = np.zeros((150, 150), bool)
     roi[70:80, 70:80] = True
     np.savez(tmp_path / "roi.npz", mask=roi)
@@ -364,8 +401,8 @@ def test_cli_metrics_default_and_file_roi(tmp_path, capsys):
     assert res["roi"]["pixels"] == 300
     assert main(["metrics", str(path), "--gt", str(path), "--json", "--window", "3"]) == 0
     res = json.loads(capsys.readouterr().out)
-    assert res["rmse"] == 0.0
-    assert res["bad_1mm"] == 0.0
+    assert res["output"]["rmse"] == 0.0
+    assert res["output"]["bad_1mm"] == 0.0
 
 
 def test_cli_metrics_bad_input(tmp_path, capsys):
@@ -376,7 +413,7 @@ def test_cli_metrics_bad_input(tmp_path, capsys):
     main(["synth", "ball", "-o", str(out), "--small", "--frames", "2"])
     capsys.readouterr()
     assert main(["metrics", str(out), "--roi", str(tmp_path / "roi.npz")]) == 2
-    assert "needs a key 'mask' or 'roi'" in capsys.readouterr().err
+    assert "no mask key (expected one of roi, mask, mask_gt)" in capsys.readouterr().err
     assert main(["metrics", str(out), "--window", "4"]) == 2
     assert "--window must be an odd integer" in capsys.readouterr().err
 

@@ -48,12 +48,12 @@ def test_ball_depth_lies_on_the_sphere():
     gt = seq.ground_truth
     pts = seq.points()
     for t in range(3):
-        centre = gt.extra["center_mm"][t]
+        centre = gt.scene.center_mm[t]
         dist = np.linalg.norm(pts[t][gt.mask[t]] - centre, axis=1)
         np.testing.assert_allclose(dist, 140.0, atol=2e-3)
         assert np.all(pts[t][~gt.mask[t]][:, 2] == 1000.0)
     # projected centre row v_c(t) = 62.125 + 0.5 t (full size: 250 + 2 t)
-    np.testing.assert_allclose(gt.extra["center_row"], [62.125, 62.625, 63.125])
+    np.testing.assert_allclose(gt.scene.center_row, [62.125, 62.625, 63.125])
     rows = np.nonzero(gt.mask[0].any(axis=1))[0]
     assert rows.min() < 62.125 - 45
     assert rows.max() > 62.125 + 45
@@ -148,7 +148,7 @@ def test_static_plane_geometry_and_texture_noise():
     assert (gt.mask == on).all()
     assert not gt.flow.any()
     pts = seq.with_depth(gt.depth).points()[0][on]
-    normal = gt.extra["normal"]
+    normal = gt.scene.normal
     np.testing.assert_allclose(pts @ normal, 500.0 * normal[2], atol=1e-3)  # on the plane
     assert on.sum() == pytest.approx(120 * 80 * np.cos(np.radians(15)) * (0.25 * 2) ** 2, rel=0.08)
     # texture-correlated noise: dark pixels are noisier
@@ -207,7 +207,7 @@ def test_generator_rng_recorded():
 def test_full_size_ball_builds():
     seq = make_falling_ball(num_frames=3)
     assert seq.shape == (600, 600)
-    np.testing.assert_allclose(seq.ground_truth.extra["center_row"], [250.0, 252.0, 254.0])
+    np.testing.assert_allclose(seq.ground_truth.scene.center_row, [250.0, 252.0, 254.0])
     ball_flow = seq.ground_truth.flow[0][seq.ground_truth.mask[0]][:, 1]
     assert 2.0 < ball_flow.min() < 2.1
     assert 2.49 < ball_flow.max() <= 2.5

@@ -22,7 +22,7 @@ from .config import FlowConfig, FusionParams
 from .fusion import STAGES, FusedFrame, FusionEngine, fuse_sequence
 from .io import FrameFolderWriter, check_output, detect_format, open_frames, read_npz_extra
 from .io import write_npz as _write_npz
-from .metrics import default_roi, roughness_maps
+from .metrics import RunningEvaluation
 
 __all__ = ["RunSummary", "fuse_file"]
 
@@ -40,12 +40,22 @@ class RunSummary:
     flow_method : str
     params : FusionParams
     raw_roughness, fused_roughness : float
-        Mean over frames of the frame-mean roughness (Eq. 7, 5x5, mm) on the default ROI of the
-        raw frame (5x5 window fully valid, depth range <= 10 mm), the same pixels for both.
+        Mean over frames of the frame-mean roughness (Eq. 7, 5x5, mm) of raw and fused, on
+        the same pixels: the default ROI of the raw frame (5x5 window fully valid, no step
+        between neighbours above the noise model's step limit max(10 mm, 2.5 q z^2)) where
+        Eq. 7 is defined in both (:class:`~fuse4d.metrics.RunningEvaluation`).
+    raw_rms_residual, fused_rms_residual : float
+        The same for the RMS plane-fit residual of the 5x5 window (mm): "spatial precision".
+    raw_flicker, fused_flicker : float
+        Mean frame-to-frame |Δ| of the depth (mm) on static pixels (detected from the raw
+        video: valid in every frame, depth range over time within 3 step limits).
+    roughness_pixels, static_pixels : int
+        Pixels the roughness (summed over frames) and the flicker were scored on.
     support_fraction : float
         Fraction of valid pixels tracked into at least one other frame.
     filled_fraction : float
-        Fraction of valid pixels filled by Eq. 6.
+        Fraction of the raw-valid pixels whose output came from Eq. 6's hole filling
+        (pixels where the fusion found too little support), not sensor holes filled.
     seconds : float
         Wall time of the whole run (I/O included).
     timings : dict
@@ -62,6 +72,12 @@ class RunSummary:
     params: FusionParams
     raw_roughness: float = float("nan")
     fused_roughness: float = float("nan")
+    raw_rms_residual: float = float("nan")
+    fused_rms_residual: float = float("nan")
+    raw_flicker: float = float("nan")
+    fused_flicker: float = float("nan")
+    roughness_pixels: int = 0
+    static_pixels: int = 0
     support_fraction: float = float("nan")
     filled_fraction: float = float("nan")
     seconds: float = 0.0
@@ -85,6 +101,12 @@ class RunSummary:
             "params": self.params.to_dict(),
             "raw_roughness_mm": self.raw_roughness,
             "fused_roughness_mm": self.fused_roughness,
+            "raw_rms_residual_mm": self.raw_rms_residual,
+            "fused_rms_residual_mm": self.fused_rms_residual,
+            "raw_flicker_mm": self.raw_flicker,
+            "fused_flicker_mm": self.fused_flicker,
+            "roughness_pixels": self.roughness_pixels,
+            "static_pixels": self.static_pixels,
             "support_fraction": self.support_fraction,
             "filled_fraction": self.filled_fraction,
             "seconds": self.seconds,
@@ -96,32 +118,32 @@ class RunSummary:
 
 
 class _QualityTally:
-    """Running before/after roughness, support and fill fractions over streamed frames."""
+    """Before/after scores over streamed frames (:class:`~fuse4d.metrics.RunningEvaluation`)
+    plus the fusion's own support and fill fractions."""
 
     def __init__(self) -> None:
-        self.raw: list[float] = []
-        self.fused: list[float] = []
+        self.scores = RunningEvaluation()
         self.valid = 0
         self.supported = 0
         self.filled = 0
 
     def add(self, raw_points: np.ndarray, frame: FusedFrame) -> None:
-        roi = default_roi(raw_points[..., 2])
-        raw_map, _ = roughness_maps(raw_points)
-        fused_map, _ = roughness_maps(frame.points)
-        both = roi & np.isfinite(raw_map) & np.isfinite(fused_map)
-        if both.any():
-            self.raw.append(float(raw_map[both].mean()))
-            self.fused.append(float(fused_map[both].mean()))
+        self.scores.add(raw_points, frame.points)
         valid = np.isfinite(raw_points[..., 2])
         self.valid += int(valid.sum())
         self.supported += int((frame.support[valid] > 0).sum())
         self.filled += int(frame.filled[valid].sum())
 
     def fill(self, summary: RunSummary) -> None:
-        if self.raw:
-            summary.raw_roughness = float(np.mean(self.raw))
-            summary.fused_roughness = float(np.mean(self.fused))
+        res = self.scores.result()
+        summary.raw_roughness = res["raw_roughness"]
+        summary.fused_roughness = res["output_roughness"]
+        summary.raw_rms_residual = res["raw_rms_residual"]
+        summary.fused_rms_residual = res["output_rms_residual"]
+        summary.raw_flicker = res["raw_flicker"]
+        summary.fused_flicker = res["output_flicker"]
+        summary.roughness_pixels = res["roughness_pixels"]
+        summary.static_pixels = res["static_pixels"]
         if self.valid:
             summary.support_fraction = self.supported / self.valid
             summary.filled_fraction = self.filled / self.valid

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field, replace
-from typing import Any
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -14,8 +14,12 @@ from .camera import Intrinsics, depth_to_points
 from .errors import ShapeError
 
 __all__ = [
+    "BallTruth",
     "GroundTruth",
+    "PlaneTruth",
+    "SceneTruth",
     "Sequence",
+    "SheetTruth",
     "check_unit_intensity",
     "normalize_intensity",
     "sanitize_depth",
@@ -91,6 +95,190 @@ def check_unit_intensity(intensity: np.ndarray, *, name: str = "intensity") -> N
     return arr
 
 
+class _SceneTruthBase:
+    """Shared behaviour of the typed scene geometries (frame selection, npz keys)."""
+
+    scene: ClassVar[str]
+
+    def select(self, index: slice | NDArray[np.integer]) -> Any:
+        """The same geometry for the frames ``index`` (a slice or an index array)."""
+        changes = {
+            f.name: np.asarray(getattr(self, f.name))[index]
+            for f in fields(self)  # type: ignore[arg-type]
+            if f.metadata.get("per_frame")
+        }
+        return replace(self, **changes)  # type: ignore[type-var]
+
+    def to_extra(self) -> dict[str, Any]:
+        """Plain values keyed by field name plus ``scene``: the npz ``gt_<key>`` layout."""
+        out: dict[str, Any] = {"scene": self.scene}
+        out.update({f.name: getattr(self, f.name) for f in fields(self)})  # type: ignore[arg-type]
+        return out
+
+    @classmethod
+    def from_extra(cls, values: dict[str, Any]) -> Any:
+        """Build from :meth:`to_extra`'s layout (values as read back from an npz file).
+
+        Raises
+        ------
+        KeyError
+            Naming the missing keys.
+        """
+        names = [f.name for f in fields(cls)]  # type: ignore[arg-type]
+        missing = [n for n in names if n not in values]
+        if missing:
+            raise KeyError(", ".join(missing))
+        kwargs: dict[str, Any] = {}
+        for f in fields(cls):  # type: ignore[arg-type]
+            value = values[f.name]
+            kind = f.metadata.get("kind", "array")
+            if kind == "float":
+                value = float(np.asarray(value))
+            elif kind == "int":
+                value = int(np.asarray(value))
+            elif kind == "pair_int":
+                value = tuple(int(v) for v in np.asarray(value).ravel())
+            elif kind == "pair_float":
+                value = tuple(float(v) for v in np.asarray(value).ravel())
+            else:
+                value = np.asarray(value, dtype=np.float64)
+            kwargs[f.name] = value
+        return cls(**kwargs)
+
+
+@dataclass(frozen=True, eq=False)
+class BallTruth(_SceneTruthBase):
+    """Geometry of the synthetic falling ball (:func:`fuse4d.synthetic.make_falling_ball`).
+
+    Image lengths are px of this sequence (full-size values times ``pixel_scale``); the
+    metrics of EVALUATION §2-3 (ball ROI, shape correctness) read them from here.
+
+    Attributes
+    ----------
+    center_row : (T,) ndarray of float64
+        Projected centre row v_c(t) (px).
+    center_col : float
+        Projected centre column (px).
+    center_mm : (T, 3) ndarray of float64
+        Ball centre C(t) in camera coordinates (mm).
+    radius_mm : float
+        True radius r (mm), 140.
+    speed_px : float
+        Image speed of the centre (px/frame).
+    pixel_scale : float
+        fx / 1000 (1 at full size, 0.25 for the small variant).
+    roi_radius_px : float
+        Radius of the roughness ROI around the centre (px).
+    fit_columns : (int, int)
+        First and last column (inclusive) of the shape-correctness fit (px).
+    fit_half_rows : float
+        Half height of the fit window around v_c(t) (px).
+    mask_erosion_px : int
+        Erosion of the GT mask before the fit (px, Euclidean disk).
+    """
+
+    scene: ClassVar[str] = "ball"
+
+    center_row: NDArray[np.float64] = field(metadata={"kind": "array", "per_frame": True})
+    center_col: float = field(metadata={"kind": "float"})
+    center_mm: NDArray[np.float64] = field(metadata={"kind": "array", "per_frame": True})
+    radius_mm: float = field(metadata={"kind": "float"})
+    speed_px: float = field(metadata={"kind": "float"})
+    pixel_scale: float = field(metadata={"kind": "float"})
+    roi_radius_px: float = field(metadata={"kind": "float"})
+    fit_columns: tuple[int, int] = field(metadata={"kind": "pair_int"})
+    fit_half_rows: float = field(metadata={"kind": "float"})
+    mask_erosion_px: int = field(metadata={"kind": "int"})
+
+
+@dataclass(frozen=True, eq=False)
+class PlaneTruth(_SceneTruthBase):
+    """Geometry of the static tilted plane (:func:`fuse4d.synthetic.make_static_plane`).
+
+    Attributes
+    ----------
+    size_mm : (float, float)
+        Width and height of the plane (mm).
+    center_mm : (3,) ndarray of float64
+        Plane centre (mm).
+    normal : (3,) ndarray of float64
+        Unit normal.
+    tilt_deg : float
+        Tilt about the X axis (degrees).
+    pixel_scale : float
+        fx / 1000.
+    """
+
+    scene: ClassVar[str] = "plane"
+
+    size_mm: tuple[float, float] = field(metadata={"kind": "pair_float"})
+    center_mm: NDArray[np.float64] = field(metadata={"kind": "array"})
+    normal: NDArray[np.float64] = field(metadata={"kind": "array"})
+    tilt_deg: float = field(metadata={"kind": "float"})
+    pixel_scale: float = field(metadata={"kind": "float"})
+
+
+@dataclass(frozen=True, eq=False)
+class SheetTruth(_SceneTruthBase):
+    """Geometry of the deforming sheet (:func:`fuse4d.synthetic.make_deforming_sheet`).
+
+    Attributes
+    ----------
+    center_x_mm : (T,) ndarray of float64
+        Lateral offset X_c(t) of the sheet (mm).
+    amplitude : (T,) ndarray of float64
+        Bump amplitude a(t) (mm).
+    size_mm : (float, float)
+        Sheet size (mm).
+    sheet_z_mm : float
+        Depth of the flat sheet (mm).
+    bump_sigma_mm : float
+        Width of the Gaussian bump (mm).
+    drift_px : float
+        Lateral drift (px/frame, this sequence's pixels).
+    pixel_scale : float
+        fx / 1000.
+    """
+
+    scene: ClassVar[str] = "sheet"
+
+    center_x_mm: NDArray[np.float64] = field(metadata={"kind": "array", "per_frame": True})
+    amplitude: NDArray[np.float64] = field(metadata={"kind": "array", "per_frame": True})
+    size_mm: tuple[float, float] = field(metadata={"kind": "pair_float"})
+    sheet_z_mm: float = field(metadata={"kind": "float"})
+    bump_sigma_mm: float = field(metadata={"kind": "float"})
+    drift_px: float = field(metadata={"kind": "float"})
+    pixel_scale: float = field(metadata={"kind": "float"})
+
+
+#: The typed geometry of a synthetic scene.
+SceneTruth = BallTruth | PlaneTruth | SheetTruth
+_SCENE_TYPES: dict[str, type[_SceneTruthBase]] = {
+    c.scene: c for c in (BallTruth, PlaneTruth, SheetTruth)
+}
+
+
+def split_scene_extra(values: dict[str, Any]) -> tuple[SceneTruth | None, dict[str, Any]]:
+    """Separate a typed scene geometry from flat ``gt_<key>`` values (npz boundary).
+
+    ``values["scene"]`` names the geometry (``ball``, ``plane``, ``sheet``); its fields are
+    taken out and the rest is returned as the free-form ``extra``. Without a known ``scene``
+    key everything stays in ``extra``.
+
+    Raises
+    ------
+    KeyError
+        If ``scene`` names a geometry whose fields are incomplete (message: the missing keys).
+    """
+    kind = values.get("scene")
+    cls = _SCENE_TYPES.get(str(kind)) if kind is not None else None
+    if cls is None:
+        return None, dict(values)
+    truth = cls.from_extra(values)
+    names = {f.name for f in fields(cls)} | {"scene"}  # type: ignore[arg-type]
+    return truth, {k: v for k, v in values.items() if k not in names}
+
+
 @dataclass(frozen=True)
 class GroundTruth:
     """Ground truth of a synthetic scene (every field optional).
@@ -104,14 +292,42 @@ class GroundTruth:
     flow : (T-1, H, W, 2) ndarray of float32, optional
         True forward flow in px, ``[..., 0]`` = du (column), ``[..., 1]`` = dv (row).
     extra : dict, optional
-        Scene-specific values (e.g. the ball's projected centre row ``center_row`` per frame,
-        the true radius in mm).
+        Free-form values (for the synthetic scenes: the noise settings, background and seed).
+    scene : BallTruth, PlaneTruth or SheetTruth, optional
+        The typed geometry of a synthetic scene, read by the metrics (ROIs, Eq. 8).
     """
 
     depth: NDArray[np.float32] | None = None
     mask: NDArray[np.bool_] | None = None
     flow: NDArray[np.float32] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    scene: SceneTruth | None = None
+
+    def select(self, index: slice | NDArray[np.integer], num_frames: int) -> GroundTruth:
+        """The ground truth of frames ``index`` of a ``num_frames``-frame sequence.
+
+        A slice keeps the flow of the consecutive pairs inside it; an index array drops the
+        flow (its frames need not be consecutive).
+        """
+        if isinstance(index, slice):
+            a, b, _ = index.indices(num_frames)
+            flow = None if self.flow is None else self.flow[a : max(a, b - 1)]
+        else:
+            flow = None
+
+        def take(v: Any) -> Any:
+            return np.asarray(v)[index]
+
+        return GroundTruth(
+            depth=None if self.depth is None else take(self.depth),
+            mask=None if self.mask is None else take(self.mask),
+            flow=flow,
+            extra={
+                k: (take(v) if isinstance(v, np.ndarray) and v.shape[:1] == (num_frames,) else v)
+                for k, v in self.extra.items()
+            },
+            scene=None if self.scene is None else self.scene.select(index),
+        )
 
 
 @dataclass(frozen=True)
@@ -270,20 +486,7 @@ class Sequence:
             )
         gt = self.ground_truth
         if gt is not None:
-            a, b = idx.start, idx.stop
-            gt = GroundTruth(
-                depth=None if gt.depth is None else gt.depth[a:b],
-                mask=None if gt.mask is None else gt.mask[a:b],
-                flow=None if gt.flow is None else gt.flow[a : max(a, b - 1)],
-                extra={
-                    k: (
-                        v[a:b]
-                        if isinstance(v, np.ndarray) and v.shape[:1] == (self.num_frames,)
-                        else v
-                    )
-                    for k, v in gt.extra.items()
-                },
-            )
+            gt = gt.select(slice(idx.start, idx.stop), self.num_frames)
         return replace(
             self,
             depth=self.depth[sl],

@@ -1,8 +1,9 @@
 """Synthetic scenes with ground truth (EVALUATION.md §3 and §4 E5).
 
 Three scenes, each returned as a :class:`fuse4d.Sequence` whose ``ground_truth`` holds the
-noise-free depth (mm), the object mask, the true forward flow (px) and scene values in
-``extra``:
+noise-free depth (mm), the object mask, the true forward flow (px), the typed scene geometry
+in ``scene`` (:class:`~fuse4d.sequence.BallTruth`, :class:`~fuse4d.sequence.PlaneTruth`,
+:class:`~fuse4d.sequence.SheetTruth`) and the noise settings and seed in ``extra``:
 
 * :func:`make_falling_ball` — the paper's falling textured ball (§3);
 * :func:`make_static_plane` — a static tilted textured plane with texture-correlated and
@@ -48,7 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .camera import Intrinsics
-from .sequence import GroundTruth, Sequence
+from .sequence import BallTruth, GroundTruth, PlaneTruth, Sequence, SheetTruth
 
 __all__ = [
     "SCENES",
@@ -68,6 +69,15 @@ WAVELENGTH_RANGE_MM = (4.0, 30.0)
 #: Depth of the background wall (mm) and its flat intensity when ``background="none"``.
 BACKGROUND_Z_MM = 1000.0
 BACKGROUND_NONE_INTENSITY = 0.1
+#: The falling ball at full size (EVALUATION §2-3): radius (mm), depth of the centre (mm),
+#: roughness-ROI radius (px), shape-fit columns (px, inclusive), fit half height (px) and GT
+#: mask erosion (px). The small variant scales the image lengths by ``pixel_scale``.
+BALL_RADIUS_MM = 140.0
+BALL_CENTER_Z_MM = 700.0
+BALL_ROI_RADIUS_PX = 100.0
+BALL_FIT_COLUMNS_PX = (160, 440)
+BALL_FIT_HALF_ROWS_PX = 140.0
+BALL_MASK_EROSION_PX = 3
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -272,10 +282,10 @@ def make_falling_ball(
     Sequence
         Noisy depth (mm) and intensity; ``ground_truth`` holds ``depth`` (T, H, W) mm,
         ``mask`` (T, H, W) bool (ball pixels), ``flow`` (T-1, H, W, 2) px (``(0, speed * 700 / Z)``
-        on the ball: the exact image motion of a point at depth Z; 0 elsewhere) and ``extra``: ``center_row`` (T,) px, ``center_col`` px,
-        ``radius_mm``, ``center_mm`` (T, 3), ``speed_px``, ``pixel_scale``, ROI/fit geometry
-        (``roi_radius_px``, ``fit_columns``, ``fit_half_rows``, ``mask_erosion_px``, full-size
-        values times ``pixel_scale``), and the noise settings and seed.
+        on the ball: the exact image motion of a point at depth Z; 0 elsewhere), ``scene`` a
+        :class:`~fuse4d.sequence.BallTruth` (centre row/column and position, radius, speed,
+        ROI and fit geometry: full-size values times ``pixel_scale``) and ``extra`` the noise
+        settings and seed.
 
     Examples
     --------
@@ -292,7 +302,7 @@ def make_falling_ball(
     k = scene_intrinsics(small=small)
     scale = k.fx / 1000.0
     wavelength_scale = 1.0 / scale
-    radius, z0 = 140.0, 700.0
+    radius, z0 = BALL_RADIUS_MM, BALL_CENTER_Z_MM
     speed = 2.0 * scale
     v0 = k.cy + (250.0 - 299.5) * scale
     t_idx = np.arange(num_frames, dtype=np.float64)
@@ -335,25 +345,26 @@ def make_falling_ball(
         intensity_noise=intensity_noise,
         structural_noise=structural_noise,
     )
+    ball = BallTruth(
+        center_row=center_row,
+        center_col=float(k.cx),
+        center_mm=np.stack([np.zeros_like(center_y), center_y, np.full_like(center_y, z0)], 1),
+        radius_mm=radius,
+        speed_px=speed,
+        pixel_scale=scale,
+        roi_radius_px=BALL_ROI_RADIUS_PX * scale,
+        fit_columns=(round(BALL_FIT_COLUMNS_PX[0] * scale), round(BALL_FIT_COLUMNS_PX[1] * scale)),
+        fit_half_rows=BALL_FIT_HALF_ROWS_PX * scale,
+        mask_erosion_px=max(1, round(BALL_MASK_EROSION_PX * scale)),
+    )
     extra: dict[str, Any] = {
-        "scene": "ball",
-        "center_row": center_row,
-        "center_col": float(k.cx),
-        "center_mm": np.stack([np.zeros_like(center_y), center_y, np.full_like(center_y, z0)], 1),
-        "radius_mm": radius,
-        "speed_px": speed,
-        "pixel_scale": scale,
-        "roi_radius_px": 100.0 * scale,
-        "fit_columns": (round(160 * scale), round(440 * scale)),
-        "fit_half_rows": 140.0 * scale,
-        "mask_erosion_px": max(1, round(3 * scale)),
         "depth_noise": float(depth_noise),
         "intensity_noise": float(intensity_noise),
         "structural_noise": float(structural_noise),
         "background": background,
         "seed": seed,
     }
-    gt = GroundTruth(depth=depth_gt, mask=mask, flow=flow, extra=extra)
+    gt = GroundTruth(depth=depth_gt, mask=mask, flow=flow, extra=extra, scene=ball)
     return _sequence(depth, intensity, k, gt, "synthetic falling ball")
 
 
@@ -402,8 +413,8 @@ def make_static_plane(
     Returns
     -------
     Sequence
-        ``ground_truth``: depth (mm), mask (plane pixels), zero flow, ``extra`` with
-        ``size_mm``, ``center_mm``, ``normal``, ``tilt_deg``, ``pixel_scale`` and the noise
+        ``ground_truth``: depth (mm), mask (plane pixels), zero flow, ``scene`` a
+        :class:`~fuse4d.sequence.PlaneTruth` (size, centre, normal, tilt), ``extra`` the noise
         settings (plane coordinates of a pixel: ``a = X``, ``b = Y cos(tilt) + (Z - 500)
         sin(tilt)``).
 
@@ -457,13 +468,14 @@ def make_static_plane(
         intensity_noise=intensity_noise,
         structural_noise=structural_noise,
     )
+    plane = PlaneTruth(
+        size_mm=(2 * half_w, 2 * half_h),
+        center_mm=np.array([0.0, 0.0, z0]),
+        normal=normal,
+        tilt_deg=float(tilt_deg),
+        pixel_scale=scale,
+    )
     extra: dict[str, Any] = {
-        "scene": "plane",
-        "size_mm": (2 * half_w, 2 * half_h),
-        "normal": normal,
-        "center_mm": np.array([0.0, 0.0, z0]),
-        "tilt_deg": float(tilt_deg),
-        "pixel_scale": scale,
         "depth_noise": float(depth_noise),
         "intensity_noise": float(intensity_noise),
         "structural_noise": float(structural_noise),
@@ -472,7 +484,7 @@ def make_static_plane(
         "seed": seed,
     }
     flow = np.zeros((num_frames - 1, k.height, k.width, 2), dtype=np.float32)
-    gt = GroundTruth(depth=depth_gt, mask=mask, flow=flow, extra=extra)
+    gt = GroundTruth(depth=depth_gt, mask=mask, flow=flow, extra=extra, scene=plane)
     return _sequence(depth, intensity, k, gt, "synthetic static plane")
 
 
@@ -518,9 +530,10 @@ def make_deforming_sheet(
     -------
     Sequence
         ``ground_truth``: depth (mm), mask (sheet pixels), the analytic forward flow (px) of the
-        material seen at each sheet pixel (0 on the wall), ``extra`` with ``center_x_mm``
-        (T,) mm, ``amplitude`` (T,) mm, ``size_mm``, ``sheet_z_mm`` (material coordinates of a
-        sheet pixel: ``x_m = X - center_x_mm[t]``, ``y_m = Y``).
+        material seen at each sheet pixel (0 on the wall), ``scene`` a
+        :class:`~fuse4d.sequence.SheetTruth` (``center_x_mm`` (T,) mm, ``amplitude`` (T,) mm,
+        size, depth; material coordinates of a sheet pixel: ``x_m = X - center_x_mm[t]``,
+        ``y_m = Y``).
 
     Notes
     -----
@@ -588,22 +601,23 @@ def make_deforming_sheet(
         intensity_noise=intensity_noise,
         structural_noise=structural_noise,
     )
+    sheet = SheetTruth(
+        center_x_mm=center_x[:num_frames],
+        amplitude=amplitude[:num_frames],
+        size_mm=(2 * half, 2 * half),
+        sheet_z_mm=z0,
+        bump_sigma_mm=bump_sigma,
+        drift_px=drift_px * scale,
+        pixel_scale=scale,
+    )
     extra: dict[str, Any] = {
-        "scene": "sheet",
-        "sheet_z_mm": z0,
-        "center_x_mm": center_x[:num_frames],
-        "amplitude": amplitude[:num_frames],
-        "size_mm": (2 * half, 2 * half),
-        "bump_sigma_mm": bump_sigma,
-        "drift_px": drift_px * scale,
-        "pixel_scale": scale,
         "depth_noise": float(depth_noise),
         "intensity_noise": float(intensity_noise),
         "structural_noise": float(structural_noise),
         "background": background,
         "seed": seed,
     }
-    gt = GroundTruth(depth=depth_gt, mask=mask, flow=flow, extra=extra)
+    gt = GroundTruth(depth=depth_gt, mask=mask, flow=flow, extra=extra, scene=sheet)
     return _sequence(depth, intensity, k, gt, "synthetic deforming sheet")
 
 

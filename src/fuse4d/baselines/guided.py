@@ -1,6 +1,12 @@
-"""Guided filter (He, Sun, Tang, TPAMI 2013) through ``cv2.ximgproc.guidedFilter`` (BASELINES §3)."""
+"""Guided filter (He, Sun, Tang, TPAMI 2013) through ``cv2.ximgproc.guidedFilter`` (BASELINES §3).
+
+The one guided filter of fuse4d: intensity-guided (the baseline) or self-guided by the depth
+(the single-frame reference of ``bench --quality`` and ``demo``).
+"""
 
 from __future__ import annotations
+
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -15,21 +21,22 @@ __all__ = ["guided"]
 
 def guided(
     depth: ArrayLike,
-    intensity: ArrayLike,
+    intensity: ArrayLike | None,
     intrinsics: Intrinsics,
     *,
     size: int = 4,
     iterations: int = 1,
     eps: float = 0.1**2,
+    guide: Literal["intensity", "depth"] = "intensity",
 ) -> NDArray[np.float32]:
-    """Intensity-guided filter of depth (guide I, input D).
+    """Guided filter of depth: intensity-guided (guide I, input D) or self-guided (guide D).
 
     Parameters
     ----------
     depth : (T, H, W) ndarray
         Depth in mm, NaN = invalid.
-    intensity : (T, H, W) ndarray
-        Guide in [0, 1].
+    intensity : (T, H, W) ndarray or None
+        Guide in [0, 1] (unused, may be None, with ``guide="depth"``).
     intrinsics : Intrinsics
         Camera (shape check only).
     size : int, default 4
@@ -37,8 +44,11 @@ def guided(
     iterations : int, default 1
         Repeated application to its own output.
     eps : float, default 0.01
-        Regulariser ε in guide units² ([0, 1]²), independent of depth units.
-        Sweep 0.05², 0.1², 0.2², 0.4².
+        Regulariser ε in guide units²: [0, 1]² for the intensity guide (sweep 0.05², 0.1²,
+        0.2², 0.4²), mm² for the depth guide (``bench --quality`` uses r = 2, ε = 10 mm², the
+        best single-frame filter in PEERS.md).
+    guide : {"intensity", "depth"}, default "intensity"
+        The guide image: the registered intensity, or the (hole-filled) depth frame itself.
 
     Returns
     -------
@@ -48,11 +58,16 @@ def guided(
     Notes
     -----
     NaN depth is first replaced by a normalised-convolution fill (Gaussian σ = 3 px over valid
-    pixels); the output is re-masked with the raw validity. Library call:
-    ``cv2.ximgproc.guidedFilter(guide=I, src=D, radius=r, eps=ε, dDepth=-1)``. At small ε the
+    pixels), a local fill that does not pull depth near a hole towards a far-away value; the
+    output is re-masked with the raw validity. Library call:
+    ``cv2.ximgproc.guidedFilter(guide=G, src=D, radius=r, eps=ε, dDepth=-1)``. At small ε the
     intensity texture is copied into depth; this artefact is part of the method.
     """
-    d, g = check_inputs(depth, intensity, intrinsics)
+    if guide not in ("intensity", "depth"):
+        raise ValueError(f"guide must be 'intensity' or 'depth', got {guide!r}")
+    d, g = check_inputs(depth, intensity if guide == "intensity" else None, intrinsics)
+    if guide == "intensity" and g is None:
+        raise ValueError("the intensity-guided filter needs intensity (or pass guide='depth')")
     radius = check_int("guided", "size", size, minimum=1)
     check_number("guided", "eps", eps, gt=0)
     valid = np.isfinite(d)
@@ -62,7 +77,7 @@ def guided(
         for t in range(cur.shape[0]):
             src = normalized_convolution_fill(cur[t], sigma=3.0)
             out[t] = cv2.ximgproc.guidedFilter(
-                guide=g[t], src=src, radius=radius, eps=float(eps), dDepth=-1
+                guide=src if g is None else g[t], src=src, radius=radius, eps=float(eps), dDepth=-1
             )
         return np.where(valid, out, np.nan).astype(np.float32)
 

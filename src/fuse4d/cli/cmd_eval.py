@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from enum import StrEnum
@@ -69,29 +70,16 @@ def synth_command(
     )
 
 
-def _load_roi(path: Path, shape: tuple[int, int, int], start: int, total: int) -> np.ndarray:
-    """A (T, H, W) bool ROI from an .npz (key ``mask`` or ``roi``) or an image (nonzero)."""
-    t, h, w = shape
-    if path.suffix.lower() == ".npz":
-        if not path.is_file():
-            fail(f"{path}: ROI file not found")
-        with np.load(path, allow_pickle=False) as data:
-            key = next((k for k in ("mask", "roi") if k in data.files), None)
-            if key is None:
-                fail(f"{path}: ROI .npz needs a key 'mask' or 'roi', found {data.files}")
-            roi = np.asarray(data[key]).astype(bool)
-    else:
-        from ..io._images import read_mask_image
+def _read_region(path: Path, what: str, frames: str | None) -> np.ndarray:
+    """A bool mask through :func:`fuse4d.io.read_mask` (its InputFileError -> a CLI error)."""
+    from ..errors import InputFileError
+    from ..io import read_mask
 
-        roi = read_mask_image(path)
-    if roi.shape == (h, w):
-        return np.broadcast_to(roi, shape)
-    if roi.shape == shape:
-        return roi
-    if roi.ndim == 3 and roi.shape[0] == total and roi.shape[1:] == (h, w):
-        return roi[start : start + t]
-    fail(f"{path}: ROI has shape {roi.shape}, expected ({h}, {w}) or ({t}, {h}, {w})")
-    raise AssertionError  # unreachable
+    try:
+        return read_mask(path, frames=frames)
+    except InputFileError as exc:
+        fail(f"{what}: {exc}")
+        raise AssertionError from None  # unreachable
 
 
 def _clean(value: Any) -> Any:
@@ -109,7 +97,13 @@ def _clean(value: Any) -> Any:
 
 @app.command("metrics")
 def metrics_command(
-    input: Annotated[Path, typer.Argument(help="Sequence: .npz, frame folder, TUM, ...")],
+    inputs: Annotated[
+        list[Path],
+        typer.Argument(
+            help="INPUT, or RAW FUSED: two sequences scored on one ROI (the ROI of RAW).",
+            show_default=False,
+        ),
+    ],
     gt: Annotated[
         Path | None, typer.Option(help="Ground-truth depth: a sequence (its depth_gt or depth).")
     ] = None,
@@ -118,11 +112,22 @@ def metrics_command(
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="One JSON object on stdout.")] = False,
     roi: Annotated[
-        Path | None, typer.Option(help="ROI mask: .npz (key mask/roi) or PNG (nonzero = in).")
+        Path | None,
+        typer.Option(
+            help="Pixels to score, for every metric: .npz (key roi/mask/mask_gt), image "
+            "(>= 50 % = in) or a recording with masks."
+        ),
+    ] = None,
+    static_mask: Annotated[
+        Path | None,
+        typer.Option("--static-mask", help="Pixels known static, for the flicker (as --roi)."),
     ] = None,
     window: Annotated[int, typer.Option(help="Roughness window n (odd, px).")] = 5,
-    edge_mm: Annotated[
-        float, typer.Option(help="Default ROI: largest depth range inside a window (mm).")
+    max_step: Annotated[
+        float,
+        typer.Option(
+            "--max-step", help="Default ROI: floor of the depth-step limit between neighbours (mm)."
+        ),
     ] = 10.0,
     shape: Annotated[
         bool, typer.Option(help="Shape correctness for the synthetic ball (slow at full size).")
@@ -130,93 +135,70 @@ def metrics_command(
 ) -> None:
     """Roughness (Eq. 7), RMS residual, flicker, and (with GT) RMSE, bad pixels, shape (Eq. 8).
 
-    ROI: --roi if given; else the scene ROI of a synthetic scene (ball ROI, central 80 % of
-    plane/sheet); else every pixel whose window is fully valid with depth range <= --edge-mm.
-    Flicker: median over pixels of the per-pixel depth std over time, on pixels valid in all
-    frames (and static in the ground truth, when there is one).
+    With two inputs RAW FUSED, both are scored on the same pixels (ROI and static pixels of
+    RAW). The policy (ROI, static pixels, same pixels) is :func:`fuse4d.metrics.evaluate`'s.
     """
     from ..io import count_frames, load_sequence, resolve_frames
-    from ..metrics import (
-        bad_pixel_fraction,
-        default_roi,
-        depth_rmse,
-        roughness_stats,
-        scene_roi,
-        shape_correctness,
-        static_mask_from_ground_truth,
-        temporal_flicker,
-    )
+    from ..metrics import evaluate
 
+    if len(inputs) not in (1, 2):
+        fail(f"give INPUT or RAW FUSED, got {len(inputs)} paths")
     if window < 3 or window % 2 == 0:
         fail(f"--window must be an odd integer >= 3, got {window}")
-    with progress_bar(f"loading {input.name}", None) as bar:
-        seq = load_sequence(input, frames=frames, progress=progress_callback(bar))
-    start = resolve_frames(frames, count_frames(input)).start if frames else 0
-    gtruth = seq.ground_truth
-    depth_gt = None if gtruth is None else gtruth.depth
+    seqs = []
+    for path in inputs:
+        with progress_bar(f"loading {path.name}", None) as bar:
+            seqs.append(load_sequence(path, frames=frames, progress=progress_callback(bar)))
+    if len(seqs) == 2 and seqs[0].depth.shape != seqs[1].depth.shape:
+        fail(
+            f"{inputs[1]}: shape {seqs[1].depth.shape} differs from {inputs[0]}: {seqs[0].depth.shape}"
+        )
+    raw_seq, out_seq = (None, seqs[0]) if len(seqs) == 1 else (seqs[0], seqs[1])
+    start = resolve_frames(frames, count_frames(inputs[0])).start if frames else 0
+    gtruth = next((s.ground_truth for s in seqs if s.ground_truth is not None), None)
     if gt is not None:
+        from ..sequence import GroundTruth
+
         ref = load_sequence(gt, frames=frames)
         depth_gt = (
             ref.ground_truth.depth
             if ref.ground_truth is not None and ref.ground_truth.depth is not None
             else ref.depth
         )
-        if depth_gt.shape != seq.depth.shape:
-            fail(f"{gt}: ground truth has shape {depth_gt.shape}, input {seq.depth.shape}")
-    points = seq.points()
-    t, h, w = seq.depth.shape
-    if roi is not None:
-        mask = _load_roi(roi, (t, h, w), start, start + t)
-        roi_desc = f"mask from {roi}"
-    elif gtruth is not None and "scene" in gtruth.extra:
-        mask, roi_desc = scene_roi(seq, window=window)
-    else:
-        mask = default_roi(seq.depth, window=window, edge_mm=edge_mm)
-        roi_desc = f"default: {window}x{window} window fully valid, depth range <= {edge_mm:g} mm"
-    with err_console.status("roughness"):
-        stats = roughness_stats(points, roi=mask, window=window)
-    result: dict[str, Any] = {
-        "input": str(input),
-        "frames": [start, start + t],
-        "num_frames": t,
-        "size": [h, w],
-        "window": window,
-        "roi": {
-            "description": roi_desc,
-            "pixels": int(mask.sum()),
-            "pixels_per_frame": float(mask.sum() / t),
-            "pixels_evaluated": int(stats.num_pixels.sum()),
-        },
-        **stats.to_dict(),
-        "roughness_frame_means": stats.frame_means.tolist(),
-    }
-    static = None
-    flicker_desc = "pixels valid in all frames"
-    if gtruth is not None and gtruth.depth is not None:
-        static = static_mask_from_ground_truth(gtruth)
-        flicker_desc = "pixels valid in all frames and static in the ground truth"
-    if t >= 2:
-        flick = temporal_flicker(seq.depth, static_mask=static)
-        result.update(
-            flicker=flick.median,
-            flicker_mean=flick.mean,
-            flicker_pixels=flick.num_pixels,
-            flicker_region=flicker_desc,
+        if depth_gt.shape != out_seq.depth.shape:
+            fail(f"{gt}: ground truth has shape {depth_gt.shape}, input {out_seq.depth.shape}")
+        base = gtruth if gtruth is not None else GroundTruth()
+        gtruth = dataclasses.replace(base, depth=depth_gt)
+    t, h, w = out_seq.depth.shape
+    region = None if roi is None else _read_region(roi, "--roi", frames)
+    static = None if static_mask is None else _read_region(static_mask, "--static-mask", frames)
+    if static is not None and static.ndim == 3:
+        static = static.all(axis=0)
+    for name, mask in (("--roi", region), ("--static-mask", static)):
+        if mask is not None and mask.shape[-2:] != (h, w):
+            fail(f"{name}: mask is {mask.shape[-2]}x{mask.shape[-1]}, the input {h}x{w}")
+    if region is not None and region.ndim == 3 and region.shape[0] != t:
+        fail(f"--roi: mask has {region.shape[0]} frames, the input {t}")
+    with progress_bar("scoring", t) as bar:
+        report = evaluate(
+            out_seq,
+            raw=raw_seq,
+            ground_truth=gtruth,
+            roi=region,
+            static=static,
+            window=window,
+            max_step=max_step,
+            shape=shape,
+            progress=progress_callback(bar),
         )
-    else:
-        result.update(flicker=None, flicker_mean=None, flicker_pixels=0, flicker_region="T < 2")
-    if depth_gt is not None:
-        result["rmse"] = depth_rmse(depth_gt, seq.depth)
-        result["bad_1mm"] = bad_pixel_fraction(depth_gt, seq.depth, threshold=1.0)
-        result["rmse_roi"] = depth_rmse(depth_gt, seq.depth, mask=mask)
-    if shape and gtruth is not None and gtruth.mask is not None and "center_row" in gtruth.extra:
-        with progress_bar("shape correctness", t) as bar:
-            sc = shape_correctness(points, gtruth, progress=progress_callback(bar))
-        result["shape"] = {
-            **sc.to_dict(),
-            "radius_3d_mean": float(np.nanmean(sc.radius_3d)),
-            "true_radius": sc.true_radius,
-        }
+    result: dict[str, Any] = {
+        "inputs": [str(p) for p in inputs],
+        "frames": [start, start + t],
+        "size": [h, w],
+        **report.to_dict(),
+    }
+    if roi is not None:
+        result["roi"]["description"] = f"mask from {roi}"
     result = _clean(result)
     if as_json:
         out_console.file.write(json.dumps(result) + "\n")
@@ -226,40 +208,58 @@ def metrics_command(
 
 
 def _print_table(result: dict[str, Any]) -> None:
+    from ..metrics.evaluate import METRIC_MEANINGS
+
     def fmt(value: Any, digits: int = 4) -> str:
         return "n/a" if value is None else f"{value:.{digits}g}"
 
-    table = Table(title=f"fuse4d metrics: {result['input']}", show_header=True)
+    two = "raw" in result
+    names = result["inputs"]
+    table = Table(title=f"fuse4d metrics: {' vs '.join(names)}", show_header=True)
     table.add_column("metric")
-    table.add_column("value", justify="right")
-    table.add_column("unit / note")
-    table.add_row("frames", f"{result['frames'][0]}:{result['frames'][1]}", "")
-    table.add_row("ROI", str(result["roi"]["pixels"]), result["roi"]["description"])
-    table.add_row(
-        "roughness mean (Eq. 7)",
-        fmt(result["roughness_mean"]),
-        f"mm, {result['window']}x{result['window']}",
+    if two:
+        table.add_column(f"raw ({Path(names[0]).name})", justify="right")
+    table.add_column(Path(names[-1]).name if two else "value", justify="right")
+    table.add_column("unit / what it means")
+
+    def row(label: str, key: str, note: str, scale: float = 1.0, digits: int = 4) -> None:
+        vals = [result[k].get(key) for k in (("raw", "output") if two else ("output",))]
+        cells = [fmt(None if v is None else scale * v, digits) for v in vals]
+        table.add_row(label, *cells, note)
+
+    def info(label: str, value: str, note: str) -> None:
+        table.add_row(label, *([value, ""] if two else [value]), note)
+
+    info("frames", f"{result['frames'][0]}:{result['frames'][1]}", "")
+    info("ROI", str(result["roi"]["pixels"]), result["roi"]["description"])
+    info(
+        "ROI pixels scored",
+        str(result["roi"]["pixels_scored"]),
+        "Eq. 7 defined" + (" in both" if two else ""),
     )
-    table.add_row("roughness std (over frames)", fmt(result["roughness_std"]), "mm")
-    table.add_row("RMS plane residual", fmt(result["rms_residual"]), "mm")
-    table.add_row("flicker (median)", fmt(result["flicker"]), f"mm, {result['flicker_region']}")
-    table.add_row("flicker (mean)", fmt(result["flicker_mean"]), "mm")
-    if "rmse" in result:
-        table.add_row("RMSE to GT", fmt(result["rmse"]), "mm")
-        table.add_row("bad pixels > 1 mm", fmt(result["bad_1mm"]), "fraction")
-    if "shape" in result:
-        s = result["shape"]
-        table.add_row(
-            "shape C_3D", fmt(None if s["c_3d_mean"] is None else 100 * s["c_3d_mean"], 6), "%"
+    info("static pixels", str(result["static"]["pixels"]), result["static"]["description"])
+    for key in ("roughness_mean", "roughness_std", "rms_residual"):
+        label, unit = METRIC_MEANINGS[key]
+        row(
+            label,
+            key,
+            unit + (f", {result['window']}x{result['window']}" if key != "roughness_std" else ""),
         )
-        table.add_row(
-            "shape C_minimal",
-            fmt(None if s["c_minimal_mean"] is None else 100 * s["c_minimal_mean"], 6),
-            "%",
-        )
-        table.add_row(
-            "shape C_profile",
-            fmt(None if s["c_profile_mean"] is None else 100 * s["c_profile_mean"], 6),
-            "%",
-        )
+    for key in ("flicker_step_mean", "flicker_std_median"):
+        label, unit = METRIC_MEANINGS[key]
+        row(label, key, unit)
+    if result["output"].get("rmse") is not None:
+        for key in ("rmse_roi", "rmse", "bad_1mm"):
+            label, unit = METRIC_MEANINGS[key]
+            row(label, key, unit)
+    if "shape" in result["output"]:
+        for key, label in (
+            ("c_3d_mean", "shape C_3D (Eq. 8)"),
+            ("c_minimal_mean", "shape C_minimal"),
+            ("c_profile_mean", "shape C_profile"),
+        ):
+            vals = [
+                result[k]["shape"].get(key) for k in (("raw", "output") if two else ("output",))
+            ]
+            table.add_row(label, *[fmt(None if v is None else 100 * v, 6) for v in vals], "%")
     out_console.print(table)

@@ -22,7 +22,7 @@ from ..config import preset as get_preset
 from ..fusion import fuse_sequence
 from ..metrics import ball_roi, roughness_maps
 from ..synthetic import make_falling_ball
-from .quality import MethodScore, score_on_ball, self_guided_filter
+from .quality import MethodScore, score_on_ball, self_guided
 
 __all__ = ["DemoResult", "run_demo"]
 
@@ -103,7 +103,7 @@ def run_demo(
         score_on_ball(
             seq,
             "guided filter (depth self-guided, r=2, eps=10)",
-            depth=self_guided_filter(seq.depth),
+            depth=self_guided(seq),
         ),
         score_on_ball(
             seq,

@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 from ..flow import DISParams, available_flow_methods, estimate_flow, read_flo, resolve_flow_params
 from ..io import read_intensity_image
 from ..metrics import flow_angular_error, flow_endpoint_error
+from ..sequence import BallTruth
 
 __all__ = [
     "BenchEntry",
@@ -169,7 +170,7 @@ def ball_pairs(*, intensity_noise: float, small: bool = False) -> list[FlowPair]
     gt = seq.ground_truth
     if gt is None or gt.flow is None or gt.mask is None:
         raise ValueError("make_falling_ball returned no ground-truth flow/mask")
-    scale = float(gt.extra.get("pixel_scale", 1.0)) if gt.extra else 1.0
+    scale = gt.scene.pixel_scale if gt.scene is not None else 1.0
     erosion = max(1, round(6 * scale))
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * erosion + 1, 2 * erosion + 1))
     label = f"ball {intensity_noise * 100:g}%"
@@ -199,11 +200,11 @@ def _ball_true_flow(gt: Any, t: int) -> NDArray[np.float32]:
     perfect tracker scores ≈ 0.4 px EPE. Falls back to ``ground_truth.flow`` when the scene
     geometry is not recorded.
     """
-    extra = gt.extra or {}
-    if gt.depth is None or "speed_px" not in extra or "center_mm" not in extra:
+    ball = gt.scene
+    if gt.depth is None or not isinstance(ball, BallTruth):
         return np.asarray(gt.flow[t], np.float32)
-    z_center = float(np.asarray(extra["center_mm"])[t][2])
-    speed = float(extra["speed_px"])
+    z_center = float(np.asarray(ball.center_mm)[t][2])
+    speed = ball.speed_px
     flow = np.zeros((*gt.mask[t].shape, 2), np.float32)
     ball = gt.mask[t] & np.isfinite(gt.depth[t])
     flow[..., 1][ball] = speed * z_center / gt.depth[t][ball]
@@ -236,8 +237,8 @@ def run_flow_benchmark(
             start = time.perf_counter()
             flow = estimate_flow(pair.image0, pair.image1, method=entry.method, params=entry.params)
             ms = (time.perf_counter() - start) * 1e3
-            epe = float(flow_endpoint_error(pair.flow_true, flow, mask=pair.mask))
-            aae = float(flow_angular_error(pair.flow_true, flow, mask=pair.mask))
+            epe = float(flow_endpoint_error(pair.flow_true, flow, roi=pair.mask))
+            aae = float(flow_angular_error(pair.flow_true, flow, roi=pair.mask))
             results.append(
                 BenchResult(
                     entry.label,

@@ -1,8 +1,9 @@
 """Quality evaluation on the synthetic ball: the comparisons the fusion issue's targets name.
 
-Reference methods users run today, measured in the same run as fuse4d:
+Reference methods users run today, measured in the same run as fuse4d, every one scored by
+:func:`fuse4d.metrics.evaluate` against the raw input on the same pixels:
 
-* ``guided (depth self-guided)``: OpenCV ``cv2.ximgproc.guidedFilter`` with the depth as its own
+* ``guided (depth self-guided)``: :func:`fuse4d.baselines.guided` with the depth as its own
   guide (radius 2, eps 10 mm^2), the best single-frame filter in PEERS.md;
 * ``temporal mean (9)``: a plain 9-frame mean without motion compensation (the ghosting the
   method exists to remove), :func:`fuse4d.baselines.temporal.temporal_mean`.
@@ -13,13 +14,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from ..baselines.guided import guided
 from ..baselines.temporal import temporal_mean
 from ..camera import depth_to_points
-from ..metrics import bad_pixel_fraction, ball_roi, depth_rmse, roughness_stats
+from ..metrics import MetricsReport, evaluate
 from ..sequence import Sequence
 
 __all__ = [
@@ -27,30 +28,13 @@ __all__ = [
     "QualityReport",
     "ball_quality_report",
     "score_on_ball",
-    "self_guided_filter",
+    "self_guided",
 ]
 
 
-def self_guided_filter(depth: NDArray[np.float32], *, radius: int = 2, eps: float = 10.0):
-    """OpenCV guided filter with each depth frame as its own guide (NaN-safe; NaN stays NaN).
-
-    Parameters
-    ----------
-    depth : (T, H, W) ndarray
-        Depth in mm, NaN = invalid.
-    radius : int
-        Box radius in px.
-    eps : float
-        Regularisation in mm^2.
-    """
-    out = np.empty_like(depth, dtype=np.float32)
-    for t, frame in enumerate(depth):
-        valid = np.isfinite(frame)
-        filled = np.where(valid, frame, np.nanmedian(frame) if valid.any() else 0.0)
-        filled = filled.astype(np.float32)
-        res = cv2.ximgproc.guidedFilter(guide=filled, src=filled, radius=radius, eps=eps, dDepth=-1)
-        out[t] = np.where(valid, res, np.nan)
-    return out
+def self_guided(seq: Sequence) -> NDArray[np.float32]:
+    """The single-frame reference: the depth guided filter with r = 2 px, eps = 10 mm^2."""
+    return guided(seq.depth, None, seq.intrinsics, size=2, eps=10.0, guide="depth")
 
 
 @dataclass
@@ -77,6 +61,12 @@ class MethodScore:
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
 
+    @classmethod
+    def from_report(cls, name: str, report: MetricsReport) -> MethodScore:
+        """The table row of one method from its :func:`~fuse4d.metrics.evaluate` report."""
+        s = report.output
+        return cls(name, s.roughness.mean, s.roughness.std, s.rmse_roi, s.bad_1mm)
+
 
 def score_on_ball(
     seq: Sequence,
@@ -87,6 +77,9 @@ def score_on_ball(
     frames: slice | None = None,
 ) -> MethodScore:
     """Score a method's output (depth or points) on a synthetic ball sequence.
+
+    :func:`fuse4d.metrics.evaluate` against the raw depth of ``seq``, on the ball ROI
+    (EVALUATION §3): roughness and RMSE on the ROI pixels valid in raw and output alike.
 
     Parameters
     ----------
@@ -102,22 +95,11 @@ def score_on_ball(
     gt = seq.ground_truth
     if gt is None or gt.depth is None:
         raise ValueError("score_on_ball needs a sequence with ground-truth depth")
-    if points is None:
-        if depth is None:
-            raise ValueError("give depth or points")
-        points = depth_to_points(depth, seq.intrinsics)
-    sl = frames or slice(None)
-    roi = ball_roi(seq)[sl]
-    pts = points[sl]
-    stats = roughness_stats(pts, roi=roi)
-    z = pts[..., 2]
-    return MethodScore(
-        name=name,
-        roughness_mean=float(stats.mean),
-        roughness_std=float(stats.std),
-        rmse=float(depth_rmse(gt.depth[sl], z, mask=roi)),
-        bad_1mm=float(bad_pixel_fraction(gt.depth[sl], z)),
-    )
+    output = points if points is not None else depth
+    if output is None:
+        raise ValueError("give depth or points")
+    report = evaluate(output, intrinsics=seq.intrinsics, raw=seq, frames=frames)
+    return MethodScore.from_report(name, report)
 
 
 @dataclass
@@ -168,7 +150,6 @@ def ball_quality_report(
 
     from ..config import preset as get_preset
     from ..fusion import fuse_sequence
-    from ..metrics import shape_correctness
     from ..synthetic import make_falling_ball
 
     chosen = get_preset(preset)
@@ -186,9 +167,7 @@ def ball_quality_report(
     seconds = time.perf_counter() - start
     outputs = {
         "raw": depth_to_points(seq.depth, seq.intrinsics),
-        "guided filter (depth self-guided)": depth_to_points(
-            self_guided_filter(seq.depth), seq.intrinsics
-        ),
+        "guided filter (depth self-guided)": depth_to_points(self_guided(seq), seq.intrinsics),
         "temporal mean (9, no motion comp.)": depth_to_points(
             temporal_mean(seq.depth, None, seq.intrinsics), seq.intrinsics
         ),
@@ -199,11 +178,11 @@ def ball_quality_report(
     every = [score_on_ball(seq, name, points=pts) for name, pts in outputs.items()]
     inner = [score_on_ball(seq, name, points=pts, frames=interior) for name, pts in outputs.items()]
     picks = np.linspace(0, num_frames - 1, shape_frames).round().astype(int)
-    sub = seq.frames(0, num_frames)
     shape = {}
     for name, pts in outputs.items():
-        sc = shape_correctness(pts[picks], _subset(sub, picks))
-        shape[name] = float(100.0 * np.mean(sc.c_3d))
+        rep = evaluate(pts, ground_truth=seq.ground_truth, frames=picks, shape=True)
+        sc = rep.output.shape
+        shape[name] = float(100.0 * np.mean(sc.c_3d)) if sc is not None else float("nan")
     return QualityReport(
         intensity_noise,
         depth_noise,
@@ -215,15 +194,3 @@ def ball_quality_report(
         shape,
         1000.0 * seconds / num_frames,
     )
-
-
-def _subset(seq: Sequence, picks: NDArray[np.int64]):
-    """Ground truth of selected frames (for shape correctness)."""
-    from dataclasses import replace
-
-    gt = seq.ground_truth
-    extra = {
-        k: (v[picks] if isinstance(v, np.ndarray) and v.shape[:1] == (seq.num_frames,) else v)
-        for k, v in gt.extra.items()
-    }
-    return replace(gt, depth=gt.depth[picks], mask=gt.mask[picks], flow=None, extra=extra)

@@ -11,7 +11,7 @@ import json
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from os import PathLike
 from pathlib import Path
 from typing import Any, ClassVar, Self
@@ -195,7 +195,7 @@ class FrameReader(ABC):
 
 
 def _with_mask(gt: GroundTruth, mask: NDArray[np.bool_]) -> GroundTruth:
-    return GroundTruth(depth=gt.depth, mask=mask, flow=gt.flow, extra=gt.extra)
+    return replace(gt, mask=mask)  # keeps every other field (scene, extra)
 
 
 def resolve_frames(frames: FrameSelection, total: int) -> range:

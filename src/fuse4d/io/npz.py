@@ -8,7 +8,9 @@ Keys
 ``timestamps``   (T,) float64 seconds; ``fps`` scalar; ``name`` string          (optional)
 ``depth_gt``     (T, H, W) float32 mm; ``mask_gt`` (T, H, W) bool;
 ``flow_gt``      (T-1, H, W, 2) float32 px ([..., 0] = du, [..., 1] = dv)       (optional GT)
-``gt_<key>``     ``GroundTruth.extra[key]`` (e.g. ``gt_center_row``)              (optional GT)
+``gt_<key>``     ``GroundTruth.extra[key]``; ``gt_scene`` (``ball``/``plane``/``sheet``)
+                 with one ``gt_<field>`` per field of ``GroundTruth.scene`` (e.g.
+                 ``gt_center_row``), converted to/from the typed geometry here     (optional GT)
 anything else    caller's arrays (e.g. fusion's ``support``): kept by :func:`write_npz`'s
                  ``extra=`` and returned by :func:`read_npz_extra`; ignored by :func:`read_npz`.
 
@@ -30,7 +32,7 @@ from numpy.typing import NDArray
 
 from ..camera import Intrinsics
 from ..errors import InputFileError
-from ..sequence import GroundTruth, Sequence
+from ..sequence import GroundTruth, Sequence, split_scene_extra
 from ._atomic import atomic_file
 from ._base import Frame, FrameReader, FrameSelection, ProgressCallback, resolve_frames
 
@@ -229,18 +231,30 @@ class NpzReader(FrameReader):
         def get(key: str, stop: int = b) -> np.ndarray | None:
             return np.array(self._array(key)[a:stop]) if key in self._members else None
 
-        extra: dict[str, Any] = {}
+        values: dict[str, Any] = {}
         for key in self._members:
             if key.startswith("gt_"):
                 value = np.array(self._array(key))
-                if value.ndim >= 1 and value.shape[0] == self._t:
-                    value = value[a:b]
-                extra[key[3:]] = value.item() if value.ndim == 0 else value
+                values[key[3:]] = value.item() if value.ndim == 0 else value
+        try:  # the typed scene geometry (gt_scene + its fields), sliced by its own rules
+            scene, rest = split_scene_extra(values)
+        except KeyError as exc:
+            raise InputFileError(
+                self.path,
+                f"ground truth of scene {values.get('scene')!r} lacks gt_ keys {exc.args[0]}",
+            ) from None
+        extra = {
+            k: (
+                v[a:b] if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == self._t else v
+            )
+            for k, v in rest.items()
+        }
         return GroundTruth(
             depth=get("depth_gt"),
             mask=get("mask_gt"),
             flow=get("flow_gt", max(a, b - 1)),
             extra=extra,
+            scene=None if scene is None else scene.select(slice(a, b)),
         )
 
     def read_extra(self, frames: FrameSelection = None) -> dict[str, np.ndarray]:
@@ -321,7 +335,8 @@ def write_npz(
     ----------
     seq : Sequence
         The sequence; ``ground_truth`` is stored as ``depth_gt``, ``mask_gt``, ``flow_gt``
-        and ``gt_<key>`` for each ``ground_truth.extra`` entry.
+        and ``gt_<key>`` for each ``ground_truth.extra`` entry and each field of
+        ``ground_truth.scene`` (plus ``gt_scene``).
     path : str or PathLike
         Output file (``.npz`` is not appended automatically).
     extra : dict of str to array, optional
@@ -359,7 +374,11 @@ def write_npz(
         for key, value in (("depth_gt", gt.depth), ("mask_gt", gt.mask), ("flow_gt", gt.flow)):
             if value is not None:
                 arrays[key] = np.asarray(value)
-        for key, value in gt.extra.items():
+        scene = {} if gt.scene is None else gt.scene.to_extra()
+        clash = sorted(set(scene) & set(gt.extra))
+        if clash:
+            raise ValueError(f"ground_truth.extra keys {clash} clash with the scene geometry")
+        for key, value in {**scene, **gt.extra}.items():
             arrays[f"gt_{key}"] = _storable(value, f"ground_truth.extra[{key!r}]")
     for key, value in (extra or {}).items():
         if key in RESERVED_NPZ_KEYS or key.startswith("gt_") or not key.isidentifier():

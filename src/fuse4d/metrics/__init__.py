@@ -1,5 +1,8 @@
 """Evaluation metrics of fuse4d (EVALUATION.md §1, §2).
 
+:func:`evaluate` is the one scoring policy (ROI, same pixels for raw and output, static
+pixels, ground truth); the functions below are the single metrics it combines.
+
 * roughness (paper Eq. 7) per pixel, its RMS-residual variant, and per-sequence statistics;
 * regions of interest (default edge-aware ROI, the synthetic scenes' ROIs);
 * shape correctness (paper Eq. 8) with MLESAC sphere fits;
@@ -16,7 +19,16 @@ from .accuracy import (
     flow_endpoint_error,
     temporal_flicker,
 )
-from .roi import ball_roi, central_roi, default_roi, scene_roi, static_mask_from_ground_truth
+from .evaluate import MetricsReport, RunningEvaluation, Scores, evaluate
+from .roi import (
+    ball_roi,
+    central_roi,
+    default_roi,
+    scene_roi,
+    static_mask_from_ground_truth,
+    static_pixels,
+    step_limit,
+)
 from .roughness import RoughnessStats, roughness, roughness_maps, roughness_rms, roughness_stats
 from .shape import (
     ShapeCorrectness,
@@ -28,7 +40,10 @@ from .shape import (
 
 __all__ = [
     "FlickerStats",
+    "MetricsReport",
     "RoughnessStats",
+    "RunningEvaluation",
+    "Scores",
     "ShapeCorrectness",
     "SphereFit",
     "bad_pixel_fraction",
@@ -37,6 +52,7 @@ __all__ = [
     "circle_fit_mlesac",
     "default_roi",
     "depth_rmse",
+    "evaluate",
     "flow_angular_error",
     "flow_endpoint_error",
     "roughness",
@@ -47,5 +63,7 @@ __all__ = [
     "shape_correctness",
     "sphere_fit_mlesac",
     "static_mask_from_ground_truth",
+    "static_pixels",
+    "step_limit",
     "temporal_flicker",
 ]

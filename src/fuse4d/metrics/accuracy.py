@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,18 +22,34 @@ __all__ = [
 ]
 
 
+def _renamed(
+    new: ArrayLike | None, old: ArrayLike | None, names: tuple[str, str]
+) -> ArrayLike | None:
+    """The region argument under its one name (``roi=`` / ``static=``); old name deprecated."""
+    if old is None:
+        return new
+    if new is not None:
+        raise TypeError(f"give {names[0]}= only ({names[1]}= is its deprecated name)")
+    warnings.warn(
+        f"{names[1]}= is deprecated; the region argument is called {names[0]}=",
+        DeprecationWarning,
+        stacklevel=3,
+    )
+    return old
+
+
 def _pair(
-    true: ArrayLike, test: ArrayLike, mask: ArrayLike | None, names: tuple[str, str]
+    true: ArrayLike, test: ArrayLike, roi: ArrayLike | None, names: tuple[str, str]
 ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.bool_]]:
     a = as_float32(true, name=names[0])
     b = as_float32(test, name=names[1])
     check_same_shape(a, b, names=names)
-    if mask is None:
+    if roi is None:
         m = np.ones(a.shape, dtype=bool)
     else:
-        m = np.asarray(mask)
+        m = np.asarray(roi)
         if m.dtype != np.bool_:
-            raise TypeError(f"mask must be a boolean array, got dtype {m.dtype}")
+            raise TypeError(f"roi must be a boolean array, got dtype {m.dtype}")
     return a, b, m
 
 
@@ -40,20 +57,24 @@ def _broadcast_mask(mask: NDArray[np.bool_], shape: tuple[int, ...]) -> NDArray[
     try:
         return np.broadcast_to(mask, shape)
     except ValueError:
-        raise ShapeError("mask", shape, mask.shape, "it must broadcast to the data") from None
+        raise ShapeError("roi", shape, mask.shape, "it must broadcast to the data") from None
 
 
 def depth_rmse(
-    depth_true: ArrayLike, depth_test: ArrayLike, *, mask: ArrayLike | None = None
+    depth_true: ArrayLike,
+    depth_test: ArrayLike,
+    *,
+    roi: ArrayLike | None = None,
+    mask: ArrayLike | None = None,
 ) -> float:
-    """Root-mean-square depth error (mm) over pixels valid in both maps (and in ``mask``).
+    """Root-mean-square depth error (mm) over pixels valid in both maps (and in ``roi``).
 
     Parameters
     ----------
     depth_true, depth_test : (..., H, W) ndarray
         Ground-truth and estimated depth in mm, NaN = invalid.
-    mask : array of bool, optional
-        Pixels to evaluate (broadcast to the depth shape).
+    roi : array of bool, optional
+        Pixels to score (broadcast to the depth shape). ``mask=`` is its deprecated name.
 
     Returns
     -------
@@ -66,7 +87,8 @@ def depth_rmse(
     >>> depth_rmse(np.array([1.0, 2.0, np.nan]), np.array([1.0, 4.0, 3.0]))
     1.4142135623730951
     """
-    a, b, m = _pair(depth_true, depth_test, mask, ("depth_true", "depth_test"))
+    roi = _renamed(roi, mask, ("roi", "mask"))
+    a, b, m = _pair(depth_true, depth_test, roi, ("depth_true", "depth_test"))
     use = _broadcast_mask(m, a.shape) & np.isfinite(a) & np.isfinite(b)
     if not use.any():
         return math.nan
@@ -79,6 +101,7 @@ def bad_pixel_fraction(
     depth_test: ArrayLike,
     *,
     threshold: float = 1.0,
+    roi: ArrayLike | None = None,
     mask: ArrayLike | None = None,
 ) -> float:
     """Fraction of GT-valid pixels whose depth error exceeds ``threshold`` mm.
@@ -91,8 +114,8 @@ def bad_pixel_fraction(
         Depth in mm, NaN = invalid.
     threshold : float, optional
         Error threshold in mm (``bad_1mm`` uses 1.0).
-    mask : array of bool, optional
-        Pixels to evaluate.
+    roi : array of bool, optional
+        Pixels to score. ``mask=`` is its deprecated name.
 
     Returns
     -------
@@ -106,7 +129,8 @@ def bad_pixel_fraction(
     """
     if not (math.isfinite(threshold) and threshold >= 0):
         raise ValueError(f"threshold must be a finite number >= 0 (mm), got {threshold!r}")
-    a, b, m = _pair(depth_true, depth_test, mask, ("depth_true", "depth_test"))
+    roi = _renamed(roi, mask, ("roi", "mask"))
+    a, b, m = _pair(depth_true, depth_test, roi, ("depth_true", "depth_test"))
     use = _broadcast_mask(m, a.shape) & np.isfinite(a)
     total = int(use.sum())
     if total == 0:
@@ -118,89 +142,117 @@ def bad_pixel_fraction(
 
 @dataclass(frozen=True)
 class FlickerStats:
-    """Temporal flicker: per-pixel std over time (ddof = 0) of static pixels, mm.
+    """Temporal flicker of static pixels, mm: per-pixel std over time and frame-to-frame |Δ|.
 
     Attributes
     ----------
     median : float
-        Median over pixels: the headline value (robust to a few pixels that are not truly
-        static on real data, e.g. an unmasked moving person).
+        Median over pixels of the per-pixel std over time (ddof = 0): the headline std value
+        (robust to a few pixels that are not truly static on real data).
     mean : float
-        Mean over pixels.
+        Mean over pixels of the per-pixel std.
     num_pixels : int
-        Number of pixels evaluated (valid in every frame and in the static mask).
+        Number of pixels evaluated (valid in every frame and in the static region).
     std_map : (H, W) ndarray of float32
         The per-pixel std (NaN where not evaluated).
+    step_mean : float
+        Mean over the same pixels and all consecutive frame pairs of ``|d_{t+1} - d_t|``
+        (mm): the frame-to-frame change a viewer sees as flicker.
+    step_median : float
+        Median over pixels of the per-pixel mean ``|d_{t+1} - d_t|`` (mm).
     """
 
     median: float
     mean: float
     num_pixels: int
     std_map: NDArray[np.float32]
+    step_mean: float = math.nan
+    step_median: float = math.nan
 
 
-def temporal_flicker(depth: ArrayLike, *, static_mask: ArrayLike | None = None) -> FlickerStats:
-    """Temporal flicker of a depth video: per-pixel std over time on static pixels.
+def temporal_flicker(
+    depth: ArrayLike,
+    *,
+    static: ArrayLike | None = None,
+    static_mask: ArrayLike | None = None,
+) -> FlickerStats:
+    """Temporal flicker of a depth video on static pixels: std over time and frame-to-frame |Δ|.
 
     Parameters
     ----------
     depth : (T, H, W) ndarray
         Depth in mm, NaN = invalid; T >= 2.
-    static_mask : (H, W) array of bool, optional
+    static : (H, W) array of bool, optional
         Pixels known to see a static surface (e.g.
-        :func:`~fuse4d.metrics.static_mask_from_ground_truth`). Default: all pixels.
-        Only pixels valid in *every* frame are used in any case.
+        :func:`~fuse4d.metrics.static_mask_from_ground_truth` or
+        :func:`~fuse4d.metrics.static_pixels`). Default: all pixels. Only pixels valid in
+        *every* frame are used in any case. ``static_mask=`` is its deprecated name.
 
     Returns
     -------
     FlickerStats
-        ``median`` (headline) and ``mean`` of the per-pixel std, mm; NaN if no pixel.
+        ``median`` (headline) and ``mean`` of the per-pixel std, ``step_mean`` of the
+        frame-to-frame |Δ|, mm; NaN if no pixel.
 
     Examples
     --------
     >>> d = np.stack([np.full((2, 2), 500.0), np.full((2, 2), 502.0)])
-    >>> temporal_flicker(d).median
-    1.0
+    >>> f = temporal_flicker(d)
+    >>> f.median, f.step_mean
+    (1.0, 2.0)
     """
+    static = _renamed(static, static_mask, ("static", "static_mask"))
     d = as_float32(depth, name="depth")
     check_shape(d, ("T", "H", "W"), name="depth")
     if d.shape[0] < 2:
         raise ValueError(f"temporal_flicker needs at least 2 frames, got {d.shape[0]}")
     use = np.all(np.isfinite(d), axis=0)
-    if static_mask is not None:
-        sm = np.asarray(static_mask)
+    if static is not None:
+        sm = np.asarray(static)
         if sm.dtype != np.bool_:
-            raise TypeError(f"static_mask must be a boolean array, got dtype {sm.dtype}")
+            raise TypeError(f"static must be a boolean array, got dtype {sm.dtype}")
         if sm.shape != d.shape[1:]:
-            raise ShapeError("static_mask", d.shape[1:], sm.shape, "one (H, W) mask")
+            raise ShapeError("static", d.shape[1:], sm.shape, "one (H, W) mask")
         use &= sm
     std_map = np.full(d.shape[1:], np.nan, dtype=np.float32)
     if use.any():
         vals = d[:, use].astype(np.float64)
         std_map[use] = vals.std(axis=0)
         per = std_map[use].astype(np.float64)
-        return FlickerStats(float(np.median(per)), float(per.mean()), int(use.sum()), std_map)
+        steps = np.abs(np.diff(vals, axis=0))
+        return FlickerStats(
+            float(np.median(per)),
+            float(per.mean()),
+            int(use.sum()),
+            std_map,
+            float(steps.mean()),
+            float(np.median(steps.mean(axis=0))),
+        )
     return FlickerStats(math.nan, math.nan, 0, std_map)
 
 
 def _flow_pair(
-    flow_true: ArrayLike, flow_test: ArrayLike, mask: ArrayLike | None
+    flow_true: ArrayLike, flow_test: ArrayLike, roi: ArrayLike | None
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     a = as_float32(flow_true, name="flow_true")
     b = as_float32(flow_test, name="flow_test")
     check_shape(a, ("*", "H", "W", 2), name="flow_true")
     check_same_shape(a, b, names=("flow_true", "flow_test"))
     use = np.all(np.isfinite(a), axis=-1) & np.all(np.isfinite(b), axis=-1)
-    if mask is not None:
-        m = np.asarray(mask)
+    if roi is not None:
+        m = np.asarray(roi)
         if m.dtype != np.bool_:
-            raise TypeError(f"mask must be a boolean array, got dtype {m.dtype}")
+            raise TypeError(f"roi must be a boolean array, got dtype {m.dtype}")
         use &= _broadcast_mask(m, use.shape)
     return a[use].astype(np.float64), b[use].astype(np.float64)
 
 
 def flow_endpoint_error(
-    flow_true: ArrayLike, flow_test: ArrayLike, *, mask: ArrayLike | None = None
+    flow_true: ArrayLike,
+    flow_test: ArrayLike,
+    *,
+    roi: ArrayLike | None = None,
+    mask: ArrayLike | None = None,
 ) -> float:
     """Mean end-point error ``|f_test - f_true|`` in px.
 
@@ -208,8 +260,8 @@ def flow_endpoint_error(
     ----------
     flow_true, flow_test : (..., H, W, 2) ndarray
         Flows in px, ``[..., 0]`` = du (column), ``[..., 1]`` = dv (row).
-    mask : array of bool, optional
-        Pixels to evaluate (broadcast to ``(..., H, W)``).
+    roi : array of bool, optional
+        Pixels to score (broadcast to ``(..., H, W)``). ``mask=`` is its deprecated name.
 
     Returns
     -------
@@ -223,14 +275,18 @@ def flow_endpoint_error(
     >>> flow_endpoint_error(f0, f1)
     5.0
     """
-    a, b = _flow_pair(flow_true, flow_test, mask)
+    a, b = _flow_pair(flow_true, flow_test, _renamed(roi, mask, ("roi", "mask")))
     if a.shape[0] == 0:
         return math.nan
     return float(np.mean(np.hypot(*(b - a).T)))
 
 
 def flow_angular_error(
-    flow_true: ArrayLike, flow_test: ArrayLike, *, mask: ArrayLike | None = None
+    flow_true: ArrayLike,
+    flow_test: ArrayLike,
+    *,
+    roi: ArrayLike | None = None,
+    mask: ArrayLike | None = None,
 ) -> float:
     """Mean angular error (degrees), Middlebury definition (Baker et al., IJCV 2011).
 
@@ -241,8 +297,8 @@ def flow_angular_error(
     ----------
     flow_true, flow_test : (..., H, W, 2) ndarray
         Flows in px.
-    mask : array of bool, optional
-        Pixels to evaluate.
+    roi : array of bool, optional
+        Pixels to score. ``mask=`` is its deprecated name.
 
     Returns
     -------
@@ -255,7 +311,7 @@ def flow_angular_error(
     >>> round(flow_angular_error(f0, f1), 4)
     54.7356
     """
-    a, b = _flow_pair(flow_true, flow_test, mask)
+    a, b = _flow_pair(flow_true, flow_test, _renamed(roi, mask, ("roi", "mask")))
     if a.shape[0] == 0:
         return math.nan
     num = 1.0 + np.sum(a * b, axis=1)

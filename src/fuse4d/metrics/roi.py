@@ -9,15 +9,19 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
 from .._validation import as_float32
+from ..camera import Intrinsics
 from ..errors import ShapeError
-from ..sequence import GroundTruth, Sequence
+from ..sequence import BallTruth, GroundTruth, PlaneTruth, Sequence, SheetTruth
 
 __all__ = [
     "ball_roi",
+    "ball_truth",
     "central_roi",
     "default_roi",
     "scene_roi",
     "static_mask_from_ground_truth",
+    "static_pixels",
+    "step_limit",
 ]
 
 
@@ -32,12 +36,70 @@ def _window_inside(mask: NDArray[np.bool_], window: int) -> NDArray[np.bool_]:
     )
 
 
-def default_roi(depth: ArrayLike, *, window: int = 5, edge_mm: float = 10.0) -> NDArray[np.bool_]:
+#: Noise levels of the frame's depth-noise model sigma(z) = q z^2 (A22) that a step between
+#: neighbouring pixels may span before it counts as a depth edge: the fusion's own rule
+#: ``max(max_depth_step, 2.5 q z^2)`` (``fuse4d._kernels.fusion._step_limit``; a test pins the
+#: two together).
+STEP_NOISE_LEVELS = 2.5
+#: Tolerance of :func:`static_pixels`: depth range over time, in depth-step limits.
+STATIC_LEVELS = 3.0
+
+
+def step_limit(z: ArrayLike, *, max_step: float = 10.0, noise_quad: float = 0.0) -> NDArray:
+    """Largest depth change (mm) between neighbouring pixels that is not a depth edge.
+
+    ``max(max_step, 2.5 * noise_quad * z^2)``: the fusion's depth-step rule (A22), so that the
+    quantisation steps of far structured-light depth (about 30 mm at 3 m on a Kinect) are not
+    mistaken for edges.
+
+    Parameters
+    ----------
+    z : array_like
+        Depth in mm.
+    max_step : float, optional
+        Fixed floor (mm).
+    noise_quad : float, optional
+        Quadratic depth-noise coefficient q (mm^-1, :func:`fuse4d.motion.estimate_noise_quad`).
+
+    Returns
+    -------
+    ndarray of float64
+        Step limit in mm, shape of ``z``.
+    """
+    zz = np.asarray(z, dtype=np.float64)
+    return np.maximum(float(max_step), STEP_NOISE_LEVELS * float(noise_quad) * zz * zz)
+
+
+def _frame_quads(d: NDArray[np.float32], noise_quad: float | ArrayLike | None) -> NDArray:
+    """Per-frame q: estimated from each frame (None) or given (scalar or (T,))."""
+    if noise_quad is None:
+        from ..motion import estimate_noise_quad
+
+        frames = d.reshape(-1, *d.shape[-2:])
+        return np.array([estimate_noise_quad(f) for f in frames]).reshape(d.shape[:-2])
+    return np.broadcast_to(np.asarray(noise_quad, dtype=np.float64), d.shape[:-2])
+
+
+def _check_odd_window(window: int) -> None:
+    if isinstance(window, bool) or int(window) != window or window < 1 or window % 2 == 0:
+        raise ValueError(f"window must be an odd positive integer (pixels), got {window!r}")
+
+
+def default_roi(
+    depth: ArrayLike,
+    *,
+    window: int = 5,
+    max_step: float = 10.0,
+    noise_quad: float | ArrayLike | None = None,
+) -> NDArray[np.bool_]:
     """The default roughness ROI, usable on any sequence (real or synthetic).
 
     A pixel is in the ROI if its whole ``window x window`` neighbourhood lies inside the image
-    and holds valid depth, and the depth range (max - min) inside it is at most ``edge_mm``,
-    i.e. the window does not straddle a depth discontinuity.
+    and holds valid depth, and no two horizontally or vertically neighbouring pixels inside it
+    differ by more than the depth-step limit ``max(max_step, 2.5 q z^2)`` (:func:`step_limit`,
+    the fusion's rule): the window does not straddle a depth discontinuity. Following the
+    noise model, the ROI of quantised depth covers whole slanted surfaces, not only the flat
+    plateaus between quantisation steps (where raw depth is flat by construction).
 
     Parameters
     ----------
@@ -45,8 +107,11 @@ def default_roi(depth: ArrayLike, *, window: int = 5, edge_mm: float = 10.0) -> 
         Depth in mm, NaN = invalid.
     window : int, optional
         Window size n (odd, px), the roughness window.
-    edge_mm : float, optional
-        Largest depth range (mm) inside the window.
+    max_step : float, optional
+        Floor of the step limit (mm).
+    noise_quad : float or (T,) array, optional
+        Depth-noise coefficient q of each frame (mm^-1). Default: estimated per frame with
+        :func:`fuse4d.motion.estimate_noise_quad`; 0 gives the fixed ``max_step``.
 
     Returns
     -------
@@ -55,23 +120,54 @@ def default_roi(depth: ArrayLike, *, window: int = 5, edge_mm: float = 10.0) -> 
     Examples
     --------
     >>> d = np.full((8, 8), 500.0); d[:, 5:] = 900.0
-    >>> default_roi(d, window=3)[4].tolist()
+    >>> default_roi(d, window=3, noise_quad=0.0)[4].tolist()
     [False, True, True, True, False, False, True, False]
     """
     d = as_float32(depth, name="depth")
     if d.ndim not in (2, 3):
         raise ShapeError("depth", ("T", "H", "W"), d.shape, "a (H, W) or (T, H, W) depth map")
-    if not (math.isfinite(edge_mm) and edge_mm >= 0):
-        raise ValueError(f"edge_mm must be a finite number >= 0 (mm), got {edge_mm!r}")
-    if isinstance(window, bool) or int(window) != window or window < 1 or window % 2 == 0:
-        raise ValueError(f"window must be an odd positive integer (pixels), got {window!r}")
+    if not (math.isfinite(max_step) and max_step >= 0):
+        raise ValueError(f"max_step must be a finite number >= 0 (mm), got {max_step!r}")
+    _check_odd_window(window)
+    quads = _frame_quads(d, noise_quad)[..., None, None]
     valid = np.isfinite(d)
-    size = _window_size(d.ndim, window)
     full = _window_inside(valid, window)
-    dmax = ndimage.maximum_filter(np.where(valid, d, -np.inf), size=size, mode="nearest")
-    dmin = ndimage.minimum_filter(np.where(valid, d, np.inf), size=size, mode="nearest")
+    z = d.astype(np.float64)
+    limit = np.maximum(float(max_step), STEP_NOISE_LEVELS * quads * z * z)
     with np.errstate(invalid="ignore"):
-        return full & (dmax - dmin <= np.float32(edge_mm))
+        jump_c = np.abs(z[..., :, 1:] - z[..., :, :-1]) > np.fmax(
+            limit[..., :, 1:], limit[..., :, :-1]
+        )
+        jump_r = np.abs(z[..., 1:, :] - z[..., :-1, :]) > np.fmax(
+            limit[..., 1:, :], limit[..., :-1, :]
+        )
+    # ok_*[p] = the link from pixel p to its right/lower neighbour is no depth edge; a window
+    # is edge-free when every link inside it is
+    ok_c = np.ones(d.shape, dtype=bool)
+    ok_c[..., :, :-1] = ~jump_c
+    ok_r = np.ones(d.shape, dtype=bool)
+    ok_r[..., :-1, :] = ~jump_r
+    size = _window_size(d.ndim, window)
+    half = window // 2
+    # links inside a window centred at (v, u): columns u-half .. u+half-1, rows v-half .. v+half
+    edge_free_c = _shifted_window_all(ok_c, size, col_shift=True, half=half)
+    edge_free_r = _shifted_window_all(ok_r, size, col_shift=False, half=half)
+    return full & edge_free_c & edge_free_r
+
+
+def _shifted_window_all(
+    ok: NDArray[np.bool_], size: tuple[int, ...], *, col_shift: bool, half: int
+) -> NDArray[np.bool_]:
+    """All links (right links if ``col_shift`` else lower links) inside each window are ok.
+
+    A window of half size ``half`` centred at u holds the right links of columns
+    u-half .. u+half-1: a window of width 2*half whose first column is u-half.
+    """
+    if half == 0:
+        return np.ones(ok.shape, dtype=bool)
+    shape = list(size)
+    shape[-1 if col_shift else -2] = 2 * half  # scipy: width 2h covers x - h .. x + h - 1
+    return ndimage.minimum_filter(ok, size=tuple(shape), mode="constant", cval=True)
 
 
 def _ground_truth(seq_or_gt: Sequence | GroundTruth) -> GroundTruth:
@@ -83,12 +179,21 @@ def _ground_truth(seq_or_gt: Sequence | GroundTruth) -> GroundTruth:
     return gt
 
 
-def _extra(gt: GroundTruth, key: str, default: object = None) -> object:
-    if key in gt.extra:
-        return gt.extra[key]
-    if default is None:
-        raise ValueError(f"ground truth lacks extra[{key!r}]; is this a fuse4d.synthetic scene?")
-    return default
+def ball_truth(seq_or_gt: Sequence | GroundTruth, *, what: str = "this metric") -> BallTruth:
+    """The typed falling-ball geometry of a scene (``ground_truth.scene``).
+
+    Raises
+    ------
+    ValueError
+        If the scene is not :func:`~fuse4d.synthetic.make_falling_ball` output.
+    """
+    gt = _ground_truth(seq_or_gt)
+    if not isinstance(gt.scene, BallTruth) or gt.mask is None:
+        raise ValueError(
+            f"{what} needs the falling-ball ground truth (mask and a BallTruth scene, "
+            "from fuse4d.synthetic.make_falling_ball)"
+        )
+    return gt.scene
 
 
 def ball_roi(
@@ -103,27 +208,25 @@ def ball_roi(
     Parameters
     ----------
     seq_or_gt : Sequence or GroundTruth
-        A :func:`~fuse4d.synthetic.make_falling_ball` scene (uses ``mask`` and ``extra``
-        ``center_row``, ``center_col``, ``roi_radius_px``).
+        A :func:`~fuse4d.synthetic.make_falling_ball` scene (uses ``mask`` and the
+        :class:`~fuse4d.sequence.BallTruth` ``center_row``, ``center_col``, ``roi_radius_px``).
     window : int, optional
         Roughness window size n (px).
     radius_px : float, optional
-        ROI radius in px. Default ``extra["roi_radius_px"]``: 100 px at full size, scaled by
+        ROI radius in px. Default ``scene.roi_radius_px``: 100 px at full size, scaled by
         ``pixel_scale`` for the small variant (25 px).
 
     Returns
     -------
     (T, H, W) ndarray of bool
     """
-    gt = _ground_truth(seq_or_gt)
-    if gt.mask is None:
-        raise ValueError("ball_roi needs the ground-truth ball mask")
-    mask = np.asarray(gt.mask, dtype=bool)
-    rows = np.asarray(_extra(gt, "center_row"), dtype=np.float64).reshape(-1)
+    ball = ball_truth(seq_or_gt, what="ball_roi")
+    mask = np.asarray(_ground_truth(seq_or_gt).mask, dtype=bool)
+    rows = np.asarray(ball.center_row, dtype=np.float64).reshape(-1)
     if rows.size != mask.shape[0]:
-        raise ShapeError("extra['center_row']", (mask.shape[0],), rows.shape, "one row per frame")
-    col = float(_extra(gt, "center_col"))  # type: ignore[arg-type]
-    radius = float(radius_px if radius_px is not None else _extra(gt, "roi_radius_px", 100.0))  # type: ignore[arg-type]
+        raise ShapeError("scene.center_row", (mask.shape[0],), rows.shape, "one row per frame")
+    col = ball.center_col
+    radius = float(radius_px if radius_px is not None else ball.roi_radius_px)
     h, w = mask.shape[1:]
     vv = np.arange(h, dtype=np.float64)[None, :, None]
     uu = np.arange(w, dtype=np.float64)[None, None, :]
@@ -131,7 +234,13 @@ def ball_roi(
     return near & _window_inside(mask, window)
 
 
-def central_roi(seq: Sequence, *, fraction: float = 0.8, window: int = 5) -> NDArray[np.bool_]:
+def central_roi(
+    seq_or_gt: Sequence | GroundTruth,
+    *,
+    intrinsics: Intrinsics | None = None,
+    fraction: float = 0.8,
+    window: int = 5,
+) -> NDArray[np.bool_]:
     """ROI of the synthetic plane and sheet (EVALUATION §4 E5): their central part.
 
     Pixels whose surface point lies in the central ``fraction`` of the object along each side
@@ -140,9 +249,11 @@ def central_roi(seq: Sequence, *, fraction: float = 0.8, window: int = 5) -> NDA
 
     Parameters
     ----------
-    seq : Sequence
+    seq_or_gt : Sequence or GroundTruth
         A :func:`~fuse4d.synthetic.make_static_plane` or
-        :func:`~fuse4d.synthetic.make_deforming_sheet` scene.
+        :func:`~fuse4d.synthetic.make_deforming_sheet` scene (its ground truth).
+    intrinsics : Intrinsics, optional
+        Camera; required when ``seq_or_gt`` is a bare GroundTruth.
     fraction : float, optional
         Linear fraction of each side, in (0, 1].
     window : int, optional
@@ -154,32 +265,39 @@ def central_roi(seq: Sequence, *, fraction: float = 0.8, window: int = 5) -> NDA
     """
     if not 0.0 < fraction <= 1.0:
         raise ValueError(f"fraction must be in (0, 1], got {fraction!r}")
-    gt = _ground_truth(seq)
+    gt = _ground_truth(seq_or_gt)
+    k = seq_or_gt.intrinsics if isinstance(seq_or_gt, Sequence) else intrinsics
+    if k is None:
+        raise ValueError("central_roi needs the intrinsics with a bare GroundTruth")
     if gt.depth is None or gt.mask is None:
         raise ValueError("central_roi needs ground-truth depth and mask")
-    scene = _extra(gt, "scene")
-    k = seq.intrinsics
+    truth = gt.scene
     z = np.asarray(gt.depth, dtype=np.float64)
     xn = (np.arange(k.width) - k.cx) / k.fx
     yn = (np.arange(k.height) - k.cy) / k.fy
     x = z * xn[None, None, :]
     y = z * yn[None, :, None]
-    size = np.asarray(_extra(gt, "size_mm"), dtype=np.float64)
-    if scene == "plane":
-        theta = math.radians(float(_extra(gt, "tilt_deg")))  # type: ignore[arg-type]
-        z0 = float(np.asarray(_extra(gt, "center_mm"))[2])
+    if isinstance(truth, PlaneTruth):
+        theta = math.radians(truth.tilt_deg)
+        z0 = float(np.asarray(truth.center_mm)[2])
         a, b = x, y * math.cos(theta) + (z - z0) * math.sin(theta)
-    elif scene == "sheet":
-        cx_mm = np.asarray(_extra(gt, "center_x_mm"), dtype=np.float64).reshape(-1)
+    elif isinstance(truth, SheetTruth):
+        cx_mm = np.asarray(truth.center_x_mm, dtype=np.float64).reshape(-1)
         a, b = x - cx_mm[:, None, None], y
     else:
-        raise ValueError(f"central_roi applies to the 'plane' and 'sheet' scenes, not {scene!r}")
+        name = "no scene" if truth is None else truth.scene
+        raise ValueError(  # noqa: TRY004  (a wrong scene, not a wrong argument type)
+            f"central_roi applies to the 'plane' and 'sheet' scenes, not {name!r}"
+        )
+    size = truth.size_mm
     with np.errstate(invalid="ignore"):
         inside = (np.abs(a) <= fraction * size[0] / 2) & (np.abs(b) <= fraction * size[1] / 2)
     return inside & _window_inside(np.asarray(gt.mask, dtype=bool), window)
 
 
-def scene_roi(seq: Sequence, *, window: int = 5) -> tuple[NDArray[np.bool_], str]:
+def scene_roi(
+    seq_or_gt: Sequence | GroundTruth, *, intrinsics: Intrinsics | None = None, window: int = 5
+) -> tuple[NDArray[np.bool_], str]:
     """The EVALUATION ROI of a synthetic scene and a one-line description.
 
     ``ball`` -> :func:`ball_roi`; ``plane``/``sheet`` -> :func:`central_roi` (80 %).
@@ -187,22 +305,22 @@ def scene_roi(seq: Sequence, *, window: int = 5) -> tuple[NDArray[np.bool_], str
     Raises
     ------
     ValueError
-        If ``seq`` is not a synthetic scene (no ground truth or no ``extra["scene"]``).
+        If ``seq_or_gt`` is not a synthetic scene (no ground truth or no typed ``scene``).
     """
-    gt = _ground_truth(seq)
-    scene = _extra(gt, "scene")
-    if scene == "ball":
-        radius = float(_extra(gt, "roi_radius_px", 100.0))  # type: ignore[arg-type]
+    gt = _ground_truth(seq_or_gt)
+    if isinstance(gt.scene, BallTruth):
         return (
-            ball_roi(seq, window=window),
+            ball_roi(gt, window=window),
             (
-                f"ball ROI: within {radius:g} px of the ball centre, {window}x{window} window "
-                "inside the GT mask"
+                f"ball ROI: within {gt.scene.roi_radius_px:g} px of the ball centre, "
+                f"{window}x{window} window inside the GT mask"
             ),
         )
+    if gt.scene is None:
+        raise ValueError("scene_roi needs a synthetic scene (ground_truth.scene is None)")
     return (
-        central_roi(seq, window=window),
-        f"central 80 % of the {scene}, {window}x{window} window inside the GT mask",
+        central_roi(seq_or_gt, intrinsics=intrinsics, window=window),
+        f"central 80 % of the {gt.scene.scene}, {window}x{window} window inside the GT mask",
     )
 
 
@@ -218,3 +336,70 @@ def static_mask_from_ground_truth(gt: GroundTruth) -> NDArray[np.bool_]:
     if gt.flow is not None and np.asarray(gt.flow).shape[0] > 0:
         static &= np.all(np.asarray(gt.flow) == 0, axis=(0, 3))
     return static
+
+
+def static_pixels(
+    depth: ArrayLike,
+    *,
+    max_step: float = 10.0,
+    noise_quad: float | None = None,
+    levels: float = STATIC_LEVELS,
+) -> NDArray[np.bool_]:
+    """``(H, W)`` pixels that see a static surface, detected from the depth video itself.
+
+    A pixel is static if it is valid in every frame and the range (max - min) of its depth
+    over time is at most ``levels`` depth-step limits at its mean depth (:func:`step_limit`:
+    ``levels * max(max_step, 2.5 q z^2)``). People or objects crossing the pixel change its
+    depth by far more; sensor noise and quantisation steps do not (on
+    ``uva_cv2_person_turning``: 99.9 % of the never-masked background, none of the person).
+
+    Parameters
+    ----------
+    depth : (T, H, W) ndarray
+        Depth in mm, NaN = invalid (the raw input: static is a property of the scene).
+    max_step : float, optional
+        Floor of the step limit (mm).
+    noise_quad : float, optional
+        Depth-noise coefficient q (mm^-1); default: the median over frames of
+        :func:`fuse4d.motion.estimate_noise_quad`.
+    levels : float, optional
+        Tolerance in step limits.
+
+    Returns
+    -------
+    (H, W) ndarray of bool
+    """
+    d = as_float32(depth, name="depth")
+    if d.ndim != 3:
+        raise ShapeError("depth", ("T", "H", "W"), d.shape, "a (T, H, W) depth video")
+    q = float(np.median(_frame_quads(d, None))) if noise_quad is None else float(noise_quad)
+    valid = np.all(np.isfinite(d), axis=0)
+    out = np.zeros(d.shape[1:], dtype=bool)
+    if valid.any():
+        vals = d[:, valid].astype(np.float64)
+        out[valid] = is_static(
+            vals.min(axis=0),
+            vals.max(axis=0),
+            vals.mean(axis=0),
+            q,
+            max_step=max_step,
+            levels=levels,
+        )
+    return out
+
+
+def is_static(
+    zmin: ArrayLike,
+    zmax: ArrayLike,
+    zmean: ArrayLike,
+    noise_quad: float,
+    *,
+    max_step: float = 10.0,
+    levels: float = STATIC_LEVELS,
+) -> NDArray[np.bool_]:
+    """The static rule of :func:`static_pixels` on per-pixel temporal min, max and mean (mm).
+
+    Split out so that a streaming evaluation (running min/max/mean) applies the same rule.
+    """
+    limit = levels * step_limit(zmean, max_step=max_step, noise_quad=noise_quad)
+    return np.asarray(zmax, dtype=np.float64) - np.asarray(zmin, dtype=np.float64) <= limit

@@ -13,7 +13,14 @@ from .._validation import as_float32, check_shape
 from ..errors import ShapeError
 from .roi import default_roi
 
-__all__ = ["RoughnessStats", "roughness", "roughness_maps", "roughness_rms", "roughness_stats"]
+__all__ = [
+    "RoughnessStats",
+    "roughness",
+    "roughness_maps",
+    "roughness_rms",
+    "roughness_stats",
+    "stats_from_maps",
+]
 
 
 def _check_window(window: int, min_valid_fraction: float) -> None:
@@ -95,7 +102,7 @@ def roughness(
     --------
     >>> from fuse4d import Intrinsics, depth_to_points
     >>> K = Intrinsics(fx=100.0, fy=100.0, cx=4.5, cy=4.5, width=10, height=10)
-    >>> plane = 1.0 / np.fromfunction(lambda v, u: 2e-3 + 1e-5 * u, (10, 10))  # slanted 3D plane
+    >>> plane = np.fromfunction(lambda v, u: 500.0 / (1.0 - 0.2 * (u - 4.5) / 100.0), (10, 10))
     >>> pi = roughness(depth_to_points(plane, K))
     >>> bool(np.nanmax(pi) < 1e-3)
     True
@@ -175,7 +182,7 @@ def roughness_stats(
     roi: ArrayLike | None = None,
     window: int = 5,
     min_valid_fraction: float = 0.8,
-    edge_mm: float = 10.0,
+    max_step: float = 10.0,
 ) -> RoughnessStats:
     """Per-frame and per-sequence roughness (Eq. 7) and RMS residual over a region of interest.
 
@@ -185,13 +192,14 @@ def roughness_stats(
         Point maps in mm, NaN = invalid.
     roi : (T, H, W) or (H, W) array of bool, optional
         Pixels to average over (a 2-D mask applies to every frame). Default:
-        :func:`default_roi` of the depth (window fully valid, no depth edge > ``edge_mm``).
+        :func:`default_roi` of the depth (window fully valid, no step between neighbours
+        above the depth-step limit ``max(max_step, 2.5 q z^2)``).
     window : int, optional
         Window size n (default 5).
     min_valid_fraction : float, optional
         See :func:`roughness`.
-    edge_mm : float, optional
-        Depth-discontinuity threshold of the default ROI (mm).
+    max_step : float, optional
+        Floor of the default ROI's depth-step limit (mm).
 
     Returns
     -------
@@ -209,15 +217,25 @@ def roughness_stats(
     p, _ = _as_points(points)
     pi, rms = roughness_maps(p, window=window, min_valid_fraction=min_valid_fraction)
     if roi is None:
-        mask = default_roi(p[..., 2], window=window, edge_mm=edge_mm)
-    else:
-        mask = np.asarray(roi)
-        if mask.dtype != np.bool_:
-            raise TypeError(f"roi must be a boolean mask, got dtype {mask.dtype}")
-        if mask.ndim == 2 and mask.shape == pi.shape[1:]:
-            mask = np.broadcast_to(mask, pi.shape)
-        if mask.shape != pi.shape:
-            raise ShapeError("roi", pi.shape, mask.shape, "a (H, W) or (T, H, W) bool mask")
+        return stats_from_maps(pi, rms, default_roi(p[..., 2], window=window, max_step=max_step))
+    return stats_from_maps(pi, rms, roi)
+
+
+def stats_from_maps(
+    pi: NDArray[np.float32], rms: NDArray[np.float32], roi: ArrayLike
+) -> RoughnessStats:
+    """:class:`RoughnessStats` of precomputed ``(T, H, W)`` Pi and R maps (mm) over ``roi``.
+
+    ``roi`` is ``(H, W)`` (every frame) or ``(T, H, W)`` bool; pixels where Pi is NaN are
+    left out.
+    """
+    mask = np.asarray(roi)
+    if mask.dtype != np.bool_:
+        raise TypeError(f"roi must be a boolean mask, got dtype {mask.dtype}")
+    if mask.ndim == 2 and mask.shape == pi.shape[1:]:
+        mask = np.broadcast_to(mask, pi.shape)
+    if mask.shape != pi.shape:
+        raise ShapeError("roi", pi.shape, mask.shape, "a (H, W) or (T, H, W) bool mask")
     used = mask & np.isfinite(pi)
     counts = used.sum(axis=(1, 2)).astype(np.int64)
     with np.errstate(invalid="ignore", divide="ignore"):

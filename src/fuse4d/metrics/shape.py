@@ -17,6 +17,8 @@ from .._kernels.sphere_fit import _mlesac_score_kernel
 from .._validation import check_shape
 from ..errors import ShapeError
 from ..sequence import GroundTruth, Sequence
+from ..synthetic import _seed_of
+from .roi import ball_truth
 
 __all__ = [
     "ShapeCorrectness",
@@ -259,39 +261,40 @@ def _disk(radius: int) -> NDArray[np.bool_]:
 
 
 def shape_correctness(
-    points: ArrayLike,
     ground_truth: Sequence | GroundTruth,
+    points: ArrayLike,
     *,
     true_radius: float | None = None,
     num_hypotheses: int = 500,
     sigma: float = 0.5,
     nu: float = 50.0,
-    rng: int = 0,
+    rng: int | np.random.Generator | None = 0,
     progress: Callable[[int, int], None] | None = None,
 ) -> ShapeCorrectness:
     """Shape correctness C (paper Eq. 8) of a point-map sequence of the synthetic ball.
 
     Data per frame t (EVALUATION §2): points of columns ``fit_columns`` (160..440 inclusive at
     full size) and rows ``v_c(t) +- fit_half_rows`` (140 px), valid and inside the GT ball
-    mask eroded by ``mask_erosion_px`` (3 px; a Euclidean disk). The small variant scales all
-    three by ``pixel_scale`` (40..110, +-35 px, 1 px). The profile fit uses the row
-    ``round(v_c(t))`` and the in-plane coordinates ``(X, sqrt(Y^2 + Z^2))`` of the plane
-    through the camera centre and that row (exact; equal to the spec's (X, Z) up to a factor
-    ``sqrt(1 + y_n^2) < 1.002``).
+    mask eroded by ``mask_erosion_px`` (3 px; a Euclidean disk), all read from the scene's
+    :class:`~fuse4d.sequence.BallTruth` (the small variant's are scaled by ``pixel_scale``:
+    40..110, +-35 px, 1 px). The profile fit uses the row ``round(v_c(t))`` and the in-plane
+    coordinates ``(X, sqrt(Y^2 + Z^2))`` of the plane through the camera centre and that row
+    (exact; equal to the spec's (X, Z) up to a factor ``sqrt(1 + y_n^2) < 1.002``).
 
     Parameters
     ----------
+    ground_truth : Sequence or GroundTruth
+        The ball scene (GT ``mask`` and :class:`~fuse4d.sequence.BallTruth` ``scene`` from
+        :func:`~fuse4d.synthetic.make_falling_ball`). Truth first, as in every metric.
     points : (T, H, W, 3) ndarray
         Point maps in mm (e.g. the output of a filter, back-projected).
-    ground_truth : Sequence or GroundTruth
-        The ball scene (GT ``mask`` and ``extra`` from
-        :func:`~fuse4d.synthetic.make_falling_ball`).
     true_radius : float, optional
-        r_true in mm (default ``extra["radius_mm"]``, 140).
+        r_true in mm (default ``scene.radius_mm``, 140).
     num_hypotheses, sigma, nu : optional
         MLESAC settings (500, 0.5 mm, 50 mm), the same for every method.
-    rng : int, optional
-        Seed; frame t uses ``default_rng([rng, t])``.
+    rng : int, Generator or None, optional
+        Seed; frame t uses ``default_rng([seed, t])`` (a Generator contributes one draw as the
+        seed, None fresh entropy).
     progress : callable, optional
         ``callback(done, total)`` after each frame.
 
@@ -299,22 +302,26 @@ def shape_correctness(
     -------
     ShapeCorrectness
     """
-    gt = ground_truth.ground_truth if isinstance(ground_truth, Sequence) else ground_truth
-    if not isinstance(gt, GroundTruth) or gt.mask is None or "center_row" not in gt.extra:
-        raise ValueError(
-            "shape_correctness needs the falling-ball ground truth (mask and extra['center_row'])"
+    if not isinstance(ground_truth, Sequence | GroundTruth):
+        raise TypeError(
+            "shape_correctness(ground_truth, points): the ground truth comes first, got "
+            f"{type(ground_truth).__name__}"
         )
+    gt = ground_truth.ground_truth if isinstance(ground_truth, Sequence) else ground_truth
+    if gt is None:
+        raise ValueError("shape_correctness needs the falling-ball ground truth")
+    ball = ball_truth(gt, what="shape_correctness")
+    base_seed = _seed_of(rng)
     p = np.asarray(points, dtype=np.float32)
     check_shape(p, ("T", "H", "W", 3), name="points")
     mask = np.asarray(gt.mask, dtype=bool)
     if mask.shape != p.shape[:3]:
         raise ShapeError("points", (*mask.shape, 3), p.shape, "must match the ground truth")
-    extra = gt.extra
-    rows_c = np.asarray(extra["center_row"], dtype=np.float64).reshape(-1)
-    c0, c1 = (int(v) for v in np.asarray(extra.get("fit_columns", (160, 440))).ravel())
-    half = float(extra.get("fit_half_rows", 140.0))
-    erosion = int(extra.get("mask_erosion_px", 3))
-    r_true = float(true_radius if true_radius is not None else extra.get("radius_mm", 140.0))
+    rows_c = np.asarray(ball.center_row, dtype=np.float64).reshape(-1)
+    c0, c1 = ball.fit_columns
+    half = ball.fit_half_rows
+    erosion = ball.mask_erosion_px
+    r_true = float(true_radius if true_radius is not None else ball.radius_mm)
     num_t, h, w = mask.shape
     out = {k: np.full(num_t, np.nan) for k in ("c3", "cm", "cp", "r3", "rm", "rp")}
     counts = np.zeros(num_t, dtype=np.int64)
@@ -328,7 +335,7 @@ def shape_correctness(
         sel = good & in_cols & (np.abs(vv - rows_c[t]) <= half)
         pts = p[t][sel]
         counts[t] = pts.shape[0]
-        seed = [rng, t]
+        seed = [base_seed, t]
         if pts.shape[0] >= 4:
             try:
                 fit = sphere_fit_mlesac(

@@ -113,7 +113,7 @@ class MetricTally:
             pis[n], rmss[n] = roughness_maps(points[n], window=self.window)
             self.valid_count[n] += int(finite[n].sum())
         # roughness: default ROI of the raw frame, Pi defined for every method
-        roi = default_roi(depths[self.names[0]], window=self.window, edge_mm=self.edge_mm)
+        roi = default_roi(depths[self.names[0]], window=self.window, max_step=self.edge_mm)
         for n in self.names:
             roi &= np.isfinite(pis[n])
         count = int(roi.sum())

@@ -1,0 +1,499 @@
+"""One evaluation report: the scoring policy of fuse4d in one place (issue 9 R3, issue 10 §4).
+
+:func:`evaluate` scores a depth video (and, if given, the raw input it came from) and returns a
+:class:`MetricsReport`. It decides, once for everything that scores a result (``fuse4d
+metrics``, the ``fuse4d run`` summary, ``demo``, ``bench --quality``, the real-data
+benchmark):
+
+* **the ROI** (pixels to score): the one given; else the EVALUATION ROI of a synthetic scene
+  (ball ROI, central 80 % of plane/sheet); else :func:`~fuse4d.metrics.default_roi` of the
+  *raw* depth (the output's when no raw is given), whose depth-step rule follows the
+  noise model (A22). One ROI, computed once, for raw and output;
+* **the same pixels** for raw and output: roughness on ROI pixels where Eq. 7 is defined in
+  both, RMSE on ROI pixels valid in both, flicker on static pixels valid in every frame of
+  both;
+* **the static pixels** of the flicker: given; else static in the ground truth (GT depth);
+  else detected from the raw video (:func:`~fuse4d.metrics.static_pixels`); a given ROI
+  restricts them too (pixels in the ROI in every frame);
+* **shape correctness** (Eq. 8) only for the falling ball, only when asked (it is slow).
+
+:class:`RunningEvaluation` is the same policy frame by frame, for streamed recordings whose
+frames do not fit in memory (``fuse4d run``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..camera import Intrinsics, depth_to_points
+from ..errors import ShapeError
+from ..sequence import BallTruth, GroundTruth, Sequence
+from .accuracy import FlickerStats, bad_pixel_fraction, depth_rmse, temporal_flicker
+from .roi import (
+    _frame_quads,
+    default_roi,
+    is_static,
+    scene_roi,
+    static_mask_from_ground_truth,
+    static_pixels,
+)
+from .roughness import RoughnessStats, _mean_std, roughness_maps, stats_from_maps
+from .shape import ShapeCorrectness, shape_correctness
+
+__all__ = ["MetricsReport", "RunningEvaluation", "Scores", "evaluate"]
+
+#: Threshold of the bad-pixel fraction (mm).
+BAD_PIXEL_MM = 1.0
+
+
+@dataclass(frozen=True)
+class Scores:
+    """The scores of one depth video on a report's pixels (lengths in mm).
+
+    Attributes
+    ----------
+    roughness : RoughnessStats
+        Eq. 7 (and the RMS plane residual) on the report's ROI pixels where Eq. 7 is defined
+        (in raw and output alike when the report has both).
+    flicker : FlickerStats or None
+        Per-pixel std over time and frame-to-frame |Δ| on the report's static pixels (None
+        for a single frame).
+    rmse_roi : float
+        RMSE to GT depth on the ROI pixels valid in GT, output (and raw); NaN without GT.
+    rmse : float
+        RMSE to GT depth on all GT-valid pixels of the given ROI (of every pixel when no ROI
+        was given) where the depth is valid; NaN without GT.
+    bad_1mm : float
+        Fraction of those GT-valid pixels more than 1 mm off (missing depth counts as bad).
+    shape : ShapeCorrectness or None
+        Eq. 8 on the falling ball, when asked for.
+    """
+
+    roughness: RoughnessStats
+    flicker: FlickerStats | None = None
+    rmse_roi: float = math.nan
+    rmse: float = math.nan
+    bad_1mm: float = math.nan
+    shape: ShapeCorrectness | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """Scalars, JSON friendly (NaN kept as float NaN)."""
+        out: dict[str, Any] = {
+            **self.roughness.to_dict(),
+            "roughness_frame_means": self.roughness.frame_means.tolist(),
+            "roughness_pixels": int(self.roughness.num_pixels.sum()),
+            "rmse_roi": self.rmse_roi,
+            "rmse": self.rmse,
+            "bad_1mm": self.bad_1mm,
+        }
+        f = self.flicker
+        out.update(
+            flicker_std_median=math.nan if f is None else f.median,
+            flicker_std_mean=math.nan if f is None else f.mean,
+            flicker_step_mean=math.nan if f is None else f.step_mean,
+            flicker_pixels=0 if f is None else f.num_pixels,
+        )
+        if self.shape is not None:
+            out["shape"] = {
+                **self.shape.to_dict(),
+                "radius_3d_mean": float(np.nanmean(self.shape.radius_3d))
+                if np.isfinite(self.shape.radius_3d).any()
+                else math.nan,
+                "true_radius": self.shape.true_radius,
+            }
+        return out
+
+
+#: What each headline number of a report means (used by the CLI tables): key -> (label, unit).
+METRIC_MEANINGS: dict[str, tuple[str, str]] = {
+    "roughness_mean": ("roughness (Eq. 7), mean over frames", "mm, on the ROI"),
+    "roughness_std": ("roughness std over frames", "mm"),
+    "rms_residual": ("RMS plane-fit residual (spatial precision)", "mm, on the ROI"),
+    "flicker_step_mean": ("flicker: frame-to-frame |Δ|", "mm, static pixels"),
+    "flicker_std_median": (
+        "flicker: per-pixel std over time (temporal precision), median",
+        "mm, static pixels",
+    ),
+    "rmse_roi": ("RMSE to ground truth", "mm, on the ROI"),
+    "rmse": ("RMSE to ground truth, all pixels", "mm"),
+    "bad_1mm": ("pixels > 1 mm off ground truth", "fraction, missing = bad"),
+}
+
+
+@dataclass(frozen=True)
+class MetricsReport:
+    """What :func:`evaluate` measured: output (and raw) scores on one set of pixels.
+
+    Attributes
+    ----------
+    output : Scores
+        Scores of the evaluated video.
+    raw : Scores or None
+        Scores of the raw input on the same pixels (None when no raw was given).
+    roi : (T, H, W) ndarray of bool
+        The ROI (pixels to score) before the Eq. 7 validity.
+    roi_description : str
+        Where the ROI came from.
+    static : (H, W) ndarray of bool or None
+        The flicker's static pixels (None for one frame).
+    static_description : str
+        Where they came from.
+    window : int
+        Roughness window n (px).
+    """
+
+    output: Scores
+    raw: Scores | None
+    roi: NDArray[np.bool_]
+    roi_description: str
+    static: NDArray[np.bool_] | None
+    static_description: str
+    window: int
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly form: regions, then the output's and the raw's scores."""
+        t = self.roi.shape[0]
+        out: dict[str, Any] = {
+            "window": self.window,
+            "num_frames": t,
+            "roi": {
+                "description": self.roi_description,
+                "pixels": int(self.roi.sum()),
+                "pixels_per_frame": float(self.roi.sum() / max(t, 1)),
+                "pixels_scored": int(self.output.roughness.num_pixels.sum()),
+            },
+            "static": {
+                "description": self.static_description,
+                "pixels": 0 if self.static is None else int(self.static.sum()),
+            },
+            "output": self.output.to_dict(),
+        }
+        if self.raw is not None:
+            out["raw"] = self.raw.to_dict()
+        return out
+
+
+def _as_video(
+    data: ArrayLike | Sequence, intrinsics: Intrinsics | None, name: str
+) -> tuple[NDArray[np.float32], NDArray[np.float32], Intrinsics | None]:
+    """(depth (T, H, W), points (T, H, W, 3), intrinsics) of a depth/points array or Sequence."""
+    if isinstance(data, Sequence):
+        return data.depth, data.points(), data.intrinsics
+    arr = np.asarray(data, dtype=np.float32)
+    if arr.ndim == 4 and arr.shape[-1] == 3:
+        return arr[..., 2], arr, intrinsics
+    if arr.ndim == 3:
+        if intrinsics is None:
+            raise ValueError(f"{name}: depth maps need intrinsics= to give 3D points")
+        return arr, depth_to_points(arr, intrinsics), intrinsics
+    raise ShapeError(name, ("T", "H", "W"), arr.shape, "depth (T, H, W) or points (T, H, W, 3)")
+
+
+def _user_roi(roi: ArrayLike, shape: tuple[int, int, int]) -> NDArray[np.bool_]:
+    m = np.asarray(roi)
+    if m.dtype != np.bool_:
+        raise TypeError(f"roi must be a boolean mask, got dtype {m.dtype}")
+    if m.shape == shape[1:]:
+        return np.broadcast_to(m, shape)
+    if m.shape != shape:
+        raise ShapeError("roi", shape, m.shape, "a (H, W) or (T, H, W) bool mask")
+    return m
+
+
+def evaluate(
+    output: ArrayLike | Sequence,
+    *,
+    intrinsics: Intrinsics | None = None,
+    raw: ArrayLike | Sequence | None = None,
+    ground_truth: GroundTruth | None = None,
+    roi: ArrayLike | None = None,
+    static: ArrayLike | None = None,
+    window: int = 5,
+    max_step: float = 10.0,
+    frames: slice | NDArray[np.integer] | None = None,
+    shape: bool = False,
+    shape_frames: ArrayLike | None = None,
+    rng: int | np.random.Generator | None = 0,
+    progress: Callable[[int, int], None] | None = None,
+) -> MetricsReport:
+    """Score a depth video, and the raw input it came from, on the same pixels.
+
+    Parameters
+    ----------
+    output : (T, H, W) depth, (T, H, W, 3) points or Sequence
+        The video to score (mm, NaN = invalid); a Sequence brings its intrinsics and ground
+        truth.
+    intrinsics : Intrinsics, optional
+        Camera; needed to turn depth maps into points.
+    raw : (T, H, W) depth, (T, H, W, 3) points or Sequence, optional
+        The raw input (or any second output to compare with): scored on the same pixels, and
+        the source of the default ROI and of the detected static pixels.
+    ground_truth : GroundTruth, optional
+        Ground truth (default: that of ``raw`` or ``output`` when a Sequence): RMSE and bad
+        pixels against its depth, the scene ROI and static pixels of a synthetic scene, Eq. 8
+        on the ball.
+    roi : (H, W) or (T, H, W) bool, optional
+        Pixels to score; applies to every metric (flicker: pixels in it in every frame).
+        Default: the scene ROI of a synthetic scene, else :func:`default_roi` of the raw depth.
+    static : (H, W) bool, optional
+        Pixels known to be static, for the flicker. Default: static in the GT depth, else
+        :func:`static_pixels` of the raw video.
+    window : int, optional
+        Roughness window n (odd, px).
+    max_step : float, optional
+        Floor (mm) of the depth-step limit of the default ROI and the static detection.
+    frames : slice or index array, optional
+        Frames to score (e.g. the interior frames whose fusion window is complete).
+    shape : bool, optional
+        Also compute the shape correctness (Eq. 8; falling ball only; ~1 s/frame full size).
+    shape_frames : array of int, optional
+        Frames (of the scored ones) for Eq. 8; default all.
+    rng : int, Generator or None, optional
+        Seed of the MLESAC fits (the same for raw and output).
+    progress : callable, optional
+        ``progress(done, total)`` during the shape fits.
+
+    Returns
+    -------
+    MetricsReport
+
+    Examples
+    --------
+    >>> from fuse4d.synthetic import make_falling_ball
+    >>> seq = make_falling_ball(small=True, num_frames=3)
+    >>> rep = evaluate(seq.ground_truth.depth, raw=seq, intrinsics=seq.intrinsics)
+    >>> bool(rep.output.roughness.mean < rep.raw.roughness.mean)
+    True
+    >>> rep.roi_description.split(":")[0]
+    'ball ROI'
+    """
+    k = intrinsics
+    for src in (output, raw):
+        if k is None and isinstance(src, Sequence):
+            k = src.intrinsics
+    out_d, out_p, _ = _as_video(output, k, "output")
+    gt = ground_truth
+    raw_d = raw_p = None
+    if raw is not None:
+        raw_d, raw_p, _ = _as_video(raw, k, "raw")
+        if raw_d.shape != out_d.shape:
+            raise ShapeError("raw", out_d.shape, raw_d.shape, "raw and output must match")
+        if gt is None and isinstance(raw, Sequence):
+            gt = raw.ground_truth
+    if gt is None and isinstance(output, Sequence):
+        gt = output.ground_truth
+    num_t = out_d.shape[0]
+    sel: slice | NDArray[np.integer] = slice(None) if frames is None else frames
+    if frames is not None:
+        out_d, out_p = out_d[sel], out_p[sel]
+        if raw_d is not None and raw_p is not None:
+            raw_d, raw_p = raw_d[sel], raw_p[sel]
+        if gt is not None:
+            gt = gt.select(sel, num_t)
+        if roi is not None and np.ndim(roi) == 3:
+            roi = np.asarray(roi)[sel]
+    ref_d = out_d if raw_d is None else raw_d
+    full = out_d.shape
+
+    # ---- the ROI: one, for raw and output
+    if roi is not None:
+        region = _user_roi(roi, full)
+        roi_desc = "the given mask"
+    elif gt is not None and gt.scene is not None:
+        region, roi_desc = scene_roi(gt, intrinsics=k, window=window)
+    else:
+        region = default_roi(ref_d, window=window, max_step=max_step)
+        roi_desc = (
+            f"{window}x{window} windows fully valid in the {'raw' if raw_d is not None else ''}"
+            f"{' ' if raw_d is not None else ''}depth, no step between neighbours above "
+            f"max({max_step:g} mm, 2.5 q z^2) (noise model A22)"
+        )
+
+    # ---- the static pixels of the flicker
+    static_region, static_desc = None, "one frame: no flicker"
+    if num_t >= 2 and out_d.shape[0] >= 2:
+        if static is not None:
+            static_region = np.asarray(static)
+            if static_region.dtype != np.bool_ or static_region.shape != full[1:]:
+                raise ShapeError("static", full[1:], static_region.shape, "a (H, W) bool mask")
+            static_desc = "the given static mask"
+        elif gt is not None and gt.depth is not None:
+            static_region = static_mask_from_ground_truth(gt)
+            static_desc = "static in the ground truth"
+        else:
+            static_region = static_pixels(ref_d, max_step=max_step)
+            static_desc = (
+                f"detected: valid in every frame, depth range over time <= 3 step limits "
+                f"({'raw' if raw_d is not None else 'input'})"
+            )
+        if roi is not None:
+            static_region = static_region & region.all(axis=0)
+            static_desc += ", inside the given ROI"
+        static_region = static_region & np.isfinite(out_d).all(axis=0)
+        if raw_d is not None:
+            static_region = static_region & np.isfinite(raw_d).all(axis=0)
+        static_desc += "; valid in every frame of " + ("both" if raw_d is not None else "it")
+
+    # ---- the same pixels for raw and output
+    out_maps = roughness_maps(out_p, window=window)
+    raw_maps = None if raw_p is None else roughness_maps(raw_p, window=window)
+    scored = region & np.isfinite(out_maps[0])
+    depth_ok = np.isfinite(out_d)
+    if raw_maps is not None and raw_d is not None:
+        scored = scored & np.isfinite(raw_maps[0])
+        depth_ok = depth_ok & np.isfinite(raw_d)
+    whole = None if roi is None else region
+    shape_sel = None if shape_frames is None else np.asarray(shape_frames, dtype=np.int64)
+
+    def score(depth: NDArray, points: NDArray, maps: tuple[NDArray, NDArray]) -> Scores:
+        flick = None
+        if static_region is not None:
+            flick = temporal_flicker(depth, static=static_region)
+        rmse_roi = rmse = bad = math.nan
+        if gt is not None and gt.depth is not None:
+            rmse_roi = depth_rmse(gt.depth, depth, roi=region & depth_ok)
+            rmse = depth_rmse(gt.depth, depth, roi=whole)
+            bad = bad_pixel_fraction(gt.depth, depth, threshold=BAD_PIXEL_MM, roi=whole)
+        sc = None
+        if shape and gt is not None and isinstance(gt.scene, BallTruth):
+            g, p = gt, points
+            if shape_sel is not None:
+                g, p = gt.select(shape_sel, depth.shape[0]), points[shape_sel]
+            sc = shape_correctness(g, p, rng=rng, progress=progress)
+        return Scores(stats_from_maps(*maps, scored), flick, rmse_roi, rmse, bad, sc)
+
+    return MetricsReport(
+        output=score(out_d, out_p, out_maps),
+        raw=None
+        if raw_d is None or raw_p is None or raw_maps is None
+        else score(raw_d, raw_p, raw_maps),
+        roi=region,
+        roi_description=roi_desc,
+        static=static_region,
+        static_description=static_desc,
+        window=window,
+    )
+
+
+class RunningEvaluation:
+    """:func:`evaluate`'s raw-vs-output policy, fed one frame at a time (streamed recordings).
+
+    Per frame: Eq. 7 on the default ROI of the raw frame (noise-model step rule), on pixels
+    where it is defined in raw and output. Over the stream: frame-to-frame |Δ| of raw and
+    output on the pixels that turn out static (:func:`~fuse4d.metrics.static_pixels`'s rule on
+    running per-pixel min/max/mean of the raw depth, valid in every frame). Memory: a few
+    ``(H, W)`` arrays, whatever the length.
+
+    Parameters
+    ----------
+    window : int, optional
+        Roughness window n (odd, px).
+    max_step : float, optional
+        Floor (mm) of the depth-step limit.
+    """
+
+    def __init__(self, *, window: int = 5, max_step: float = 10.0) -> None:
+        self.window = window
+        self.max_step = max_step
+        self.frames = 0
+        self._raw_means: list[float] = []
+        self._out_means: list[float] = []
+        self._raw_rms: list[float] = []
+        self._out_rms: list[float] = []
+        self._pixels = 0
+        self._quads: list[float] = []
+        self._state: dict[str, NDArray[Any]] | None = None
+
+    def add(self, raw_points: ArrayLike, output_points: ArrayLike) -> None:
+        """Score one frame: raw and output ``(H, W, 3)`` point maps (mm)."""
+        rp = np.asarray(raw_points, dtype=np.float32)[None]
+        op = np.asarray(output_points, dtype=np.float32)[None]
+        rd, od = rp[..., 2], op[..., 2]
+        quad = float(_frame_quads(rd, None)[0])
+        region = default_roi(rd, window=self.window, max_step=self.max_step, noise_quad=quad)
+        raw_maps = roughness_maps(rp, window=self.window)
+        out_maps = roughness_maps(op, window=self.window)
+        scored = region & np.isfinite(raw_maps[0]) & np.isfinite(out_maps[0])
+        rs, os_ = stats_from_maps(*raw_maps, scored), stats_from_maps(*out_maps, scored)
+        if scored.any():
+            self._raw_means.append(float(rs.frame_means[0]))
+            self._out_means.append(float(os_.frame_means[0]))
+            self._raw_rms.append(float(rs.frame_rms_means[0]))
+            self._out_rms.append(float(os_.frame_rms_means[0]))
+            self._pixels += int(scored.sum())
+        self._quads.append(quad)
+        self._add_temporal(rd[0].astype(np.float64), od[0].astype(np.float64))
+        self.frames += 1
+
+    def _add_temporal(self, rd: NDArray[np.float64], od: NDArray[np.float64]) -> None:
+        st = self._state
+        both = np.isfinite(rd) & np.isfinite(od)
+        if st is None:
+            zeros = np.zeros(rd.shape)
+            self._state = {
+                "valid": both.copy(),
+                "zmin": np.where(both, rd, np.inf),
+                "zmax": np.where(both, rd, -np.inf),
+                "zsum": np.where(both, rd, 0.0),
+                "raw_step": zeros.copy(),
+                "out_step": zeros.copy(),
+                "prev_raw": rd,
+                "prev_out": od,
+            }
+            return
+        st["valid"] &= both
+        st["zmin"] = np.fmin(st["zmin"], np.where(both, rd, np.inf))
+        st["zmax"] = np.fmax(st["zmax"], np.where(both, rd, -np.inf))
+        st["zsum"] += np.where(both, rd, 0.0)
+        with np.errstate(invalid="ignore"):
+            st["raw_step"] += np.where(st["valid"], np.abs(rd - st["prev_raw"]), 0.0)
+            st["out_step"] += np.where(st["valid"], np.abs(od - st["prev_out"]), 0.0)
+        st["prev_raw"], st["prev_out"] = rd, od
+
+    def result(self) -> dict[str, Any]:
+        """The scores so far (mm): roughness raw/output on the same pixels, flicker |Δ|.
+
+        Keys: ``raw_roughness``, ``output_roughness`` (mean over frames of the frame mean of
+        Eq. 7), ``raw_rms_residual``, ``output_rms_residual``, ``roughness_pixels``,
+        ``raw_flicker``, ``output_flicker`` (mean frame-to-frame |Δ| on static pixels, NaN for
+        fewer than 2 frames), ``static_pixels``, ``roi_description``,
+        ``static_description``.
+        """
+        res: dict[str, Any] = {
+            "raw_roughness": _mean_std(np.asarray(self._raw_means, dtype=np.float64))[0],
+            "output_roughness": _mean_std(np.asarray(self._out_means, dtype=np.float64))[0],
+            "raw_rms_residual": _mean_std(np.asarray(self._raw_rms, dtype=np.float64))[0],
+            "output_rms_residual": _mean_std(np.asarray(self._out_rms, dtype=np.float64))[0],
+            "roughness_pixels": self._pixels,
+            "raw_flicker": math.nan,
+            "output_flicker": math.nan,
+            "static_pixels": 0,
+            "roi_description": (
+                f"{self.window}x{self.window} windows fully valid in the raw frame, no step "
+                f"between neighbours above max({self.max_step:g} mm, 2.5 q z^2); pixels where "
+                "Eq. 7 is defined in raw and output"
+            ),
+            "static_description": (
+                "detected: valid in every frame, raw depth range over time <= 3 step limits"
+            ),
+        }
+        st = self._state
+        if st is not None and self.frames >= 2:
+            quad = float(np.median(self._quads))
+            with np.errstate(invalid="ignore"):
+                mean = st["zsum"] / self.frames
+                static = st["valid"] & is_static(
+                    st["zmin"], st["zmax"], mean, quad, max_step=self.max_step
+                )
+            if static.any():
+                pairs = self.frames - 1
+                res["raw_flicker"] = float(st["raw_step"][static].mean() / pairs)
+                res["output_flicker"] = float(st["out_step"][static].mean() / pairs)
+            res["static_pixels"] = int(static.sum())
+        return res

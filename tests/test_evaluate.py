@@ -1,0 +1,248 @@
+"""``fuse4d.metrics.evaluate``: one scoring policy, raw and output on the same pixels."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+
+import numpy as np
+import pytest
+from rich.console import Console
+
+from fuse4d import FusionParams, Sequence, depth_to_points
+from fuse4d.cli import main
+from fuse4d.cli.cmd_fuse import run_summary_table
+from fuse4d.io import load_sequence, write_npz
+from fuse4d.metrics import (
+    RunningEvaluation,
+    default_roi,
+    evaluate,
+    roughness_stats,
+    shape_correctness,
+)
+from fuse4d.sequence import BallTruth, GroundTruth
+from fuse4d.synthetic import make_falling_ball, make_static_plane
+
+
+@pytest.fixture(scope="module")
+def plane():
+    """A static plane without ground truth (so the default, noise-model ROI applies)."""
+    seq = make_static_plane(small=True, num_frames=4, depth_noise=0.3, rng=1)
+    return seq, Sequence(seq.depth, seq.intensity, seq.intrinsics)
+
+
+def test_raw_and_output_are_scored_on_the_same_pixels(plane):
+    truth, raw = plane
+    out = truth.ground_truth.depth.copy()
+    out[:, 40:60, 40:60] = np.nan  # the output drops a block the raw has
+    rep = evaluate(out, raw=raw, intrinsics=raw.intrinsics)
+    np.testing.assert_array_equal(rep.raw.roughness.num_pixels, rep.output.roughness.num_pixels)
+    alone = roughness_stats(raw.points(), roi=rep.roi)  # the raw on its own pixels
+    assert (alone.num_pixels > rep.raw.roughness.num_pixels).all()
+    # the ROI comes from the raw, whatever the output: one ROI for both
+    other = evaluate(raw.depth + 1.0, raw=raw, intrinsics=raw.intrinsics)
+    np.testing.assert_array_equal(rep.roi, other.roi)
+    np.testing.assert_array_equal(rep.roi, default_roi(raw.depth))
+    assert rep.static is not None
+    assert rep.static.shape == raw.shape
+    assert rep.raw.flicker.num_pixels == rep.output.flicker.num_pixels
+
+
+def test_smoother_is_reported_smoother_and_rougher_rougher(plane, rng):
+    truth, raw = plane
+    smooth = evaluate(truth.ground_truth.depth, raw=raw, intrinsics=raw.intrinsics)
+    assert smooth.output.roughness.mean < 0.3 * smooth.raw.roughness.mean
+    assert smooth.output.roughness.rms_mean < smooth.raw.roughness.rms_mean
+    assert smooth.output.flicker.step_mean < 0.1 * smooth.raw.flicker.step_mean
+    noisy = raw.depth + rng.normal(0.0, 0.5, raw.depth.shape).astype(np.float32)
+    rough = evaluate(noisy, raw=raw, intrinsics=raw.intrinsics)
+    assert rough.output.roughness.mean > 1.3 * rough.raw.roughness.mean
+    assert rough.output.flicker.step_mean > rough.raw.flicker.step_mean
+    np.testing.assert_array_equal(rough.roi, smooth.roi)
+
+
+def test_ground_truth_scene_roi_rmse_and_shape():
+    seq = make_falling_ball(small=True, num_frames=3)
+    gt = seq.ground_truth
+    rep = evaluate(gt.depth, raw=seq, shape=True, shape_frames=[0, 2])
+    assert rep.roi_description.startswith("ball ROI")
+    assert rep.static_description.startswith("static in the ground truth")
+    assert rep.output.rmse_roi == 0.0
+    assert rep.raw.rmse_roi == pytest.approx(0.2, rel=0.1)
+    assert rep.output.bad_1mm == 0.0
+    assert rep.output.shape.c_3d.shape == (2,)
+    assert rep.output.shape.c_3d.min() > 0.999
+    # interior frames only, and a given ROI replaces the scene ROI for every metric
+    inner = evaluate(seq, frames=slice(1, 2))
+    assert inner.roi.shape == (1, 150, 150)
+    roi = np.zeros(seq.shape, bool)
+    roi[:10, :10] = True  # wall only: static
+    given = evaluate(seq, roi=roi)
+    assert given.roi_description == "the given mask"
+    assert given.static.sum() <= roi.sum()
+    assert given.output.flicker.num_pixels <= 100
+
+
+def test_report_to_dict_names_regions_and_both_videos(plane):
+    truth, raw = plane
+    d = evaluate(truth.ground_truth.depth, raw=raw, intrinsics=raw.intrinsics).to_dict()
+    assert set(d) >= {"roi", "static", "output", "raw", "window"}
+    assert d["roi"]["pixels_scored"] == d["output"]["roughness_pixels"]
+    assert d["raw"]["roughness_pixels"] == d["output"]["roughness_pixels"]
+    json.dumps(d)  # JSON friendly
+
+
+def test_running_evaluation_matches_evaluate_per_frame(plane):
+    truth, raw = plane
+    out = truth.ground_truth.depth
+    run = RunningEvaluation()
+    out_pts = depth_to_points(out, raw.intrinsics)
+    raw_pts = raw.points()
+    for t in range(raw.num_frames):
+        run.add(raw_pts[t], out_pts[t])
+    res = run.result()
+    rep = evaluate(out, raw=raw, intrinsics=raw.intrinsics)
+    assert res["raw_roughness"] == pytest.approx(rep.raw.roughness.mean, rel=1e-12)
+    assert res["output_roughness"] == pytest.approx(rep.output.roughness.mean, rel=1e-12)
+    assert res["static_pixels"] == rep.raw.flicker.num_pixels
+    assert res["raw_flicker"] == pytest.approx(rep.raw.flicker.step_mean, rel=1e-9)
+    assert res["output_flicker"] == pytest.approx(rep.output.flicker.step_mean, rel=1e-9)
+
+
+def test_evaluate_input_errors(plane):
+    _, raw = plane
+    with pytest.raises(ValueError, match="need intrinsics"):
+        evaluate(raw.depth)
+    with pytest.raises(Exception, match="raw and output must match"):
+        evaluate(raw.depth[:2], raw=raw, intrinsics=raw.intrinsics)
+    with pytest.raises(TypeError, match="roi must be a boolean"):
+        evaluate(raw, roi=np.ones(raw.shape))
+
+
+# ---------------------------------------------------------------------------- typed GT
+def test_ball_truth_is_typed_and_survives_npz_round_trip_and_slicing(tmp_path):
+    seq = make_falling_ball(small=True, num_frames=4)
+    ball = seq.ground_truth.scene
+    assert isinstance(ball, BallTruth)
+    assert ball.fit_columns == (40, 110)
+    assert ball.mask_erosion_px == 1
+    assert "center_row" not in seq.ground_truth.extra
+    path = tmp_path / "ball.npz"
+    write_npz(seq, path)
+    back = load_sequence(path).ground_truth.scene
+    np.testing.assert_array_equal(back.center_row, ball.center_row)
+    assert back.fit_columns == (40, 110)
+    assert isinstance(back.radius_mm, float)
+    part = load_sequence(path, frames="1:3").ground_truth.scene
+    np.testing.assert_array_equal(part.center_row, ball.center_row[1:3])
+    assert part.fit_columns == (40, 110)  # not sliced along with the frames
+    np.testing.assert_array_equal(
+        seq.frames(1, 3).ground_truth.scene.center_mm, ball.center_mm[1:3]
+    )
+
+
+def test_incomplete_scene_in_npz_is_an_input_error(tmp_path):
+    from fuse4d.errors import InputFileError
+
+    seq = make_falling_ball(small=True, num_frames=2)
+    gt = GroundTruth(depth=seq.ground_truth.depth, extra={"scene": "ball", "radius_mm": 1.0})
+    path = tmp_path / "bad.npz"
+    write_npz(Sequence(seq.depth, seq.intensity, seq.intrinsics, ground_truth=gt), path)
+    with pytest.raises(InputFileError, match="lacks gt_ keys center_row"):
+        load_sequence(path)
+
+
+def test_shape_correctness_is_truth_first_and_takes_a_generator():
+    seq = make_falling_ball(small=True, num_frames=2, depth_noise=0.0)
+    with pytest.raises(TypeError, match="the ground truth comes first"):
+        shape_correctness(seq.points(), seq)  # type: ignore[arg-type]
+    a = shape_correctness(seq, seq.points(), rng=np.random.default_rng(3))
+    b = shape_correctness(seq, seq.points(), rng=np.random.default_rng(3))
+    np.testing.assert_array_equal(a.c_3d, b.c_3d)
+
+
+# ---------------------------------------------------------------------------- one guided filter
+def test_self_guided_filter_keeps_holes_local():
+    from fuse4d.baselines import guided
+    from fuse4d.experiments.quality import self_guided
+
+    seq = make_falling_ball(small=True, num_frames=2)
+    out = self_guided(seq)
+    assert out.shape == seq.depth.shape
+    holes = seq.depth.copy()
+    holes[:, 70:74, 70:74] = np.nan
+    res = guided(holes, None, seq.intrinsics, size=2, eps=10.0, guide="depth")
+    assert np.isnan(res[:, 70:74, 70:74]).all()
+    # next to the hole the depth stays near the surface (no pull towards a far median)
+    assert np.nanmax(np.abs(res[:, 69, 70:74] - seq.ground_truth.depth[:, 69, 70:74])) < 2.0
+    with pytest.raises(ValueError, match="needs intensity"):
+        guided(seq.depth, None, seq.intrinsics)
+
+
+# ---------------------------------------------------------------------------- CLI
+def test_cli_metrics_raw_fused_compares_on_one_roi(tmp_path, capsys):
+    seq = make_falling_ball(small=True, num_frames=3)
+    raw_path, fused_path = tmp_path / "raw.npz", tmp_path / "fused.npz"
+    write_npz(seq, raw_path)
+    write_npz(seq.with_depth(seq.ground_truth.depth), fused_path)
+    assert main(["metrics", str(raw_path), str(fused_path), "--json", "--no-shape"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["inputs"] == [str(raw_path), str(fused_path)]
+    assert res["raw"]["roughness_pixels"] == res["output"]["roughness_pixels"]
+    assert res["output"]["roughness_mean"] < res["raw"]["roughness_mean"]
+    assert res["output"]["rmse_roi"] == 0.0
+    assert main(["metrics", str(raw_path), str(fused_path), "--no-shape"]) == 0
+    text = capsys.readouterr().out
+    assert "raw (raw.npz)" in text
+    assert "fused.npz" in text
+    assert "roughness (Eq. 7)" in text
+    assert "frame-to-frame" in text
+    assert main(["metrics", str(raw_path), str(fused_path), str(raw_path)]) == 2
+    assert "give INPUT or RAW FUSED" in capsys.readouterr().err
+
+
+def test_cli_metrics_static_mask_and_roi_apply_to_flicker(tmp_path, capsys):
+    seq = make_falling_ball(small=True, num_frames=3)
+    path = tmp_path / "ball.npz"
+    write_npz(seq, path)
+    static = np.zeros(seq.shape, bool)
+    static[:20, :20] = True
+    np.savez(tmp_path / "static.npz", mask=static)
+    args = ["metrics", str(path), "--json", "--no-shape", "--static-mask"]
+    assert main([*args, str(tmp_path / "static.npz")]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["static"]["description"].startswith("the given static mask")
+    assert res["output"]["flicker_pixels"] == 400
+    assert main([*args, str(tmp_path / "static.npz"), "--roi", str(tmp_path / "static.npz")]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["roi"]["pixels"] == 3 * 400
+    assert "inside the given ROI" in res["static"]["description"]
+
+
+def test_run_summary_says_what_each_number_means(tmp_path, capsys):
+    seq = make_falling_ball(small=True, num_frames=5)
+    src = tmp_path / "ball.npz"
+    write_npz(seq, src)
+    assert main(["run", str(src), "-o", str(tmp_path / "out.npz"), "--window", "3"]) == 0
+    assert "what it means" in capsys.readouterr().out
+    out = tmp_path / "o2.npz"
+    assert main(["run", str(src), "-o", str(out), "--window", "3", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    from fuse4d.run import fuse_file
+
+    result = fuse_file(src, tmp_path / "o3.npz", fusion=FusionParams(num_frames=3))
+    console = Console(width=400, file=io.StringIO())
+    console.print(run_summary_table(result, result.params))
+    text = console.file.getvalue()
+    assert "roughness (Eq. 7)" in text
+    assert "(smoother)" in text
+    assert f"the same {result.roughness_pixels} pixels (x frames) for both" in text
+    assert f"on {result.static_pixels} static pixels" in text
+    assert "(steadier)" in text
+    assert "not sensor holes" in text
+    assert summary["fused_roughness_mm"] < summary["raw_roughness_mm"]
+    assert summary["roughness_pixels"] > 0
+    assert summary["static_pixels"] > 0
+    assert math.isfinite(summary["fused_flicker_mm"])
+    assert summary["fused_flicker_mm"] < summary["raw_flicker_mm"]
