@@ -177,7 +177,7 @@ def test_track_and_fuse_kernels_match_oracles(rng, quad, per_step, sigma0, min_g
     gate_factor = 1.0 if quad == 0 else 3.0
     sigma0 = 0.8 if quad == 0 else sigma0  # quad = 0: a plain 0.8 mm gate
     gate = naive.noise_gate(gate_factor, sigma0, quad, min_gate)
-    for trajectory in (False, True):
+    for trajectory in (0, 1, 2):  # frame base, line (A21), parabola (A28)
         _fuse_kernel(
             bil,
             ref,
@@ -373,6 +373,7 @@ SWITCHES = {
     "reference-sigma": {"reference_sigma": 1.5},
     "motion-raw": {"motion_depth": "raw"},
     "base-frame": {"base": "frame"},
+    "base-quadratic": {"base": "quadratic"},
     "temporal-gate-off": {"temporal_gate": math.inf},
     "literal": {**LITERAL, "quantize": "per_step", "fill_fallback": "nan"},
 }

@@ -54,6 +54,9 @@ __all__ = [
     "fuse_stream",
 ]
 
+#: ``FusionParams.base`` -> the fusion kernel's ``trajectory`` code
+_BASE_CODES = {"frame": 0, "trajectory": 1, "quadratic": 2}
+
 STAGES = ("flow", "bilateral", "motion_reference", "tracking", "fusion", "fill")
 
 
@@ -397,7 +400,7 @@ class FusionEngine:
             sigma0,
             quad,
             p.min_gate_mm,
-            p.base == "trajectory",
+            _BASE_CODES[p.base],
             points,
             support,
             hole,

@@ -175,7 +175,8 @@ def pair_motion(fwd, bwd, ref_t, ref_t1, depth_t, depth_t1, theta, max_step, qua
 
 def fuse(bilateral, reference, tracks, t, first, last, weights, gate, *, trajectory=False):
     """Outer sum of Eq. 5 along given tracks, with the temporal range gate (A19) and,
-    optionally, the trajectory base (A21: least-squares line through the motion vectors).
+    optionally, the trajectory base (A21: least-squares line through the motion vectors;
+    ``trajectory=2``: a parabola, A28).
 
     ``gate``: mm, or a function of frame t's reference depth z (mm) giving the gate in mm.
     """
@@ -205,7 +206,13 @@ def fuse(bilateral, reference, tracks, t, first, last, weights, gate, *, traject
                 support[v, u] += 1
             wts_a = np.array(wts)
             base = np.zeros(3)
-            if trajectory:
+            if trajectory == 2 and len(set(taus)) > 2:  # A28: weighted parabola
+                taus_a = np.array(taus)
+                design = np.stack([np.ones_like(taus_a), taus_a, taus_a**2], axis=1)
+                design = design * np.sqrt(wts_a)[:, None]
+                rhs = np.array(motions) * np.sqrt(wts_a)[:, None]
+                base = np.linalg.lstsq(design, rhs, rcond=None)[0][0]
+            elif trajectory:
                 taus_a = np.array(taus)
                 if len(set(taus)) > 1:
                     design = (
@@ -389,7 +396,7 @@ def engine_frame(depth, intensity, fwd, bwd, intrinsics, params, t):
         last,
         weights,
         gate,
-        trajectory=p.base == "trajectory",
+        trajectory={"frame": 0, "trajectory": 1, "quadratic": 2}[p.base],
     )
     hole = np.isfinite(ref_all[t, ..., 2]) & (support < p.min_temporal_support)
     out[hole] = bil_t[hole]

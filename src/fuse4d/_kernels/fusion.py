@@ -306,10 +306,13 @@ def _fuse_kernel(
     min_support are holes and get the bilateral-only value B^t[x_i] (filled later by Eq. 6).
     ``frame_slot[T - first]`` is the ring slot of frame T.
 
-    trajectory=True (A21): the base P~^t[x] is replaced by the value at t of the weighted
-    least-squares line through the tracked reference positions P~^T[x^] (T in the window,
-    accepted samples and t itself), i.e. the motion vectors m^{t,T} are regularised to be
-    linear in time, so frame t's own low-frequency noise is averaged too.
+    trajectory = 1 (or True, A21): the base P~^t[x] is replaced by the value at t of the
+    weighted least-squares line through the tracked reference positions P~^T[x^] (T in the
+    window, accepted samples and t itself), i.e. the motion vectors m^{t,T} are regularised to
+    be linear in time, so frame t's own low-frequency noise is averaged too. trajectory = 2
+    (A28): the same with a weighted least-squares parabola (curved trajectories of turning or
+    accelerating surfaces; falls back to the line when fewer than 3 distinct times
+    determine it). 0 (or False): the frame base.
     """
     h = bil_ring.shape[1]
     w = bil_ring.shape[2]
@@ -318,7 +321,7 @@ def _fuse_kernel(
     w0 = temporal_weight[0]
     n_chunks = min(h, ROW_CHUNKS)
     for ci in prange(n_chunks):  # scratch allocated once per chunk, not per row
-        acc = np.empty((17, w), dtype=np.float64)
+        acc = np.empty((22, w), dtype=np.float64)
         for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
             acc[:] = 0.0
             # sample-major order over the row (independent per-pixel work overlaps in the CPU).
@@ -358,10 +361,13 @@ def _fuse_kernel(
                     acc[7, u] += 1.0
                     acc[8, u] += wt * tau
                     acc[9, u] += wt * tau * tau
+                    acc[17, u] += wt * tau * tau * tau
+                    acc[18, u] += wt * tau * tau * tau * tau
                     for q in range(3):
                         m = ref_ring[sT, r, c, q] - ref_ring[st, v, u, q]
                         acc[10 + q, u] += wt * m
                         acc[13 + q, u] += wt * tau * m
+                        acc[19 + q, u] += wt * tau * tau * m
             for u in range(w):
                 if np.isnan(ref_ring[st, v, u, 2]):
                     for c in range(3):
@@ -381,13 +387,27 @@ def _fuse_kernel(
                 s1 = acc[8, u]
                 s2 = acc[9, u]
                 det = wsum * s2 - s1 * s1
+                s3 = acc[17, u]
+                s4 = acc[18, u]
+                # parabola (A28): normal matrix [[w, s1, s2], [s1, s2, s3], [s2, s3, s4]]
+                det3 = (
+                    wsum * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2)
+                )
                 for c in range(3):
                     base = 0.0
-                    if trajectory:
-                        if det > 1e-9 * wsum * wsum:
-                            base = (acc[10 + c, u] * s2 - acc[13 + c, u] * s1) / det
-                        else:
-                            base = acc[10 + c, u] / wsum
+                    y0 = acc[10 + c, u]
+                    y1 = acc[13 + c, u]
+                    y2 = acc[19 + c, u]
+                    if trajectory == 2 and det3 > 1e-6 * wsum * wsum * wsum:
+                        base = (
+                            y0 * (s2 * s4 - s3 * s3)
+                            - s1 * (y1 * s4 - s3 * y2)
+                            + s2 * (y1 * s3 - s2 * y2)
+                        ) / det3
+                    elif trajectory and det > 1e-9 * wsum * wsum:
+                        base = (y0 * s2 - y1 * s1) / det
+                    elif trajectory:
+                        base = y0 / wsum
                     out_points[v, u, c] = ref_ring[st, v, u, c] + base + acc[3 + c, u] / wsum
 
 
