@@ -77,7 +77,9 @@ def _resolve(
 
 @app.command("run")
 def run_command(
-    input: Annotated[Path, typer.Argument(help="Recording: .npz, frame folder, TUM, ...")],
+    inputs: Annotated[
+        list[Path], typer.Argument(help="Recording(s): .npz, frame folder, TUM, ...")
+    ],
     output: Annotated[Path, typer.Option("-o", "--output", help="Output .npz or folder.")],
     preset_name: PresetOpt = "fast",
     window: Annotated[
@@ -117,8 +119,28 @@ def run_command(
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing output.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+    engine: Annotated[
+        str, typer.Option("--engine", help="stream (one process) or dask (zarr v3 output).")
+    ] = "stream",
+    chunk_frames: Annotated[
+        int, typer.Option("--chunk-frames", help="dask: frames per task and zarr shard.")
+    ] = 32,
+    scheduler: Annotated[
+        str, typer.Option("--scheduler", help="dask: threads, processes or tcp://HOST:PORT.")
+    ] = "threads",
+    workers: Annotated[
+        int | None, typer.Option("--workers", help="dask: local threads/processes (all CPUs).")
+    ] = None,
+    resume: Annotated[
+        bool, typer.Option("--resume", help="dask: continue an interrupted run.")
+    ] = False,
+    warm_start: Annotated[
+        bool,
+        typer.Option("--warm-start/--no-warm-start", help="dask: chain flow warm starts."),
+    ] = True,
 ) -> None:
-    """Fuse a recording (paper Eq. 2-6) and write the same kind of file or folder."""
+    """Fuse a recording (paper Eq. 2-6) and write the same kind of file or folder
+    (``--engine dask``: zarr v3, many recordings at once; docs/scaling.md)."""
     from ..run import fuse_file
 
     fusion, flow = _resolve(
@@ -132,6 +154,17 @@ def run_command(
         flow_cache,
         flow_roi,
     )
+    if engine == "dask":
+        try:
+            from ..scale.cli import print_dask_run
+        except ImportError as exc:  # the [scale] extra is missing
+            fail(str(exc))
+        opts = {"chunk_frames": chunk_frames, "scheduler": scheduler, "workers": workers}
+        print_dask_run(inputs, output, fusion, flow, opts, resume, force, warm_start, as_json)
+        return
+    if engine != "stream" or len(inputs) != 1:
+        fail("--engine must be stream or dask; several inputs need --engine dask")
+    input = inputs[0]
     with progress_bar("fusing", None) as progress:
         summary = fuse_file(
             input,
