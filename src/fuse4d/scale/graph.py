@@ -43,7 +43,15 @@ from ..flow import FlowCache, SequenceFlow, estimate_flow_pair, get_flow_method
 from ..fusion import FusionEngine
 from ..sequence import normalize_intensity
 
-__all__ = ["DaskFlows", "DaskFusion", "as_dask_video", "chunk_bounds", "flows", "fuse"]
+__all__ = [
+    "DaskFlows",
+    "DaskFusion",
+    "as_dask_video",
+    "chunk_bounds",
+    "delayed_blocks",
+    "flows",
+    "fuse",
+]
 
 
 @dataclass(frozen=True)
@@ -145,6 +153,24 @@ def as_dask_video(x: Any, name: str, *, ndim: int) -> da.Array:
     return arr
 
 
+def delayed_blocks(x: da.Array) -> list[Any]:
+    """The time chunks of ``x`` (whole frames) as Delayed objects that keep their keys.
+
+    Passing a dask array straight to :func:`dask.delayed` would optimise (rename and fuse) a
+    private copy of its graph for every consumer, so a task shared by two consumers (a flow
+    chunk read by two halos, a fusion chunk written as three arrays) would run once per
+    consumer; ``optimize_graph=False`` keeps one shared task per key.
+    """
+    return list(x.to_delayed(optimize_graph=False).ravel())
+
+
+def _joined(blocks: list[NDArray[Any]], empty: tuple[int, ...], dtype: Any) -> NDArray[Any]:
+    """Concatenate time chunks (``empty`` shape when there is none)."""
+    if not blocks:
+        return np.zeros(empty, dtype)
+    return blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
+
+
 def _intensity_frame(frame: NDArray[Any]) -> NDArray[np.float32]:
     """The float32 [0, 1] frame that :meth:`FusionEngine.push` keeps (and tracks on)."""
     return normalize_intensity(frame) if frame.dtype.kind != "f" else as_float32(frame, name="i")
@@ -158,13 +184,14 @@ def _flow_config(flow: FlowConfig | str | None) -> FlowConfig:
 
 # ------------------------------------------------------------------------------------ stage 1
 def _flow_block(
-    intensity: NDArray[Any],
+    blocks: list[NDArray[Any]],
     seed: NDArray[np.float32] | None,
     config: FlowConfig,
     warm_start: bool,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """Flows of the pairs of ``intensity`` (n+1 frames -> n pairs), chained like
-    :class:`fuse4d.flow.SequenceFlowEstimator` starting from ``seed``."""
+    """Flows of the pairs of the intensity frames in ``blocks`` (n+1 frames -> n pairs),
+    chained like :class:`fuse4d.flow.SequenceFlowEstimator` starting from ``seed``."""
+    intensity = _joined(blocks, (0, 0, 0), np.float32)
     method = get_flow_method(config.method)
     params = config.build_params()
     cache = None if config.cache_dir is None else FlowCache(config.cache_dir)
@@ -238,7 +265,7 @@ def flows(
     chained = warm_start and get_flow_method(config.method).supports_init
     for a, b in chunk_bounds(pairs, chunk_frames):
         block = dask.delayed(_flow_block, nout=2, pure=True)(
-            video[a : b + 1], seed, config, warm_start
+            delayed_blocks(video[a : b + 1]), seed, config, warm_start
         )
         forward.append(da.from_delayed(block[0], (b - a, *shape), np.float32))
         backward.append(da.from_delayed(block[1], (b - a, *shape), np.float32))
@@ -278,11 +305,7 @@ def _as_dask_flows(flow: Any, total: int, h: int, w: int) -> DaskFlows:
 
 # ------------------------------------------------------------------------------------ stage 2
 def _fuse_block(
-    depth: NDArray[Any],
-    intensity: NDArray[Any],
-    forward: NDArray[np.float32],
-    backward: NDArray[np.float32],
-    points: NDArray[np.float32] | None,
+    inputs: dict[str, list[NDArray[Any]] | None],
     intrinsics: Intrinsics,
     params: FusionParams,
     keep: tuple[int, int],
@@ -290,10 +313,16 @@ def _fuse_block(
 ) -> tuple[NDArray[np.float32], NDArray[np.uint8], NDArray[np.bool_]]:
     """One pass of the streaming engine over a chunk with its halo.
 
-    ``depth``/``intensity`` (and ``points``) hold the frames ``[lo, hi)``, ``forward``/
-    ``backward`` the pairs ``[lo, hi - 1)``; ``keep`` = the local ``[start, stop)`` returned;
-    ``at_end`` = ``hi`` is the end of the sequence (flush: truncated windows)."""
+    ``inputs`` holds the time chunks of ``depth``/``intensity`` (and ``points``) covering the
+    frames ``[lo, hi)`` and of ``forward``/``backward`` covering the pairs ``[lo, hi - 1)``;
+    ``keep`` = the local ``[start, stop)`` returned; ``at_end`` = ``hi`` is the end of the
+    sequence (flush: truncated windows)."""
+    depth = _joined(inputs["depth"] or [], (0, 0, 0), np.float32)
     n, h, w = depth.shape
+    intensity = _joined(inputs["intensity"] or [], (0, h, w), np.float32)
+    forward = _joined(inputs["forward"] or [], (0, h, w, 2), np.float32)
+    backward = _joined(inputs["backward"] or [], (0, h, w, 2), np.float32)
+    points = None if inputs["points"] is None else _joined(inputs["points"], (0,), np.float32)
     a, b = keep
     out_points = np.empty((b - a, h, w, 3), np.float32)
     support = np.empty((b - a, h, w), np.uint8)
@@ -406,12 +435,15 @@ def fuse(
         pieces: list[tuple[da.Array, da.Array, da.Array]] = []
         for s, e in chunk_bounds(total, chunk_frames):
             lo, hi = max(0, s - past), min(total, e + future)
+            inputs = {
+                "depth": delayed_blocks(d[lo:hi]),
+                "intensity": delayed_blocks(inten[lo:hi]),
+                "forward": delayed_blocks(pair_flows.forward[lo : max(lo, hi - 1)]),
+                "backward": delayed_blocks(pair_flows.backward[lo : max(lo, hi - 1)]),
+                "points": None if points is None else delayed_blocks(points[lo:hi]),
+            }
             block = dask.delayed(_fuse_block, nout=3, pure=True)(
-                d[lo:hi],
-                inten[lo:hi],
-                pair_flows.forward[lo : max(lo, hi - 1)],
-                pair_flows.backward[lo : max(lo, hi - 1)],
-                None if points is None else points[lo:hi],
+                inputs,
                 intrinsics,
                 params,
                 (s - lo, e - lo),

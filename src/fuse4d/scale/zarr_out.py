@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from .._version import __version__
 from ..camera import Intrinsics
 from ..errors import OutputExistsError
-from .graph import DaskFusion, chunk_bounds
+from .graph import DaskFusion, chunk_bounds, delayed_blocks
 
 __all__ = ["ZarrOutput", "write_chunk", "write_zarr"]
 
@@ -217,13 +217,13 @@ class ZarrOutput:
         if tuple(result.depth.shape) != self.shape:
             raise ValueError(f"result shape {result.depth.shape} != output shape {self.shape}")
         c = self.chunk_frames
-        depth = result.depth.rechunk({0: c})
-        support = result.support.rechunk({0: c})
-        filled = result.filled.rechunk({0: c})
+        depth, support, filled = (
+            delayed_blocks(a.rechunk({0: c})) for a in (result.depth, result.support, result.filled)
+        )
         done = self.done_chunks()
         write = dask.delayed(write_chunk, pure=False)
         return [
-            write(str(self.staging), k, s, depth.blocks[k], support.blocks[k], filled.blocks[k])
+            write(str(self.staging), k, s, depth[k], support[k], filled[k])
             for k, (s, _) in enumerate(self.bounds)
             if k not in done
         ]
