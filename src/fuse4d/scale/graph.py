@@ -115,6 +115,8 @@ class DaskFusion:
     flows: DaskFlows
     chunk_frames: int
     params: FusionParams
+    #: Futures of inputs scattered to the caller's client, kept alive with the result.
+    scattered: tuple[Any, ...] = ()
 
     @property
     def num_chunks(self) -> int:
@@ -411,8 +413,9 @@ def fuse(
         raise ValueError(f"chunk_frames must be >= 1, got {chunk_frames}")
     if params.num_frames > 256:
         raise ValueError("num_frames must be <= 256 (support is stored as uint8)")
-    d = as_dask_video(_scattered(depth, client), "depth", ndim=3)
-    inten = as_dask_video(_scattered(intensity, client), "intensity", ndim=3)
+    keep: list[Any] = []
+    d = as_dask_video(_scattered(depth, client, chunk_frames, keep), "depth", ndim=3)
+    inten = as_dask_video(_scattered(intensity, client, chunk_frames, keep), "intensity", ndim=3)
     if inten.shape != d.shape:
         raise ShapeError("intensity", d.shape, inten.shape, "it must match depth frame for frame")
     total, h, w = d.shape
@@ -465,12 +468,21 @@ def fuse(
     assert support is not None
     assert filled is not None
     depth_out = points.map_blocks(_depth_of, drop_axis=3, dtype=np.float32)
-    return DaskFusion(points, depth_out, support, filled, pair_flows, chunk_frames, params)
+    return DaskFusion(
+        points, depth_out, support, filled, pair_flows, chunk_frames, params, tuple(keep)
+    )
 
 
-def _scattered(x: Any, client: Any) -> Any:
-    """Numpy inputs scattered to ``client``'s workers (one future per array)."""
-    if client is None or not isinstance(x, np.ndarray):
+def _scattered(x: Any, client: Any, chunk_frames: int, keep: list[Any]) -> Any:
+    """Numpy inputs scattered to ``client``'s workers, one future per time chunk (appended to
+    ``keep``: the graph alone does not keep the data on the cluster)."""
+    if client is None or not isinstance(x, np.ndarray) or x.ndim < 1 or x.shape[0] == 0:
         return x
-    future = client.scatter(x, broadcast=False)
-    return da.from_delayed(dask.delayed(future), x.shape, x.dtype)
+    bounds = chunk_bounds(x.shape[0], chunk_frames)
+    futures = client.scatter([x[a:b] for a, b in bounds])
+    keep.extend(futures)
+    pieces = [
+        da.from_delayed(f, (b - a, *x.shape[1:]), x.dtype)
+        for f, (a, b) in zip(futures, bounds, strict=True)
+    ]
+    return da.concatenate(pieces)
