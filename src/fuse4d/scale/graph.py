@@ -330,6 +330,12 @@ def _fuse_block(
     support = np.empty((b - a, h, w), np.uint8)
     filled = np.empty((b - a, h, w), np.bool_)
     engine = FusionEngine(intrinsics, fusion=params, warm_start=False)
+    if a > 0 and isinstance(getattr(engine, "_emitted", None), int):
+        # The front halo frames are needed as sources of the kept frames' windows, not as
+        # outputs: start the engine's output counter at the first kept frame, so they are not
+        # tracked and fused for nothing. (FusionEngine has no public switch for this yet; if
+        # the attribute goes away the halo frames are fused and discarded: same bits, slower.)
+        engine._emitted = a
 
     def take(frames: list[Any]) -> None:
         for fr in frames:

@@ -9,7 +9,7 @@ Layout of ``OUT.zarr`` (a zarr v3 group)::
 Group attributes: ``intrinsics`` (fx, fy, cx, cy, width, height in px), ``units``, and
 ``fuse4d`` (version, parameters, flow, chunking, source, ``complete``). Every array has one
 shard per time chunk (inner chunks of one frame, so a reader can fetch single frames), so the
-tasks of different chunks never write the same file.
+tasks of different chunks never write the same file; Blosc LZ4 + byte-shuffle compression.
 
 While running, the store lives at ``OUT.zarr.partial`` with one marker file per finished chunk
 in ``OUT.zarr.partial/.fuse4d-done/`` (written after the chunk's data). At the end the markers
@@ -45,6 +45,14 @@ _ARRAYS = {
     "filled": (np.bool_, False, ""),
 }
 _MARKERS = ".fuse4d-done"
+
+
+def _codec() -> Any:
+    """Blosc LZ4 with byte shuffle: at 600x600 it writes depth ~8x faster than zarr's default
+    zstd (8 vs 70 ms/frame, measured) and compresses it better (1.66x vs 1.44x)."""
+    from zarr.codecs import BloscCodec
+
+    return BloscCodec(cname="lz4", clevel=5, shuffle="shuffle")
 
 
 def _marker(staging: Path, k: int) -> Path:
@@ -174,6 +182,7 @@ class ZarrOutput:
                 chunks=(1, h, w),
                 shards=(self.chunk_frames, h, w),
                 fill_value=fill,
+                compressors=_codec(),
                 dimension_names=("t", "y", "x"),
                 attributes={"unit": unit} if unit else {},
             )
