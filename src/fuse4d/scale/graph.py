@@ -27,6 +27,7 @@ input dask arrays, which works for any halo/chunk ratio and for inputs of differ
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -166,11 +167,10 @@ def delayed_blocks(x: da.Array) -> list[Any]:
     return list(x.to_delayed(optimize_graph=False).ravel())
 
 
-def _joined(blocks: list[NDArray[Any]], empty: tuple[int, ...], dtype: Any) -> NDArray[Any]:
-    """Concatenate time chunks (``empty`` shape when there is none)."""
-    if not blocks:
-        return np.zeros(empty, dtype)
-    return blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
+def _frames(blocks: list[NDArray[Any]] | None) -> Iterator[NDArray[Any]]:
+    """The frames of a list of time chunks, in order (views, no copy)."""
+    for block in blocks or []:
+        yield from block
 
 
 def _intensity_frame(frame: NDArray[Any]) -> NDArray[np.float32]:
@@ -193,13 +193,13 @@ def _flow_block(
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """Flows of the pairs of the intensity frames in ``blocks`` (n+1 frames -> n pairs),
     chained like :class:`fuse4d.flow.SequenceFlowEstimator` starting from ``seed``."""
-    intensity = _joined(blocks, (0, 0, 0), np.float32)
+    intensity = list(_frames(blocks))
     method = get_flow_method(config.method)
     params = config.build_params()
     cache = None if config.cache_dir is None else FlowCache(config.cache_dir)
     use_init = warm_start and method.supports_init
-    n = intensity.shape[0] - 1
-    h, w = intensity.shape[1:]
+    n = len(intensity) - 1
+    h, w = intensity[0].shape
     forward = np.empty((n, h, w, 2), np.float32)
     backward = np.empty((n, h, w, 2), np.float32)
     init = seed if use_init else None
@@ -319,12 +319,13 @@ def _fuse_block(
     frames ``[lo, hi)`` and of ``forward``/``backward`` covering the pairs ``[lo, hi - 1)``;
     ``keep`` = the local ``[start, stop)`` returned; ``at_end`` = ``hi`` is the end of the
     sequence (flush: truncated windows)."""
-    depth = _joined(inputs["depth"] or [], (0, 0, 0), np.float32)
-    n, h, w = depth.shape
-    intensity = _joined(inputs["intensity"] or [], (0, h, w), np.float32)
-    forward = _joined(inputs["forward"] or [], (0, h, w, 2), np.float32)
-    backward = _joined(inputs["backward"] or [], (0, h, w, 2), np.float32)
-    points = None if inputs["points"] is None else _joined(inputs["points"], (0,), np.float32)
+    depth = list(_frames(inputs["depth"]))  # views into the blocks: no copy of the halo
+    n = len(depth)
+    h, w = depth[0].shape
+    intensity = list(_frames(inputs["intensity"]))
+    forward = list(_frames(inputs["forward"]))
+    backward = list(_frames(inputs["backward"]))
+    points = None if inputs["points"] is None else list(_frames(inputs["points"]))
     a, b = keep
     out_points = np.empty((b - a, h, w, 3), np.float32)
     support = np.empty((b - a, h, w), np.uint8)
