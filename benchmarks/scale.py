@@ -86,7 +86,7 @@ def _dask_run(client: Any, path: Path, out: Path, chunk: int, window: int) -> fl
     import fuse4d.dask as fd
     from fuse4d import FusionParams
 
-    rec = fd.open_lazy(path)
+    rec = fd.open_lazy(path, frames_per_task=chunk)
     res = fd.fuse(
         rec.depth,
         rec.intensity,

@@ -133,7 +133,7 @@ def run_dask(
     jobs: list[tuple[ZarrOutput, DaskRunSummary]] = []
     tasks: list[Any] = []
     for src, dst in zip(inputs, targets, strict=True):
-        rec = open_lazy(src)
+        rec = open_lazy(src, frames_per_task=chunk_frames)
         result = fuse(
             rec.depth,
             rec.intensity,

@@ -52,7 +52,7 @@ def local_cluster(workers: int, **kwargs: Any) -> Iterator[Any]:
     spawn_env.update(SINGLE_THREAD_ENV)
     options = {"n_workers": workers, "threads_per_worker": 1, "processes": True}
     options.update(kwargs)
-    options.setdefault("dashboard_address", None)
+    options.setdefault("dashboard_address", ":0")  # no clash with a running dashboard
     with (
         dask.config.set({"distributed.nanny.pre-spawn-environ": spawn_env}),
         LocalCluster(**options) as cluster,
