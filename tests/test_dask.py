@@ -23,7 +23,7 @@ import fuse4d.dask as fd
 from fuse4d import FusionEngine, FusionParams, Intrinsics, fuse_sequence, fuse_stream
 from fuse4d.cli import main
 from fuse4d.flow import estimate_sequence_flow
-from fuse4d.io import save_sequence
+from fuse4d.io import open_frames, save_sequence, write_frame_folder
 from fuse4d.scale import graph
 from fuse4d.scale._deps import require_scale_extra
 from fuse4d.sequence import Sequence
@@ -222,6 +222,20 @@ def test_cli_many_inputs_share_one_run(ball, tmp_path, capsys):
     assert main(dask_args) == 2  # exists
     assert main(args) == 2  # several inputs need the dask engine
     assert "need --engine dask" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("frames_per_task", [1, 6])
+def test_lazy_frame_folder_equals_streaming_reader(ball, tmp_path, frames_per_task):
+    folder = write_frame_folder(ball, tmp_path / "rec", depth_unit_mm=0.1)
+    rec = fd.open_lazy(folder, frames_per_task=frames_per_task)
+    assert rec.format == "folder"
+    assert rec.depth.numblocks[0] == -(-ball.num_frames // frames_per_task)
+    with open_frames(folder) as reader:  # what the streaming `fuse4d run` sees
+        frames = list(reader)
+    depth = np.stack([f.depth for f in frames])
+    intensity = np.stack([f.intensity for f in frames])
+    ref = fuse_sequence(depth, intensity, rec.intrinsics)
+    _assert_equal(fd.fuse(rec.depth, rec.intensity, rec.intrinsics, chunk_frames=7), ref)
 
 
 def test_missing_extra_gives_one_clear_error(monkeypatch):
