@@ -15,6 +15,8 @@ What is timed (wall clock, after every worker has loaded the compiled kernels):
 - ``dask N``: ``fuse4d.dask.fuse`` over the lazily loaded ``.npz`` written to zarr v3 by a
   ``LocalCluster`` of N single-threaded worker processes (``fuse4d run --engine dask
   --scheduler processes --workers N`` does the same);
+- CPU seconds of the workers (user + system, all threads): the overhead figure that survives
+  a loaded machine, where wall times swing by tens of percent between identical runs;
 - peak RSS of every worker process (``ru_maxrss``, MiB, includes the ~0.3 GB of imported
   libraries), for the recording and for one twice as long (flat = independent of length).
 
@@ -49,8 +51,17 @@ def _peak_rss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def _cpu_seconds() -> float:
+    """CPU time (user + system) of this process so far, s."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
 def _warm_up() -> int:
-    """Load the compiled kernels in a worker (a 3-frame fusion)."""
+    """Load the compiled kernels and the output libraries in a worker (a 3-frame fusion)."""
+    import zarr  # noqa: F401
+
+    import fuse4d.dask  # noqa: F401
     from fuse4d import fuse_sequence
     from fuse4d.synthetic import make_falling_ball
 
@@ -105,17 +116,20 @@ def _dask_run(client: Any, path: Path, out: Path, chunk: int, window: int) -> fl
     return time.perf_counter() - start
 
 
-def _with_cluster(workers: int, job: Any) -> tuple[Any, list[float]]:
-    """Run ``job(client)`` on a fresh LocalCluster; return its result and the workers' peak
-    RSS (MiB)."""
+def _with_cluster(workers: int, job: Any) -> tuple[Any, list[float], float]:
+    """Run ``job(client)`` on a fresh LocalCluster; return its result, the workers' peak RSS
+    (MiB) and the CPU seconds the workers spent on it (robust to other load on the machine,
+    unlike wall time)."""
     from fuse4d.scale.cluster import local_cluster
 
     with local_cluster(workers) as client:
         client.wait_for_workers(workers)
         client.run(_warm_up)
+        before = client.run(_cpu_seconds)
         result = job(client)
+        after = client.run(_cpu_seconds)
         rss = sorted(client.run(_peak_rss_mib).values())
-    return result, rss
+    return result, rss, sum(after[k] - before[k] for k in after)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -141,32 +155,38 @@ def main(argv: list[str] | None = None) -> int:
         folder = Path(tmp)
         rec = folder / "rec.npz"
         _make_recording(rec, args.frames, args.full)
-        seconds, rss = _with_cluster(
+        seconds, rss, cpu = _with_cluster(
             1, lambda c: c.submit(_stream_task, str(rec), args.window, pure=False).result()
         )
         report["stream_s"] = seconds
+        report["stream_cpu_s"] = cpu
         report["stream_rss_mib"] = rss
         for n in counts:
-            seconds, rss = _with_cluster(
+            seconds, rss, cpu = _with_cluster(
                 n,
                 lambda c: _dask_run(c, rec, folder / "out.zarr", args.chunk_frames, args.window),
             )
             report[f"dask_{n}_s"] = seconds
+            report[f"dask_{n}_cpu_s"] = cpu
             report[f"dask_{n}_rss_mib"] = rss
         if not args.no_length_check:
             longer = folder / "long.npz"
             _make_recording(longer, 2 * args.frames, args.full)
             n = max(counts)
-            seconds, rss = _with_cluster(
+            seconds, rss, cpu = _with_cluster(
                 n,
                 lambda c: _dask_run(c, longer, folder / "o2.zarr", args.chunk_frames, args.window),
             )
             report[f"dask_{n}_2x_length_s"] = seconds
+            report[f"dask_{n}_2x_length_cpu_s"] = cpu
             report[f"dask_{n}_2x_length_rss_mib"] = rss
     report["load_after"] = os.getloadavg()
     one = report.get("dask_1_s")
     if one:
-        report["overhead_vs_stream_1_worker"] = one / report["stream_s"] - 1.0
+        report["overhead_vs_stream_1_worker_wall"] = one / report["stream_s"] - 1.0
+        report["overhead_vs_stream_1_worker_cpu"] = (
+            report["dask_1_cpu_s"] / report["stream_cpu_s"] - 1.0
+        )
         for n in counts:
             report[f"speedup_{n}_vs_1"] = one / report[f"dask_{n}_s"]
     if args.json:
