@@ -204,6 +204,18 @@ def test_zarr_output_and_resume_after_interruption(ball, reference, tmp_path):
         fd.write_zarr(other, out, intrinsics=ball.intrinsics)
 
 
+def test_saved_flows_are_the_fusion_flows_and_can_be_reused(ball, reference, tmp_path):
+    res = fd.fuse(ball.depth, ball.intensity, ball.intrinsics, chunk_frames=6)
+    out = fd.write_zarr(res, tmp_path / "f.zarr", intrinsics=ball.intrinsics, save_flows=True)
+    root = zarr.open_group(str(out), mode="r")
+    assert root["flow_forward"].metadata.dimension_names == ("t", "y", "x", "uv")
+    assert _same(root["flow_forward"][:], reference.flow_forward)
+    assert _same(root["flow_backward"][:], reference.flow_backward)
+    again = fd.fuse(ball.depth, ball.intensity, ball.intrinsics, chunk_frames=4,
+                    flow=(root["flow_forward"], root["flow_backward"]))  # fmt: skip
+    _assert_equal(again, reference)
+
+
 def test_cli_many_inputs_share_one_run(ball, tmp_path, capsys):
     second = Sequence(ball.depth[:11], ball.intensity[:11], ball.intrinsics)
     save_sequence(ball, tmp_path / "a.npz")

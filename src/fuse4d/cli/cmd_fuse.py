@@ -138,6 +138,9 @@ def run_command(
         bool,
         typer.Option("--warm-start/--no-warm-start", help="dask: chain flow warm starts."),
     ] = True,
+    save_flows: Annotated[
+        bool, typer.Option("--save-flows", help="dask: also store the pair flows (px).")
+    ] = False,
 ) -> None:
     """Fuse a recording (paper Eq. 2-6) and write the same kind of file or folder
     (``--engine dask``: zarr v3, many recordings at once; docs/scaling.md)."""
@@ -160,6 +163,7 @@ def run_command(
         except ImportError as exc:  # the [scale] extra is missing
             fail(str(exc))
         opts = {"chunk_frames": chunk_frames, "scheduler": scheduler, "workers": workers}
+        opts["save_flows"] = save_flows
         print_dask_run(inputs, output, fusion, flow, opts, resume, force, warm_start, as_json)
         return
     if engine != "stream" or len(inputs) != 1:

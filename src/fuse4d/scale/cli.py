@@ -93,6 +93,7 @@ def run_dask(
     resume: bool = False,
     overwrite: bool = False,
     warm_start: bool = True,
+    save_flows: bool = False,
     progress: bool = True,
 ) -> list[DaskRunSummary]:
     """Fuse ``inputs`` into zarr v3 stores on one scheduler (see :mod:`fuse4d.scale.zarr_out`).
@@ -115,6 +116,8 @@ def run_dask(
         Replace existing outputs (once the new ones are complete).
     warm_start : bool
         Flow warm starts chained across pairs (the in-memory default).
+    save_flows : bool
+        Store the pair flows in each output (``flow_forward``, ``flow_backward``).
     progress : bool
         dask's progress bar on stderr.
 
@@ -155,6 +158,7 @@ def run_dask(
             },
             resume=resume,
             overwrite=overwrite,
+            save_flows=save_flows,
         )
         skipped = len(out.done_chunks())
         tasks.extend(out.tasks(result))

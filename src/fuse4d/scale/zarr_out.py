@@ -5,6 +5,7 @@ Layout of ``OUT.zarr`` (a zarr v3 group)::
     depth    (T, H, W) float32, mm, NaN = invalid   dims ("t", "y", "x")
     support  (T, H, W) uint8, frames                 temporal support
     filled   (T, H, W) bool                          filled by Eq. 6
+    flow_forward, flow_backward  (T-1, H, W, 2) float32 px   only with ``save_flows``
 
 Group attributes: ``intrinsics`` (fx, fy, cx, cy, width, height in px), ``units``, and
 ``fuse4d`` (version, parameters, flow, chunking, source, ``complete``). Every array has one
@@ -66,13 +67,19 @@ def write_chunk(
     depth: NDArray[np.float32],
     support: NDArray[np.uint8],
     filled: NDArray[np.bool_],
+    forward: NDArray[np.float32] | None = None,
+    backward: NDArray[np.float32] | None = None,
 ) -> int:
-    """Write time chunk ``k`` (frames ``[start, start + len(depth))``) into the store at
-    ``staging``, then its done marker; runs on a worker. Returns ``k``."""
+    """Write time chunk ``k`` (frames ``[start, start + len(depth))``, and the pairs starting
+    there when flows are saved) into the store at ``staging``, then its done marker; runs on a
+    worker. Returns ``k``."""
     root = zarr.open_group(staging, mode="r+")
     stop = start + depth.shape[0]
-    for name, block in (("depth", depth), ("support", support), ("filled", filled)):
-        root[name][start:stop] = block  # type: ignore[index]
+    blocks = [("depth", depth), ("support", support), ("filled", filled)]
+    if forward is not None and backward is not None and len(forward):
+        blocks += [("flow_forward", forward), ("flow_backward", backward)]
+    for name, block in blocks:
+        root[name][start : start + block.shape[0]] = block  # type: ignore[index]
     marker = _marker(Path(staging), k)
     tmp = marker.with_suffix(".tmp")
     tmp.write_text(json.dumps({"start": start, "stop": stop}))
@@ -97,6 +104,9 @@ class ZarrOutput:
         ``attrs["fuse4d"]`` and compared on resume.
     resume : bool
         Reopen an interrupted run's ``OUT.zarr.partial`` instead of refusing it.
+    save_flows : bool
+        Also store the pair flows (``flow_forward``, ``flow_backward``: ``(T-1, H, W, 2)``
+        float32 px, dims ``("t", "y", "x", "uv")``, pair t in the shard of frame t).
     overwrite : bool
         Replace an existing ``OUT.zarr`` (at the end, not before) and discard a stale
         ``OUT.zarr.partial``.
@@ -120,8 +130,10 @@ class ZarrOutput:
         metadata: dict[str, Any],
         resume: bool = False,
         overwrite: bool = False,
+        save_flows: bool = False,
     ) -> None:
         self.path = Path(path)
+        self.save_flows = bool(save_flows) and shape[0] > 1
         self.staging = self.path.with_name(self.path.name + ".partial")
         self.shape = tuple(int(v) for v in shape)
         self.chunk_frames = int(chunk_frames)
@@ -132,6 +144,7 @@ class ZarrOutput:
             "version": __version__,
             "shape": list(self.shape),
             "chunk_frames": self.chunk_frames,
+            "flows_saved": self.save_flows,
         }
         if not self.path.parent.is_dir():
             raise ValueError(f"{self.path}: output folder {self.path.parent} does not exist")
@@ -186,6 +199,19 @@ class ZarrOutput:
                 dimension_names=("t", "y", "x"),
                 attributes={"unit": unit} if unit else {},
             )
+        if self.save_flows:
+            for name, grid in (("flow_forward", "frame t"), ("flow_backward", "frame t+1")):
+                root.create_array(
+                    name,
+                    shape=(t - 1, h, w, 2),
+                    dtype=np.float32,
+                    chunks=(1, h, w, 2),
+                    shards=(self.chunk_frames, h, w, 2),
+                    fill_value=0.0,
+                    compressors=_codec(),
+                    dimension_names=("t", "y", "x", "uv"),
+                    attributes={"unit": "px", "grid": grid, "components": ["du", "dv"]},
+                )
         (self.staging / _MARKERS).mkdir()
 
     def _comparable(self, meta: dict[str, Any]) -> dict[str, Any]:
@@ -229,10 +255,17 @@ class ZarrOutput:
         depth, support, filled = (
             delayed_blocks(a.rechunk({0: c})) for a in (result.depth, result.support, result.filled)
         )
+        pairs: list[Any] = [None] * len(self.bounds)
+        forward, backward = pairs, pairs
+        if self.save_flows:  # pair chunk k = the pairs starting in time chunk k
+            forward = delayed_blocks(result.flows.forward.rechunk({0: c}))
+            backward = delayed_blocks(result.flows.backward.rechunk({0: c}))
+            forward += [None] * (len(self.bounds) - len(forward))
+            backward += [None] * (len(self.bounds) - len(backward))
         done = self.done_chunks()
         write = dask.delayed(write_chunk, pure=False)
         return [
-            write(str(self.staging), k, s, depth[k], support[k], filled[k])
+            write(str(self.staging), k, s, depth[k], support[k], filled[k], forward[k], backward[k])
             for k, (s, _) in enumerate(self.bounds)
             if k not in done
         ]
@@ -265,6 +298,7 @@ def write_zarr(
     metadata: dict[str, Any] | None = None,
     resume: bool = False,
     overwrite: bool = False,
+    save_flows: bool = False,
     compute: Callable[..., Any] | None = None,
 ) -> Path:
     """Compute ``result`` chunk by chunk into a zarr v3 store (see the module docstring).
@@ -281,6 +315,10 @@ def write_zarr(
         Extra JSON-friendly description (the fusion parameters are always stored).
     resume, overwrite : bool
         See :class:`ZarrOutput`.
+    save_flows : bool
+        Also store the pair flows the fusion used (``flow_forward``/``flow_backward``,
+        ``(T-1, H, W, 2)`` px): scene-flow export, or ``flow=`` of later runs (parameter
+        sweeps) without recomputing them.
     compute : callable, optional
         ``compute(*delayed)`` that runs the write tasks (default :func:`dask.compute`, i.e.
         the active client or the threaded scheduler).
@@ -299,6 +337,7 @@ def write_zarr(
         metadata=meta,
         resume=resume,
         overwrite=overwrite,
+        save_flows=save_flows,
     )
     tasks = out.tasks(result)
     if tasks:
