@@ -84,9 +84,12 @@ def _resolve(
 
 @app.command("run")
 def run_command(
-    input: Annotated[
-        Path,
-        typer.Argument(help="Recording: .npz, frame folder, TUM, ROS/RealSense bag, .mkv, ..."),
+    inputs: Annotated[
+        list[Path],
+        typer.Argument(
+            help="Recording(s): .npz, frame folder, TUM, ROS/RealSense bag, .mkv, ... "
+            "(several only with --engine dask)"
+        ),
     ],
     output: Annotated[
         Path, typer.Option("-o", "--output", help="Output .npz, folder, .mkv (FFV1) or .zarr.")
@@ -144,11 +147,34 @@ def run_command(
         Path | None,
         typer.Option("--report", help="Also write an HTML report folder (see fuse4d report)."),
     ] = None,
+    engine: Annotated[
+        str, typer.Option("--engine", help="stream (one process) or dask (zarr v3 output).")
+    ] = "stream",
+    chunk_frames: Annotated[
+        int, typer.Option("--chunk-frames", help="dask: frames per task and zarr shard.")
+    ] = 32,
+    scheduler: Annotated[
+        str, typer.Option("--scheduler", help="dask: threads, processes or tcp://HOST:PORT.")
+    ] = "threads",
+    workers: Annotated[
+        int | None, typer.Option("--workers", help="dask: local threads/processes (all CPUs).")
+    ] = None,
+    resume: Annotated[
+        bool, typer.Option("--resume", help="dask: continue an interrupted run.")
+    ] = False,
+    warm_start: Annotated[
+        bool,
+        typer.Option("--warm-start/--no-warm-start", help="dask: chain flow warm starts."),
+    ] = True,
+    save_flows: Annotated[
+        bool, typer.Option("--save-flows", help="dask: also store the pair flows (px).")
+    ] = False,
 ) -> None:
     """Fuse a recording (paper Eq. 2-6) and write the same kind of file or folder.
 
     Camera recordings (.bag/.db3/.mcap/.mkv) are read directly; the output is a frame folder,
-    an FFV1 .mkv or a .zarr store, chosen by the output's suffix.
+    an FFV1 .mkv or a .zarr store, chosen by the output's suffix. ``--engine dask``: chunked
+    fusion on a dask cluster to zarr v3, many recordings at once (docs/scaling.md).
     """
     from ..run import fuse_file
 
@@ -169,6 +195,18 @@ def run_command(
         flow_cache,
         flow_roi,
     )
+    if engine == "dask":
+        try:
+            from ..scale.cli import print_dask_run
+        except ImportError as exc:  # the [scale] extra is missing
+            fail(str(exc))
+        opts = {"chunk_frames": chunk_frames, "scheduler": scheduler, "workers": workers}
+        opts["save_flows"] = save_flows
+        print_dask_run(inputs, output, fusion, flow, opts, resume, force, warm_start, as_json)
+        return
+    if engine != "stream" or len(inputs) != 1:
+        fail("--engine must be stream or dask; several inputs need --engine dask")
+    input = inputs[0]
     if report is not None:
         from ..io import check_output
 

@@ -1,0 +1,205 @@
+"""Scaling of the dask engine: 1 vs N worker processes, per-worker peak RSS, overhead vs the
+streaming engine (issue 15 targets).
+
+Usage::
+
+    python benchmarks/scale.py                          # 150x150 ball, 96 and 192 frames
+    python benchmarks/scale.py --full --frames 300      # the issue's 600x600 target
+    python benchmarks/scale.py --workers 1,2 --chunk-frames 32 --json
+
+What is timed (wall clock, after every worker has loaded the compiled kernels):
+
+- ``stream``: the streaming :class:`fuse4d.FusionEngine` over the recording read frame by frame
+  from the same ``.npz``, as one task on a 1-worker cluster (same single-threaded worker
+  environment as the dask runs; outputs kept in memory, nothing written);
+- ``dask N``: ``fuse4d.dask.fuse`` over the lazily loaded ``.npz`` written to zarr v3 by a
+  ``LocalCluster`` of N single-threaded worker processes (``fuse4d run --engine dask
+  --scheduler processes --workers N`` does the same);
+- CPU seconds of the workers (user + system, all threads): the overhead figure that survives
+  a loaded machine, where wall times swing by tens of percent between identical runs;
+- peak RSS of every worker process (``ru_maxrss``, MiB, includes the ~0.3 GB of imported
+  libraries), for the recording and for one twice as long (flat = independent of length).
+
+The machine's load average is printed with the results: on a shared machine the speed-up
+ratio is only meaningful if the load is below the core count.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def _make_recording(path: Path, frames: int, full: bool) -> None:
+    from fuse4d.io import save_sequence
+    from fuse4d.synthetic import make_falling_ball
+
+    seq = make_falling_ball(small=not full, num_frames=frames, rng=0)
+    save_sequence(seq, path)
+
+
+def _peak_rss_mib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _cpu_seconds() -> float:
+    """CPU time (user + system) of this process so far, s."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+def _warm_up() -> int:
+    """Load the compiled kernels and the output libraries in a worker (a 3-frame fusion)."""
+    import zarr  # noqa: F401
+
+    import fuse4d.dask  # noqa: F401
+    from fuse4d import fuse_sequence
+    from fuse4d.synthetic import make_falling_ball
+
+    seq = make_falling_ball(small=True, num_frames=3)
+    fuse_sequence(seq.depth[:, :40, :40], seq.intensity[:, :40, :40], _crop_k(seq.intrinsics))
+    return os.getpid()
+
+
+def _crop_k(k: Any) -> Any:
+    from fuse4d import Intrinsics
+
+    return Intrinsics(k.fx, k.fy, k.cx, k.cy, 40, 40)
+
+
+def _stream_task(path: str, window: int) -> float:
+    """The streaming engine over the file, frame by frame; returns seconds."""
+    from fuse4d import FusionEngine, FusionParams
+    from fuse4d.io import open_frames
+
+    start = time.perf_counter()
+    with open_frames(path) as reader:
+        engine = FusionEngine(reader.intrinsics, fusion=FusionParams(num_frames=window))
+        depth = np.empty((len(reader), *reader.shape), np.float32)
+        for frame in reader:
+            for fr in engine.push(frame.depth, frame.intensity):
+                depth[fr.index] = fr.depth
+        for fr in engine.flush():
+            depth[fr.index] = fr.depth
+    return time.perf_counter() - start
+
+
+def _dask_run(client: Any, path: Path, out: Path, chunk: int, window: int) -> float:
+    import fuse4d.dask as fd
+    from fuse4d import FusionParams
+
+    rec = fd.open_lazy(path, frames_per_task=chunk)
+    res = fd.fuse(
+        rec.depth,
+        rec.intensity,
+        rec.intrinsics,
+        fusion=FusionParams(num_frames=window),
+        chunk_frames=chunk,
+    )
+    start = time.perf_counter()
+    fd.write_zarr(
+        res,
+        out,
+        intrinsics=rec.intrinsics,
+        overwrite=True,
+        compute=lambda *t: client.gather(client.compute(list(t))),
+    )
+    return time.perf_counter() - start
+
+
+def _with_cluster(workers: int, job: Any) -> tuple[Any, list[float], float]:
+    """Run ``job(client)`` on a fresh LocalCluster; return its result, the workers' peak RSS
+    (MiB) and the CPU seconds the workers spent on it (robust to other load on the machine,
+    unlike wall time)."""
+    from fuse4d.scale.cluster import local_cluster
+
+    with local_cluster(workers) as client:
+        client.wait_for_workers(workers)
+        client.run(_warm_up)
+        before = client.run(_cpu_seconds)
+        result = job(client)
+        after = client.run(_cpu_seconds)
+        rss = sorted(client.run(_peak_rss_mib).values())
+    return result, rss, sum(after[k] - before[k] for k in after)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=96, help="recording length (frames)")
+    parser.add_argument("--full", action="store_true", help="600x600 instead of 150x150")
+    parser.add_argument("--workers", default="1,2", help="worker counts, comma-separated")
+    parser.add_argument("--chunk-frames", type=int, default=32)
+    parser.add_argument("--window", type=int, default=9, help="frames fused per output")
+    parser.add_argument("--no-length-check", action="store_true", help="skip the 2x-length run")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+    counts = [int(v) for v in args.workers.split(",")]
+    report: dict[str, Any] = {
+        "size": "600x600" if args.full else "150x150",
+        "frames": args.frames,
+        "chunk_frames": args.chunk_frames,
+        "window": args.window,
+        "cpus": os.cpu_count(),
+        "load_before": os.getloadavg(),
+    }
+    with tempfile.TemporaryDirectory(prefix="fuse4d-scale-") as tmp:
+        folder = Path(tmp)
+        rec = folder / "rec.npz"
+        _make_recording(rec, args.frames, args.full)
+        seconds, rss, cpu = _with_cluster(
+            1, lambda c: c.submit(_stream_task, str(rec), args.window, pure=False).result()
+        )
+        report["stream_s"] = seconds
+        report["stream_cpu_s"] = cpu
+        report["stream_rss_mib"] = rss
+        for n in counts:
+            seconds, rss, cpu = _with_cluster(
+                n,
+                lambda c: _dask_run(c, rec, folder / "out.zarr", args.chunk_frames, args.window),
+            )
+            report[f"dask_{n}_s"] = seconds
+            report[f"dask_{n}_cpu_s"] = cpu
+            report[f"dask_{n}_rss_mib"] = rss
+        if not args.no_length_check:
+            longer = folder / "long.npz"
+            _make_recording(longer, 2 * args.frames, args.full)
+            n = max(counts)
+            seconds, rss, cpu = _with_cluster(
+                n,
+                lambda c: _dask_run(c, longer, folder / "o2.zarr", args.chunk_frames, args.window),
+            )
+            report[f"dask_{n}_2x_length_s"] = seconds
+            report[f"dask_{n}_2x_length_cpu_s"] = cpu
+            report[f"dask_{n}_2x_length_rss_mib"] = rss
+    report["load_after"] = os.getloadavg()
+    one = report.get("dask_1_s")
+    if one:
+        report["overhead_vs_stream_1_worker_wall"] = one / report["stream_s"] - 1.0
+        report["overhead_vs_stream_1_worker_cpu"] = (
+            report["dask_1_cpu_s"] / report["stream_cpu_s"] - 1.0
+        )
+        for n in counts:
+            report[f"speedup_{n}_vs_1"] = one / report[f"dask_{n}_s"]
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return 0
+    for key, value in report.items():
+        if isinstance(value, float):
+            value = f"{value:.3f}"
+        elif isinstance(value, list | tuple):
+            value = ", ".join(f"{v:.2f}" if isinstance(v, float) else str(v) for v in value)
+        print(f"{key:32s} {value}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

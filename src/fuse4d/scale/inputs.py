@@ -1,0 +1,125 @@
+"""Recordings on disk as lazy dask arrays: one delayed read per frame (or per time chunk),
+any readable layout.
+
+Each read task opens (once per worker process, then reuses) the layout's
+:class:`fuse4d.io.FrameReader` and returns that frame's depth and intensity exactly as the
+streaming ``fuse4d run`` sees them, so a lazily loaded recording fuses to the same bits.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import dask
+import dask.array as da
+import numpy as np
+from numpy.typing import NDArray
+
+from ..camera import Intrinsics
+from ..io import detect_format, open_frames
+
+__all__ = ["LazyRecording", "open_lazy", "read_frames"]
+
+_READERS: dict[tuple[str, str], Any] = {}
+_LOCK = threading.Lock()
+
+
+def _reader(path: str, fmt: str) -> Any:
+    """This process's reader of ``path`` (opened on first use; readers are not thread-safe,
+    so callers hold ``_LOCK`` while reading)."""
+    key = (path, fmt)
+    if key not in _READERS:
+        if len(_READERS) >= 8:  # a worker handling many recordings: keep the newest few open
+            old_key = next(iter(_READERS))
+            _READERS.pop(old_key).close()
+        _READERS[key] = open_frames(path, format=fmt)
+    return _READERS[key]
+
+
+def read_frames(path: str, fmt: str, start: int, stop: int, stamp: int = 0) -> NDArray[np.float32]:
+    """Frames ``[start, stop)`` of a recording as a ``(n, 2, H, W)`` float32 array: depth (mm,
+    NaN = invalid) and intensity ([0, 1]), exactly as the streaming reader yields them.
+    ``stamp`` (the file's mtime) only keys the task."""
+    out = []
+    for index in range(start, stop):
+        with _LOCK:
+            frame = _reader(path, fmt).read_frame(index)
+        out.append(np.stack([frame.depth, frame.intensity]).astype(np.float32, copy=False))
+    return np.stack(out)
+
+
+@dataclass(frozen=True)
+class LazyRecording:
+    """A recording as lazy dask arrays.
+
+    Attributes
+    ----------
+    path : Path
+    format : str
+        Layout name (``"npz"``, ``"folder"``, ...).
+    depth : dask.array.Array, (T, H, W) float32
+        mm, NaN = invalid; one chunk per frame.
+    intensity : dask.array.Array, (T, H, W) float32
+        [0, 1].
+    intrinsics : Intrinsics
+    fps : float or None
+    depth_unit_mm : float or None
+        Millimetres per stored depth unit of the input (None for float layouts).
+    """
+
+    path: Path
+    format: str
+    depth: da.Array
+    intensity: da.Array
+    intrinsics: Intrinsics
+    fps: float | None
+    depth_unit_mm: float | None
+
+    @property
+    def num_frames(self) -> int:
+        """T."""
+        return int(self.depth.shape[0])
+
+
+def open_lazy(
+    path: str | Path, *, format: str | None = None, frames_per_task: int = 1
+) -> LazyRecording:
+    """Open any layout that :func:`fuse4d.io.open_frames` reads as lazy dask arrays.
+
+    Only the metadata is read now; the frames are read by tasks when computed.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.npz`` file or sequence folder.
+    format : str, optional
+        Force a layout (default: :func:`fuse4d.io.detect_format`).
+    frames_per_task : int
+        Frames read per task (default 1: one delayed read per frame). ``fuse4d run --engine
+        dask`` reads one time chunk per task: a distributed scheduler spends ~1 ms per task
+        (tens of ms on a loaded machine), which per-frame tasks pay several times per frame.
+
+    Returns
+    -------
+    LazyRecording
+    """
+    src = Path(path).resolve()
+    fmt = format or detect_format(src)
+    with open_frames(src, format=fmt) as reader:
+        total = len(reader)
+        k = reader.intrinsics
+        fps, unit = reader.fps, reader.depth_unit_mm
+    h, w = k.height, k.width
+    read = dask.delayed(read_frames, pure=True)
+    stamp = src.stat().st_mtime_ns  # a rewritten input gets new task keys
+    step = max(1, int(frames_per_task))
+    blocks = [
+        da.from_delayed(read(str(src), fmt, a, min(a + step, total), stamp),
+                        (min(a + step, total) - a, 2, h, w), np.float32)
+        for a in range(0, total, step)
+    ]  # fmt: skip
+    both = da.concatenate(blocks)  # (T, 2, H, W)
+    return LazyRecording(src, fmt, both[:, 0], both[:, 1], k, fps, unit)

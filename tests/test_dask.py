@@ -1,0 +1,319 @@
+"""The dask engine (fuse4d.dask): chunked == in-memory == streaming, bit for bit; zarr output,
+resume, CLI; the same through a real LocalCluster of 2 worker processes."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("dask.array")
+pytest.importorskip("zarr")
+
+import dask
+import zarr
+
+import fuse4d.dask as fd
+from fuse4d import FusionEngine, FusionParams, Intrinsics, fuse_sequence, fuse_stream
+from fuse4d.cli import main
+from fuse4d.flow import estimate_sequence_flow
+from fuse4d.io import open_frames, save_sequence, write_frame_folder
+from fuse4d.scale import graph
+from fuse4d.scale._deps import require_scale_extra
+from fuse4d.sequence import Sequence
+from fuse4d.synthetic import make_falling_ball
+
+ROW0, COL0, H, W = 40, 55, 32, 40
+
+
+def _crop(seq: Sequence, frames: int) -> Sequence:
+    k = seq.intrinsics
+    cam = Intrinsics(k.fx, k.fy, k.cx - COL0, k.cy - ROW0, W, H)
+    box = (slice(0, frames), slice(ROW0, ROW0 + H), slice(COL0, COL0 + W))
+    return Sequence(seq.depth[box].copy(), seq.intensity[box].copy(), cam)
+
+
+@pytest.fixture(scope="module")
+def ball() -> Sequence:
+    """20 frames of the falling ball, 32x40 px around the ball (moving edges, holes)."""
+    return _crop(make_falling_ball(small=True, num_frames=20), 20)
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    return a.shape == b.shape and a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True)
+
+
+def _assert_equal(res: fd.DaskFusion, ref, **compute) -> None:
+    points, depth, support, filled = dask.compute(
+        res.points, res.depth, res.support, res.filled, **compute
+    )
+    assert _same(points, ref.points)
+    assert _same(depth, ref.depth)
+    assert _same(support, ref.support)
+    assert _same(filled, ref.filled)
+
+
+def _stream(seq: Sequence, fusion: FusionParams, **engine) -> np.ndarray:
+    eng = FusionEngine(seq.intrinsics, fusion=fusion, **engine)
+    frames = []
+    for t in range(seq.num_frames):
+        frames += eng.push(seq.depth[t], seq.intensity[t])
+    frames += eng.flush()
+    return np.stack([f.points for f in frames])
+
+
+@pytest.fixture(scope="module")
+def reference(ball: Sequence):
+    return fuse_sequence(ball.depth, ball.intensity, ball.intrinsics)
+
+
+def test_streaming_engine_equals_in_memory(ball, reference):
+    streamed = np.stack(
+        [
+            f.points
+            for f in fuse_stream(zip(ball.depth, ball.intensity, strict=True), ball.intrinsics)
+        ]
+    )
+    assert _same(streamed, reference.points)
+
+
+@pytest.mark.parametrize("chunk_frames", [1, 3, 7, 20, 64])
+def test_chunked_equals_in_memory(ball, reference, chunk_frames):
+    res = fd.fuse(ball.depth, ball.intensity, ball.intrinsics, chunk_frames=chunk_frames)
+    assert res.depth.chunks[0][-1] == (20 % chunk_frames or min(chunk_frames, 20))
+    _assert_equal(res, reference, scheduler="threads")
+    fwd, bwd = dask.compute(res.flows.forward, res.flows.backward)
+    assert _same(fwd, reference.flow_forward)
+    assert _same(bwd, reference.flow_backward)
+
+
+def test_fewer_frames_than_window(ball):
+    seq = _crop(make_falling_ball(small=True, num_frames=5), 5)
+    ref = fuse_sequence(seq.depth, seq.intensity, seq.intrinsics)  # 9-frame window, T = 5
+    for c in (2, 5):
+        _assert_equal(fd.fuse(seq.depth, seq.intensity, seq.intrinsics, chunk_frames=c), ref)
+    one = fuse_sequence(seq.depth[:1], seq.intensity[:1], seq.intrinsics)
+    _assert_equal(fd.fuse(seq.depth[:1], seq.intensity[:1], seq.intrinsics), one)
+
+
+def test_causal_mode(ball):
+    fusion = FusionParams(causal=True, num_frames=5)
+    ref = fuse_sequence(ball.depth, ball.intensity, ball.intrinsics, fusion=fusion)
+    assert _same(_stream(ball, fusion), ref.points)
+    for c in (3, 8):
+        res = fd.fuse(ball.depth, ball.intensity, ball.intrinsics, fusion=fusion, chunk_frames=c)
+        _assert_equal(res, ref)
+
+
+def test_without_warm_start_equals_cold_in_memory_and_streaming(ball):
+    fusion = FusionParams(num_frames=5)
+    cold = estimate_sequence_flow(ball.intensity, warm_start=False)
+    ref = fuse_sequence(ball.depth, ball.intensity, ball.intrinsics, fusion=fusion, flow=cold)
+    assert _same(_stream(ball, fusion, warm_start=False), ref.points)
+    res = fd.fuse(
+        ball.depth, ball.intensity, ball.intrinsics, fusion=fusion, chunk_frames=6,
+        warm_start=False,
+    )  # fmt: skip
+    _assert_equal(res, ref)
+    assert not res.flows.warm_start
+
+
+def test_every_pair_flow_and_chunk_is_computed_once(ball, monkeypatch, tmp_path):
+    calls = {"estimate_flow_pair": 0, "_fuse_block": 0}
+
+    def counted(name):
+        original = getattr(graph, name)
+
+        def wrapper(*args, **kwargs):
+            calls[name] += 1
+            return original(*args, **kwargs)
+
+        monkeypatch.setattr(graph, name, wrapper)
+
+    counted("estimate_flow_pair")
+    counted("_fuse_block")
+    emitted: list[int] = []
+    emit = FusionEngine._emit
+    monkeypatch.setattr(
+        FusionEngine, "_emit", lambda self, t, **kw: emitted.append(t) or emit(self, t, **kw)
+    )
+    res = fd.fuse(ball.depth, ball.intensity, ball.intrinsics, chunk_frames=3)
+    dask.compute(res.depth, res.support, res.filled, res.flows.forward, scheduler="threads")
+    assert calls == {"estimate_flow_pair": ball.num_frames - 1, "_fuse_block": res.num_chunks}
+    # halo frames are inputs, not fused outputs; only the chunk before the last one, whose
+    # halo reaches the end of the sequence, flushes (4 = future_frames) frames it does not keep
+    assert ball.num_frames <= len(emitted) <= ball.num_frames + 4
+    calls.update(estimate_flow_pair=0, _fuse_block=0)
+    fd.write_zarr(res, tmp_path / "once.zarr", intrinsics=ball.intrinsics)
+    assert calls == {"estimate_flow_pair": ball.num_frames - 1, "_fuse_block": res.num_chunks}
+
+
+def test_iterations_and_precomputed_zarr_inputs(ball, tmp_path):
+    fusion = FusionParams(num_frames=5, iterations=2)
+    ref = fuse_sequence(ball.depth, ball.intensity, ball.intrinsics, fusion=fusion)
+    root = zarr.open_group(str(tmp_path / "in.zarr"), mode="w")
+    depth = root.create_array("depth", data=ball.depth, chunks=(4, H, W))
+    intensity = root.create_array("intensity", data=ball.intensity, chunks=(4, H, W))
+    forward = root.create_array("forward", data=ref.flow_forward, chunks=(5, H, W, 2))
+    backward = root.create_array("backward", data=ref.flow_backward, chunks=(5, H, W, 2))
+    res = fd.fuse(depth, intensity, ball.intrinsics, fusion=fusion, flow=(forward, backward))
+    _assert_equal(res, ref)
+    flows = fd.flows(intensity, chunk_frames=4).compute()
+    assert _same(flows.forward, ref.flow_forward)
+    assert _same(flows.backward, ref.flow_backward)
+
+
+def test_zarr_output_and_resume_after_interruption(ball, reference, tmp_path):
+    res = fd.fuse(ball.depth, ball.intensity, ball.intrinsics, chunk_frames=3)
+    out = tmp_path / "out.zarr"
+
+    def crash_after_two(*tasks):
+        dask.compute(*tasks[:2])
+        raise KeyboardInterrupt  # the run dies here
+
+    with pytest.raises(KeyboardInterrupt):
+        fd.write_zarr(res, out, intrinsics=ball.intrinsics, compute=crash_after_two)
+    assert not out.exists()  # incomplete output stays under OUT.zarr.partial
+    partial = zarr.open_group(str(tmp_path / "out.zarr.partial"), mode="r")
+    assert partial.attrs["fuse4d"]["complete"] is False
+    with pytest.raises(FileExistsError, match="--resume"):
+        fd.write_zarr(res, out, intrinsics=ball.intrinsics)
+
+    def only_the_rest(*tasks):
+        assert len(tasks) == res.num_chunks - 2  # finished chunks are not recomputed
+        return dask.compute(*tasks)
+
+    fd.write_zarr(res, out, intrinsics=ball.intrinsics, resume=True, compute=only_the_rest)
+    store = zarr.open_group(str(out), mode="r")
+    assert store.attrs["fuse4d"]["complete"] is True
+    assert store.attrs["intrinsics"]["fx"] == ball.intrinsics.fx
+    assert store["depth"].metadata.dimension_names == ("t", "y", "x")
+    assert store["depth"].shards == (3, H, W)
+    assert _same(store["depth"][:], reference.depth)
+    assert _same(store["support"][:], reference.support)
+    assert _same(store["filled"][:], reference.filled)
+    other = fd.fuse(ball.depth, ball.intensity, ball.intrinsics, chunk_frames=3,
+                    fusion=FusionParams(num_frames=5))  # fmt: skip
+    with pytest.raises(FileExistsError):
+        fd.write_zarr(other, out, intrinsics=ball.intrinsics)
+
+
+def test_saved_flows_are_the_fusion_flows_and_can_be_reused(ball, reference, tmp_path):
+    res = fd.fuse(ball.depth, ball.intensity, ball.intrinsics, chunk_frames=6)
+    out = fd.write_zarr(res, tmp_path / "f.zarr", intrinsics=ball.intrinsics, save_flows=True)
+    root = zarr.open_group(str(out), mode="r")
+    assert root["flow_forward"].metadata.dimension_names == ("t", "y", "x", "uv")
+    assert _same(root["flow_forward"][:], reference.flow_forward)
+    assert _same(root["flow_backward"][:], reference.flow_backward)
+    again = fd.fuse(ball.depth, ball.intensity, ball.intrinsics, chunk_frames=4,
+                    flow=(root["flow_forward"], root["flow_backward"]))  # fmt: skip
+    _assert_equal(again, reference)
+
+
+def test_cli_many_inputs_share_one_run(ball, tmp_path, capsys):
+    second = Sequence(ball.depth[:11], ball.intensity[:11], ball.intrinsics)
+    save_sequence(ball, tmp_path / "a.npz")
+    save_sequence(second, tmp_path / "b.npz")
+    outdir = tmp_path / "fused"
+    args = ["run", str(tmp_path / "a.npz"), str(tmp_path / "b.npz"), "-o", str(outdir)]
+    assert main([*args, "--engine", "dask", "--chunk-frames", "4", "--workers", "2", "--json"]) == 0
+    assert '"frames": 11' in capsys.readouterr().out
+    for name, seq in (("a", ball), ("b", second)):
+        ref = fuse_sequence(seq.depth, seq.intensity, seq.intrinsics)
+        store = zarr.open_group(str(outdir / f"{name}.zarr"), mode="r")
+        assert _same(store["depth"][:], ref.depth)
+        assert _same(store["support"][:], ref.support)
+    dask_args = [*args, "--engine", "dask", "--chunk-frames", "4"]
+    assert main([*dask_args, "--resume"]) == 0  # complete: nothing to do
+    assert main(dask_args) == 2  # exists
+    assert main(args) == 2  # several inputs need the dask engine
+    assert "need --engine dask" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("frames_per_task", [1, 6])
+def test_lazy_frame_folder_equals_streaming_reader(ball, tmp_path, frames_per_task):
+    folder = write_frame_folder(ball, tmp_path / "rec", depth_unit_mm=0.1)
+    rec = fd.open_lazy(folder, frames_per_task=frames_per_task)
+    assert rec.format == "folder"
+    assert rec.depth.numblocks[0] == -(-ball.num_frames // frames_per_task)
+    with open_frames(folder) as reader:  # what the streaming `fuse4d run` sees
+        frames = list(reader)
+    depth = np.stack([f.depth for f in frames])
+    intensity = np.stack([f.intensity for f in frames])
+    ref = fuse_sequence(depth, intensity, rec.intrinsics)
+    _assert_equal(fd.fuse(rec.depth, rec.intensity, rec.intrinsics, chunk_frames=7), ref)
+
+
+def test_missing_extra_gives_one_clear_error(monkeypatch):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "zarr" else real(name, *a)
+    )
+    with pytest.raises(ImportError, match=r"fuse4d\[scale\]"):
+        require_scale_extra()
+
+
+def _cli_env() -> dict[str, str]:
+    env = dict(os.environ)
+    src = str(Path(fd.__file__).resolve().parents[1])
+    env["PYTHONPATH"] = os.pathsep.join([src, env.get("PYTHONPATH", "")])
+    return env
+
+
+@pytest.mark.slow
+def test_resume_after_killed_cli_run_equals_uninterrupted(tmp_path):
+    seq = _crop(make_falling_ball(small=True, num_frames=60), 60)
+    save_sequence(seq, tmp_path / "rec.npz")
+    base = [sys.executable, "-m", "fuse4d", "run", str(tmp_path / "rec.npz"), "--engine", "dask"]
+    opts = ["--chunk-frames", "2", "--workers", "1", "--window", "5"]
+    out = tmp_path / "killed.zarr"
+    markers = tmp_path / "killed.zarr.partial" / ".fuse4d-done"
+    proc = subprocess.Popen([*base, "-o", str(out), *opts], env=_cli_env(),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and proc.poll() is None:
+        if markers.is_dir() and len(list(markers.glob("chunk-*"))) >= 3:
+            os.kill(proc.pid, signal.SIGKILL)
+            break
+        time.sleep(0.01)
+    proc.wait()
+    if out.exists():
+        pytest.skip("the run finished before it could be killed")
+    done_before = len(list(markers.glob("chunk-*")))
+    assert 3 <= done_before < 30
+    run = subprocess.run([*base, "-o", str(out), *opts, "--resume", "--json"], env=_cli_env(),
+                         capture_output=True, text=True, check=True)  # fmt: skip
+    assert f'"skipped": {done_before}' in run.stdout
+    ref = fuse_sequence(seq.depth, seq.intensity, seq.intrinsics, fusion=FusionParams(num_frames=5))
+    store = zarr.open_group(str(out), mode="r")
+    assert _same(store["depth"][:], ref.depth)
+    assert _same(store["support"][:], ref.support)
+    assert _same(store["filled"][:], ref.filled)
+
+
+@pytest.mark.slow
+def test_local_cluster_with_two_worker_processes(ball, reference, tmp_path):
+    pytest.importorskip("distributed")
+    from fuse4d.scale.cluster import local_cluster
+
+    with local_cluster(2) as client:
+        assert len(client.scheduler_info()["workers"]) == 2
+        res = fd.fuse(ball.depth, ball.intensity, ball.intrinsics, chunk_frames=4, client=client)
+        points, support, filled = client.gather(
+            client.compute([res.points, res.support, res.filled])
+        )
+        assert _same(points, reference.points)
+        assert _same(support, reference.support)
+        assert _same(filled, reference.filled)
+        # zarr output written by the worker processes
+        out = fd.write_zarr(res, tmp_path / "lc.zarr", intrinsics=ball.intrinsics,
+                            compute=lambda *t: client.gather(client.compute(list(t))))  # fmt: skip
+        assert _same(zarr.open_group(str(out), mode="r")["depth"][:], reference.depth)
