@@ -143,3 +143,8 @@ def test_demo_small_writes_figure_and_table(tmp_path, capsys):
     scores = {s["name"].split(" ")[0]: s for s in payload["scores"]}
     assert scores["fuse4d"]["rmse"] < scores["raw"]["rmse"]
     assert (tmp_path / "demo" / "demo_before_after.png").stat().st_size > 10_000
+    # the demo's output is also the HTML report, with its video beside it
+    page = (tmp_path / "demo" / "report" / "report.html").read_text(encoding="utf-8")
+    assert "<video" in page
+    assert (tmp_path / "demo" / "report" / "compare.mp4").stat().st_size > 1000
+    assert "report.html" in out
