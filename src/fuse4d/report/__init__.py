@@ -41,8 +41,9 @@ DEFINITIONS = {
     "fill_rate": "fraction of all pixels of all frames with valid depth",
     "roughness_mean": (
         "paper Eq. 7, 5x5 window: mean over frames of the frame-mean roughness Pi on the "
-        "default ROI of the raw frame (window fully valid, depth range <= 10 mm) where Pi is "
-        "defined for every method (the same pixels for all)"
+        "default ROI of the raw frame (window fully valid, no neighbour step beyond the noise "
+        "model's limit max(10 mm, 2.5 q z^2)) where Pi is defined for every method (the same "
+        "pixels for all)"
     ),
     "roughness_std": "std over frames of the frame-mean roughness (temporal fluctuation)",
     "rms_residual": "RMS residual of the 5x5 local plane fit, same pixels as the roughness",
