@@ -101,13 +101,23 @@ def test_small_hole_mask_keeps_small_inner_components_only():
     assert small_hole_mask(holes, 0).sum() == 0
 
 
-def test_spatial_fill_uses_the_far_side_and_never_blends_across_an_edge():
+def test_spatial_fill_takes_one_side_and_never_blends_across_an_edge():
+    """A shadow band on the wall (it looks like the wall in the intensity image) takes the
+    wall's depth; a dropout on the foreground's rim (it looks like the foreground) takes the
+    foreground's. Never a blend of the two."""
     d = np.full((12, 12), 3000.0, np.float32)
     d[:, 7:] = 1500.0  # foreground to the right
-    d[4:8, 5:7] = np.nan  # shadow band left of the foreground edge
-    out, filled = fill_small_holes(d, np.full_like(d, 0.5), radius=3)
+    inten = np.where(np.arange(12) < 7, 0.3, 0.8)[None, :].repeat(12, 0).astype(np.float32)
+    d[4:8, 5:7] = np.nan  # shadow band left of the foreground edge, on the wall
+    out, filled = fill_small_holes(d, inten, radius=3)
     assert filled.sum() == 8
     np.testing.assert_allclose(out[filled], 3000.0)
+    d2 = np.full((12, 12), 3000.0, np.float32)
+    d2[:, 7:] = 1500.0
+    d2[4:8, 7:9] = np.nan  # a dropout on the foreground's rim
+    out2, filled2 = fill_small_holes(d2, inten, radius=3)
+    assert filled2.sum() == 8
+    np.testing.assert_allclose(out2[filled2], 1500.0)
 
 
 def test_spatial_fill_prefers_similar_intensity():

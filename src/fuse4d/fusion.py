@@ -35,6 +35,7 @@ from .holes import (
     _fill_from_time,
     _fill_holes,
     _fill_small_holes,
+    _side_consistent,
 )
 from .motion import (
     _pair_motion,
@@ -482,7 +483,16 @@ class FusionEngine:
                 quad=quad,
                 temporal_weight=self._temporal_weight,
             )
-            got = count > 0
+            got = (count > 0) & _side_consistent(
+                filled_points[..., 2],
+                self._depth[slot],
+                self._intensity[slot],
+                holes,
+                radius=p.fill_space_radius,
+                sigma_intensity=p.sigma_intensity,
+                max_step=p.max_depth_step,
+                quad=quad,
+            )
             if got.any():
                 if p.output == "ray":  # the trajectory's depth on the pixel's own ray
                     points[got] = self._rays[got] * filled_points[got][:, 2:3]

@@ -8,8 +8,8 @@ validate):
   in other frames of the window, those frames' motion-reference points are collected and the
   weighted least-squares line through them (the A21 trajectory) is evaluated at t.
 * :func:`_spatial_fill_kernel` (A27): small remaining holes get an intensity-weighted mean
-  of valid neighbours taken from the *far* side only (occlusion shadows always belong to the
-  farther surface), so a fill never bridges a depth discontinuity.
+  of valid neighbours from one side of any depth discontinuity in the window (the side whose
+  intensity resembles the hole's), so a fill never bridges a discontinuity.
 """
 
 from __future__ import annotations
@@ -138,13 +138,17 @@ def _temporal_fill_kernel(
 def _spatial_fill_kernel(
     depth, intensity, target, radius, inv_2si2, inv_2ss2, max_step, quad, out_depth
 ):
-    """Fill ``target`` pixels from valid neighbours on the far side of the hole.
+    """Fill ``target`` pixels from the valid neighbours of one side of the hole.
 
-    For each target pixel, the valid pixels of ``depth`` within ``radius`` px are gathered;
-    only those within the depth-step limit (A22) of the *farthest* of them are kept (a hole
-    beside a foreground edge is an occlusion shadow of the background), and their mean is
-    weighted by exp(-dI^2 / 2 sigma_I^2 - r^2 / 2 sigma_s^2). ``out_depth`` gets the result,
-    NaN where no neighbour qualifies; non-target pixels are copied from ``depth``.
+    For each target pixel, the valid pixels of ``depth`` within ``radius`` px are split into
+    the *far* side (within the depth-step limit (A22) of the farthest of them) and the *near*
+    side (within the limit of the nearest); when the window spans no discontinuity the two are
+    the same. Each side's neighbours are weighted by exp(-dI^2 / 2 sigma_I^2 - r^2 / 2
+    sigma_s^2); the side with the larger total weight — the one whose intensity resembles the
+    hole's — gives the weighted mean. An occlusion shadow (the background's) looks like the
+    background in the intensity image; a dropout on a foreground rim looks like the rim.
+    ``out_depth`` gets the result, NaN where no neighbour is valid; non-target pixels are
+    copied from ``depth``.
     """
     h, w = depth.shape
     n_chunks = min(h, ROW_CHUNKS)
@@ -155,20 +159,25 @@ def _spatial_fill_kernel(
                     out_depth[v, u] = depth[v, u]
                     continue
                 far = -1.0
+                near = np.inf
                 for dv in range(-radius, radius + 1):
                     for du in range(-radius, radius + 1):
                         vv = v + dv
                         uu = u + du
                         if 0 <= vv < h and 0 <= uu < w:
                             d = depth[vv, uu]
-                            if not np.isnan(d) and d > far:
-                                far = d
+                            if not np.isnan(d):
+                                far = max(far, d)
+                                near = min(near, d)
                 if far <= 0.0:
                     out_depth[v, u] = np.nan
                     continue
-                limit = _step_limit(far, max_step, quad)
-                acc = 0.0
-                wsum = 0.0
+                far_limit = _step_limit(far, max_step, quad)
+                near_limit = _step_limit(near, max_step, quad)
+                acc_far = 0.0
+                w_far = 0.0
+                acc_near = 0.0
+                w_near = 0.0
                 i0 = intensity[v, u]
                 for dv in range(-radius, radius + 1):
                     for du in range(-radius, radius + 1):
@@ -176,9 +185,19 @@ def _spatial_fill_kernel(
                         uu = u + du
                         if 0 <= vv < h and 0 <= uu < w:
                             d = depth[vv, uu]
-                            if not np.isnan(d) and far - d < limit:
-                                di = intensity[vv, uu] - i0
-                                wgt = math.exp(-di * di * inv_2si2 - (dv * dv + du * du) * inv_2ss2)
-                                acc += wgt * d
-                                wsum += wgt
-                out_depth[v, u] = acc / wsum if wsum > 0.0 else np.nan
+                            if np.isnan(d):
+                                continue
+                            di = intensity[vv, uu] - i0
+                            wgt = math.exp(-di * di * inv_2si2 - (dv * dv + du * du) * inv_2ss2)
+                            if far - d < far_limit:
+                                acc_far += wgt * d
+                                w_far += wgt
+                            if d - near < near_limit:
+                                acc_near += wgt * d
+                                w_near += wgt
+                if w_far >= w_near and w_far > 0.0:
+                    out_depth[v, u] = acc_far / w_far
+                elif w_near > 0.0:
+                    out_depth[v, u] = acc_near / w_near
+                else:
+                    out_depth[v, u] = np.nan
