@@ -47,7 +47,11 @@ from fuse4d.io import load_sequence, save_sequence
         (lambda: FusionParams(distance_noise_scale=-1), ValueError, r"must be a number >= 0, got -1"),
         (lambda: FusionParams(sigma_intensity="0.1"), TypeError, r"sigma_intensity must be a number, got '0.1'"),
         (lambda: FusionParams(fill_holes=1), TypeError, r"fill_holes must be True or False, got 1"),
-        (lambda: FusionParams(base="x"), ValueError, r"base must be one of 'trajectory', 'frame', got 'x'"),
+        (
+            lambda: FusionParams(base="x"),
+            ValueError,
+            r"base must be one of 'trajectory', 'frame', 'quadratic', got 'x'",
+        ),
         (lambda: PMBPParams(num_particles=17), ValueError, r"PMBPParams\.num_particles must be an integer in \[1, 16\], got 17"),
         (lambda: PMBPParams(num_particles=2.0), ValueError, r"num_particles must be an integer"),
         (lambda: PMBPParams(max_motion=math.inf), ValueError, r"max_motion must be a finite number > 0, got inf"),
