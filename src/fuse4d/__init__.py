@@ -19,7 +19,15 @@ from __future__ import annotations
 from .baselines import available_baselines, run_baseline
 from .camera import Intrinsics, depth_to_points, points_to_depth, project_points
 from .config import FlowConfig, FusionParams, load_config, preset
-from .errors import InputFileError, OutputExistsError, ShapeError
+from .errors import (
+    Fuse4dError,
+    InputFileError,
+    InputNotFoundError,
+    OutputExistsError,
+    OutputWriteError,
+    ParameterError,
+    ShapeError,
+)
 from .flow import (
     FlowCache,
     SequenceFlow,
@@ -45,16 +53,20 @@ __version__ = "0.1.0"
 __all__ = [
     "FlowCache",
     "FlowConfig",
+    "Fuse4dError",
     "FusedFrame",
     "FusionEngine",
     "FusionParams",
     "FusionResult",
     "GroundTruth",
     "InputFileError",
+    "InputNotFoundError",
     "Intrinsics",
     "OutputExistsError",
+    "OutputWriteError",
     "PMBPFastParams",
     "PMBPParams",
+    "ParameterError",
     "PrecomputedFlow",
     "Sequence",
     "SequenceFlow",

@@ -19,6 +19,7 @@ import numpy as np
 
 from .camera import depth_to_points
 from .config import FlowConfig, FusionParams
+from .errors import ParameterError
 from .fusion import STAGES, FusedFrame, FusionEngine, fuse_sequence
 from .io import FrameFolderWriter, check_output, detect_format, open_frames, read_npz_extra
 from .io import write_npz as _write_npz
@@ -166,9 +167,9 @@ def fuse_file(
     fmt = detect_format(src)
     check_output(dst, overwrite=overwrite, inputs=[src])
     if fmt == "npz" and dst.suffix.lower() != ".npz":
-        raise ValueError(f"{dst}: npz input is written as .npz; give an output ending in .npz")
+        raise ParameterError(f"{dst}: npz input is written as .npz; give an output ending in .npz")
     if fmt != "npz" and dst.suffix.lower() == ".npz":
-        raise ValueError(
+        raise ParameterError(
             f"{dst}: {fmt} input is written as a frame folder; give a folder name, not .npz"
         )
     start = time.perf_counter()
@@ -215,7 +216,7 @@ def _fuse_npz(src, dst, params, flow, overwrite, quality, progress) -> RunSummar
 
 def _fuse_streaming(src, dst, fmt, params, flow, overwrite, quality, progress) -> RunSummary:
     if params.iterations != 1:
-        raise ValueError(
+        raise ParameterError(
             "iterations > 1 needs the whole sequence in memory; convert the input to .npz first"
         )
     timings = dict.fromkeys(STAGES, 0.0)

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..camera import Intrinsics
+from ..errors import ParameterError
 from ._common import estimate_noise_sigma
 from .bilateral import adaptive_bilateral, adaptive_gaussian, adaptive_joint_bilateral, dnbf
 from .ed import embedded_deformation
@@ -241,7 +242,7 @@ def get_baseline(name: str) -> BaselineInfo:
     try:
         return _REGISTRY[name]
     except KeyError:
-        raise ValueError(
+        raise ParameterError(
             f"unknown baseline {name!r}; choose one of: {', '.join(_REGISTRY)}"
         ) from None
 

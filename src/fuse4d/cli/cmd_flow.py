@@ -21,7 +21,8 @@ from ..flow_bench import (
 )
 from ..flow_vis import flow_to_color
 from ..io import read_intensity_image, write_flo
-from ._app import app, eprint, fail, out_console, progress_bar, progress_callback
+from ..io._atomic import atomic_file
+from ._app import app, eprint, fail, out_console, progress_bar, progress_callback, user_values
 
 
 def _parse_params(method: str, items: list[str]) -> object:
@@ -75,8 +76,9 @@ def flow_command(
     force: Annotated[bool, typer.Option("--force", help="Overwrite existing outputs.")] = False,
 ) -> None:
     """Optical flow from IMAGE0 to IMAGE1, written as Middlebury .flo (u = column shift, px)."""
-    m = get_flow_method(method.strip().lower())
-    params = _parse_params(m.name, param or [])
+    with user_values():
+        m = get_flow_method(method.strip().lower())
+        params = _parse_params(m.name, param or [])
     _check_out(output, force, (image0, image1))
     if vis is not None:
         _check_out(vis, force, (image0, image1))
@@ -96,7 +98,8 @@ def flow_command(
         ok, encoded = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
         if not ok:
             fail(f"{vis}: could not encode the PNG")
-        vis.write_bytes(encoded.tobytes())
+        with atomic_file(vis, overwrite=True) as tmp:
+            tmp.write_bytes(encoded.tobytes())
     note = "" if m.paper_method else " (not the paper's tracker)"
     eprint(
         f"wrote {output}: {a.shape[1]}x{a.shape[0]} flow, method {m.name}{note}, "
@@ -144,7 +147,8 @@ def bench_flow_command(
     ] = False,
 ) -> None:
     """EPE / AAE / ms per pair of every flow method on Middlebury and the synthetic ball."""
-    entries = default_bench_entries(None if methods is None else methods.split(","))
+    with user_values():
+        entries = default_bench_entries(None if methods is None else methods.split(","))
     pairs = []
     skipped = {}
     if not skip_middlebury:

@@ -10,7 +10,15 @@ from typing import Annotated, Any
 import typer
 from rich.table import Table
 
-from ._app import app, err_console, fail, out_console, progress_bar, progress_callback
+from ._app import (
+    app,
+    err_console,
+    fail,
+    out_console,
+    progress_bar,
+    progress_callback,
+    user_values,
+)
 
 PresetOpt = Annotated[
     str, typer.Option("--preset", help="Parameter preset: fast (DIS flow) or paper (PMBP).")
@@ -65,7 +73,8 @@ def _resolve(
 ):
     from ..config import FlowConfig, load_config, preset
 
-    chosen = load_config(config, base=preset_name) if config else preset(preset_name)
+    with user_values():
+        chosen = load_config(config, base=preset_name) if config else preset(preset_name)
     fusion = chosen.fusion
     changes = {k: _coerce_fusion_value(k, v) for k, v in _parse_assignments(sets, "--set").items()}
     if num_frames is not None:
@@ -73,14 +82,16 @@ def _resolve(
     if causal:
         changes["causal"] = True
     if changes:
-        fusion = fusion.replace(**changes)
+        with user_values("--set/--frames: "):
+            fusion = fusion.replace(**changes)
     flow = chosen.flow
     extra = _parse_assignments(flow_params, "--flow-param")
     if flow_method is not None or extra:
         method = flow_method or flow.method
         base = dict(flow.params) if method == flow.method else {}
         flow = FlowConfig(method, {**base, **extra})
-    flow.build_params()  # validate early, before any frame is read
+    with user_values("--flow/--flow-param: "):
+        flow.build_params()  # validate early, before any frame is read
     return fusion, flow
 
 

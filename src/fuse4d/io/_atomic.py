@@ -16,7 +16,7 @@ from contextlib import contextmanager
 from os import PathLike
 from pathlib import Path
 
-from ..errors import OutputExistsError
+from ..errors import OutputExistsError, ParameterError
 
 __all__ = ["atomic_dir", "atomic_file", "check_output"]
 
@@ -57,9 +57,11 @@ def check_output(
     for inp in inputs:
         src = Path(inp).resolve()
         if resolved == src or src in resolved.parents or resolved in src.parents:
-            raise ValueError(f"{out}: output would overwrite the input {inp}; choose another path")
+            raise ParameterError(
+                f"{out}: output would overwrite the input {inp}; choose another path"
+            )
     if not resolved.parent.is_dir():
-        raise ValueError(f"{out}: output folder {out.parent} does not exist")
+        raise ParameterError(f"{out}: output folder {out.parent} does not exist")
     if out.exists() and not overwrite:
         raise OutputExistsError(out)
     return out
@@ -101,7 +103,7 @@ def atomic_file(path: str | PathLike[str], *, overwrite: bool = False) -> Iterat
         if dest.exists() and not overwrite:  # appeared while we were writing
             raise OutputExistsError(dest)
         if dest.is_dir():
-            raise ValueError(f"{dest}: is a folder; cannot replace it with a file")
+            raise ParameterError(f"{dest}: is a folder; cannot replace it with a file")
         _set_default_mode(tmp, directory=False)
         tmp.replace(dest)
     except BaseException:

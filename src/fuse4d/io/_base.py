@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..camera import Intrinsics
-from ..errors import InputFileError
+from ..errors import InputFileError, ParameterError
 from ..sequence import GroundTruth, Sequence
 
 __all__ = [
@@ -224,14 +224,14 @@ def resolve_frames(frames: FrameSelection, total: int) -> range:
     elif isinstance(frames, tuple) and len(frames) == 2:
         sel = slice(*frames)
     else:
-        raise ValueError(
+        raise ParameterError(
             f"frames must be None, a slice, a range, (start, stop) or 'start:stop', got {frames!r}"
         )
     if sel.step not in (None, 1):
-        raise ValueError(f"frames must be a contiguous range (step 1), got step {sel.step}")
+        raise ParameterError(f"frames must be a contiguous range (step 1), got step {sel.step}")
     idx = range(total)[sel]
     if len(idx) < 1:
-        raise ValueError(f"frames {_show(sel)} selects no frame of a {total}-frame sequence")
+        raise ParameterError(f"frames {_show(sel)} selects no frame of a {total}-frame sequence")
     return idx
 
 
@@ -251,7 +251,7 @@ def _parse_frame_string(text: str) -> slice:
             return slice(*(int(p) if p.strip() else None for p in parts))
     except ValueError:
         pass
-    raise ValueError(f"frames must look like 'A:B', 'A:', ':B' or 'K', got {text!r}")
+    raise ParameterError(f"frames must look like 'A:B', 'A:', ':B' or 'K', got {text!r}")
 
 
 def _number(value: Any, key: str, path: Path) -> float:
@@ -326,7 +326,7 @@ def resolve_intrinsics(
     """
     if isinstance(spec, Intrinsics):
         if spec.shape != (height, width):
-            raise ValueError(
+            raise ParameterError(
                 f"{source} are for a {spec.width}x{spec.height} image but the frames are "
                 f"{width}x{height} (WxH)"
             )
@@ -337,22 +337,29 @@ def resolve_intrinsics(
         try:
             values = [float(v) for v in spec.split(",")]
         except ValueError:
-            raise ValueError(
+            raise ParameterError(
                 f"{source} string must be 'fx,fy,cx,cy' numbers, got {spec!r}"
             ) from None
-        return Intrinsics.from_array(values, width=width, height=height)
+        return _intrinsics_from_values(values, width, height, source)
     if isinstance(spec, str | PathLike):
         p = Path(spec)
         if p.suffix.lower() != ".json" and not p.exists():
             names = ", ".join(CAMERA_PRESETS)
-            raise ValueError(
+            raise ParameterError(
                 f"{source} {str(spec)!r} is neither a preset ({names}), 'fx,fy,cx,cy', "
                 "nor an existing camera.json"
             )
         cam = read_camera_json(p, require_unit=False)
         _check_size(cam, width, height, p)
         return Intrinsics(cam["fx"], cam["fy"], cam["cx"], cam["cy"], width=width, height=height)
-    return Intrinsics.from_array(spec, width=width, height=height)
+    return _intrinsics_from_values(spec, width, height, source)
+
+
+def _intrinsics_from_values(values: Any, width: int, height: int, source: str) -> Intrinsics:
+    try:
+        return Intrinsics.from_array(values, width=width, height=height)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"{source}: {exc}") from None
 
 
 def _check_size(cam: dict[str, float | None], width: int, height: int, path: Path) -> None:

@@ -27,7 +27,7 @@ from typing import Self
 import numpy as np
 
 from ..camera import Intrinsics
-from ..errors import InputFileError
+from ..errors import InputFileError, ParameterError
 from ..sequence import Sequence
 from ._atomic import atomic_dir, check_output
 from ._base import (
@@ -153,7 +153,7 @@ class FolderReader(FrameReader):
             _check_size(cam, w, h, cam_path)
         unit = depth_unit_mm if depth_unit_mm is not None else cam["depth_unit_mm"]
         if unit is None or not unit > 0:
-            raise ValueError(f"depth_unit_mm must be > 0, got {unit!r}")
+            raise ParameterError(f"depth_unit_mm must be > 0, got {unit!r}")
         self.depth_unit_mm = float(unit)
         if intrinsics is not None:
             self.intrinsics = resolve_intrinsics(intrinsics, width=w, height=h)
@@ -264,11 +264,11 @@ class FrameFolderWriter:
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics)}")
         if not (np.isfinite(depth_unit_mm) and depth_unit_mm > 0):
-            raise ValueError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
+            raise ParameterError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
         if intensity_bits not in (None, 8, 16):
-            raise ValueError(f"intensity_bits must be 8, 16 or None, got {intensity_bits!r}")
+            raise ParameterError(f"intensity_bits must be 8, 16 or None, got {intensity_bits!r}")
         if fps is not None and not (np.isfinite(fps) and fps > 0):
-            raise ValueError(f"fps must be > 0, got {fps!r}")
+            raise ParameterError(f"fps must be > 0, got {fps!r}")
         self.path = check_output(path, overwrite=overwrite)
         self.intrinsics = intrinsics
         self.depth_unit_mm = float(depth_unit_mm)

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..camera import Intrinsics
-from ..errors import InputFileError
+from ..errors import InputFileError, ParameterError
 from ._base import Frame, FrameReader, IntrinsicsLike, resolve_intrinsics
 from ._images import check_frame_shape, read_depth_png, read_intensity_image
 
@@ -137,7 +137,7 @@ class FramesJsonReader(FrameReader):
             unit = 1000.0 * scales[0]
             notes.append(f"depth_scale {scales[0]:g} m/unit -> {unit:g} mm/unit")
         if not unit > 0:
-            raise ValueError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
+            raise ParameterError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
         self.depth_unit_mm = unit
         first = read_depth_png(self._files[0][0], frame=0)
         h, w = first.shape

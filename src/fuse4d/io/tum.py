@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..camera import Intrinsics
-from ..errors import InputFileError
+from ..errors import InputFileError, ParameterError
 from ..sequence import Sequence
 from ._base import (
     CAMERA_PRESETS,
@@ -137,7 +137,7 @@ class TumReader(FrameReader):
         if not root.is_dir():
             raise InputFileError(root, "folder not found")
         if not max_difference >= 0:
-            raise ValueError(f"max_difference must be >= 0 seconds, got {max_difference!r}")
+            raise ParameterError(f"max_difference must be >= 0 seconds, got {max_difference!r}")
         depth_ts, depth_names = _read_list(root / "depth.txt")
         rgb_ts, rgb_names = _read_list(root / "rgb.txt")
         pairs = associate_timestamps(depth_ts, rgb_ts, max_difference=max_difference)
@@ -163,7 +163,7 @@ class TumReader(FrameReader):
         if unit is None:
             unit = cam["depth_unit_mm"] if cam and cam["depth_unit_mm"] else TUM_DEPTH_UNIT_MM
         if not unit > 0:
-            raise ValueError(f"depth_unit_mm must be > 0, got {unit!r}")
+            raise ParameterError(f"depth_unit_mm must be > 0, got {unit!r}")
         self.depth_unit_mm = float(unit)
         image = decode_image(self._files[0][0], frame=0)
         h, w = image.shape[:2]
