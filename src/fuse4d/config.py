@@ -297,8 +297,8 @@ def load_config(path: str | PathLike[str], *, base: str | None = None) -> Preset
         raise InputFileError(
             p, f"unknown top-level key(s) {sorted(unknown)}; expected preset, [fusion], [flow]"
         )
-    start = preset(str(data.get("preset", base or "fast")))
     try:
+        start = preset(str(data.get("preset", base or "fast")))
         fusion_data = dict(data.get("fusion", {}))
         known = {f.name for f in fields(FusionParams)}
         bad = set(fusion_data) - known

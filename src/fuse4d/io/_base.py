@@ -30,6 +30,7 @@ __all__ = [
     "FrameSelection",
     "IntrinsicsLike",
     "ProgressCallback",
+    "inside",
     "read_camera_json",
     "resolve_frames",
     "resolve_intrinsics",
@@ -252,6 +253,30 @@ def _parse_frame_string(text: str) -> slice:
     except ValueError:
         pass
     raise ParameterError(f"frames must look like 'A:B', 'A:', ':B' or 'K', got {text!r}")
+
+
+def inside(root: Path, name: Any, listed_in: Path, entry: int | None = None) -> Path:
+    """``root / name`` for a file name read from an index file, refusing names that leave
+    ``root`` (absolute paths, ``..``): an index file must not make fuse4d read elsewhere.
+
+    Raises
+    ------
+    InputFileError
+        If ``name`` is not a non-empty relative path inside ``root``.
+    """
+    where = "" if entry is None else f"entry {entry}: "
+    if not isinstance(name, str) or not name.strip() or "\x00" in name:
+        raise InputFileError(
+            listed_in, f"{where}file name must be a non-empty string, got {name!r}"
+        )
+    rel = Path(name)
+    if rel.is_absolute() or ".." in rel.parts:
+        raise InputFileError(
+            listed_in,
+            f"{where}file name {name!r} leaves the recording folder (absolute or '..'); "
+            "index files may only name files inside it",
+        )
+    return root / rel
 
 
 def _number(value: Any, key: str, path: Path) -> float:

@@ -61,15 +61,21 @@ def read_cv2_xml_camera(path: str | PathLike[str], *, frame: int | None = None) 
     p = Path(path)
     if not p.is_file():
         raise InputFileError(p, "file not found", frame=frame)
+    # OpenCV's parser reports malformed XML as cv2.error, or as SystemError (an error set
+    # while returning a result) from the bindings.
     try:
         fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
-    except cv2.error:
+    except (cv2.error, SystemError):
         raise InputFileError(p, "cannot parse OpenCV FileStorage XML", frame=frame) from None
     try:
         if not fs.isOpened():
             raise InputFileError(p, "cannot parse OpenCV FileStorage XML", frame=frame)
         node = fs.getNode("intrinsic")
         mat = None if node.empty() else node.mat()
+    except (cv2.error, SystemError):
+        raise InputFileError(
+            p, "cannot parse node 'intrinsic' (3x3 camera matrix)", frame=frame
+        ) from None
     finally:
         fs.release()
     if mat is None:

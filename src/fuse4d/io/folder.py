@@ -61,10 +61,15 @@ def _numbered_files(folder: Path, extensions: tuple[str, ...]) -> dict[int, Path
     if not folder.is_dir():
         return {}
     found: dict[int, Path] = {}
-    for p in folder.iterdir():
+    for p in sorted(folder.iterdir()):
         m = _NUMBERED.match(p.stem)
         if m and p.suffix.lower() in extensions and p.is_file():
-            found[int(m.group(1))] = p
+            k = int(m.group(1))
+            if k in found:
+                raise InputFileError(
+                    p, f"frame number {k} appears twice (also {found[k].name}); keep one", frame=k
+                )
+            found[k] = p
     return found
 
 

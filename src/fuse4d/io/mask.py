@@ -54,7 +54,8 @@ def read_mask(path: str | PathLike[str], *, frames: FrameSelection = None) -> ND
             return np.stack([reader.read_frame(k).mask for k in sel])  # type: ignore[misc]
     if p.suffix.lower() == ".npz":
         try:
-            with np.load(p, allow_pickle=False) as data:
+            # open the file ourselves: np.load leaks its handle when the zip is corrupt
+            with p.open("rb") as f, np.load(f, allow_pickle=False) as data:
                 key = next((k for k in MASK_NPZ_KEYS if k in data.files), None)
                 if key is None:
                     raise InputFileError(

@@ -32,6 +32,7 @@ from ._base import (
     IntrinsicsLike,
     ProgressCallback,
     _check_size,
+    inside,
     read_camera_json,
     resolve_intrinsics,
 )
@@ -48,7 +49,11 @@ def _read_list(path: Path) -> tuple[np.ndarray, list[str]]:
         raise InputFileError(path, "file not found (a TUM folder needs rgb.txt and depth.txt)")
     stamps: list[float] = []
     names: list[str] = []
-    for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+    try:
+        text_lines = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFileError(path, f"cannot read file ({exc})") from None
+    for lineno, line in enumerate(text_lines, 1):
         text = line.strip()
         if not text or text.startswith("#"):
             continue
@@ -147,7 +152,13 @@ class TumReader(FrameReader):
                 f"no depth/rgb pair within {max_difference:g} s "
                 "(check rgb.txt and depth.txt, or raise max_difference)",
             )
-        self._files = [(root / depth_names[i], root / rgb_names[j]) for i, j in pairs]
+        self._files = [
+            (
+                inside(root, depth_names[i], root / "depth.txt"),
+                inside(root, rgb_names[j], root / "rgb.txt"),
+            )
+            for i, j in pairs
+        ]
         self.timestamps = np.asarray([depth_ts[i] for i, _ in pairs], dtype=np.float64)
         if len(pairs) > 1 and not np.all(np.diff(self.timestamps) > 0):
             raise InputFileError(root / "depth.txt", "timestamps must be strictly increasing")
