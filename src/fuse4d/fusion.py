@@ -127,6 +127,10 @@ class FusionEngine:
         ``on_pair(pair)`` receives each pair's flows, 3D motion and FB error as computed.
     timings : dict, optional
         Accumulates seconds per stage (keys ``STAGES``).
+    initial_flow : (H, W, 2) ndarray, optional
+        Resuming a stream: the forward flow of the pair just before the first pushed frame
+        (see :meth:`forward_flow`), the warm start of the first pair, so that the frames
+        emitted equal those of one uninterrupted run bit for bit.
     """
 
     def __init__(
@@ -139,8 +143,12 @@ class FusionEngine:
         warm_start: bool = True,
         on_pair: Callable[[_PairOutput], None] | None = None,
         timings: dict[str, float] | None = None,
+        initial_flow: np.ndarray | None = None,
     ) -> None:
         self.intrinsics = intrinsics
+        self._initial_flow = (
+            None if initial_flow is None else as_float32(initial_flow, name="initial_flow")
+        )
         self.params = fusion or FusionParams()
         if self.params.num_frames > 256:
             raise ValueError("num_frames must be <= 256 (support is stored as uint8)")
@@ -269,6 +277,14 @@ class FusionEngine:
             out.append(self._emit(self._emitted, last=self._emitted + self.future))
         return out
 
+    def forward_flow(self, index: int) -> NDArray[np.float32]:
+        """Forward flow of the pair (``index`` - 1, ``index``) while it is in the ring buffer
+        (a resume checkpoint: pass it as ``initial_flow`` to an engine starting at ``index``).
+        """
+        if not max(1, self._pushed - self.ring) <= index < self._pushed:
+            raise IndexError(f"pair ({index - 1}, {index}) is not in the ring buffer")
+        return self._fwd[index % self.ring].copy()
+
     def flush(self) -> list[FusedFrame]:
         """End of stream: emit the remaining frames with truncated windows."""
         out = []
@@ -318,7 +334,7 @@ class FusionEngine:
         prev = (index - 1) % self.ring
         t0 = time.perf_counter()
         if pair_flow is None:
-            init = self._fwd[prev] if index >= 2 else None
+            init = self._fwd[prev] if index >= 2 else self._initial_flow
             fwd, bwd = self._flow_pair(self._intensity[prev], self._intensity[slot], init)
         else:
             fwd, bwd = pair_flow

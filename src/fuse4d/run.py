@@ -18,11 +18,12 @@ from typing import Any
 import numpy as np
 
 from .camera import depth_to_points
-from .config import FlowConfig, FusionParams
+from .config import FlowConfig, FusionParams, preset
 from .errors import ParameterError
 from .fusion import STAGES, FusedFrame, FusionEngine, fuse_sequence
-from .io import FrameFolderWriter, check_output, detect_format, open_frames, read_npz_extra
+from .io import check_output, detect_format, open_frames, read_npz_extra
 from .io import write_npz as _write_npz
+from .io.resume import ResumableFolderWriter, partial_path, run_identity
 from .metrics import default_roi, roughness_maps
 
 __all__ = ["RunSummary", "fuse_file"]
@@ -137,6 +138,7 @@ def fuse_file(
     overwrite: bool = False,
     quality: bool = True,
     progress: Callable[[int, int], None] | None = None,
+    resume: bool = False,
 ) -> RunSummary:
     """Fuse a recording on disk and write the result next to nothing it reads.
 
@@ -156,6 +158,10 @@ def fuse_file(
         Compute the before/after roughness (costs ~2 roughness maps per frame).
     progress : callable, optional
         ``progress(done, total)`` per output frame.
+    resume : bool
+        Folder output only: continue the unfinished run in ``output.partial`` (left by a
+        killed or interrupted run; see :mod:`fuse4d.io.resume`). The result equals an
+        uninterrupted run bit for bit; the quality figures cover the frames fused now.
 
     Returns
     -------
@@ -165,18 +171,21 @@ def fuse_file(
     src = Path(input)
     dst = Path(output)
     fmt = detect_format(src)
-    check_output(dst, overwrite=overwrite, inputs=[src])
+    check_output(dst, overwrite=overwrite or resume, inputs=[src])
+    check_output(partial_path(dst), overwrite=True, inputs=[src])
     if fmt == "npz" and dst.suffix.lower() != ".npz":
         raise ParameterError(f"{dst}: npz input is written as .npz; give an output ending in .npz")
     if fmt != "npz" and dst.suffix.lower() == ".npz":
         raise ParameterError(
             f"{dst}: {fmt} input is written as a frame folder; give a folder name, not .npz"
         )
+    if resume and fmt == "npz":
+        raise ParameterError("--resume applies to frame-folder outputs; .npz is written at once")
     start = time.perf_counter()
     if fmt == "npz":
         summary = _fuse_npz(src, dst, params, flow, overwrite, quality, progress)
     else:
-        summary = _fuse_streaming(src, dst, fmt, params, flow, overwrite, quality, progress)
+        summary = _fuse_streaming(src, dst, fmt, params, flow, overwrite, quality, progress, resume)
     summary.seconds = time.perf_counter() - start
     return summary
 
@@ -214,7 +223,9 @@ def _fuse_npz(src, dst, params, flow, overwrite, quality, progress) -> RunSummar
     return summary
 
 
-def _fuse_streaming(src, dst, fmt, params, flow, overwrite, quality, progress) -> RunSummary:
+def _fuse_streaming(
+    src, dst, fmt, params, flow, overwrite, quality, progress, resume
+) -> RunSummary:
     if params.iterations != 1:
         raise ParameterError(
             "iterations > 1 needs the whole sequence in memory; convert the input to .npz first"
@@ -223,7 +234,15 @@ def _fuse_streaming(src, dst, fmt, params, flow, overwrite, quality, progress) -
     with open_frames(src) as reader:
         total = len(reader)
         k = reader.intrinsics
-        engine = FusionEngine(k, fusion=params, flow=flow, timings=timings)
+        flow_config = _flow_config(flow)
+        identity = run_identity(
+            src,
+            frames=total,
+            shape=(k.height, k.width),
+            depth_unit_mm=reader.depth_unit_mm,
+            fusion=params.to_dict(),
+            flow={"method": flow_config.method, "params": flow_config.params},
+        )
         summary = RunSummary(
             input=src,
             output=dst,
@@ -231,32 +250,71 @@ def _fuse_streaming(src, dst, fmt, params, flow, overwrite, quality, progress) -
             output_format="folder",
             frames=total,
             shape=(k.height, k.width),
-            flow_method=engine.flow_config.method,
+            flow_method=flow_config.method,
             params=params,
             timings=timings,
         )
         tally = _QualityTally() if quality else None
-        pending: dict[int, Any] = {}  # raw frames waiting for their fused output, by stream order
-        done = 0
-        with FrameFolderWriter(
-            dst, k, depth_unit_mm=reader.depth_unit_mm, fps=reader.fps, overwrite=overwrite
-        ) as writer:
+        writer = ResumableFolderWriter(
+            dst,
+            k,
+            identity=identity,
+            depth_unit_mm=reader.depth_unit_mm or 1.0,
+            fps=reader.fps,
+            overwrite=overwrite,
+            resume=resume,
+        )
+        with writer:
+            # Resume = restart the (deterministic) engine `past` frames before the checkpoint,
+            # warm-started with the flow stored there; frames before it only fill the window.
+            first = max(0, writer.restart_frame - params.past_frames)
+            engine = FusionEngine(
+                k,
+                fusion=params,
+                flow=flow_config,
+                timings=timings,
+                initial_flow=writer.seed if first > 0 else None,
+            )
+            pending: dict[int, Any] = {}  # raw frames waiting for their fused output
 
             def emit(frames: list[FusedFrame]) -> None:
-                nonlocal done
                 for fr in frames:
-                    raw = pending.pop(fr.index)
+                    t = first + fr.index
+                    raw = pending.pop(t)
+                    if t < writer.frames_done:  # before the checkpoint, or already on disk
+                        continue
                     if tally is not None:
                         tally.add(depth_to_points(raw.depth, k), fr)
                     writer.write(fr.depth, raw.intensity, mask=raw.mask, timestamp=raw.timestamp)
-                    done += 1
+                    if writer.wants_checkpoint() and writer.frames_done < total:
+                        start = writer.frames_done - engine.past
+                        writer.checkpoint(_seed(engine, first, start, writer.seed))
                     if progress is not None:
-                        progress(done, total)
+                        progress(writer.frames_done, total)
 
-            for order, frame in enumerate(reader):
-                pending[order] = frame
+            for t in range(first, total):
+                frame = reader.read_frame(t)
+                pending[t] = frame
                 emit(engine.push(frame.depth, frame.intensity))
             emit(engine.flush())
         if tally is not None:
             tally.fill(summary)
     return summary
+
+
+def _flow_config(flow: FlowConfig | str | None) -> FlowConfig:
+    """The tracker the engine will use (same rule as :class:`FusionEngine`)."""
+    if isinstance(flow, str):
+        return FlowConfig(flow)
+    return flow or preset("fast").flow
+
+
+def _seed(engine: FusionEngine, first: int, start: int, seed: np.ndarray | None):
+    """Warm start for an engine that starts at frame ``start``: the flow of pair
+    (start - 1, start) (``seed`` if that is the pair before ``engine``'s first frame), or
+    None at the start of the recording."""
+    if start <= 0:
+        return None
+    if start == first:
+        return seed
+    return engine.forward_flow(start - first)

@@ -123,9 +123,21 @@ def run_command(
         ),
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing output.")] = False,
+    resume: Annotated[
+        bool,
+        typer.Option(
+            "--resume",
+            help="Continue a killed or interrupted run (folder output, same input and options);"
+            " the result equals an uninterrupted run.",
+        ),
+    ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
 ) -> None:
-    """Fuse a recording (paper Eq. 2-6) and write the same kind of file or folder."""
+    """Fuse a recording (paper Eq. 2-6) and write the same kind of file or folder.
+
+    A folder output is built in OUTPUT.partial (complete frames + a manifest); if the run is
+    killed or interrupted (Ctrl-C), the same command with --resume continues it.
+    """
     from ..run import fuse_file
 
     fusion, flow = _resolve(preset_name, config, num_frames, causal, sets, flow_method, flow_params)
@@ -137,6 +149,7 @@ def run_command(
             flow=flow,
             overwrite=force,
             progress=progress_callback(progress),
+            resume=resume,
         )
     if as_json:
         print(json.dumps(summary.to_dict(), indent=2))

@@ -8,6 +8,7 @@ is removed and the destination is left untouched.
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import tempfile
@@ -16,9 +17,9 @@ from contextlib import contextmanager
 from os import PathLike
 from pathlib import Path
 
-from ..errors import OutputExistsError, ParameterError
+from ..errors import OutputExistsError, OutputWriteError, ParameterError
 
-__all__ = ["atomic_dir", "atomic_file", "check_output"]
+__all__ = ["atomic_dir", "atomic_file", "check_output", "write_errors"]
 
 
 def check_output(
@@ -67,6 +68,26 @@ def check_output(
     return out
 
 
+#: errno values that mean "the output cannot be written here" (not a bug, not the input).
+_WRITE_ERRNOS = frozenset(
+    {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG, errno.EIO}
+)
+
+
+@contextmanager
+def write_errors(path: str | PathLike[str]) -> Iterator[None]:
+    """Report a full disk, a read-only folder, ... while writing ``path`` as
+    :class:`~fuse4d.OutputWriteError` (a one-line user error naming the output)."""
+    try:
+        yield
+    except OutputWriteError:
+        raise
+    except OSError as exc:
+        if exc.errno in _WRITE_ERRNOS:
+            raise OutputWriteError(path, exc) from exc
+        raise
+
+
 def _umask() -> int:
     mask = os.umask(0o022)
     os.umask(mask)
@@ -97,9 +118,11 @@ def atomic_file(path: str | PathLike[str], *, overwrite: bool = False) -> Iterat
         If ``path`` exists and ``overwrite`` is False (checked before and after writing).
     """
     dest = check_output(path, overwrite=overwrite)
-    tmp = _temp_name(dest, directory=False)
+    with write_errors(dest):
+        tmp = _temp_name(dest, directory=False)
     try:
-        yield tmp
+        with write_errors(dest):
+            yield tmp
         if dest.exists() and not overwrite:  # appeared while we were writing
             raise OutputExistsError(dest)
         if dest.is_dir():
@@ -122,9 +145,11 @@ def atomic_dir(path: str | PathLike[str], *, overwrite: bool = False) -> Iterato
     deleted; if the second rename fails the old folder is moved back.
     """
     dest = check_output(path, overwrite=overwrite)
-    tmp = _temp_name(dest, directory=True)
+    with write_errors(dest):
+        tmp = _temp_name(dest, directory=True)
     try:
-        yield tmp
+        with write_errors(dest):
+            yield tmp
         _set_default_mode(tmp, directory=True)
         if dest.exists():
             if not overwrite:

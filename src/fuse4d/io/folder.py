@@ -116,6 +116,7 @@ class FolderReader(FrameReader):
         self.path = root = Path(path)
         if not root.is_dir():
             raise InputFileError(root, "folder not found")
+        _refuse_unfinished_run(root)
         self._depth = _numbered_files(root / "depth", (".png",))
         if not self._depth:
             raise InputFileError(
@@ -187,6 +188,15 @@ class FolderReader(FrameReader):
             check_frame_shape(mask, self.shape, self._mask[k], k, against="the depth frame")
         ts = None if self.timestamps is None else float(self.timestamps[k])
         return Frame(k, depth, intensity, ts, mask)
+
+
+def _refuse_unfinished_run(root: Path) -> None:
+    """A folder that ``fuse4d run`` is still writing (or was killed while writing)."""
+    from .resume import unfinished_run_message  # local import: resume imports this module
+
+    message = unfinished_run_message(root)
+    if message:
+        raise InputFileError(root, message)
 
 
 def _read_timestamps(path: Path, n: int) -> np.ndarray:
@@ -350,12 +360,7 @@ class FrameFolderWriter:
         self.num_written += 1
 
     def _intensity_image(self, intensity: np.ndarray) -> np.ndarray:
-        bits = self.intensity_bits
-        if bits is None:
-            i8 = intensity_to_uint(intensity, 8)
-            exact = np.allclose(i8 / 255.0, np.nan_to_num(intensity), rtol=0, atol=1e-6)
-            return i8 if exact else intensity_to_uint(intensity, 16)
-        return intensity_to_uint(intensity, bits)
+        return intensity_image(intensity, self.intensity_bits)
 
     def close(self) -> None:
         """Finish: write ``camera.json`` (+ ``timestamps.txt``) and move the folder into place."""
@@ -365,18 +370,8 @@ class FrameFolderWriter:
         try:
             if self.num_written == 0:
                 raise ValueError(f"{self.path}: no frame was written")
-            cam: dict[str, float | int] = {
-                "fx": self.intrinsics.fx,
-                "fy": self.intrinsics.fy,
-                "cx": self.intrinsics.cx,
-                "cy": self.intrinsics.cy,
-                "width": self.intrinsics.width,
-                "height": self.intrinsics.height,
-                "depth_unit_mm": self.depth_unit_mm,
-            }
-            if self.fps is not None:
-                cam["fps"] = float(self.fps)
-            (self._tmp / "camera.json").write_text(json.dumps(cam, indent=2) + "\n")
+            text = camera_json_text(self.intrinsics, self.depth_unit_mm, self.fps)
+            (self._tmp / "camera.json").write_text(text)
             stamps = self._timestamps
             if any(t is not None for t in stamps):
                 if any(t is None for t in stamps):
@@ -408,6 +403,34 @@ class FrameFolderWriter:
             self.close()
         else:
             self.abort()
+
+
+def intensity_image(intensity: np.ndarray, bits: int | None) -> np.ndarray:
+    """Intensity in [0, 1] as the uint8/uint16 image stored in a frame folder.
+
+    ``bits=None`` picks 8 when the frame is exactly representable in 8 bits, else 16.
+    """
+    if bits is None:
+        i8 = intensity_to_uint(intensity, 8)
+        exact = np.allclose(i8 / 255.0, np.nan_to_num(intensity), rtol=0, atol=1e-6)
+        return i8 if exact else intensity_to_uint(intensity, 16)
+    return intensity_to_uint(intensity, bits)
+
+
+def camera_json_text(intrinsics: Intrinsics, depth_unit_mm: float, fps: float | None) -> str:
+    """The ``camera.json`` of a frame folder."""
+    cam: dict[str, float | int] = {
+        "fx": intrinsics.fx,
+        "fy": intrinsics.fy,
+        "cx": intrinsics.cx,
+        "cy": intrinsics.cy,
+        "width": intrinsics.width,
+        "height": intrinsics.height,
+        "depth_unit_mm": depth_unit_mm,
+    }
+    if fps is not None:
+        cam["fps"] = float(fps)
+    return json.dumps(cam, indent=2) + "\n"
 
 
 def write_frame_folder(
