@@ -290,3 +290,59 @@ def test_toml_bad_preset_or_table_is_an_input_error(tmp_path, text):
     path.write_text(text)
     with pytest.raises(InputFileError, match=r"c\.toml"):
         load_config(path)  # was: bare ValueError for an unknown preset
+
+
+# ----------------------------------------------------------------------------- found by the
+# first random (nightly-style) runs
+def test_folder_timestamps_must_be_finite(folder):
+    lines = (
+        (folder / "timestamps.txt").read_text().splitlines()
+        if (folder / "timestamps.txt").exists()
+        else ["0.0", "0.1", "0.2", "0.3"]
+    )
+    lines[2] = "inf"
+    (folder / "timestamps.txt").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputFileError, match="finite"):
+        open_frames(folder)  # was: a frame with timestamp inf
+
+
+@pytest.mark.parametrize("unit", [None, 1e308, 1e-300, 0])
+def test_camera_json_depth_unit_must_be_plausible(folder, unit):
+    cam = json.loads((folder / "camera.json").read_text())
+    cam["depth_unit_mm"] = unit
+    (folder / "camera.json").write_text(json.dumps(cam))
+    with pytest.raises(InputFileError, match="depth_unit_mm"):
+        _read_all(folder)  # was: null accepted; 1e308 gave inf depth, 1e-300 depth 0
+
+
+@pytest.mark.parametrize("stamp", ["nan", "inf"])
+def test_tum_timestamps_must_be_finite(tmp_path, small_sequence, stamp):
+    root = _tum(tmp_path, small_sequence)
+    (root / "depth.txt").write_text(f"{stamp} d/0.png\n")
+    with pytest.raises(InputFileError, match="expected 'timestamp filename'"):
+        open_frames(root)
+
+
+def test_mask_npz_corrupt_deflate_is_an_input_error(tmp_path):
+    path = tmp_path / "roi.npz"
+    np.savez_compressed(path, roi=np.ones((30, 40), bool))
+    blob = bytearray(path.read_bytes())
+    with zipfile.ZipFile(path) as z:
+        info = z.getinfo("roi.npy")
+    start = info.header_offset + 30 + len(info.filename) + len(info.extra)
+    blob[start : start + info.compress_size] = b"\xff" * info.compress_size
+    path.write_bytes(bytes(blob))
+    with pytest.raises(InputFileError, match="not a valid"):
+        read_mask(path)  # was: zlib.error
+
+
+def test_mask_npz_member_declaring_a_huge_shape_is_refused(tmp_path):
+    path = tmp_path / "roi.npz"
+    np.savez_compressed(path, roi=np.ones((3, 4), bool))
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(
+        header, {"descr": "|b1", "fortran_order": False, "shape": (10**7, 10**7)}
+    )
+    _rewrite_member(path, "roi.npy", header.getvalue() + b"\1" * 16)
+    with pytest.raises(InputFileError, match="truncated"):
+        read_mask(path)  # was: numpy allocated the declared 100 TB

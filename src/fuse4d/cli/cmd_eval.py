@@ -73,13 +73,9 @@ def _load_roi(path: Path, shape: tuple[int, int, int], start: int, total: int) -
     """A (T, H, W) bool ROI from an .npz (key ``mask`` or ``roi``) or an image (nonzero)."""
     t, h, w = shape
     if path.suffix.lower() == ".npz":
-        if not path.is_file():
-            fail(f"{path}: ROI file not found")
-        with np.load(path, allow_pickle=False) as data:
-            key = next((k for k in ("mask", "roi") if k in data.files), None)
-            if key is None:
-                fail(f"{path}: ROI .npz needs a key 'mask' or 'roi', found {data.files}")
-            roi = np.asarray(data[key]).astype(bool)
+        from ..io import read_mask  # corrupt or missing files are InputFileErrors there
+
+        roi = read_mask(path)
     else:
         from ..io._images import read_mask_image
 

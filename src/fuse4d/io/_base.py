@@ -279,6 +279,34 @@ def inside(root: Path, name: Any, listed_in: Path, entry: int | None = None) -> 
     return root / rel
 
 
+#: Depth units accepted (mm per stored unit): 1 nm to 10 m; others come from corrupt files.
+MIN_DEPTH_UNIT_MM = 1e-6
+MAX_DEPTH_UNIT_MM = 1e4
+
+
+def depth_unit(value: Any, source: Path | None = None) -> float:
+    """Validate a depth unit (mm per stored unit) from ``source`` (None: a parameter).
+
+    Raises
+    ------
+    InputFileError
+        If it came from ``source`` and is not in (0, :data:`MAX_DEPTH_UNIT_MM`].
+    ParameterError
+        The same for a value given by the caller.
+    """
+    ok = isinstance(value, int | float) and not isinstance(value, bool)
+    ok = ok and math.isfinite(value) and MIN_DEPTH_UNIT_MM <= value <= MAX_DEPTH_UNIT_MM
+    if not ok:
+        problem = (
+            f"depth_unit_mm must be in [{MIN_DEPTH_UNIT_MM:g}, {MAX_DEPTH_UNIT_MM:g}] mm, "
+            f"got {value!r}"
+        )
+        if source is not None:
+            raise InputFileError(source, problem)
+        raise ParameterError(problem)
+    return float(value)
+
+
 def _number(value: Any, key: str, path: Path) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise InputFileError(path, f"key '{key}' must be a number, got {value!r}")
@@ -318,7 +346,7 @@ def read_camera_json(
         raise InputFileError(p, "must hold a JSON object with keys fx, fy, cx, cy, depth_unit_mm")
     required = ["fx", "fy", "cx", "cy"] + (["depth_unit_mm"] if require_unit else [])
     for key in required:
-        if key not in data:
+        if data.get(key) is None:
             raise InputFileError(p, f"missing key '{key}'")
     out: dict[str, float | None] = {k: _number(data[k], k, p) for k in ("fx", "fy", "cx", "cy")}
     for key in ("depth_unit_mm", "fps", "width", "height"):

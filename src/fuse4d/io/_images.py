@@ -154,7 +154,7 @@ def read_depth_png(
     depth = image.astype(np.float32)
     if unit_mm != 1.0:
         depth *= np.float32(unit_mm)
-    depth[image == 0] = np.nan
+    depth[(image == 0) | ~(depth > 0) | ~np.isfinite(depth)] = np.nan
     return depth
 
 

@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 
 from ..camera import Intrinsics
-from ..errors import InputFileError, ParameterError
-from ._base import Frame, FrameReader, IntrinsicsLike, resolve_intrinsics
+from ..errors import InputFileError
+from ._base import Frame, FrameReader, IntrinsicsLike, depth_unit, resolve_intrinsics
 from ._images import (
     check_frame_shape,
     decode_image,
@@ -150,9 +150,7 @@ class Cv2XmlReader(FrameReader):
         else:
             self._masks = None
         unit = 1.0 if depth_unit_mm is None else float(depth_unit_mm)
-        if not unit > 0:
-            raise ParameterError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
-        self.depth_unit_mm = unit
+        self.depth_unit_mm = depth_unit(unit)
         image = decode_image(root / f"{self._stems[0]}_depth.png", frame=0)
         h, w = image.shape[:2]
         self._matrix: np.ndarray | None = None

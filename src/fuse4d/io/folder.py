@@ -36,6 +36,7 @@ from ._base import (
     IntrinsicsLike,
     ProgressCallback,
     _check_size,
+    depth_unit,
     read_camera_json,
     resolve_intrinsics,
 )
@@ -158,9 +159,7 @@ class FolderReader(FrameReader):
             cam = read_camera_json(cam_path, require_unit=depth_unit_mm is None)
             _check_size(cam, w, h, cam_path)
         unit = depth_unit_mm if depth_unit_mm is not None else cam["depth_unit_mm"]
-        if unit is None or not unit > 0:
-            raise ParameterError(f"depth_unit_mm must be > 0, got {unit!r}")
-        self.depth_unit_mm = float(unit)
+        self.depth_unit_mm = depth_unit(unit, None if depth_unit_mm is not None else cam_path)
         if intrinsics is not None:
             self.intrinsics = resolve_intrinsics(intrinsics, width=w, height=h)
         else:
@@ -211,6 +210,8 @@ def _read_timestamps(path: Path, n: int) -> np.ndarray:
     if len(values) != n:
         raise InputFileError(path, f"{len(values)} timestamps for {n} frames")
     ts = np.asarray(values, dtype=np.float64)
+    if not np.isfinite(ts).all():
+        raise InputFileError(path, "timestamps must be finite numbers (found NaN or inf)")
     if n > 1 and not np.all(np.diff(ts) > 0):
         raise InputFileError(path, "timestamps must be strictly increasing")
     return ts

@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 
 from ..camera import Intrinsics
-from ..errors import InputFileError, ParameterError
-from ._base import Frame, FrameReader, IntrinsicsLike, inside, resolve_intrinsics
+from ..errors import InputFileError
+from ._base import Frame, FrameReader, IntrinsicsLike, depth_unit, inside, resolve_intrinsics
 from ._images import check_frame_shape, read_depth_png, read_intensity_image
 
 __all__ = ["FramesJsonReader"]
@@ -161,9 +161,7 @@ class FramesJsonReader(FrameReader):
                 raise InputFileError(json_path, f"depth_scale must be > 0, got {scales[0]}")
             unit = 1000.0 * scales[0]
             notes.append(f"depth_scale {scales[0]:g} m/unit -> {unit:g} mm/unit")
-        if not unit > 0:
-            raise ParameterError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
-        self.depth_unit_mm = unit
+        self.depth_unit_mm = depth_unit(unit, json_path if depth_unit_mm is None else None)
         first = read_depth_png(self._files[0][0], frame=0)
         h, w = first.shape
         if sizes[0] and tuple(int(s) for s in sizes[0]) != (w, h):

@@ -174,14 +174,7 @@ class NpzReader(FrameReader):
                 self._cache[key] = self._load_member(self._members[key])
             except KeyError:
                 raise InputFileError(self.path, f"missing key '{key}'") from None
-            except (
-                zipfile.BadZipFile,
-                OSError,
-                EOFError,
-                ValueError,
-                struct.error,
-                zlib.error,
-            ) as exc:
+            except MEMBER_ERRORS as exc:
                 raise InputFileError(
                     self.path, f"key '{key}': cannot read array (truncated or corrupt: {exc})"
                 ) from None
@@ -193,17 +186,7 @@ class NpzReader(FrameReader):
             mapped = self._memmap(info)
             if mapped is not None:
                 return mapped
-        with self._zip.open(member) as f:
-            # check the declared size against the member's before numpy allocates it
-            header = _read_npy_header(f)
-            if header is not None:
-                shape, _, dtype = header
-                if dtype.hasobject:
-                    raise ValueError("object arrays are not allowed")
-                if f.tell() + math.prod(shape) * dtype.itemsize > info.file_size:
-                    raise ValueError(f"member {info.filename} is truncated")
-        with self._zip.open(member) as f:
-            return np.lib.format.read_array(f, allow_pickle=False)
+        return read_member(self._zip, member)
 
     def _memmap(self, info: zipfile.ZipInfo) -> np.ndarray | None:
         with self.path.open("rb") as f:
@@ -315,6 +298,33 @@ class NpzReader(FrameReader):
                 value = value[sel.start : sel.stop]
             out[key] = value
         return out
+
+
+def read_member(zf: zipfile.ZipFile, member: str) -> np.ndarray:
+    """Read one ``.npy`` member of an open archive without pickles, checking the declared
+    size against the member's before numpy allocates it (a corrupt header must not make it
+    allocate terabytes).
+
+    Raises
+    ------
+    ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error, struct.error
+        If the member is corrupt (callers turn these into :class:`~fuse4d.InputFileError`).
+    """
+    info = zf.getinfo(member)
+    with zf.open(member) as f:
+        header = _read_npy_header(f)
+        if header is not None:
+            shape, _, dtype = header
+            if dtype.hasobject:
+                raise ValueError("object arrays are not allowed")
+            if f.tell() + math.prod(shape) * dtype.itemsize > info.file_size:
+                raise ValueError(f"member {info.filename} is truncated")
+    with zf.open(member) as f:
+        return np.lib.format.read_array(f, allow_pickle=False)
+
+
+#: What a corrupt archive member raises while being read.
+MEMBER_ERRORS = (zipfile.BadZipFile, OSError, EOFError, ValueError, struct.error, zlib.error)
 
 
 def _read_npy_header(f: Any) -> Any:

@@ -16,6 +16,7 @@ never guesses them.
 
 from __future__ import annotations
 
+import math
 from os import PathLike
 from pathlib import Path
 
@@ -32,6 +33,7 @@ from ._base import (
     IntrinsicsLike,
     ProgressCallback,
     _check_size,
+    depth_unit,
     inside,
     read_camera_json,
     resolve_intrinsics,
@@ -59,7 +61,7 @@ def _read_list(path: Path) -> tuple[np.ndarray, list[str]]:
             continue
         parts = text.replace(",", " ").split()
         try:
-            if len(parts) < 2:
+            if len(parts) < 2 or not math.isfinite(float(parts[0])):
                 raise ValueError
             stamps.append(float(parts[0]))
         except ValueError:
@@ -173,9 +175,7 @@ class TumReader(FrameReader):
         unit = depth_unit_mm
         if unit is None:
             unit = cam["depth_unit_mm"] if cam and cam["depth_unit_mm"] else TUM_DEPTH_UNIT_MM
-        if not unit > 0:
-            raise ParameterError(f"depth_unit_mm must be > 0, got {unit!r}")
-        self.depth_unit_mm = float(unit)
+        self.depth_unit_mm = depth_unit(unit, None if depth_unit_mm is not None else cam_path)
         image = decode_image(self._files[0][0], frame=0)
         h, w = image.shape[:2]
         if intrinsics is not None:
