@@ -43,7 +43,8 @@ def png_then_kill(self, image, sub, name):
 resume.ResumableFolderWriter.write = write_then_kill
 resume.ResumableFolderWriter._png = png_then_kill
 from fuse4d.cli import main
-sys.exit(main(sys.argv[4:]))
+sys.argv = ["fuse4d", *sys.argv[4:]]
+main()  # as the console script does (exits with the code)
 """
 
 
@@ -225,3 +226,13 @@ def test_killed_farneback_run_resumes_bit_identical(recording, tmp_path):
     assert manifest["checkpoint"] == {"frame": 8, "seed": "stored"}
     assert main(["run", str(recording), "-o", str(out), *args, "--resume"]) == 0
     assert _contents(out) == _contents(ref)
+
+
+def test_sigterm_stops_as_cleanly_as_ctrl_c(recording, reference, tmp_path):
+    out = tmp_path / "out"
+    args = ["run", str(recording), "-o", str(out), *RUN_ARGS]
+    res = _child(5, "after", "SIGTERM", args)
+    assert res.returncode == 130, res.stderr[-2000:]
+    _check_partial(partial_path(out), 6)
+    assert main([*args, "--resume"]) == 0
+    assert _contents(out) == _contents(reference)

@@ -7,7 +7,8 @@ Error contract (see :mod:`fuse4d.errors`):
   stderr and exits with code 2;
 * any other exception is a bug in fuse4d: one line says so, with the path of a crash report
   (traceback, versions, command, platform), exit code 70;
-* Ctrl-C exits with code 130 (outputs are complete or absent; see ``fuse4d run --resume``).
+* Ctrl-C (or SIGTERM) exits with code 130 (outputs are complete or absent; see
+  ``fuse4d run --resume``).
 
 ``fuse4d --debug COMMAND`` (or ``FUSE4D_DEBUG=1``) shows the traceback instead.
 """
@@ -15,7 +16,9 @@ Error contract (see :mod:`fuse4d.errors`):
 from __future__ import annotations
 
 import os
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 
 import typer
@@ -45,6 +48,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = typer.main.get_command(app)
     args = list(sys.argv[1:] if argv is None else argv)
     STATE.debug = False
+    if argv is None and threading.current_thread() is threading.main_thread():
+        # console script: `kill` (SIGTERM) stops as cleanly as Ctrl-C (complete outputs only)
+        signal.signal(signal.SIGTERM, _terminate)
     try:
         result = command.main(args=args, prog_name="fuse4d", standalone_mode=False)
     except typer.Exit as exc:
@@ -82,6 +88,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 EXIT_USAGE = 2
 EXIT_BUG = 70
 EXIT_INTERRUPTED = 130
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
 
 
 def _debug() -> bool:
