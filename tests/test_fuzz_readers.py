@@ -16,6 +16,9 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
+
+pytest.importorskip("hypothesis", reason="fuzzing needs hypothesis (pip install -e '.[test]')")
+
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
