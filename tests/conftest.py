@@ -47,3 +47,19 @@ def small_sequence(small_intrinsics: Intrinsics, rng: np.random.Generator) -> Se
     intensity = np.clip(0.5 + 0.3 * np.sin(xx / 3.0) * np.cos(yy / 4.0), 0, 1)
     intensity = np.broadcast_to(intensity, (t, h, w)).copy()
     return Sequence(depth.astype(np.float32), intensity.astype(np.float32), small_intrinsics)
+
+
+@pytest.fixture(autouse=True)
+def _crash_reports_in_tmp(tmp_path_factory: pytest.TempPathFactory, monkeypatch) -> None:
+    """Crash reports of CLI tests go to a temporary folder, never to ~/.cache."""
+    monkeypatch.setenv("FUSE4D_CRASH_DIR", str(tmp_path_factory.getbasetemp() / "crash"))
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """``fuzz`` tests (hours of fuzzing) run only when selected: ``pytest -m fuzz``."""
+    if "fuzz" in (config.getoption("-m") or ""):
+        return
+    skip = pytest.mark.skip(reason="nightly fuzz run; select it with: pytest -m fuzz")
+    for item in items:
+        if item.get_closest_marker("fuzz") is not None:
+            item.add_marker(skip)

@@ -13,7 +13,9 @@ The top level holds what a user needs (the full list with one line each: ``docs/
   :func:`depth_to_points`, :func:`project_points`;
 - flow and comparisons: :func:`estimate_flow`, :func:`run_baseline`,
   :func:`available_baselines`;
-- errors: :class:`InputFileError`, :class:`OutputExistsError`, :class:`ShapeError`.
+- errors: :class:`Fuse4dError` (the base of all of them), :class:`InputFileError`,
+  :class:`InputNotFoundError`, :class:`ParameterError`, :class:`OutputExistsError`,
+  :class:`OutputWriteError`, :class:`ShapeError`.
 
 Everything else lives in its subpackage: :mod:`fuse4d.flow` (optical flow, PMBP, cache),
 :mod:`fuse4d.io` (readers and writers), :mod:`fuse4d.metrics` (Eq. 7, Eq. 8, RMSE, flicker,
@@ -30,7 +32,15 @@ from typing import Any
 from ._version import __version__
 from .camera import Intrinsics, depth_to_points, project_points
 from .config import FlowConfig, FusionParams, load_config, preset
-from .errors import InputFileError, OutputExistsError, ShapeError
+from .errors import (
+    Fuse4dError,
+    InputFileError,
+    InputNotFoundError,
+    OutputExistsError,
+    OutputWriteError,
+    ParameterError,
+    ShapeError,
+)
 from .flow import estimate_flow
 from .fusion import FusedFrame, FusionEngine, FusionResult, fuse_sequence, fuse_stream
 from .io import load_sequence, save_sequence
@@ -38,13 +48,17 @@ from .sequence import Sequence
 
 __all__ = [
     "FlowConfig",
+    "Fuse4dError",
     "FusedFrame",
     "FusionEngine",
     "FusionParams",
     "FusionResult",
     "InputFileError",
+    "InputNotFoundError",
     "Intrinsics",
     "OutputExistsError",
+    "OutputWriteError",
+    "ParameterError",
     "Sequence",
     "ShapeError",
     "__version__",

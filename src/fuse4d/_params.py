@@ -47,6 +47,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from .errors import ParameterError, ParameterTypeError
+
 __all__ = [
     "check_bool",
     "check_choice",
@@ -92,7 +94,7 @@ def parse_assignments(items: Iterable[str] | None, *, what: str = "parameter") -
     for item in items or ():
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
-            raise ValueError(f"{what} must look like KEY=VALUE, got {item!r}")
+            raise ParameterError(f"{what} must look like KEY=VALUE, got {item!r}")
         out[key.strip()] = value.strip()
     return out
 
@@ -130,14 +132,14 @@ def coerce_fields(
         as the field's type.
     """
     if not (isinstance(cls, type) and is_dataclass(cls)):
-        raise TypeError(f"coerce_fields needs a dataclass type, got {cls!r}")
+        raise ParameterTypeError(f"coerce_fields needs a dataclass type, got {cls!r}")
     who = owner or cls.__name__
     hints = typing.get_type_hints(cls)
     names = [f.name for f in fields(cls)]
     unknown = sorted(set(mapping) - set(names))
     if unknown:
         valid = ", ".join([*names, *extra_keys]) or "(none)"
-        raise ValueError(f"unknown parameter(s) {', '.join(unknown)} for {who}; valid: {valid}")
+        raise ParameterError(f"unknown parameter(s) {', '.join(unknown)} for {who}; valid: {valid}")
     return {key: coerce_value(key, value, hints[key]) for key, value in mapping.items()}
 
 
@@ -178,7 +180,7 @@ def coerce_kwargs(
     unknown = sorted(set(mapping) - set(names))
     if unknown:
         valid = ", ".join(names) or "(none)"
-        raise ValueError(f"unknown parameter(s) {', '.join(unknown)} for {who}; valid: {valid}")
+        raise ParameterError(f"unknown parameter(s) {', '.join(unknown)} for {who}; valid: {valid}")
     return {key: coerce_value(key, value, hints.get(key, Any)) for key, value in mapping.items()}
 
 
@@ -213,21 +215,21 @@ def coerce_value(name: str, value: Any, hint: Any) -> Any:
                 return coerce_value(name, value, option)
             except ValueError as exc:
                 errors.append(str(exc))
-        raise ValueError(
+        raise ParameterError(
             errors[0] if len(errors) == 1 else f"parameter {name}: bad value {value!r}"
         )
     if origin is Literal:
         text = value.strip() if isinstance(value, str) else value
         if text not in args:
             choices = ", ".join(map(str, args))
-            raise ValueError(f"parameter {name}: {value!r} is not one of {choices}")
+            raise ParameterError(f"parameter {name}: {value!r} is not one of {choices}")
         return text
     if origin is tuple:
         items = value
         if isinstance(value, str):
             items = [v for v in value.replace(";", ",").split(",") if v.strip()]
         if not isinstance(items, list | tuple):
-            raise ValueError(f"parameter {name}: expected a list of values, got {value!r}")
+            raise ParameterError(f"parameter {name}: expected a list of values, got {value!r}")
         item_hint = args[0] if args else Any
         return tuple(coerce_value(name, v, item_hint) for v in items)
     if hint is bool:
@@ -237,7 +239,7 @@ def coerce_value(name: str, value: Any, hint: Any) -> Any:
     if hint is float:
         return _to_float(name, value)
     if hint is str and not isinstance(value, str):
-        raise ValueError(f"parameter {name}: expected text, got {value!r}")
+        raise ParameterError(f"parameter {name}: expected text, got {value!r}")
     return value.strip() if isinstance(value, str) else value
 
 
@@ -248,7 +250,7 @@ def _to_bool(name: str, value: Any) -> Any:
             return True
         if lowered in _FALSE:
             return False
-        raise ValueError(f"parameter {name}: cannot read {value!r} as true/false")
+        raise ParameterError(f"parameter {name}: cannot read {value!r} as true/false")
     return value
 
 
@@ -257,7 +259,7 @@ def _to_int(name: str, value: Any) -> Any:
         try:
             return int(value.strip())
         except ValueError:
-            raise ValueError(f"parameter {name}: cannot read {value!r} as an integer") from None
+            raise ParameterError(f"parameter {name}: cannot read {value!r} as an integer") from None
     return value
 
 
@@ -269,7 +271,7 @@ def _to_float(name: str, value: Any) -> Any:
         try:
             return float(text)
         except ValueError:
-            raise ValueError(f"parameter {name}: cannot read {value!r} as a number") from None
+            raise ParameterError(f"parameter {name}: cannot read {value!r} as a number") from None
     if isinstance(value, int) and not isinstance(value, bool):
         return float(value)
     return value
@@ -413,12 +415,12 @@ def check_value(owner: str, name: str, value: Any, hint: Any, **bounds: Any) -> 
         message = f"{owner}.{name} must be a tuple of {len(args) if fixed else ''}"
         message = f"{message} {what}, got {value!r}".replace("of  ", "of ")
         if not isinstance(value, tuple | list) or (fixed and len(value) != len(args)):
-            raise ValueError(message)
+            raise ParameterError(message)
         items = args if fixed else (args[:1] or (Any,)) * len(value)
         try:
             return tuple(check_value(owner, name, v, h) for v, h in zip(value, items, strict=True))
         except (TypeError, ValueError):
-            raise ValueError(message) from None
+            raise ParameterError(message) from None
     if hint is bool:
         return check_bool(owner, name, value)
     if hint is int:
@@ -426,7 +428,7 @@ def check_value(owner: str, name: str, value: Any, hint: Any, **bounds: Any) -> 
     if hint is float:
         return check_number(owner, name, value, **bounds)
     if hint is str and not isinstance(value, str):
-        raise TypeError(f"{owner}.{name} must be text, got {value!r}")
+        raise ParameterTypeError(f"{owner}.{name} must be text, got {value!r}")
     return value
 
 
@@ -452,7 +454,7 @@ def check_int(
     ok = isinstance(value, int | np.integer) and not isinstance(value, bool)
     ok = ok and (minimum is None or value >= minimum) and (maximum is None or value <= maximum)
     if not ok:
-        raise ValueError(
+        raise ParameterError(
             f"{owner}.{name} must be an integer{_range(minimum, maximum, '[', ']')}, got {value!r}"
         )
     return int(value)
@@ -495,7 +497,7 @@ def check_number(
         For NaN, a value out of range or (``finite``) an infinite one.
     """
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise TypeError(f"{owner}.{name} must be a number, got {value!r}")
+        raise ParameterTypeError(f"{owner}.{name} must be a number, got {value!r}")
     x = float(value)
     ok = not math.isnan(x) and not (finite and math.isinf(x))
     ok = ok and (ge is None or x >= ge) and (gt is None or x > gt)
@@ -505,7 +507,7 @@ def check_number(
         hi, hi_open = (lt, True) if lt is not None else (le, False)
         text = _range(lo, hi, "(" if lo_open else "[", ")" if hi_open else "]", lo_open, hi_open)
         kind = "a finite number" if finite else "a number"
-        raise ValueError(f"{owner}.{name} must be {kind}{text}, got {value!r}")
+        raise ParameterError(f"{owner}.{name} must be {kind}{text}, got {value!r}")
     return x
 
 
@@ -529,7 +531,7 @@ def _range(
 def check_bool(owner: str, name: str, value: Any) -> bool:
     """Return ``value`` as bool; ``TypeError`` unless it is a bool (or numpy bool)."""
     if not isinstance(value, bool | np.bool_):
-        raise TypeError(f"{owner}.{name} must be True or False, got {value!r}")
+        raise ParameterTypeError(f"{owner}.{name} must be True or False, got {value!r}")
     return bool(value)
 
 
@@ -537,7 +539,7 @@ def check_choice(owner: str, name: str, value: Any, options: Iterable[Any]) -> A
     """Return ``value``; ``ValueError`` unless it is one of ``options``."""
     options = tuple(options)
     if value not in options:
-        raise ValueError(
+        raise ParameterError(
             f"{owner}.{name} must be one of {', '.join(map(repr, options))}, got {value!r}"
         )
     return value

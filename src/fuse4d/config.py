@@ -323,8 +323,8 @@ def load_config(path: str | PathLike[str], *, base: str | None = None) -> Preset
         raise InputFileError(
             p, f"unknown top-level key(s) {sorted(unknown)}; expected preset, [fusion], [flow]"
         )
-    start = preset(str(data.get("preset", base or "fast")))
     try:
+        start = preset(str(data.get("preset", base or "fast")))
         fusion_data = coerce_fields(
             FusionParams, dict(data.get("fusion", {})), owner="[fusion] of the config file"
         )

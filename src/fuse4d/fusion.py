@@ -139,6 +139,10 @@ class FusionEngine:
         ``on_pair(pair)`` receives each pair's flows, 3D motion and FB error as computed.
     timings : dict, optional
         Accumulates seconds per stage (keys ``STAGES``).
+    initial_flow : (H, W, 2) ndarray, optional
+        Resuming a stream: the forward flow of the pair just before the first pushed frame
+        (see :meth:`forward_flow`), the warm start of the first pair, so that the frames
+        emitted equal those of one uninterrupted run bit for bit.
     """
 
     def __init__(
@@ -151,8 +155,12 @@ class FusionEngine:
         warm_start: bool = True,
         on_pair: Callable[[_PairOutput], None] | None = None,
         timings: dict[str, float] | None = None,
+        initial_flow: np.ndarray | None = None,
     ) -> None:
         self.intrinsics = intrinsics
+        self._initial_flow = (
+            None if initial_flow is None else as_float32(initial_flow, name="initial_flow")
+        )
         self.params = fusion or FusionParams()
         self.precomputed: SequenceFlow | None = None
         if isinstance(flow, str):
@@ -292,6 +300,14 @@ class FusionEngine:
             out.append(self._emit(self._emitted))
         return out
 
+    def forward_flow(self, index: int) -> NDArray[np.float32]:
+        """Forward flow of the pair (``index`` - 1, ``index``) while it is in the ring buffer
+        (a resume checkpoint: pass it as ``initial_flow`` to an engine starting at ``index``).
+        """
+        if not max(1, self._pushed - self.ring) <= index < self._pushed:
+            raise IndexError(f"pair ({index - 1}, {index}) is not in the ring buffer")
+        return self._fwd[index % self.ring].copy()
+
     def flush(self) -> list[FusedFrame]:
         """End of stream: emit the remaining frames with truncated windows."""
         out = []
@@ -320,9 +336,11 @@ class FusionEngine:
                     "needs one more"
                 )
             return self.precomputed.forward[index - 1], self.precomputed.backward[index - 1]
+        prev = (index - 1) % self.ring
         if self._flow_estimator is None:
             self._flow_estimator = self.flow_config.estimator(warm_start=self.warm_start)
-        prev = (index - 1) % self.ring
+            if self._initial_flow is not None and index == 1:  # resuming: the pair before
+                self._flow_estimator.prime(self._intensity[prev], self._initial_flow)
         return self._flow_estimator(self._intensity[prev], self._intensity[index % self.ring])
 
     def _frame_sigma_distance(self, z_med: float, quad: float) -> float:

@@ -18,10 +18,12 @@ from typing import Any
 import numpy as np
 
 from .camera import depth_to_points
-from .config import FlowConfig, FusionParams
+from .config import FlowConfig, FusionParams, preset
+from .errors import ParameterError
 from .fusion import STAGES, FusedFrame, FusionEngine, fuse_sequence
-from .io import FrameFolderWriter, check_output, detect_format, open_frames, read_npz_extra
+from .io import check_output, detect_format, open_frames, read_npz_extra
 from .io import write_npz as _write_npz
+from .io.resume import ResumableFolderWriter, partial_path, run_identity
 from .metrics import RunningEvaluation
 
 __all__ = ["RunSummary", "fuse_file"]
@@ -159,6 +161,7 @@ def fuse_file(
     quality: bool = True,
     progress: Callable[[int, int], None] | None = None,
     reader_options: dict[str, Any] | None = None,
+    resume: bool = False,
 ) -> RunSummary:
     """Fuse a recording on disk and write the result next to nothing it reads.
 
@@ -182,6 +185,10 @@ def fuse_file(
     reader_options : dict, optional
         Passed to :func:`~fuse4d.io.open_frames` (``depth_topic``, ``intensity``,
         ``depth_unit_mm``, ``intrinsics``, ...) for camera recordings.
+    resume : bool
+        Folder output only: continue the unfinished run in ``output.partial`` (left by a
+        killed or interrupted run; see :mod:`fuse4d.io.resume`). The result equals an
+        uninterrupted run bit for bit; the quality figures cover the frames fused now.
 
     Returns
     -------
@@ -191,19 +198,22 @@ def fuse_file(
     src = Path(input)
     dst = Path(output)
     fmt = detect_format(src)
-    check_output(dst, overwrite=overwrite, inputs=[src])
+    check_output(dst, overwrite=overwrite or resume, inputs=[src])
+    check_output(partial_path(dst), overwrite=True, inputs=[src])
     if fmt == "npz" and dst.suffix.lower() != ".npz":
-        raise ValueError(f"{dst}: npz input is written as .npz; give an output ending in .npz")
+        raise ParameterError(f"{dst}: npz input is written as .npz; give an output ending in .npz")
     if fmt != "npz" and dst.suffix.lower() == ".npz":
-        raise ValueError(
+        raise ParameterError(
             f"{dst}: {fmt} input is written as a frame folder, .mkv or .zarr; not .npz"
         )
+    if resume and fmt == "npz":
+        raise ParameterError("--resume applies to frame-folder outputs; .npz is written at once")
     start = time.perf_counter()
     if fmt == "npz":
         summary = _fuse_npz(src, dst, params, flow, overwrite, quality, progress)
     else:
         summary = _fuse_streaming(
-            src, dst, fmt, params, flow, overwrite, quality, progress, reader_options or {}
+            src, dst, fmt, params, flow, overwrite, quality, progress, reader_options or {}, resume
         )
     summary.seconds = time.perf_counter() - start
     return summary
@@ -243,10 +253,10 @@ def _fuse_npz(src, dst, params, flow, overwrite, quality, progress) -> RunSummar
 
 
 def _fuse_streaming(
-    src, dst, fmt, params, flow, overwrite, quality, progress, options
+    src, dst, fmt, params, flow, overwrite, quality, progress, options, resume=False
 ) -> RunSummary:
     if params.iterations != 1:
-        raise ValueError(
+        raise ParameterError(
             "iterations > 1 needs the whole sequence in memory; convert the input to .npz first"
         )
     timings = dict.fromkeys(STAGES, 0.0)
@@ -254,7 +264,15 @@ def _fuse_streaming(
     with open_frames(src, **options) as reader:
         total = len(reader)
         k = reader.intrinsics
-        engine = FusionEngine(k, fusion=params, flow=flow, timings=timings)
+        flow_config = _flow_config(flow)
+        identity = run_identity(
+            src,
+            frames=total,
+            shape=(k.height, k.width),
+            depth_unit_mm=reader.depth_unit_mm,
+            fusion=params.to_dict(),
+            flow={"method": flow_config.method, "params": flow_config.params},
+        )
         summary = RunSummary(
             input=src,
             output=dst,
@@ -262,29 +280,70 @@ def _fuse_streaming(
             output_format=out_fmt,
             frames=total,
             shape=(k.height, k.width),
-            flow_method=engine.flow_config.method,
+            flow_method=flow_config.method,
             params=params,
             timings=timings,
         )
         tally = _QualityTally() if quality else None
-        pending: dict[int, Any] = {}  # raw frames waiting for their fused output, by stream order
-        done = 0
         unit = reader.depth_unit_mm or 1.0  # float-depth inputs (32FC1 bags, zarr): 1 mm steps
-        with writer_cls(dst, k, depth_unit_mm=unit, fps=reader.fps, overwrite=overwrite) as writer:
+        resumable = out_fmt == "folder"
+        if resumable:
+            writer = ResumableFolderWriter(
+                dst,
+                k,
+                identity=identity,
+                depth_unit_mm=unit,
+                fps=reader.fps,
+                overwrite=overwrite,
+                resume=resume,
+            )
+        else:
+            if resume:
+                raise ParameterError(
+                    f"{dst}: --resume continues folder outputs (and .zarr with --engine dask); "
+                    f"a {out_fmt} output is written in one go"
+                )
+            writer = writer_cls(dst, k, depth_unit_mm=unit, fps=reader.fps, overwrite=overwrite)
+        with writer:
+            # Resume = restart the (deterministic) engine `past` frames before the checkpoint,
+            # warm-started with the flow stored there; frames before it only fill the window.
+            restart = writer.restart_frame if resumable else 0
+            first = max(0, restart - params.past_frames)
+            engine = FusionEngine(
+                k,
+                fusion=params,
+                flow=flow_config,
+                timings=timings,
+                initial_flow=writer.seed if resumable and first > 0 else None,
+            )
+            pending: dict[int, Any] = {}  # raw frames waiting for their fused output
+            written = 0
 
             def emit(frames: list[FusedFrame]) -> None:
-                nonlocal done
+                nonlocal written
                 for fr in frames:
-                    raw = pending.pop(fr.index)
+                    t = first + fr.index
+                    raw = pending.pop(t)
+                    if resumable and t < writer.frames_done:  # before the checkpoint / on disk
+                        continue
                     if tally is not None:
                         tally.add(depth_to_points(raw.depth, k), fr)
                     writer.write(fr.depth, raw.intensity, mask=raw.mask, timestamp=raw.timestamp)
-                    done += 1
+                    written += 1
+                    if resumable and writer.wants_checkpoint() and writer.frames_done < total:
+                        start = writer.frames_done - engine.past
+                        writer.checkpoint(_seed(engine, first, start, writer.seed))
                     if progress is not None:
-                        progress(done, total)
+                        progress(writer.frames_done if resumable else written, total)
 
-            for order, frame in enumerate(reader):
-                pending[order] = frame
+            # random access only when resuming; recordings are read in stream order
+            frames = (
+                enumerate(reader)
+                if first == 0
+                else ((t, reader.read_frame(t)) for t in range(first, total))
+            )
+            for t, frame in frames:
+                pending[t] = frame
                 emit(engine.push(frame.depth, frame.intensity))
             emit(engine.flush())
         if tally is not None:
@@ -294,7 +353,7 @@ def _fuse_streaming(
 
 def _writer_for(dst: Path) -> tuple[type, str]:
     """Streaming writer by output suffix: ``.mkv`` FFV1 video, ``.zarr`` store, else folder."""
-    from .io import DepthVideoWriter, ZarrWriter
+    from .io import DepthVideoWriter, FrameFolderWriter, ZarrWriter
 
     suffix = dst.suffix.lower()
     if suffix == ".mkv":
@@ -302,3 +361,21 @@ def _writer_for(dst: Path) -> tuple[type, str]:
     if suffix == ".zarr":
         return ZarrWriter, "zarr"
     return FrameFolderWriter, "folder"
+
+
+def _flow_config(flow: FlowConfig | str | None) -> FlowConfig:
+    """The tracker the engine will use (same rule as :class:`FusionEngine`)."""
+    if isinstance(flow, str):
+        return FlowConfig(flow)
+    return flow or preset("fast").flow
+
+
+def _seed(engine: FusionEngine, first: int, start: int, seed: np.ndarray | None):
+    """Warm start for an engine that starts at frame ``start``: the flow of pair
+    (start - 1, start) (``seed`` if that is the pair before ``engine``'s first frame), or
+    None at the start of the recording."""
+    if start <= 0:
+        return None
+    if start == first:
+        return seed
+    return engine.forward_flow(start - first)

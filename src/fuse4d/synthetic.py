@@ -49,6 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .camera import Intrinsics
+from .errors import ParameterError
 from .sequence import BallTruth, GroundTruth, PlaneTruth, Sequence, SheetTruth
 
 __all__ = [
@@ -175,16 +176,16 @@ def _check_common(
         ("structural_noise", structural_noise),
     ):
         if not (math.isfinite(float(value)) and float(value) >= 0.0):
-            raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+            raise ParameterError(f"{name} must be a finite number >= 0, got {value!r}")
     if float(intensity_noise) > 1.0:
-        raise ValueError(
+        raise ParameterError(
             f"intensity_noise is a fraction of the maximum intensity 1.0 (e.g. 0.02 = 2 %), "
             f"got {intensity_noise!r}"
         )
     if isinstance(num_frames, bool) or int(num_frames) != num_frames or int(num_frames) < 2:
-        raise ValueError(f"num_frames must be an integer >= 2, got {num_frames!r}")
+        raise ParameterError(f"num_frames must be an integer >= 2, got {num_frames!r}")
     if background not in ("plane", "none"):
-        raise ValueError(f"background must be 'plane' or 'none', got {background!r}")
+        raise ParameterError(f"background must be 'plane' or 'none', got {background!r}")
 
 
 class _Background:
@@ -634,7 +635,7 @@ def make_scene(name: str, **kwargs: Any) -> Sequence:
     try:
         factory = SCENES[name]
     except KeyError:
-        raise ValueError(
+        raise ParameterError(
             f"unknown scene {name!r}; choose one of {', '.join(sorted(SCENES))}"
         ) from None
     return factory(**kwargs)

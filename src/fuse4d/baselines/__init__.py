@@ -48,6 +48,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._params import coerce_kwargs
 from ..camera import Intrinsics
+from ..errors import ParameterError
 from ._common import estimate_noise_sigma
 from .bilateral import adaptive_bilateral, adaptive_gaussian, adaptive_joint_bilateral, dnbf
 from .ed import embedded_deformation
@@ -151,14 +152,14 @@ class BaselineInfo:
         values = dict(params)
         if self.size_name != "size" and self.size_name in values:
             if "size" in values:
-                raise ValueError(f"baseline {self.name!r}: give size or {self.size_name}, not both")
+                raise ParameterError(f"baseline {self.name!r}: give size or {self.size_name}, not both")
             values["size"] = values.pop(self.size_name)
         try:
             return coerce_kwargs(self.function, values, owner=f"baseline {self.name!r}")
         except ValueError as exc:
             if self.size_name == "size":
                 raise
-            raise ValueError(f"{exc} (size = {self.size_name})") from None
+            raise ParameterError(f"{exc} (size = {self.size_name})") from None
 
 
 _REGISTRY: dict[str, BaselineInfo] = {
@@ -308,7 +309,7 @@ def get_baseline(name: str) -> BaselineInfo:
     try:
         return _REGISTRY[name]
     except KeyError:
-        raise ValueError(
+        raise ParameterError(
             f"unknown baseline {name!r}; choose one of: {', '.join(_REGISTRY)}"
         ) from None
 

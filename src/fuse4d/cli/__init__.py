@@ -1,19 +1,31 @@
 """Command-line interface: ``fuse4d COMMAND ...`` (``fuse4d --help`` lists the commands).
 
-Every error caused by the input (bad file, bad value) ends the program with exit code 2 and a
-single ``fuse4d: error: ...`` line on stderr, never a traceback. Set ``FUSE4D_DEBUG=1`` to see
-the traceback.
+Error contract (see :mod:`fuse4d.errors`):
+
+* a problem with the input, the options or the environment (a :class:`~fuse4d.Fuse4dError`,
+  or an :class:`OSError` such as a full disk) prints one ``fuse4d: error: ...`` line on
+  stderr and exits with code 2;
+* any other exception is a bug in fuse4d: one line says so, with the path of a crash report
+  (traceback, versions, command, platform), exit code 70;
+* Ctrl-C (or SIGTERM) exits with code 130 (outputs are complete or absent; see
+  ``fuse4d run --resume``).
+
+``fuse4d --debug COMMAND`` (or ``FUSE4D_DEBUG=1``) shows the traceback instead.
 """
 
 from __future__ import annotations
 
 import os
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 
 import typer
 
-from ._app import CliError, app
+from ..errors import Fuse4dError
+from ._app import STATE, app
+from ._crash import write_crash_report
 
 # Command modules register their commands on `app` when imported (one line each, sorted).
 from . import (  # noqa: F401  isort: skip
@@ -25,7 +37,7 @@ from . import (  # noqa: F401  isort: skip
     cmd_report,  # report
 )
 
-__all__ = ["app", "main"]
+__all__ = ["EXIT_BUG", "EXIT_INTERRUPTED", "EXIT_USAGE", "app", "main"]
 
 # typer >= 0.2x vendors click (typer._click); older typer uses the click package. Take the
 # exception classes from typer's own public ones so both work.
@@ -36,26 +48,64 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI; returns the exit code (also used as the console-script entry point)."""
     command = typer.main.get_command(app)
     args = list(sys.argv[1:] if argv is None else argv)
+    STATE.debug = False
+    if argv is None and threading.current_thread() is threading.main_thread():
+        # console script: `kill` (SIGTERM) stops as cleanly as Ctrl-C (complete outputs only)
+        signal.signal(signal.SIGTERM, _terminate)
     try:
         result = command.main(args=args, prog_name="fuse4d", standalone_mode=False)
     except typer.Exit as exc:
         return _finish(exc.exit_code, argv)
-    except typer.Abort:
-        print("fuse4d: aborted", file=sys.stderr)
-        return _finish(130, argv)
+    except (typer.Abort, KeyboardInterrupt):
+        print("fuse4d: interrupted", file=sys.stderr)
+        return _finish(EXIT_INTERRUPTED, argv)
     except _ClickException as exc:
         exc.show(file=sys.stderr)
         return _finish(exc.exit_code, argv)
-    except (CliError, ValueError, OSError, KeyError) as exc:
-        if os.environ.get("FUSE4D_DEBUG"):
+    except (Fuse4dError, OSError) as exc:
+        if _debug():
             raise
-        message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in message:
-            message = f"{exc.filename}: {message}"
-        print(f"fuse4d: error: {message}", file=sys.stderr)
-        return _finish(2, argv)
+        print(f"fuse4d: error: {_one_line(exc)}", file=sys.stderr)
+        return _finish(EXIT_USAGE, argv)
+    except Exception as exc:  # an internal bug: report it as one, never as a user error
+        if _debug():
+            raise
+        report = write_crash_report(exc, args)
+        where = f"crash report: {report}" if report else "no crash report could be written"
+        print(
+            f"fuse4d: internal error (a bug in fuse4d, not in your input): "
+            f"{type(exc).__name__}: {_one_line(exc)}; {where}; please report it "
+            "(see SECURITY.md / the issue tracker), or rerun with --debug for the traceback",
+            file=sys.stderr,
+        )
+        return _finish(EXIT_BUG, argv)
     code = result if isinstance(result, int) else 0
+    if code == EXIT_INTERRUPTED:  # typer turned Ctrl-C into this exit code
+        print("fuse4d: interrupted", file=sys.stderr)
     return _finish(code, argv)
+
+
+#: Exit codes: bad input/options/environment, internal bug (BSD EX_SOFTWARE), Ctrl-C.
+EXIT_USAGE = 2
+EXIT_BUG = 70
+EXIT_INTERRUPTED = 130
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _debug() -> bool:
+    return STATE.debug or os.environ.get("FUSE4D_DEBUG", "") not in ("", "0")
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    message = text.splitlines()[0] if text else type(exc).__name__
+    filename = getattr(exc, "filename", None)
+    if isinstance(exc, OSError) and filename and str(filename) not in message:
+        message = f"{filename}: {message}"
+    return message
 
 
 def _finish(code: int, argv: Sequence[str] | None) -> int:

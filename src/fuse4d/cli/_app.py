@@ -9,7 +9,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
-from typing import TypeVar
+from typing import Annotated, TypeVar
 
 import typer
 from rich.console import Console
@@ -21,6 +21,8 @@ from rich.progress import (
     TimeElapsedColumn,
     TimeRemainingColumn,
 )
+
+from ..errors import Fuse4dError
 
 app = typer.Typer(
     name="fuse4d",
@@ -37,13 +39,57 @@ out_console = Console()
 T = TypeVar("T")
 
 
-class CliError(Exception):
+class CliError(Fuse4dError):
     """A user-facing error: printed as one line, exit code 2."""
+
+
+class _State:
+    """Options of the ``fuse4d`` group itself (set by :func:`_root`)."""
+
+    debug = False
+
+
+STATE = _State()
+
+
+@app.callback()
+def _root(
+    debug: Annotated[
+        bool,
+        typer.Option(
+            "--debug",
+            help="Show the full traceback of any error (also: environment FUSE4D_DEBUG=1).",
+        ),
+    ] = False,
+) -> None:
+    """Intensity-video-guided 4D fusion: clean noisy 3D/depth video."""
+    STATE.debug = debug
 
 
 def fail(message: str) -> None:
     """Abort the command with a one-line message."""
     raise CliError(message)
+
+
+@contextmanager
+def user_values(what: str = "") -> Iterator[None]:
+    """Report a ``ValueError``/``TypeError`` raised while the block turns values the user
+    typed (option values, method names) into parameter objects as a user error (exit 2).
+
+    Wrap only the construction of parameter objects, never a computation: an exception from
+    a computation is a bug and must reach the crash report.
+
+    Parameters
+    ----------
+    what : str, optional
+        Prefix of the message (e.g. ``"--flow-param: "``).
+    """
+    try:
+        yield
+    except Fuse4dError:
+        raise
+    except (ValueError, TypeError) as exc:
+        raise CliError(f"{what}{exc}") from exc
 
 
 @contextmanager

@@ -27,7 +27,7 @@ from ..flow import (
 )
 from ..flow.vis import write_flow_png
 from ..io import read_intensity_image
-from ._app import app, eprint, fail, out_console, progress_bar, progress_callback
+from ._app import app, eprint, fail, out_console, progress_bar, progress_callback, user_values
 
 
 def _parse_params(method: str, items: list[str]) -> object:
@@ -75,8 +75,9 @@ def flow_command(
     force: Annotated[bool, typer.Option("--force", help="Overwrite existing outputs.")] = False,
 ) -> None:
     """Optical flow from IMAGE0 to IMAGE1, written as Middlebury .flo (u = column shift, px)."""
-    m = get_flow_method(method.strip().lower())
-    params = _parse_params(m.name, param or [])
+    with user_values():
+        m = get_flow_method(method.strip().lower())
+        params = _parse_params(m.name, param or [])
     _check_out(output, force, (image0, image1))
     if vis is not None:
         _check_out(vis, force, (image0, image1))
@@ -140,7 +141,8 @@ def bench_flow_command(
     ] = False,
 ) -> None:
     """EPE / AAE / ms per pair of every flow method on Middlebury and the synthetic ball."""
-    entries = default_bench_entries(None if methods is None else methods.split(","))
+    with user_values():
+        entries = default_bench_entries(None if methods is None else methods.split(","))
     pairs = []
     skipped = {}
     if not skip_middlebury:

@@ -11,7 +11,15 @@ from typing import Annotated, Any
 import typer
 from rich.table import Table
 
-from ._app import app, err_console, fail, out_console, progress_bar, progress_callback
+from ._app import (
+    app,
+    err_console,
+    fail,
+    out_console,
+    progress_bar,
+    progress_callback,
+    user_values,
+)
 from ._recording_opts import (
     DepthTopicOpt,
     IntensityOpt,
@@ -47,7 +55,8 @@ def _resolve(
     from .._params import coerce_fields, parse_assignments
     from ..config import FlowConfig, FusionParams, load_config, preset
 
-    chosen = load_config(config, base=preset_name) if config else preset(preset_name)
+    with user_values():
+        chosen = load_config(config, base=preset_name) if config else preset(preset_name)
     fusion = chosen.fusion
     changes = coerce_fields(
         FusionParams,
@@ -59,7 +68,8 @@ def _resolve(
     if causal:
         changes["causal"] = True
     if changes:
-        fusion = fusion.replace(**changes)
+        with user_values("--set/--frames: "):
+            fusion = fusion.replace(**changes)
     flow = chosen.flow
     extra = parse_assignments(flow_params, what="--flow-param")
     if flow_method is not None or extra:
@@ -78,7 +88,8 @@ def _resolve(
             fail(f"--flow-roi must be ROW0,ROW1,COL0,COL1 (px, half-open), got {flow_roi!r}")
         flow = dataclasses.replace(flow, roi=roi)
     assert isinstance(flow, FlowConfig)
-    flow.build_params()  # validate early, before any frame is read
+    with user_values("--flow/--flow-param: "):
+        flow.build_params()  # validate early, before any frame is read
     return fusion, flow
 
 
@@ -131,6 +142,14 @@ def run_command(
         ),
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing output.")] = False,
+    resume: Annotated[
+        bool,
+        typer.Option(
+            "--resume",
+            help="Continue a killed or interrupted run (folder output, or a .zarr with"
+            " --engine dask; same input and options): the result equals an uninterrupted run.",
+        ),
+    ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
     depth_topic: DepthTopicOpt = None,
     intensity_topic: IntensityTopicOpt = None,
@@ -159,9 +178,6 @@ def run_command(
     workers: Annotated[
         int | None, typer.Option("--workers", help="dask: local threads/processes (all CPUs).")
     ] = None,
-    resume: Annotated[
-        bool, typer.Option("--resume", help="dask: continue an interrupted run.")
-    ] = False,
     warm_start: Annotated[
         bool,
         typer.Option("--warm-start/--no-warm-start", help="dask: chain flow warm starts."),
@@ -175,6 +191,8 @@ def run_command(
     Camera recordings (.bag/.db3/.mcap/.mkv) are read directly; the output is a frame folder,
     an FFV1 .mkv or a .zarr store, chosen by the output's suffix. ``--engine dask``: chunked
     fusion on a dask cluster to zarr v3, many recordings at once (docs/scaling.md).
+    A folder output is built in OUTPUT.partial (complete frames + a manifest); if the run is
+    killed or interrupted (Ctrl-C), the same command with --resume continues it.
     """
     from ..run import fuse_file
 
@@ -220,6 +238,7 @@ def run_command(
             overwrite=force,
             progress=progress_callback(progress),
             reader_options=options,
+            resume=resume,
         )
     if report is not None:
         from .cmd_report import make_report

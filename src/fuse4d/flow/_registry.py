@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._params import coerce_fields
+from ..errors import ParameterError, ParameterTypeError
 
 __all__ = [
     "FlowFunction",
@@ -84,11 +85,15 @@ class FlowMethod:
 
     def __post_init__(self) -> None:
         if not self.name or self.name != self.name.strip().lower() or " " in self.name:
-            raise ValueError(f"flow method name must be lower-case without spaces: {self.name!r}")
+            raise ParameterError(
+                f"flow method name must be lower-case without spaces: {self.name!r}"
+            )
         if not callable(self.function):
-            raise TypeError(f"flow method {self.name!r}: function must be callable")
+            raise ParameterTypeError(f"flow method {self.name!r}: function must be callable")
         if not (isinstance(self.params_type, type) and is_dataclass(self.params_type)):
-            raise TypeError(f"flow method {self.name!r}: params_type must be a dataclass type")
+            raise ParameterTypeError(
+                f"flow method {self.name!r}: params_type must be a dataclass type"
+            )
 
 
 _REGISTRY: dict[str, FlowMethod] = {}
@@ -101,10 +106,10 @@ def register_flow_method(method: FlowMethod, *, replace: bool = False) -> None:
     raises ``ValueError`` unless ``replace=True``.
     """
     if not isinstance(method, FlowMethod):
-        raise TypeError(f"expected a FlowMethod, got {type(method).__name__}")
+        raise ParameterTypeError(f"expected a FlowMethod, got {type(method).__name__}")
     existing = _REGISTRY.get(method.name)
     if existing is not None and existing != method and not replace:
-        raise ValueError(
+        raise ParameterError(
             f"a flow method named {method.name!r} is already registered; pass replace=True"
         )
     _REGISTRY[method.name] = method
@@ -123,7 +128,7 @@ def get_flow_method(name: str | FlowMethod) -> FlowMethod:
         return _REGISTRY[name]
     except (KeyError, TypeError):
         names = ", ".join(sorted(_REGISTRY))
-        raise ValueError(f"unknown flow method {name!r}; available methods: {names}") from None
+        raise ParameterError(f"unknown flow method {name!r}; available methods: {names}") from None
 
 
 def resolve_flow_params(method: str | FlowMethod, params: Any = None) -> Any:
@@ -139,7 +144,7 @@ def resolve_flow_params(method: str | FlowMethod, params: Any = None) -> Any:
         return params
     if isinstance(params, Mapping):
         return flow_params_from_mapping(m, params)
-    raise TypeError(
+    raise ParameterTypeError(
         f"params for flow method {m.name!r} must be a {m.params_type.__name__} "
         f"(or a mapping of its fields), got {type(params).__name__}"
     )
@@ -161,6 +166,6 @@ def flow_params_from_mapping(method: str | FlowMethod, mapping: Mapping[str, Any
     converted = coerce_fields(ptype, values, owner=f"flow method {m.name!r}", extra_keys=extra)
     if preset is not None:
         if not hasattr(ptype, "from_preset"):
-            raise ValueError(f"flow method {m.name!r} has no presets")
+            raise ParameterError(f"flow method {m.name!r} has no presets")
         return ptype.from_preset(str(preset), **converted)
     return ptype(**converted)

@@ -365,6 +365,13 @@ class SequenceFlowEstimator:
         self._last_image1 = None
         self._last_forward = None
 
+    def prime(self, image1: NDArray[np.float32], forward: NDArray[np.float32]) -> None:
+        """Continue a stream: behave as if the previous pair ended on ``image1`` with forward
+        flow ``forward`` (px), so that the next pair starting at ``image1`` is warm-started
+        from it exactly as in one uninterrupted run (resumed runs)."""
+        self._last_image1 = np.array(image1, dtype=np.float32, copy=True)
+        self._last_forward = np.array(forward, dtype=np.float32, copy=True)
+
     def __call__(
         self, image0: NDArray[np.float32], image1: NDArray[np.float32]
     ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:

@@ -44,6 +44,8 @@ def read_flo(path: str | PathLike[str]) -> NDArray[np.float32]:
         data = p.read_bytes()
     except FileNotFoundError:
         raise InputFileError(p, "file not found") from None
+    except OSError as exc:
+        raise InputFileError(p, f"cannot read file ({exc.strerror or exc})") from None
     if len(data) < 12:
         raise InputFileError(p, f"too short for a .flo header ({len(data)} bytes)")
     tag = float(np.frombuffer(data, "<f4", 1, 0)[0])

@@ -8,6 +8,7 @@ is removed and the destination is left untouched.
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import tempfile
@@ -16,9 +17,9 @@ from contextlib import contextmanager
 from os import PathLike
 from pathlib import Path
 
-from ..errors import OutputExistsError
+from ..errors import OutputExistsError, OutputWriteError, ParameterError
 
-__all__ = ["atomic_dir", "atomic_file", "check_output"]
+__all__ = ["atomic_dir", "atomic_file", "check_output", "write_errors"]
 
 
 def check_output(
@@ -57,12 +58,34 @@ def check_output(
     for inp in inputs:
         src = Path(inp).resolve()
         if resolved == src or src in resolved.parents or resolved in src.parents:
-            raise ValueError(f"{out}: output would overwrite the input {inp}; choose another path")
+            raise ParameterError(
+                f"{out}: output would overwrite the input {inp}; choose another path"
+            )
     if not resolved.parent.is_dir():
-        raise ValueError(f"{out}: output folder {out.parent} does not exist")
+        raise ParameterError(f"{out}: output folder {out.parent} does not exist")
     if out.exists() and not overwrite:
         raise OutputExistsError(out)
     return out
+
+
+#: errno values that mean "the output cannot be written here" (not a bug, not the input).
+_WRITE_ERRNOS = frozenset(
+    {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG, errno.EIO}
+)
+
+
+@contextmanager
+def write_errors(path: str | PathLike[str]) -> Iterator[None]:
+    """Report a full disk, a read-only folder, ... while writing ``path`` as
+    :class:`~fuse4d.OutputWriteError` (a one-line user error naming the output)."""
+    try:
+        yield
+    except OutputWriteError:
+        raise
+    except OSError as exc:
+        if exc.errno in _WRITE_ERRNOS:
+            raise OutputWriteError(path, exc) from exc
+        raise
 
 
 def _umask() -> int:
@@ -95,13 +118,15 @@ def atomic_file(path: str | PathLike[str], *, overwrite: bool = False) -> Iterat
         If ``path`` exists and ``overwrite`` is False (checked before and after writing).
     """
     dest = check_output(path, overwrite=overwrite)
-    tmp = _temp_name(dest, directory=False)
+    with write_errors(dest):
+        tmp = _temp_name(dest, directory=False)
     try:
-        yield tmp
+        with write_errors(dest):
+            yield tmp
         if dest.exists() and not overwrite:  # appeared while we were writing
             raise OutputExistsError(dest)
         if dest.is_dir():
-            raise ValueError(f"{dest}: is a folder; cannot replace it with a file")
+            raise ParameterError(f"{dest}: is a folder; cannot replace it with a file")
         _set_default_mode(tmp, directory=False)
         tmp.replace(dest)
     except BaseException:
@@ -120,9 +145,11 @@ def atomic_dir(path: str | PathLike[str], *, overwrite: bool = False) -> Iterato
     deleted; if the second rename fails the old folder is moved back.
     """
     dest = check_output(path, overwrite=overwrite)
-    tmp = _temp_name(dest, directory=True)
+    with write_errors(dest):
+        tmp = _temp_name(dest, directory=True)
     try:
-        yield tmp
+        with write_errors(dest):
+            yield tmp
         _set_default_mode(tmp, directory=True)
         if dest.exists():
             if not overwrite:

@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..camera import Intrinsics
-from ..errors import InputFileError
+from ..errors import InputFileError, ParameterError
 from ..sequence import GroundTruth, Sequence
 
 __all__ = [
@@ -30,6 +30,7 @@ __all__ = [
     "FrameSelection",
     "IntrinsicsLike",
     "ProgressCallback",
+    "inside",
     "read_camera_json",
     "resolve_frames",
     "resolve_intrinsics",
@@ -224,14 +225,14 @@ def resolve_frames(frames: FrameSelection, total: int) -> range:
     elif isinstance(frames, tuple) and len(frames) == 2:
         sel = slice(*frames)
     else:
-        raise ValueError(
+        raise ParameterError(
             f"frames must be None, a slice, a range, (start, stop) or 'start:stop', got {frames!r}"
         )
     if sel.step not in (None, 1):
-        raise ValueError(f"frames must be a contiguous range (step 1), got step {sel.step}")
+        raise ParameterError(f"frames must be a contiguous range (step 1), got step {sel.step}")
     idx = range(total)[sel]
     if len(idx) < 1:
-        raise ValueError(f"frames {_show(sel)} selects no frame of a {total}-frame sequence")
+        raise ParameterError(f"frames {_show(sel)} selects no frame of a {total}-frame sequence")
     return idx
 
 
@@ -251,7 +252,59 @@ def _parse_frame_string(text: str) -> slice:
             return slice(*(int(p) if p.strip() else None for p in parts))
     except ValueError:
         pass
-    raise ValueError(f"frames must look like 'A:B', 'A:', ':B' or 'K', got {text!r}")
+    raise ParameterError(f"frames must look like 'A:B', 'A:', ':B' or 'K', got {text!r}")
+
+
+def inside(root: Path, name: Any, listed_in: Path, entry: int | None = None) -> Path:
+    """``root / name`` for a file name read from an index file, refusing names that leave
+    ``root`` (absolute paths, ``..``): an index file must not make fuse4d read elsewhere.
+
+    Raises
+    ------
+    InputFileError
+        If ``name`` is not a non-empty relative path inside ``root``.
+    """
+    where = "" if entry is None else f"entry {entry}: "
+    if not isinstance(name, str) or not name.strip() or "\x00" in name:
+        raise InputFileError(
+            listed_in, f"{where}file name must be a non-empty string, got {name!r}"
+        )
+    rel = Path(name)
+    if rel.is_absolute() or ".." in rel.parts:
+        raise InputFileError(
+            listed_in,
+            f"{where}file name {name!r} leaves the recording folder (absolute or '..'); "
+            "index files may only name files inside it",
+        )
+    return root / rel
+
+
+#: Depth units accepted (mm per stored unit): 1 nm to 10 m; others come from corrupt files.
+MIN_DEPTH_UNIT_MM = 1e-6
+MAX_DEPTH_UNIT_MM = 1e4
+
+
+def depth_unit(value: Any, source: Path | None = None) -> float:
+    """Validate a depth unit (mm per stored unit) from ``source`` (None: a parameter).
+
+    Raises
+    ------
+    InputFileError
+        If it came from ``source`` and is not in (0, :data:`MAX_DEPTH_UNIT_MM`].
+    ParameterError
+        The same for a value given by the caller.
+    """
+    ok = isinstance(value, int | float) and not isinstance(value, bool)
+    ok = ok and math.isfinite(value) and MIN_DEPTH_UNIT_MM <= value <= MAX_DEPTH_UNIT_MM
+    if not ok:
+        problem = (
+            f"depth_unit_mm must be in [{MIN_DEPTH_UNIT_MM:g}, {MAX_DEPTH_UNIT_MM:g}] mm, "
+            f"got {value!r}"
+        )
+        if source is not None:
+            raise InputFileError(source, problem)
+        raise ParameterError(problem)
+    return float(value)
 
 
 def _number(value: Any, key: str, path: Path) -> float:
@@ -293,7 +346,7 @@ def read_camera_json(
         raise InputFileError(p, "must hold a JSON object with keys fx, fy, cx, cy, depth_unit_mm")
     required = ["fx", "fy", "cx", "cy"] + (["depth_unit_mm"] if require_unit else [])
     for key in required:
-        if key not in data:
+        if data.get(key) is None:
             raise InputFileError(p, f"missing key '{key}'")
     out: dict[str, float | None] = {k: _number(data[k], k, p) for k in ("fx", "fy", "cx", "cy")}
     for key in ("depth_unit_mm", "fps", "width", "height"):
@@ -326,7 +379,7 @@ def resolve_intrinsics(
     """
     if isinstance(spec, Intrinsics):
         if spec.shape != (height, width):
-            raise ValueError(
+            raise ParameterError(
                 f"{source} are for a {spec.width}x{spec.height} image but the frames are "
                 f"{width}x{height} (WxH)"
             )
@@ -337,22 +390,29 @@ def resolve_intrinsics(
         try:
             values = [float(v) for v in spec.split(",")]
         except ValueError:
-            raise ValueError(
+            raise ParameterError(
                 f"{source} string must be 'fx,fy,cx,cy' numbers, got {spec!r}"
             ) from None
-        return Intrinsics.from_array(values, width=width, height=height)
+        return _intrinsics_from_values(values, width, height, source)
     if isinstance(spec, str | PathLike):
         p = Path(spec)
         if p.suffix.lower() != ".json" and not p.exists():
             names = ", ".join(CAMERA_PRESETS)
-            raise ValueError(
+            raise ParameterError(
                 f"{source} {str(spec)!r} is neither a preset ({names}), 'fx,fy,cx,cy', "
                 "nor an existing camera.json"
             )
         cam = read_camera_json(p, require_unit=False)
         _check_size(cam, width, height, p)
         return Intrinsics(cam["fx"], cam["fy"], cam["cx"], cam["cy"], width=width, height=height)
-    return Intrinsics.from_array(spec, width=width, height=height)
+    return _intrinsics_from_values(spec, width, height, source)
+
+
+def _intrinsics_from_values(values: Any, width: int, height: int, source: str) -> Intrinsics:
+    try:
+        return Intrinsics.from_array(values, width=width, height=height)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"{source}: {exc}") from None
 
 
 def _check_size(cam: dict[str, float | None], width: int, height: int, path: Path) -> None:

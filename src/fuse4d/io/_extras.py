@@ -10,10 +10,12 @@ from __future__ import annotations
 import importlib
 from types import ModuleType
 
+from ..errors import Fuse4dError
+
 __all__ = ["MissingDependencyError", "require"]
 
 
-class MissingDependencyError(ImportError, ValueError):
+class MissingDependencyError(Fuse4dError, ImportError):
     """An optional package needed for a file format is not installed.
 
     Subclasses :class:`ImportError` (what it is) and :class:`ValueError` (so that the CLI

@@ -7,6 +7,7 @@ end chunk or a missing JPEG end marker is reported as a truncated or corrupt fil
 
 from __future__ import annotations
 
+import stat
 import warnings
 from os import PathLike
 from pathlib import Path
@@ -43,6 +44,13 @@ def decode_image(path: str | PathLike[str], *, frame: int | None = None) -> np.n
     """
     p = Path(path)
     try:
+        info = p.stat()
+        if not stat.S_ISREG(info.st_mode):
+            raise InputFileError(p, "not a regular file", frame=frame)
+        if info.st_size > MAX_IMAGE_FILE_BYTES:
+            raise InputFileError(
+                p, f"file is {info.st_size} bytes; images over 1 GiB are refused", frame=frame
+            )
         data = p.read_bytes()
     except FileNotFoundError:
         raise InputFileError(p, "file not found", frame=frame) from None
@@ -51,6 +59,14 @@ def decode_image(path: str | PathLike[str], *, frame: int | None = None) -> np.n
     if not data:
         raise InputFileError(p, "file is empty", frame=frame)
     kind = "PNG" if data[:8] == b"\x89PNG\r\n\x1a\n" else "JPEG" if data[:2] == b"\xff\xd8" else ""
+    size = _declared_size(data, kind)
+    if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
+        raise InputFileError(
+            p,
+            f"{kind} header declares {size[0]}x{size[1]} px; images over "
+            f"{MAX_IMAGE_PIXELS} px are refused (corrupt header?)",
+            frame=frame,
+        )
     truncated = (kind == "PNG" and _PNG_END not in data[-64:]) or (
         kind == "JPEG" and _JPEG_END not in data[-64:]
     )
@@ -59,6 +75,37 @@ def decode_image(path: str | PathLike[str], *, frame: int | None = None) -> np.n
         what = kind or "image"
         raise InputFileError(p, f"cannot decode {what} (truncated or corrupt file)", frame=frame)
     return image
+
+
+#: Largest image accepted (px): 16k x 16k. Decoders allocate the declared size before
+#: reading the data, so a corrupt header must not make them allocate gigabytes.
+MAX_IMAGE_PIXELS = 1 << 28
+#: Largest image file read into memory.
+MAX_IMAGE_FILE_BYTES = 1 << 30
+
+
+def _declared_size(data: bytes, kind: str) -> tuple[int, int] | None:
+    """(width, height) from a PNG IHDR or a JPEG SOF marker; None if not found."""
+    if kind == "PNG" and len(data) >= 24 and data[12:16] == b"IHDR":
+        return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    if kind == "JPEG":
+        pos = 2
+        while pos + 9 < len(data):
+            if data[pos] != 0xFF:
+                return None
+            marker = data[pos + 1]
+            if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+                pos += 2
+                continue
+            length = int.from_bytes(data[pos + 2 : pos + 4], "big")
+            if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+                height = int.from_bytes(data[pos + 5 : pos + 7], "big")
+                width = int.from_bytes(data[pos + 7 : pos + 9], "big")
+                return width, height
+            if marker == 0xDA or length < 2:  # start of scan: no SOF before it
+                return None
+            pos += 2 + length
+    return None
 
 
 def _size(image: np.ndarray) -> str:
@@ -107,7 +154,7 @@ def read_depth_png(
     depth = image.astype(np.float32)
     if unit_mm != 1.0:
         depth *= np.float32(unit_mm)
-    depth[image == 0] = np.nan
+    depth[(image == 0) | ~(depth > 0) | ~np.isfinite(depth)] = np.nan
     return depth
 
 

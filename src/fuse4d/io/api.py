@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from ..camera import Intrinsics
-from ..errors import InputFileError
+from ..errors import InputFileError, ParameterError
 from ..sequence import Sequence
 from ._base import Frame, FrameReader, FrameSelection, IntrinsicsLike, ProgressCallback
 from .cv2xml import Cv2XmlReader, is_cv2_xml_folder
@@ -141,7 +141,7 @@ def open_frames(
     """
     fmt = format or detect_format(path)
     if fmt not in READ_FORMATS:
-        raise ValueError(f"format must be one of {', '.join(READ_FORMATS)}, got {fmt!r}")
+        raise ParameterError(f"format must be one of {', '.join(READ_FORMATS)}, got {fmt!r}")
     options = check_sensor_options(
         fmt,
         {"depth_topic": depth_topic, "intensity_topic": intensity_topic,
@@ -152,9 +152,11 @@ def open_frames(
         return cls(path, depth_unit_mm=depth_unit_mm, intrinsics=intrinsics, **options)
     if fmt == "npz":
         if depth_unit_mm is not None:
-            raise ValueError("depth_unit_mm does not apply to .npz files (depth is stored in mm)")
+            raise ParameterError(
+                "depth_unit_mm does not apply to .npz files (depth is stored in mm)"
+            )
         if intrinsics is not None:
-            raise ValueError(".npz files store their intrinsics; intrinsics= is not allowed")
+            raise ParameterError(".npz files store their intrinsics; intrinsics= is not allowed")
         return NpzReader(path)
     cls = READ_FORMATS[fmt]
     return cls(path, depth_unit_mm=depth_unit_mm, intrinsics=intrinsics)  # type: ignore[call-arg]
@@ -288,4 +290,4 @@ def save_sequence(
         return write_frame_folder(
             seq, path, depth_unit_mm=depth_unit_mm, overwrite=overwrite, progress=progress
         )
-    raise ValueError(f"format must be one of {', '.join(WRITE_FORMATS)}, got {fmt!r}")
+    raise ParameterError(f"format must be one of {', '.join(WRITE_FORMATS)}, got {fmt!r}")

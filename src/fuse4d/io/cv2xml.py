@@ -23,7 +23,7 @@ import numpy as np
 
 from ..camera import Intrinsics
 from ..errors import InputFileError
-from ._base import Frame, FrameReader, IntrinsicsLike, resolve_intrinsics
+from ._base import Frame, FrameReader, IntrinsicsLike, depth_unit, resolve_intrinsics
 from ._images import (
     check_frame_shape,
     decode_image,
@@ -61,15 +61,21 @@ def read_cv2_xml_camera(path: str | PathLike[str], *, frame: int | None = None) 
     p = Path(path)
     if not p.is_file():
         raise InputFileError(p, "file not found", frame=frame)
+    # OpenCV's parser reports malformed XML as cv2.error, or as SystemError (an error set
+    # while returning a result) from the bindings.
     try:
         fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
-    except cv2.error:
+    except (cv2.error, SystemError):
         raise InputFileError(p, "cannot parse OpenCV FileStorage XML", frame=frame) from None
     try:
         if not fs.isOpened():
             raise InputFileError(p, "cannot parse OpenCV FileStorage XML", frame=frame)
         node = fs.getNode("intrinsic")
         mat = None if node.empty() else node.mat()
+    except (cv2.error, SystemError):
+        raise InputFileError(
+            p, "cannot parse node 'intrinsic' (3x3 camera matrix)", frame=frame
+        ) from None
     finally:
         fs.release()
     if mat is None:
@@ -144,9 +150,7 @@ class Cv2XmlReader(FrameReader):
         else:
             self._masks = None
         unit = 1.0 if depth_unit_mm is None else float(depth_unit_mm)
-        if not unit > 0:
-            raise ValueError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
-        self.depth_unit_mm = unit
+        self.depth_unit_mm = depth_unit(unit)
         image = decode_image(root / f"{self._stems[0]}_depth.png", frame=0)
         h, w = image.shape[:2]
         self._matrix: np.ndarray | None = None

@@ -27,7 +27,7 @@ from typing import Self
 import numpy as np
 
 from ..camera import Intrinsics
-from ..errors import InputFileError
+from ..errors import InputFileError, ParameterError
 from ..sequence import Sequence
 from ._atomic import atomic_dir, check_output
 from ._base import (
@@ -36,6 +36,7 @@ from ._base import (
     IntrinsicsLike,
     ProgressCallback,
     _check_size,
+    depth_unit,
     read_camera_json,
     resolve_intrinsics,
 )
@@ -61,10 +62,15 @@ def _numbered_files(folder: Path, extensions: tuple[str, ...]) -> dict[int, Path
     if not folder.is_dir():
         return {}
     found: dict[int, Path] = {}
-    for p in folder.iterdir():
+    for p in sorted(folder.iterdir()):
         m = _NUMBERED.match(p.stem)
         if m and p.suffix.lower() in extensions and p.is_file():
-            found[int(m.group(1))] = p
+            k = int(m.group(1))
+            if k in found:
+                raise InputFileError(
+                    p, f"frame number {k} appears twice (also {found[k].name}); keep one", frame=k
+                )
+            found[k] = p
     return found
 
 
@@ -111,6 +117,7 @@ class FolderReader(FrameReader):
         self.path = root = Path(path)
         if not root.is_dir():
             raise InputFileError(root, "folder not found")
+        _refuse_unfinished_run(root)
         self._depth = _numbered_files(root / "depth", (".png",))
         if not self._depth:
             raise InputFileError(
@@ -152,9 +159,7 @@ class FolderReader(FrameReader):
             cam = read_camera_json(cam_path, require_unit=depth_unit_mm is None)
             _check_size(cam, w, h, cam_path)
         unit = depth_unit_mm if depth_unit_mm is not None else cam["depth_unit_mm"]
-        if unit is None or not unit > 0:
-            raise ValueError(f"depth_unit_mm must be > 0, got {unit!r}")
-        self.depth_unit_mm = float(unit)
+        self.depth_unit_mm = depth_unit(unit, None if depth_unit_mm is not None else cam_path)
         if intrinsics is not None:
             self.intrinsics = resolve_intrinsics(intrinsics, width=w, height=h)
         else:
@@ -184,6 +189,15 @@ class FolderReader(FrameReader):
         return Frame(k, depth, intensity, ts, mask)
 
 
+def _refuse_unfinished_run(root: Path) -> None:
+    """A folder that ``fuse4d run`` is still writing (or was killed while writing)."""
+    from .resume import unfinished_run_message  # local import: resume imports this module
+
+    message = unfinished_run_message(root)
+    if message:
+        raise InputFileError(root, message)
+
+
 def _read_timestamps(path: Path, n: int) -> np.ndarray:
     try:
         values = [
@@ -196,6 +210,8 @@ def _read_timestamps(path: Path, n: int) -> np.ndarray:
     if len(values) != n:
         raise InputFileError(path, f"{len(values)} timestamps for {n} frames")
     ts = np.asarray(values, dtype=np.float64)
+    if not np.isfinite(ts).all():
+        raise InputFileError(path, "timestamps must be finite numbers (found NaN or inf)")
     if n > 1 and not np.all(np.diff(ts) > 0):
         raise InputFileError(path, "timestamps must be strictly increasing")
     return ts
@@ -264,11 +280,11 @@ class FrameFolderWriter:
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics)}")
         if not (np.isfinite(depth_unit_mm) and depth_unit_mm > 0):
-            raise ValueError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
+            raise ParameterError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
         if intensity_bits not in (None, 8, 16):
-            raise ValueError(f"intensity_bits must be 8, 16 or None, got {intensity_bits!r}")
+            raise ParameterError(f"intensity_bits must be 8, 16 or None, got {intensity_bits!r}")
         if fps is not None and not (np.isfinite(fps) and fps > 0):
-            raise ValueError(f"fps must be > 0, got {fps!r}")
+            raise ParameterError(f"fps must be > 0, got {fps!r}")
         self.path = check_output(path, overwrite=overwrite)
         self.intrinsics = intrinsics
         self.depth_unit_mm = float(depth_unit_mm)
@@ -345,12 +361,7 @@ class FrameFolderWriter:
         self.num_written += 1
 
     def _intensity_image(self, intensity: np.ndarray) -> np.ndarray:
-        bits = self.intensity_bits
-        if bits is None:
-            i8 = intensity_to_uint(intensity, 8)
-            exact = np.allclose(i8 / 255.0, np.nan_to_num(intensity), rtol=0, atol=1e-6)
-            return i8 if exact else intensity_to_uint(intensity, 16)
-        return intensity_to_uint(intensity, bits)
+        return intensity_image(intensity, self.intensity_bits)
 
     def close(self) -> None:
         """Finish: write ``camera.json`` (+ ``timestamps.txt``) and move the folder into place."""
@@ -360,18 +371,8 @@ class FrameFolderWriter:
         try:
             if self.num_written == 0:
                 raise ValueError(f"{self.path}: no frame was written")
-            cam: dict[str, float | int] = {
-                "fx": self.intrinsics.fx,
-                "fy": self.intrinsics.fy,
-                "cx": self.intrinsics.cx,
-                "cy": self.intrinsics.cy,
-                "width": self.intrinsics.width,
-                "height": self.intrinsics.height,
-                "depth_unit_mm": self.depth_unit_mm,
-            }
-            if self.fps is not None:
-                cam["fps"] = float(self.fps)
-            (self._tmp / "camera.json").write_text(json.dumps(cam, indent=2) + "\n")
+            text = camera_json_text(self.intrinsics, self.depth_unit_mm, self.fps)
+            (self._tmp / "camera.json").write_text(text)
             stamps = self._timestamps
             if any(t is not None for t in stamps):
                 if any(t is None for t in stamps):
@@ -403,6 +404,34 @@ class FrameFolderWriter:
             self.close()
         else:
             self.abort()
+
+
+def intensity_image(intensity: np.ndarray, bits: int | None) -> np.ndarray:
+    """Intensity in [0, 1] as the uint8/uint16 image stored in a frame folder.
+
+    ``bits=None`` picks 8 when the frame is exactly representable in 8 bits, else 16.
+    """
+    if bits is None:
+        i8 = intensity_to_uint(intensity, 8)
+        exact = np.allclose(i8 / 255.0, np.nan_to_num(intensity), rtol=0, atol=1e-6)
+        return i8 if exact else intensity_to_uint(intensity, 16)
+    return intensity_to_uint(intensity, bits)
+
+
+def camera_json_text(intrinsics: Intrinsics, depth_unit_mm: float, fps: float | None) -> str:
+    """The ``camera.json`` of a frame folder."""
+    cam: dict[str, float | int] = {
+        "fx": intrinsics.fx,
+        "fy": intrinsics.fy,
+        "cx": intrinsics.cx,
+        "cy": intrinsics.cy,
+        "width": intrinsics.width,
+        "height": intrinsics.height,
+        "depth_unit_mm": depth_unit_mm,
+    }
+    if fps is not None:
+        cam["fps"] = float(fps)
+    return json.dumps(cam, indent=2) + "\n"
 
 
 def write_frame_folder(

@@ -20,6 +20,7 @@ Paths are relative to the json's folder. Entries whose two image files are both 
 from __future__ import annotations
 
 import json
+import math
 from os import PathLike
 from pathlib import Path
 from typing import Any
@@ -28,7 +29,7 @@ import numpy as np
 
 from ..camera import Intrinsics
 from ..errors import InputFileError
-from ._base import Frame, FrameReader, IntrinsicsLike, resolve_intrinsics
+from ._base import Frame, FrameReader, IntrinsicsLike, depth_unit, inside, resolve_intrinsics
 from ._images import check_frame_shape, read_depth_png, read_intensity_image
 
 __all__ = ["FramesJsonReader"]
@@ -41,6 +42,28 @@ def _get(entry: Any, keys: tuple[str, ...], path: Path, k: int) -> Any:
             raise InputFileError(path, f"entry {k}: missing key '{'.'.join(keys)}'")
         value = value[key]
     return value
+
+
+def _real(value: Any, key: str, path: Path, k: int) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise InputFileError(path, f"entry {k}: {key} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _matrix(value: Any, path: Path, k: int) -> np.ndarray:
+    rows = value if isinstance(value, list) else []
+    if len(rows) != 3 or any(not isinstance(r, list) or len(r) != 3 for r in rows):
+        raise InputFileError(path, f"entry {k}: kcam.matrix must be 3x3 numbers")
+    return np.array([[_real(v, "kcam.matrix", path, k) for v in r] for r in rows], float)
+
+
+def _image_size(value: Any, path: Path, k: int) -> tuple[int, ...]:
+    if value is None or value == []:
+        return ()
+    if not isinstance(value, list) or len(value) != 2:
+        raise InputFileError(path, f"entry {k}: kcam.image_size must be [W, H], got {value!r}")
+    w, h = (_real(v, "kcam.image_size", path, k) for v in value)
+    return (int(w), int(h))
 
 
 class FramesJsonReader(FrameReader):
@@ -89,8 +112,8 @@ class FramesJsonReader(FrameReader):
             raise InputFileError(json_path, 'expected {"root": [frame entries]} with >= 1 entry')
         present = []
         for k, entry in enumerate(entries):
-            d = self.path / str(_get(entry, ("depth_image",), json_path, k))
-            c = self.path / str(_get(entry, ("rgb_image",), json_path, k))
+            d = inside(self.path, _get(entry, ("depth_image",), json_path, k), json_path, k)
+            c = inside(self.path, _get(entry, ("rgb_image",), json_path, k), json_path, k)
             present.append((d, c, d.is_file(), c.is_file()))
         n = len(present)
         while n > 0 and not present[n - 1][2] and not present[n - 1][3]:
@@ -113,15 +136,17 @@ class FramesJsonReader(FrameReader):
         mats, scales, stamps, sizes = [], [], [], []
         for k in range(n):
             e = entries[k]
-            mats.append(np.asarray(_get(e, ("info", "kcam", "matrix"), json_path, k), float))
-            scales.append(float(_get(e, ("info", "depth_scale"), json_path, k)))
-            stamps.append(_get(e, ("info", "timestamp"), json_path, k))
-            sizes.append(tuple(e["info"]["kcam"].get("image_size", ()) or ()))
-            bias = float(e["info"].get("depth_bias", 0.0) or 0.0)
+            mats.append(_matrix(_get(e, ("info", "kcam", "matrix"), json_path, k), json_path, k))
+            scales.append(_real(_get(e, ("info", "depth_scale"), json_path, k), "depth_scale",
+                                json_path, k))  # fmt: skip
+            stamps.append(
+                _real(_get(e, ("info", "timestamp"), json_path, k), "timestamp", json_path, k)
+            )
+            sizes.append(_image_size(e["info"]["kcam"].get("image_size"), json_path, k))
+            bias = e["info"].get("depth_bias")
+            bias = 0.0 if bias is None else _real(bias, "depth_bias", json_path, k)
             if bias != 0.0:
                 raise InputFileError(json_path, f"entry {k}: depth_bias {bias} is not supported")
-            if mats[-1].shape != (3, 3):
-                raise InputFileError(json_path, f"entry {k}: kcam.matrix must be 3x3")
             if k and not np.allclose(mats[-1], mats[0], rtol=1e-6, atol=1e-6):
                 raise InputFileError(
                     json_path,
@@ -136,9 +161,7 @@ class FramesJsonReader(FrameReader):
                 raise InputFileError(json_path, f"depth_scale must be > 0, got {scales[0]}")
             unit = 1000.0 * scales[0]
             notes.append(f"depth_scale {scales[0]:g} m/unit -> {unit:g} mm/unit")
-        if not unit > 0:
-            raise ValueError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
-        self.depth_unit_mm = unit
+        self.depth_unit_mm = depth_unit(unit, json_path if depth_unit_mm is None else None)
         first = read_depth_png(self._files[0][0], frame=0)
         h, w = first.shape
         if sizes[0] and tuple(int(s) for s in sizes[0]) != (w, h):
@@ -153,10 +176,7 @@ class FramesJsonReader(FrameReader):
                 self.intrinsics = Intrinsics.from_matrix(mats[0], width=w, height=h)
             except ValueError as exc:
                 raise InputFileError(json_path, f"kcam.matrix: {exc}") from None
-        try:
-            ts = np.asarray(stamps, dtype=np.float64) * 1e-6
-        except (TypeError, ValueError):
-            raise InputFileError(json_path, "timestamps must be numbers (microseconds)") from None
+        ts = np.asarray(stamps, dtype=np.float64) * 1e-6
         if n > 1 and not np.all(np.diff(ts) > 0):
             raise InputFileError(json_path, "timestamps must be strictly increasing")
         self.timestamps = ts

@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 from ..errors import InputFileError
 from ._base import FrameSelection, resolve_frames
 from ._images import read_mask_image
+from .npz import MEMBER_ERRORS, read_member
 
 __all__ = ["MASK_NPZ_KEYS", "read_mask"]
 
@@ -53,22 +54,7 @@ def read_mask(path: str | PathLike[str], *, frames: FrameSelection = None) -> ND
             sel = resolve_frames(frames, len(reader))
             return np.stack([reader.read_frame(k).mask for k in sel])  # type: ignore[misc]
     if p.suffix.lower() == ".npz":
-        try:
-            with np.load(p, allow_pickle=False) as data:
-                key = next((k for k in MASK_NPZ_KEYS if k in data.files), None)
-                if key is None:
-                    raise InputFileError(
-                        p, f"no mask key (expected one of {', '.join(MASK_NPZ_KEYS)})"
-                    )
-                mask = np.asarray(data[key]) != 0
-        except InputFileError:
-            raise
-        except FileNotFoundError:
-            raise InputFileError(p, "file not found") from None
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-            raise InputFileError(
-                p, f"not a valid .npz file (truncated or corrupt: {exc})"
-            ) from None
+        mask = _npz_mask(p)
         if mask.ndim == 3:
             sel = resolve_frames(frames, mask.shape[0])
             mask = mask[sel.start : sel.stop]
@@ -76,3 +62,26 @@ def read_mask(path: str | PathLike[str], *, frames: FrameSelection = None) -> ND
             raise InputFileError(p, f"mask must be (H, W) or (T, H, W), got shape {mask.shape}")
         return mask
     return read_mask_image(p)
+
+
+def _npz_mask(p: Path) -> NDArray[np.bool_]:
+    try:
+        with zipfile.ZipFile(p) as zf:
+            members = {Path(n).stem: n for n in zf.namelist() if n.endswith(".npy")}
+            key = next((k for k in MASK_NPZ_KEYS if k in members), None)
+            if key is None:
+                raise InputFileError(
+                    p,
+                    f"no mask key: needs a key 'mask' or 'roi' (or 'mask_gt'), "
+                    f"found {sorted(members)}",
+                )
+            array = read_member(zf, members[key])
+    except InputFileError:
+        raise
+    except FileNotFoundError:
+        raise InputFileError(p, "file not found") from None
+    except MEMBER_ERRORS as exc:
+        raise InputFileError(p, f"not a valid .npz file (truncated or corrupt: {exc})") from None
+    if array.dtype.kind not in "biuf" or array.dtype.names is not None:
+        raise InputFileError(p, f"mask must hold numbers or booleans, got dtype {array.dtype}")
+    return np.asarray(array) != 0

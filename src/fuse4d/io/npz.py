@@ -21,8 +21,10 @@ loading the whole array.
 
 from __future__ import annotations
 
+import math
 import struct
 import zipfile
+import zlib
 from os import PathLike
 from pathlib import Path
 from typing import Any
@@ -75,15 +77,26 @@ class NpzReader(FrameReader):
             ) from None
         self._members = names
         self._cache: dict[str, np.ndarray] = {}
+        try:
+            self._open(names)
+        except BaseException:
+            self.close()
+            raise
+
+    def _open(self, names: dict[str, str]) -> None:
         for key in _REQUIRED:
             if key not in names:
-                self.close()
                 raise InputFileError(
                     self.path,
                     f"missing key '{key}' (a fuse4d .npz needs depth, intensity, intrinsics)",
                 )
         depth = self._array("depth")
         intensity = self._array("intensity")
+        for key, arr in (("depth", depth), ("intensity", intensity)):
+            if arr.dtype.kind not in "fiub" or arr.dtype.names is not None:
+                raise InputFileError(
+                    self.path, f"key '{key}' must hold real numbers, got dtype {arr.dtype}"
+                )
         if depth.ndim != 3:
             raise InputFileError(
                 self.path, f"key 'depth' must have shape (T, H, W), got {depth.shape}"
@@ -107,15 +120,19 @@ class NpzReader(FrameReader):
             raise InputFileError(self.path, f"key 'intrinsics': {exc}") from None
         self._t = int(depth.shape[0])
         if "timestamps" in names:
-            ts = np.asarray(self._array("timestamps"), dtype=np.float64).ravel()
-            if ts.shape != (self._t,):
-                raise InputFileError(
-                    self.path, f"key 'timestamps' has {ts.size} values for {self._t} frames"
-                )
-            self.timestamps = ts
+            self.timestamps = self._timestamps()
         if "fps" in names:
-            self.fps = float(self._array("fps"))
-        self._name = str(self._array("name")) if "name" in names else self.path.name
+            fps = self._number("fps")
+            if not (math.isfinite(fps) and fps > 0):
+                raise InputFileError(self.path, f"key 'fps' must be a number > 0, got {fps!r}")
+            self.fps = fps
+        if "name" in names:
+            name = self._array("name")
+            if name.ndim != 0 or name.dtype.kind not in "US":
+                raise InputFileError(self.path, "key 'name' must hold one string")
+            self._name = str(name)
+        else:
+            self._name = self.path.name
         gt = [k[:-3] for k in ("depth_gt", "mask_gt", "flow_gt") if k in names]
         gt += [k for k in names if k.startswith("gt_")]
         self.ground_truth_keys = tuple(gt)
@@ -129,6 +146,29 @@ class NpzReader(FrameReader):
                     self.path, f"key '{key}' has shape {self._array(key).shape}, expected {shape}"
                 )
 
+    def _number(self, key: str) -> float:
+        value = self._array(key)
+        if value.size != 1 or value.dtype.kind not in "fiu":
+            raise InputFileError(
+                self.path, f"key '{key}' must hold one number, got {value.dtype} {value.shape}"
+            )
+        return float(value.reshape(()))
+
+    def _timestamps(self) -> np.ndarray:
+        raw = self._array("timestamps")
+        if raw.dtype.kind not in "fiu":
+            raise InputFileError(self.path, f"key 'timestamps' must hold numbers, got {raw.dtype}")
+        ts = np.asarray(raw, dtype=np.float64).ravel()
+        if ts.shape != (self._t,):
+            raise InputFileError(
+                self.path, f"key 'timestamps' has {ts.size} values for {self._t} frames"
+            )
+        if not np.isfinite(ts).all():
+            raise InputFileError(self.path, "key 'timestamps' holds NaN or inf")
+        if self._t > 1 and not np.all(np.diff(ts) > 0):
+            raise InputFileError(self.path, "key 'timestamps' must be strictly increasing")
+        return ts
+
     # -------------------------------------------------------------- member access
     def _array(self, key: str) -> np.ndarray:
         if key not in self._cache:
@@ -136,7 +176,7 @@ class NpzReader(FrameReader):
                 self._cache[key] = self._load_member(self._members[key])
             except KeyError:
                 raise InputFileError(self.path, f"missing key '{key}'") from None
-            except (zipfile.BadZipFile, OSError, EOFError, ValueError, struct.error) as exc:
+            except MEMBER_ERRORS as exc:
                 raise InputFileError(
                     self.path, f"key '{key}': cannot read array (truncated or corrupt: {exc})"
                 ) from None
@@ -148,8 +188,7 @@ class NpzReader(FrameReader):
             mapped = self._memmap(info)
             if mapped is not None:
                 return mapped
-        with self._zip.open(member) as f:
-            return np.lib.format.read_array(f, allow_pickle=False)
+        return read_member(self._zip, member)
 
     def _memmap(self, info: zipfile.ZipInfo) -> np.ndarray | None:
         with self.path.open("rb") as f:
@@ -160,17 +199,14 @@ class NpzReader(FrameReader):
             name_len, extra_len = struct.unpack("<HH", header[26:30])
             start = info.header_offset + 30 + name_len + extra_len
             f.seek(start)
-            version = np.lib.format.read_magic(f)
-            if version == (1, 0):
-                shape, fortran, dtype = np.lib.format.read_array_header_1_0(f)
-            elif version == (2, 0):
-                shape, fortran, dtype = np.lib.format.read_array_header_2_0(f)
-            else:
+            header = _read_npy_header(f)
+            if header is None:
                 return None
+            shape, fortran, dtype = header
             offset = f.tell()
         if dtype.hasobject:
             raise ValueError("object arrays are not allowed")
-        nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+        nbytes = math.prod(shape) * dtype.itemsize
         if offset + nbytes > self.path.stat().st_size or offset - start + nbytes > info.file_size:
             raise ValueError(f"member {info.filename} is truncated")
         if nbytes == 0:
@@ -194,6 +230,13 @@ class NpzReader(FrameReader):
         depth = np.array(self._array("depth")[k], dtype=np.float32)
         depth[~(np.isfinite(depth) & (depth > 0))] = np.nan
         intensity = _intensity_frame(self._array("intensity")[k])
+        if not (np.isfinite(intensity).all() and intensity.min() >= 0 and intensity.max() <= 1):
+            raise InputFileError(
+                self.path,
+                "key 'intensity' must hold finite values in [0, 1] (NaN, inf or values outside "
+                "found; rescale with fuse4d.normalize_intensity)",
+                frame=k,
+            )
         mask = None
         if "mask_gt" in self._members:
             mask = np.array(self._array("mask_gt")[k], dtype=bool)
@@ -269,6 +312,44 @@ class NpzReader(FrameReader):
                 value = value[sel.start : sel.stop]
             out[key] = value
         return out
+
+
+def read_member(zf: zipfile.ZipFile, member: str) -> np.ndarray:
+    """Read one ``.npy`` member of an open archive without pickles, checking the declared
+    size against the member's before numpy allocates it (a corrupt header must not make it
+    allocate terabytes).
+
+    Raises
+    ------
+    ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error, struct.error
+        If the member is corrupt (callers turn these into :class:`~fuse4d.InputFileError`).
+    """
+    info = zf.getinfo(member)
+    with zf.open(member) as f:
+        header = _read_npy_header(f)
+        if header is not None:
+            shape, _, dtype = header
+            if dtype.hasobject:
+                raise ValueError("object arrays are not allowed")
+            if f.tell() + math.prod(shape) * dtype.itemsize > info.file_size:
+                raise ValueError(f"member {info.filename} is truncated")
+    with zf.open(member) as f:
+        return np.lib.format.read_array(f, allow_pickle=False)
+
+
+#: What a corrupt archive member raises while being read.
+MEMBER_ERRORS = (zipfile.BadZipFile, OSError, EOFError, ValueError, struct.error, zlib.error)
+
+
+def _read_npy_header(f: Any) -> Any:
+    """(shape, fortran_order, dtype) of the ``.npy`` stream at ``f``; None for versions other
+    than 1.0/2.0 (numpy then reads the member itself)."""
+    version = np.lib.format.read_magic(f)
+    if version == (1, 0):
+        return np.lib.format.read_array_header_1_0(f)
+    if version == (2, 0):
+        return np.lib.format.read_array_header_2_0(f)
+    return None
 
 
 def _intensity_frame(frame: np.ndarray) -> NDArray[np.float32]:

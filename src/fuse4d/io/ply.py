@@ -108,27 +108,15 @@ def read_ply(
         data = p.read_bytes()
     except FileNotFoundError:
         raise InputFileError(p, "file not found") from None
+    except OSError as exc:
+        raise InputFileError(p, f"cannot read file ({exc.strerror or exc})") from None
     end = data.find(b"end_header\n")
     if not data.startswith(b"ply") or end < 0:
         raise InputFileError(p, "not a PLY file (no 'ply' magic or no end_header)")
     lines = data[:end].decode("ascii", errors="replace").splitlines()
     if "format binary_little_endian 1.0" not in lines:
         raise InputFileError(p, "only binary_little_endian PLY is supported")
-    count, fields, in_vertex = None, [], False
-    for line in lines:
-        parts = line.split()
-        if parts[:1] == ["element"]:
-            in_vertex = parts[1] == "vertex"
-            if in_vertex:
-                count = int(parts[2])
-            elif count is not None:
-                break
-        elif parts[:1] == ["property"] and in_vertex:
-            if parts[1] == "list" or parts[1] not in _PLY_TYPES:
-                raise InputFileError(p, f"unsupported vertex property {line!r}")
-            fields.append((parts[2], "<" + _PLY_TYPES[parts[1]]))
-    if count is None:
-        raise InputFileError(p, "no vertex element")
+    count, fields = _parse_header(lines, p)
     dtype = np.dtype(fields)
     body = data[end + len(b"end_header\n") :]
     if len(body) < count * dtype.itemsize:
@@ -142,3 +130,38 @@ def read_ply(
     if all(c in names for c in ("red", "green", "blue")):
         colors = np.stack([vertices[c] for c in ("red", "green", "blue")], axis=1).astype(np.uint8)
     return points, colors
+
+
+def _parse_header(lines: list[str], p: Path) -> tuple[int, list[tuple[str, str]]]:
+    """Vertex count and fields from the header lines (before ``end_header``)."""
+    count: int | None = None
+    fields: list[tuple[str, str]] = []
+    in_vertex = False
+    for line in lines:
+        parts = line.split()
+        if parts[:1] == ["element"]:
+            if len(parts) != 3:
+                raise InputFileError(p, f"bad header line {line!r} (expected 'element NAME N')")
+            in_vertex = parts[1] == "vertex"
+            if in_vertex:
+                if count is not None:
+                    raise InputFileError(p, "more than one vertex element")
+                if not parts[2].isdigit():
+                    raise InputFileError(p, f"bad vertex count {parts[2]!r}")
+                count = int(parts[2])
+            elif count is not None:
+                break
+            else:  # another element before the vertices: its data would come first
+                raise InputFileError(p, f"element {parts[1]!r} before the vertices: unsupported")
+        elif parts[:1] == ["property"] and in_vertex:
+            if len(parts) < 3 or parts[1] == "list" or parts[1] not in _PLY_TYPES:
+                raise InputFileError(p, f"unsupported vertex property {line!r}")
+            if any(name == parts[2] for name, _ in fields):
+                raise InputFileError(p, f"vertex property {parts[2]!r} appears twice")
+            fields.append((parts[2], "<" + _PLY_TYPES[parts[1]]))
+    if count is None:
+        raise InputFileError(p, "no vertex element")
+    missing = [a for a in "xyz" if a not in {name for name, _ in fields}]
+    if missing:
+        raise InputFileError(p, f"vertex properties {', '.join(missing)} missing")
+    return count, fields

@@ -16,13 +16,14 @@ never guesses them.
 
 from __future__ import annotations
 
+import math
 from os import PathLike
 from pathlib import Path
 
 import numpy as np
 
 from ..camera import Intrinsics
-from ..errors import InputFileError
+from ..errors import InputFileError, ParameterError
 from ..sequence import Sequence
 from ._base import (
     CAMERA_PRESETS,
@@ -32,6 +33,8 @@ from ._base import (
     IntrinsicsLike,
     ProgressCallback,
     _check_size,
+    depth_unit,
+    inside,
     read_camera_json,
     resolve_intrinsics,
 )
@@ -48,13 +51,17 @@ def _read_list(path: Path) -> tuple[np.ndarray, list[str]]:
         raise InputFileError(path, "file not found (a TUM folder needs rgb.txt and depth.txt)")
     stamps: list[float] = []
     names: list[str] = []
-    for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+    try:
+        text_lines = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFileError(path, f"cannot read file ({exc})") from None
+    for lineno, line in enumerate(text_lines, 1):
         text = line.strip()
         if not text or text.startswith("#"):
             continue
         parts = text.replace(",", " ").split()
         try:
-            if len(parts) < 2:
+            if len(parts) < 2 or not math.isfinite(float(parts[0])):
                 raise ValueError
             stamps.append(float(parts[0]))
         except ValueError:
@@ -137,7 +144,7 @@ class TumReader(FrameReader):
         if not root.is_dir():
             raise InputFileError(root, "folder not found")
         if not max_difference >= 0:
-            raise ValueError(f"max_difference must be >= 0 seconds, got {max_difference!r}")
+            raise ParameterError(f"max_difference must be >= 0 seconds, got {max_difference!r}")
         depth_ts, depth_names = _read_list(root / "depth.txt")
         rgb_ts, rgb_names = _read_list(root / "rgb.txt")
         pairs = associate_timestamps(depth_ts, rgb_ts, max_difference=max_difference)
@@ -147,7 +154,13 @@ class TumReader(FrameReader):
                 f"no depth/rgb pair within {max_difference:g} s "
                 "(check rgb.txt and depth.txt, or raise max_difference)",
             )
-        self._files = [(root / depth_names[i], root / rgb_names[j]) for i, j in pairs]
+        self._files = [
+            (
+                inside(root, depth_names[i], root / "depth.txt"),
+                inside(root, rgb_names[j], root / "rgb.txt"),
+            )
+            for i, j in pairs
+        ]
         self.timestamps = np.asarray([depth_ts[i] for i, _ in pairs], dtype=np.float64)
         if len(pairs) > 1 and not np.all(np.diff(self.timestamps) > 0):
             raise InputFileError(root / "depth.txt", "timestamps must be strictly increasing")
@@ -162,9 +175,7 @@ class TumReader(FrameReader):
         unit = depth_unit_mm
         if unit is None:
             unit = cam["depth_unit_mm"] if cam and cam["depth_unit_mm"] else TUM_DEPTH_UNIT_MM
-        if not unit > 0:
-            raise ValueError(f"depth_unit_mm must be > 0, got {unit!r}")
-        self.depth_unit_mm = float(unit)
+        self.depth_unit_mm = depth_unit(unit, None if depth_unit_mm is not None else cam_path)
         image = decode_image(self._files[0][0], frame=0)
         h, w = image.shape[:2]
         if intrinsics is not None:

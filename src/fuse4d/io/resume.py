@@ -1,0 +1,437 @@
+"""Resumable frame-folder output: a run killed at any frame continues with ``--resume``.
+
+While ``fuse4d run IN -o OUT`` writes a frame folder, the frames go to ``OUT.partial/``:
+
+* each frame's PNGs are written under temporary names and renamed into place, then the
+  manifest ``fuse4d-run.json`` (written the same way) counts the frame as done, so a kill at
+  any point leaves complete frames, the manifest, and at most one temporary file (removed on
+  Ctrl-C, and by the next ``--resume`` after a hard kill);
+* every :data:`CHECKPOINT_EVERY` frames the manifest records a *checkpoint*: the frame to
+  restart from and the warm-start flow the fusion engine needs there (``resume/seed-*.npy``),
+  so the resumed run equals an uninterrupted one bit for bit;
+* ``camera.json`` (which makes the folder readable) is written last, then ``OUT.partial`` is
+  renamed to ``OUT``. The manifest stays in ``OUT`` with ``"complete": true``.
+
+The manifest holds the input's fingerprint, the parameters, fuse4d's and its libraries'
+versions: ``--resume`` refuses to continue a run whose input, parameters or versions differ.
+It holds no path that fuse4d opens: the file names inside ``OUT.partial`` are fixed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shutil
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from os import PathLike
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Self
+
+import numpy as np
+
+from ..camera import Intrinsics
+from ..errors import InputFileError, OutputExistsError, ParameterError
+from ._atomic import _replace_existing, _set_default_mode, check_output, write_errors
+from ._images import QuantizationReport, depth_to_units, encode_png
+from .folder import camera_json_text, intensity_image
+
+__all__ = [
+    "CHECKPOINT_EVERY",
+    "MANIFEST_NAME",
+    "ResumableFolderWriter",
+    "fingerprint_input",
+    "partial_path",
+    "run_identity",
+    "unfinished_run_message",
+]
+
+#: Name of the manifest inside the output (and partial) folder.
+MANIFEST_NAME = "fuse4d-run.json"
+#: Frames between two checkpoints (a resumed run recomputes at most this many + the window).
+CHECKPOINT_EVERY = 8
+_FORMAT = 1
+_INDEX_SUFFIXES = {".json", ".txt", ".xml", ".toml", ".csv"}
+
+
+def partial_path(path: str | PathLike[str]) -> Path:
+    """The folder where an unfinished run of ``path`` lives (``OUT.partial``)."""
+    p = Path(path)
+    return p.with_name(p.name + ".partial")
+
+
+def fingerprint_input(path: str | PathLike[str]) -> str:
+    """SHA-256 over the input's file names, sizes and modification times, and the contents
+    of its index files (``.json``, ``.txt``, ``.xml``, ...). Cheap: frames are not read.
+
+    Symbolic links are not followed into folders (no loops).
+    """
+    root = Path(path)
+    digest = hashlib.sha256()
+    files = [root] if root.is_file() else sorted(_walk(root))
+    for f in files:
+        rel = f.name if f == root else f.relative_to(root).as_posix()
+        try:
+            st = f.stat()
+        except OSError:
+            continue
+        digest.update(f"{rel}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+        if f.suffix.lower() in _INDEX_SUFFIXES and st.st_size <= 16 << 20:
+            with f.open("rb") as handle:
+                digest.update(hashlib.sha256(handle.read()).digest())
+    return digest.hexdigest()
+
+
+def _walk(root: Path) -> Iterator[Path]:
+    for folder, dirs, names in os.walk(root, followlinks=False):
+        dirs.sort()
+        for name in names:
+            yield Path(folder) / name
+
+
+def run_identity(
+    input: str | PathLike[str],
+    *,
+    frames: int,
+    shape: tuple[int, int],
+    depth_unit_mm: float | None,
+    fusion: dict[str, Any],
+    flow: dict[str, Any],
+) -> dict[str, Any]:
+    """Everything a resumed run must share with the run it continues."""
+    from .. import __version__
+
+    versions = {"fuse4d": __version__, "python": sys.version.split()[0]}
+    for name in ("numpy", "numba", "cv2"):
+        module = sys.modules.get(name)
+        versions[name] = getattr(module, "__version__", None) if module else None
+    return _canonical(
+        {
+            "input_fingerprint": fingerprint_input(input),
+            "frames": int(frames),
+            "shape": list(shape),
+            "depth_unit_mm": depth_unit_mm,
+            "fusion": fusion,
+            "flow": flow,
+            "versions": versions,
+        }
+    )
+
+
+def _canonical(value: Any) -> Any:
+    """A JSON round trip (so that stored and fresh identities compare equal)."""
+    return json.loads(json.dumps(value, sort_keys=True, default=str))
+
+
+def _read_manifest(folder: Path) -> dict[str, Any] | None:
+    path = folder / MANIFEST_NAME
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as exc:
+        raise InputFileError(path, f"unreadable run manifest ({exc})") from None
+    if not isinstance(data, dict) or data.get("format") != _FORMAT:
+        raise InputFileError(path, "not a fuse4d run manifest (unknown format)")
+    return data
+
+
+def unfinished_run_message(folder: Path) -> str:
+    """A message if ``folder`` holds an unfinished run (for readers), else ``""``."""
+    try:
+        data = _read_manifest(folder)
+    except InputFileError:
+        return ""
+    if not data or data.get("complete"):
+        return ""
+    done, total = data.get("frames_done"), data.get("identity", {}).get("frames")
+    return (
+        f"unfinished fuse4d run ({done} of {total} frames written); finish it with the same "
+        "`fuse4d run ... --resume` command"
+    )
+
+
+def _write_json_atomic(path: Path, data: dict[str, Any]) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.tmp-", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as handle:
+            json.dump(data, handle, indent=1, sort_keys=True)
+            handle.write("\n")
+        _set_default_mode(Path(tmp), directory=False)
+        Path(tmp).replace(path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _write_atomic(path: Path, write: Any) -> None:
+    """``write(tmp_path)`` then rename onto ``path``; the temporary is removed on any error."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.tmp-", dir=path.parent)
+    os.close(fd)
+    try:
+        write(Path(tmp))
+        _set_default_mode(Path(tmp), directory=False)
+        Path(tmp).replace(path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _save_npy(path: Path, array: np.ndarray) -> None:
+    with path.open("wb") as f:  # a file object: np.save would append ".npy" to a name
+        np.save(f, np.ascontiguousarray(array), allow_pickle=False)
+
+
+class ResumableFolderWriter:
+    """Frame-folder writer whose output survives a kill and can be continued (module doc).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        Destination folder; frames are staged in :func:`partial_path` ``(path)``.
+    intrinsics : Intrinsics
+        Camera; frames must be ``(intrinsics.height, intrinsics.width)``.
+    identity : dict
+        :func:`run_identity` of this run (stored in, and compared with, the manifest).
+    depth_unit_mm, fps
+        As for :class:`~fuse4d.io.FrameFolderWriter`.
+    overwrite : bool
+        Replace an existing ``path`` and discard an existing unfinished run.
+    resume : bool
+        Continue the unfinished run in ``path.partial`` (if there is none, start one).
+
+    Attributes
+    ----------
+    frames_done : int
+        Frames complete on disk (the next :meth:`write` writes this frame).
+    restart_frame : int
+        Frame from which the caller must produce output again (the last checkpoint;
+        ``<= frames_done``); frames before ``frames_done`` are already on disk.
+    seed : ndarray or None
+        Warm-start flow stored with the checkpoint (``FusionEngine(initial_flow=...)``).
+    """
+
+    def __init__(
+        self,
+        path: str | PathLike[str],
+        intrinsics: Intrinsics,
+        *,
+        identity: dict[str, Any],
+        depth_unit_mm: float = 1.0,
+        fps: float | None = None,
+        overwrite: bool = False,
+        resume: bool = False,
+        checkpoint_every: int = CHECKPOINT_EVERY,
+    ) -> None:
+        if not (math.isfinite(depth_unit_mm) and depth_unit_mm > 0):
+            raise ParameterError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
+        self.path = Path(path)
+        if self.path.exists() and not overwrite:
+            raise OutputExistsError(self.path)
+        check_output(self.path, overwrite=True)
+        self.partial = partial_path(self.path)
+        self.intrinsics = intrinsics
+        self.identity = _canonical(identity)
+        self.depth_unit_mm = float(depth_unit_mm)
+        self.fps = fps
+        self.overwrite = overwrite
+        self.resume = resume
+        self.checkpoint_every = max(1, int(checkpoint_every))
+        self.frames_done = 0
+        self.restart_frame = 0
+        self.seed: np.ndarray | None = None
+        self._has_mask: bool | None = None
+        self._checkpoint: dict[str, Any] | None = None
+        self._report = QuantizationReport(self.depth_unit_mm)
+        self._open = False
+
+    # ------------------------------------------------------------------ life cycle
+    def __enter__(self) -> Self:
+        self.open()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if exc_type is None:
+            self.close()
+            return
+        self._open = False
+        if self.frames_done == 0 and self._checkpoint is None:
+            shutil.rmtree(self.partial, ignore_errors=True)  # nothing worth keeping
+
+    def open(self) -> None:
+        """Start a new run in ``path.partial`` or pick up the unfinished one (``resume``)."""
+        with write_errors(self.partial):
+            if self.partial.exists() and not self.resume:
+                if not self.overwrite:
+                    raise ParameterError(
+                        f"{self.partial}: an unfinished run of this output exists; add "
+                        "--resume to continue it, or --force to start over"
+                    )
+                shutil.rmtree(self.partial)
+            if self.partial.exists():
+                self._pick_up()
+            else:
+                self.partial.mkdir()
+                (self.partial / "depth").mkdir()
+                (self.partial / "intensity").mkdir()
+                (self.partial / "resume").mkdir()
+                self._save_manifest()
+        self._open = True
+
+    def _pick_up(self) -> None:
+        data = _read_manifest(self.partial)
+        if data is None:
+            raise InputFileError(
+                self.partial,
+                f"no {MANIFEST_NAME}: not an unfinished fuse4d run; remove it or use --force",
+            )
+        if data.get("identity") != self.identity:
+            diff = sorted(
+                k
+                for k in set(self.identity) | set(data.get("identity", {}))
+                if self.identity.get(k) != data.get("identity", {}).get(k)
+            )
+            raise ParameterError(
+                f"{self.partial}: cannot resume: the {', '.join(diff)} differ from the "
+                "unfinished run's; rerun with the same input and options, or use --force "
+                "to start over"
+            )
+        done = data.get("frames_done")
+        checkpoint = data.get("checkpoint")
+        if not isinstance(done, int) or not 0 <= done <= self.identity["frames"]:
+            raise InputFileError(self.partial / MANIFEST_NAME, f"bad frames_done {done!r}")
+        self.frames_done = done
+        self._has_mask = data.get("has_mask")
+        self._checkpoint = checkpoint if isinstance(checkpoint, dict) else None
+        if self._checkpoint is not None:
+            self.restart_frame = int(self._checkpoint["frame"])
+            seed = self._checkpoint.get("seed")
+            if seed is not None:
+                # fixed names only: the manifest never points outside the folder
+                seed_path = self.partial / "resume" / f"seed-{self.restart_frame:06d}.npy"
+                self.seed = np.load(seed_path, allow_pickle=False)
+        self._clean()
+
+    def _clean(self) -> None:
+        """Drop temporaries of a hard kill and frames past ``frames_done``."""
+        for sub in ("depth", "intensity", "mask", "resume"):
+            folder = self.partial / sub
+            if not folder.is_dir():
+                continue
+            keep = f"seed-{self.restart_frame:06d}.npy"
+            for p in folder.iterdir():
+                stem = p.stem
+                stale = p.name.startswith(".")
+                stale |= sub != "resume" and stem.isdigit() and int(stem) >= self.frames_done
+                stale |= sub == "resume" and p.name.startswith("seed-") and p.name != keep
+                if stale:
+                    p.unlink()
+        for p in self.partial.glob(".*.tmp-*"):
+            p.unlink()
+        stamps = self.partial / "resume" / "timestamps.txt"
+        if stamps.exists():
+            lines = stamps.read_text().splitlines()[: self.frames_done]
+            stamps.write_text("".join(line + "\n" for line in lines))
+
+    def _save_manifest(self, *, complete: bool = False, folder: Path | None = None) -> None:
+        _write_json_atomic(
+            (folder or self.partial) / MANIFEST_NAME,
+            {
+                "format": _FORMAT,
+                "tool": "fuse4d run",
+                "complete": complete,
+                "frames_done": self.frames_done,
+                "has_mask": self._has_mask,
+                "checkpoint": self._checkpoint,
+                "identity": self.identity,
+                "updated": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            },
+        )
+
+    # ------------------------------------------------------------------ frames
+    def write(
+        self,
+        depth: np.ndarray,
+        intensity: np.ndarray,
+        *,
+        mask: np.ndarray | None = None,
+        timestamp: float | None = None,
+    ) -> None:
+        """Write frame :attr:`frames_done` and count it as done (one manifest update)."""
+        if not self._open:
+            raise RuntimeError("ResumableFolderWriter is not open; use it in a `with` block")
+        k = self.frames_done
+        with write_errors(self.partial):
+            if self._has_mask is None:
+                self._has_mask = mask is not None
+            if self._has_mask != (mask is not None):
+                raise ParameterError(f"frame {k}: give a mask for every frame or for none")
+            name = f"{k:06d}.png"
+            units = depth_to_units(depth, self.depth_unit_mm, self._report)
+            self._png(units, "depth", name)
+            self._png(intensity_image(intensity, None), "intensity", name)
+            if mask is not None:
+                (self.partial / "mask").mkdir(exist_ok=True)
+                self._png(np.where(np.asarray(mask, bool), 255, 0).astype(np.uint8), "mask", name)
+            stamp = "nan" if timestamp is None else f"{float(timestamp):.6f}"
+            with (self.partial / "resume" / "timestamps.txt").open("a") as f:
+                f.write(stamp + "\n")
+            self.frames_done = k + 1
+            self._save_manifest()
+
+    def _png(self, image: np.ndarray, sub: str, name: str) -> None:
+        _write_atomic(self.partial / sub / name, lambda tmp: encode_png(image, tmp))
+
+    def wants_checkpoint(self) -> bool:
+        """True when the caller should call :meth:`checkpoint` after the last write."""
+        return self.frames_done % self.checkpoint_every == 0
+
+    def checkpoint(self, seed: np.ndarray | None) -> None:
+        """Record that output can restart at :attr:`frames_done` with warm start ``seed``."""
+        frame = self.frames_done
+        with write_errors(self.partial):
+            folder = self.partial / "resume"
+            if seed is not None:
+                target = folder / f"seed-{frame:06d}.npy"
+                _write_atomic(target, lambda tmp: _save_npy(tmp, seed))
+            previous = self._checkpoint
+            self._checkpoint = {"frame": frame, "seed": None if seed is None else "stored"}
+            self._save_manifest()
+            if previous is not None and previous.get("frame") != frame:
+                (folder / f"seed-{int(previous['frame']):06d}.npy").unlink(missing_ok=True)
+
+    def close(self) -> None:
+        """All frames written: write ``camera.json``, ``timestamps.txt``, move into place."""
+        if not self._open:
+            return
+        self._open = False
+        if self.frames_done != self.identity["frames"]:
+            raise RuntimeError(
+                f"{self.path}: {self.frames_done} of {self.identity['frames']} frames written"
+            )
+        with write_errors(self.partial):
+            (self.partial / "camera.json").write_text(
+                camera_json_text(self.intrinsics, self.depth_unit_mm, self.fps)
+            )
+            stamps_file = self.partial / "resume" / "timestamps.txt"
+            stamps = stamps_file.read_text().split() if stamps_file.exists() else []
+            if stamps and all(s != "nan" for s in stamps):
+                (self.partial / "timestamps.txt").write_text("".join(s + "\n" for s in stamps))
+            shutil.rmtree(self.partial / "resume")
+            self._checkpoint = None
+            self._save_manifest(complete=True)
+            if self.path.exists():
+                _replace_existing(self.partial, self.path)
+            else:
+                self.partial.replace(self.path)
+        self._report.warn(str(self.path))

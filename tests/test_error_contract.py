@@ -1,0 +1,178 @@
+"""The error contract: user errors → one line, exit 2; bugs → crash report, exit 70."""
+
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+
+import pytest
+
+import fuse4d
+from fuse4d import (
+    Fuse4dError,
+    InputFileError,
+    InputNotFoundError,
+    OutputExistsError,
+    OutputWriteError,
+    ParameterError,
+    Sequence,
+    ShapeError,
+)
+from fuse4d.cli import EXIT_BUG, EXIT_INTERRUPTED, EXIT_USAGE, main
+from fuse4d.io import load_sequence, resolve_frames, write_npz
+
+
+@pytest.fixture
+def npz_path(tmp_path, small_sequence: Sequence) -> Path:
+    return write_npz(small_sequence, tmp_path / "s.npz")
+
+
+def test_missing_input_is_a_file_not_found_error(tmp_path):
+    with pytest.raises(FileNotFoundError) as info:
+        load_sequence(tmp_path / "nope.npz")
+    err = info.value
+    assert isinstance(err, InputNotFoundError)
+    assert isinstance(err, InputFileError)
+    assert isinstance(err, ValueError)  # old callers catching ValueError still work
+    assert str(err).startswith(str(tmp_path / "nope.npz"))
+    assert isinstance(InputFileError("x", "corrupt"), Fuse4dError)
+    assert not isinstance(InputFileError("x", "corrupt"), OSError)
+
+
+@pytest.mark.parametrize(
+    "err",
+    [
+        InputFileError("a/b.png", "file not found", frame=3),
+        InputFileError("a/b.png", "corrupt", frame=3),
+        ShapeError("depth", ("T", "H", "W"), (2, 3)),
+        OutputExistsError("out.npz"),
+        OutputWriteError("out.npz", OSError(28, "No space left on device")),
+        ParameterError("bad"),
+    ],
+)
+def test_errors_pickle_and_keep_their_message(err):
+    copy = pickle.loads(pickle.dumps(err))
+    assert type(copy) is type(err)
+    assert str(copy) == str(err)
+    assert isinstance(copy, Fuse4dError)
+
+
+def test_write_error_says_what_to_do():
+    err = OutputWriteError("out/", OSError(28, "No space left on device"))
+    assert "No space left on device" in str(err)
+    assert "free some disk space" in str(err)
+
+
+def test_parameter_errors_are_fuse4d_errors():
+    with pytest.raises(ParameterError, match="selects no frame"):
+        resolve_frames("5:9", 3)
+    with pytest.raises(ParameterError, match="'A:B'"):
+        resolve_frames("x", 3)
+
+
+def _one_error_line(err: str) -> str:
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def test_cli_user_error_is_one_line_exit_2(tmp_path, capsys):
+    assert main(["info", str(tmp_path / "missing")]) == EXIT_USAGE
+    line = _one_error_line(capsys.readouterr().err)
+    assert line.startswith("fuse4d: error: ")
+    assert "missing" in line
+    assert "Traceback" not in line
+
+
+def test_cli_bad_intrinsics_option_is_a_user_error(npz_path, tmp_path, capsys):
+    folder = tmp_path / "seq"
+    fuse4d.io.save_sequence(load_sequence(npz_path), folder, depth_unit_mm=0.01)
+    assert main(["info", str(folder), "--intrinsics", "1,2,3"]) == EXIT_USAGE
+    assert "intrinsics" in _one_error_line(capsys.readouterr().err)
+    assert main(["info", str(folder), "--intrinsics", "-1,2,3,4"]) == EXIT_USAGE
+    assert "fx must be > 0" in _one_error_line(capsys.readouterr().err)
+
+
+def _inject_bug(monkeypatch, exc: BaseException) -> None:
+    from fuse4d.cli import cmd_io
+
+    def broken(*args, **kwargs):
+        raise exc
+
+    monkeypatch.setattr(cmd_io, "open_frames", broken)
+
+
+@pytest.mark.parametrize("exc", [KeyError("oops"), ValueError("shapes (3,) (4,)"), TypeError("x")])
+def test_cli_internal_bug_gives_crash_report_exit_70(npz_path, monkeypatch, tmp_path, capsys, exc):
+    monkeypatch.setenv("FUSE4D_CRASH_DIR", str(tmp_path / "crashes"))
+    _inject_bug(monkeypatch, exc)
+    assert main(["info", str(npz_path)]) == EXIT_BUG
+    line = _one_error_line(capsys.readouterr().err)
+    assert "internal error" in line
+    assert "bug in fuse4d" in line
+    assert type(exc).__name__ in line
+    reports = list((tmp_path / "crashes").glob("crash-*.txt"))
+    assert len(reports) == 1
+    assert str(reports[0]) in line
+    text = reports[0].read_text()
+    assert "Traceback (most recent call last)" in text
+    assert f"fuse4d: {fuse4d.__version__}" in text
+    assert f"command: fuse4d info {npz_path}" in text
+    assert "platform: " in text
+    assert not list((tmp_path / "crashes").glob(".crash-*"))  # no temporary left
+
+
+def test_cli_debug_shows_the_traceback(npz_path, monkeypatch):
+    with pytest.raises(InputFileError):
+        main(["--debug", "info", str(npz_path.with_name("missing.npz"))])
+    _inject_bug(monkeypatch, KeyError("oops"))
+    with pytest.raises(KeyError):
+        main(["--debug", "info", str(npz_path)])
+    monkeypatch.setenv("FUSE4D_DEBUG", "1")
+    with pytest.raises(KeyError):
+        main(["info", str(npz_path)])
+
+
+def test_cli_debug_flag_does_not_leak_between_calls(npz_path, monkeypatch, capsys):
+    _inject_bug(monkeypatch, KeyError("oops"))
+    with pytest.raises(KeyError):
+        main(["--debug", "info", str(npz_path)])
+    assert main(["info", str(npz_path)]) == EXIT_BUG
+
+
+def test_cli_keyboard_interrupt_exits_130(npz_path, monkeypatch, capsys):
+    _inject_bug(monkeypatch, KeyboardInterrupt())
+    assert main(["info", str(npz_path)]) == EXIT_INTERRUPTED
+    assert "interrupted" in capsys.readouterr().err
+
+
+def test_cli_unwritable_crash_folder_still_one_line(npz_path, monkeypatch, tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    monkeypatch.setenv("FUSE4D_CRASH_DIR", str(blocker / "sub"))
+    _inject_bug(monkeypatch, KeyError("oops"))
+    assert main(["info", str(npz_path)]) == EXIT_BUG
+    assert "no crash report could be written" in _one_error_line(capsys.readouterr().err)
+
+
+def test_no_broad_value_error_catch_in_cli():
+    """The CLI must not turn ValueError/KeyError from whole commands into user errors."""
+    import inspect
+
+    from fuse4d import cli
+
+    source = inspect.getsource(cli)
+    assert "KeyError" not in source.split("def main", 1)[1].split("def _debug", 1)[0]
+    assert "except (CliError, ValueError" not in source
+
+
+def test_run_wrong_output_kind_is_a_user_error(npz_path, tmp_path, capsys):
+    assert main(["run", str(npz_path), "-o", str(tmp_path / "out_folder")]) == EXIT_USAGE
+    assert "give an output ending in .npz" in _one_error_line(capsys.readouterr().err)
+
+
+def test_folder_writer_rejects_bad_unit_with_parameter_error(tmp_path, small_intrinsics):
+    from fuse4d.io import FrameFolderWriter
+
+    with pytest.raises(ParameterError):
+        FrameFolderWriter(tmp_path / "x", small_intrinsics, depth_unit_mm=float("nan"))

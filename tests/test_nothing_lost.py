@@ -1,0 +1,210 @@
+"""Nothing lost: inputs are never modified, a full disk or a read-only folder gives a clear
+error and leaves no output that looks complete."""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import pathlib
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from fuse4d import OutputWriteError, Sequence
+from fuse4d.cli import EXIT_USAGE, main
+from fuse4d.flow import write_flo
+from fuse4d.io import write_frame_folder, write_npz, write_ply
+
+
+@pytest.fixture
+def inputs(tmp_path, small_sequence: Sequence) -> Path:
+    """Every input kind in one folder (the folder is hashed before and after commands)."""
+    root = tmp_path / "inputs"
+    root.mkdir()
+    write_npz(small_sequence, root / "s.npz")
+    write_frame_folder(small_sequence, root / "seq", depth_unit_mm=0.01)
+    for k in range(2):
+        image = (small_sequence.intensity[k] * 255).astype(np.uint8)
+        assert cv2.imwrite(str(root / f"i{k}.png"), image)
+    (root / "c.toml").write_text("[fusion]\nspatial_radius = 2\n")
+    return root
+
+
+def _hashes(root: Path) -> dict[str, tuple[str, int]]:
+    out = {}
+    for p in sorted(root.rglob("*")):
+        st = p.lstat()
+        digest = hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "dir"
+        out[p.relative_to(root).as_posix()] = (digest, st.st_mode)
+    return out
+
+
+def _commands(i: Path, o: Path) -> list[list[str]]:
+    npz, seq = str(i / "s.npz"), str(i / "seq")
+    return [
+        ["info", npz],
+        ["info", seq, "--json"],
+        ["export-ply", seq, "--frame", "1", "-o", str(o / "f.ply")],
+        ["export-ply", npz, "-o", npz, "--force"],  # refused: onto the input
+        ["run", npz, "-o", str(o / "r.npz"), "--window", "3", "--config", str(i / "c.toml")],
+        ["run", npz, "-o", npz, "--force"],  # refused
+        ["run", seq, "-o", str(o / "r"), "--window", "3"],
+        ["run", seq, "-o", str(o / "r"), "--window", "3", "--force"],
+        ["run", seq, "-o", str(i / "seq" / "inside"), "--window", "3"],  # refused
+        ["run", seq, "-o", str(o / "r"), "--resume"],  # refused: output complete
+        ["baseline", "temporal-mean", npz, "-o", str(o / "b.npz")],
+        ["flow", str(i / "i0.png"), str(i / "i1.png"), "-o", str(o / "f.flo")],
+        ["flow", str(i / "i0.png"), str(i / "i1.png"), "-o", str(i / "i1.png"), "--force"],
+        ["metrics", str(o / "r.npz"), "--json"],
+        ["info", str(i / "missing")],
+    ]
+
+
+def test_no_command_modifies_its_input(inputs, tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    before = _hashes(inputs)
+    codes = []
+    for args in _commands(inputs, out):
+        codes.append(main(args))
+        assert _hashes(inputs) == before, f"fuse4d {' '.join(args)} modified its input"
+    assert codes.count(0) >= 9, codes
+    assert set(codes) <= {0, EXIT_USAGE}, codes  # no crash on any of them
+    capsys.readouterr()
+
+
+# ----------------------------------------------------------------------------- full disk
+class _FullFile:
+    """A file object that fails with ENOSPC once ``budget`` bytes have been written."""
+
+    def __init__(self, handle, budget: list[int]):
+        self._handle = handle
+        self._budget = budget
+
+    def write(self, data) -> int:
+        n = len(data) if isinstance(data, str) else len(memoryview(data).cast("B"))
+        if self._budget[0] < n:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        self._budget[0] -= n
+        return self._handle.write(data)
+
+    def __getattr__(self, name):
+        return getattr(self._handle, name)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self._handle.close()
+
+
+@pytest.fixture
+def full_disk(monkeypatch, tmp_path):
+    """Writes under ``tmp_path/out`` fail with ENOSPC after ``budget[0]`` bytes in all."""
+    target = tmp_path / "out"
+    target.mkdir()
+    budget = [0]
+    real_open = pathlib.Path.open
+
+    def open_(self, mode="r", *args, **kwargs):
+        handle = real_open(self, mode, *args, **kwargs)
+        if any(c in mode for c in "wax") and target in Path(self).absolute().parents:
+            return _FullFile(handle, budget)
+        return handle
+
+    monkeypatch.setattr(pathlib.Path, "open", open_)
+    return target, budget
+
+
+def _leftovers(folder: Path) -> list[str]:
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*"))
+
+
+@pytest.mark.parametrize("budget", [0, 1000, 20_000])
+def test_full_disk_npz_gives_clear_error_and_no_file(full_disk, inputs, capsys, budget):
+    out, left = full_disk
+    left[0] = budget
+    code = main(["baseline", "temporal-mean", str(inputs / "s.npz"), "-o", str(out / "b.npz")])
+    assert code == EXIT_USAGE
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("fuse4d: error: ")
+    assert "No space left on device" in err
+    assert "free some disk space" in err
+    assert len(err.splitlines()) == 1
+    assert _leftovers(out) == []  # no partial file, no temporary
+
+
+@pytest.mark.parametrize("budget", [0, 100])
+def test_full_disk_ply_and_flo_leave_nothing(full_disk, small_sequence, budget):
+    out, left = full_disk
+    left[0] = budget
+    points = np.ones((50, 3), np.float32)
+    with pytest.raises(OutputWriteError, match="No space left"):
+        write_ply(points, out / "c.ply")
+    with pytest.raises(OutputWriteError, match="No space left"):
+        write_flo(np.zeros((40, 40, 2), np.float32), out / "f.flo")
+    assert _leftovers(out) == []
+
+
+def test_full_disk_folder_run_keeps_complete_frames_and_resumes(
+    full_disk, inputs, tmp_path, capsys
+):
+    """A run that fills the disk stops with a clear error; its complete frames are kept in
+    OUT.partial (not readable as a recording) and --resume finishes it once space is back."""
+    out, left = full_disk
+    left[0] = 2500  # a few frames' PNGs
+    args = ["run", str(inputs / "seq"), "-o", str(out / "r"), "--window", "3"]
+    assert main(args) == EXIT_USAGE
+    assert "No space left on device" in capsys.readouterr().err
+    assert not (out / "r").exists()
+    partial = out / "r.partial"
+    names = _leftovers(partial)
+    assert not [n for n in names if Path(n).name.startswith(".")], names  # no temporaries
+    assert "camera.json" not in names
+    left[0] = 10**9
+    assert main([*args, "--resume"]) == 0
+    ref = tmp_path / "ref"
+    assert main(["run", str(inputs / "seq"), "-o", str(ref), "--window", "3"]) == 0
+    for sub in ("depth", "intensity"):
+        for p in sorted((ref / sub).iterdir()):
+            assert (out / "r" / sub / p.name).read_bytes() == p.read_bytes()
+
+
+def test_read_only_output_folder_gives_clear_error(monkeypatch, inputs, tmp_path, capsys):
+    """Root ignores permission bits, so the refusal of a read-only folder is simulated."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    real_mkstemp, real_mkdtemp = tempfile.mkstemp, tempfile.mkdtemp
+
+    def refuse(real):
+        def wrapper(*args, dir=None, **kwargs):
+            if dir is not None and Path(dir).absolute() == ro:
+                raise PermissionError(errno.EACCES, "Permission denied", str(dir))
+            return real(*args, dir=dir, **kwargs)
+
+        return wrapper
+
+    monkeypatch.setattr(tempfile, "mkstemp", refuse(real_mkstemp))
+    monkeypatch.setattr(tempfile, "mkdtemp", refuse(real_mkdtemp))
+    real_mkdir = pathlib.Path.mkdir
+
+    def mkdir(self, *args, **kwargs):
+        if Path(self).absolute().parent == ro:
+            raise PermissionError(errno.EACCES, "Permission denied", str(self))
+        return real_mkdir(self, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "mkdir", mkdir)
+    for args in (
+        ["run", str(inputs / "s.npz"), "-o", str(ro / "r.npz"), "--window", "3"],
+        ["run", str(inputs / "seq"), "-o", str(ro / "r"), "--window", "3"],
+        ["export-ply", str(inputs / "s.npz"), "-o", str(ro / "c.ply")],
+    ):
+        assert main(args) == EXIT_USAGE, args
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1, err
+        assert "Permission denied" in err
+        assert "not writable" in err
+    assert _leftovers(ro) == []

@@ -1,0 +1,238 @@
+"""Resumable runs: kill ``fuse4d run`` anywhere, ``--resume``, get the uninterrupted result."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fuse4d import InputFileError, Intrinsics, Sequence
+from fuse4d.cli import main
+from fuse4d.io import load_sequence, open_frames, write_frame_folder
+from fuse4d.io.resume import MANIFEST_NAME, partial_path
+
+REPO = Path(__file__).resolve().parents[1]
+FRAMES = 20
+RUN_ARGS = ["--window", "5", "--set", "spatial_radius=2"]
+
+#: Run the CLI in a child that kills itself (SIGKILL, or SIGINT = Ctrl-C) at a chosen point:
+#: after frame K is complete, or halfway through writing frame K (depth PNG written, intensity
+#: not yet).
+_CHILD = """
+import os, signal, sys
+from fuse4d.io import resume
+kill_at, where, sig = int(sys.argv[1]), sys.argv[2], getattr(signal, sys.argv[3])
+write, png = resume.ResumableFolderWriter.write, resume.ResumableFolderWriter._png
+
+def write_then_kill(self, *args, **kwargs):
+    write(self, *args, **kwargs)
+    if where == "after" and self.frames_done == kill_at + 1:
+        os.kill(os.getpid(), sig)
+
+def png_then_kill(self, image, sub, name):
+    png(self, image, sub, name)
+    if where == "during" and sub == "depth" and self.frames_done == kill_at:
+        os.kill(os.getpid(), sig)
+
+resume.ResumableFolderWriter.write = write_then_kill
+resume.ResumableFolderWriter._png = png_then_kill
+from fuse4d.cli import main
+sys.argv = ["fuse4d", *sys.argv[4:]]
+main()  # as the console script does (exits with the code)
+"""
+
+
+def _moving_sequence(frames: int = FRAMES) -> Sequence:
+    """A textured plane drifting 0.7 px/frame: DIS flow (and its warm start) matters."""
+    h, w = 40, 56
+    rng = np.random.default_rng(16)
+    base = rng.random((h + 8, w + 40)).astype(np.float32)
+    import cv2
+
+    base = cv2.GaussianBlur(base, (0, 0), 1.5)
+    base = (base - base.min()) / (base.max() - base.min())
+    yy, xx = np.mgrid[0:h, 0:w]
+    depth = np.empty((frames, h, w), np.float32)
+    intensity = np.empty((frames, h, w), np.float32)
+    for t in range(frames):
+        shift = 0.7 * t
+        m = np.float32([[1, 0, shift], [0, 1, 0]])
+        intensity[t] = cv2.warpAffine(base, m, (w + 40, h + 8))[:h, :w]
+        depth[t] = 900.0 + 2.0 * xx + 0.5 * yy + rng.normal(0, 0.8, (h, w))
+    k = Intrinsics(60.0, 60.0, (w - 1) / 2, (h - 1) / 2, width=w, height=h)
+    return Sequence(depth, np.clip(intensity, 0, 1), k, timestamps=np.arange(frames) / 30.0)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("resume")
+    return write_frame_folder(_moving_sequence(), root / "in", depth_unit_mm=0.1)
+
+
+@pytest.fixture(scope="module")
+def reference(recording, tmp_path_factory) -> Path:
+    """The uninterrupted run."""
+    out = tmp_path_factory.mktemp("resume-ref") / "out"
+    assert main(["run", str(recording), "-o", str(out), *RUN_ARGS]) == 0
+    return out
+
+
+def _child(kill_at: int, where: str, sig: str, args: list[str]) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(REPO / "src")}
+    return subprocess.run(
+        [sys.executable, "-c", _CHILD, str(kill_at), where, sig, *args],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+
+
+def _contents(folder: Path) -> dict[str, bytes]:
+    return {
+        p.relative_to(folder).as_posix(): p.read_bytes()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and p.name != MANIFEST_NAME
+    }
+
+
+def _check_partial(partial: Path, frames_done: int) -> None:
+    """Only complete frames and the manifest: no temporaries, nothing past frames_done."""
+    manifest = json.loads((partial / MANIFEST_NAME).read_text())
+    assert manifest["complete"] is False
+    assert manifest["frames_done"] == frames_done
+    names = {p.relative_to(partial).as_posix() for p in partial.rglob("*") if p.is_file()}
+    assert not [n for n in names if Path(n).name.startswith(".")], names  # no temp files
+    for sub in ("depth", "intensity"):
+        frames = sorted(n for n in names if n.startswith(f"{sub}/"))
+        assert frames == [f"{sub}/{k:06d}.png" for k in range(frames_done)]
+    assert "camera.json" not in names  # the partial folder never looks like a recording
+    with pytest.raises(InputFileError, match="unfinished fuse4d run"):
+        open_frames(partial)
+
+
+def test_killed_runs_resume_to_the_uninterrupted_result(recording, reference, tmp_path):
+    """SIGKILL at three random frames (one of them halfway through writing a frame)."""
+    out = tmp_path / "out"
+    args = ["run", str(recording), "-o", str(out), *RUN_ARGS]
+    kill_points = sorted(np.random.default_rng(2026).choice(np.arange(1, FRAMES - 1), 3, False))
+    done = 0
+    for i, k in enumerate(kill_points):
+        where = "during" if i == 1 else "after"
+        res = _child(int(k), where, "SIGKILL", [*args, "--resume"] if i else args)
+        assert res.returncode == -signal.SIGKILL, res.stderr[-2000:]
+        assert not out.exists()
+        done = int(k) + 1 if where == "after" else int(k)
+        if where == "during":  # a hard kill may leave the half-written frame's temporary
+            manifest = json.loads((partial_path(out) / MANIFEST_NAME).read_text())
+            assert manifest["frames_done"] == done
+        else:
+            _check_partial(partial_path(out), done)
+    assert main([*args, "--resume"]) == 0
+    assert not partial_path(out).exists()
+    assert _contents(out) == _contents(reference)  # bit for bit
+    manifest = json.loads((out / MANIFEST_NAME).read_text())
+    assert manifest["complete"] is True
+    assert manifest["frames_done"] == FRAMES
+    np.testing.assert_array_equal(load_sequence(out).depth, load_sequence(reference).depth)
+
+
+def test_ctrl_c_exits_130_and_leaves_only_complete_frames(recording, reference, tmp_path):
+    out = tmp_path / "out"
+    args = ["run", str(recording), "-o", str(out), *RUN_ARGS]
+    res = _child(12, "after", "SIGINT", args)
+    assert res.returncode == 130, res.stderr[-2000:]
+    assert "interrupted" in res.stderr
+    assert "Traceback" not in res.stderr
+    _check_partial(partial_path(out), 13)
+    # a second run without --resume refuses to clobber the unfinished one
+    assert main(args) == 2
+    assert main([*args, "--resume"]) == 0
+    assert _contents(out) == _contents(reference)
+
+
+def test_resume_refuses_other_options_and_force_starts_over(recording, reference, tmp_path):
+    out = tmp_path / "out"
+    args = ["run", str(recording), "-o", str(out), *RUN_ARGS]
+    res = _child(3, "after", "SIGKILL", args)
+    assert res.returncode == -signal.SIGKILL
+    other = ["run", str(recording), "-o", str(out), "--window", "7", "--resume"]
+    assert main(other) == 2  # parameters differ from the unfinished run's
+    assert partial_path(out).exists()
+    assert main([*args, "--force"]) == 0
+    assert _contents(out) == _contents(reference)
+    assert main([*args, "--resume"]) == 2  # complete output exists: nothing to resume
+
+
+def test_resume_without_unfinished_run_just_runs(recording, reference, tmp_path):
+    out = tmp_path / "out"
+    assert main(["run", str(recording), "-o", str(out), *RUN_ARGS, "--resume"]) == 0
+    assert _contents(out) == _contents(reference)
+
+
+def test_resume_of_npz_output_is_refused(tmp_path, small_sequence, capsys):
+    from fuse4d.io import write_npz
+
+    src = write_npz(small_sequence, tmp_path / "s.npz")
+    assert main(["run", str(src), "-o", str(tmp_path / "o.npz"), "--resume"]) == 2
+    assert "--resume applies to frame-folder outputs" in capsys.readouterr().err
+
+
+def test_warm_start_seed_is_what_makes_resume_bit_identical():
+    """Farneback warm-starts each pair from the previous one: restarting the engine at frame
+    6 without the stored flow changes the output; with it, the output is identical."""
+    from fuse4d import FlowConfig, FusionEngine, FusionParams
+
+    seq = _moving_sequence()
+    params = FusionParams(num_frames=5, spatial_radius=2)
+
+    def run(first: int, seed=None):
+        engine = FusionEngine(
+            seq.intrinsics, fusion=params, flow=FlowConfig("farneback"), initial_flow=seed
+        )
+        out, flows = {}, {}
+        for t in range(first, FRAMES):
+            out.update({first + f.index: f.depth for f in engine.push(seq.depth[t],
+                                                                       seq.intensity[t])})  # fmt: skip
+            if t > first:
+                flows[t] = engine.forward_flow(t - first)
+        out.update({first + f.index: f.depth for f in engine.flush()})
+        return out, flows
+
+    full, flows = run(0)
+    seeded, _ = run(6, flows[6])
+    unseeded, _ = run(6)
+    later = range(8, FRAMES)  # frames whose whole window lies after the restart
+    assert all(np.array_equal(full[t], seeded[t], equal_nan=True) for t in later)
+    assert not all(np.array_equal(full[t], unseeded[t], equal_nan=True) for t in later)
+
+
+def test_killed_farneback_run_resumes_bit_identical(recording, tmp_path):
+    """The same with a kill after the first checkpoint (resume restarts at frame 8 - 2)."""
+    ref = tmp_path / "ref"
+    args = [*RUN_ARGS, "--flow", "farneback"]
+    assert main(["run", str(recording), "-o", str(ref), *args]) == 0
+    out = tmp_path / "out"
+    res = _child(13, "after", "SIGKILL", ["run", str(recording), "-o", str(out), *args])
+    assert res.returncode == -signal.SIGKILL, res.stderr[-2000:]
+    manifest = json.loads((partial_path(out) / MANIFEST_NAME).read_text())
+    assert manifest["checkpoint"] == {"frame": 8, "seed": "stored"}
+    assert main(["run", str(recording), "-o", str(out), *args, "--resume"]) == 0
+    assert _contents(out) == _contents(ref)
+
+
+def test_sigterm_stops_as_cleanly_as_ctrl_c(recording, reference, tmp_path):
+    out = tmp_path / "out"
+    args = ["run", str(recording), "-o", str(out), *RUN_ARGS]
+    res = _child(5, "after", "SIGTERM", args)
+    assert res.returncode == 130, res.stderr[-2000:]
+    _check_partial(partial_path(out), 6)
+    assert main([*args, "--resume"]) == 0
+    assert _contents(out) == _contents(reference)
