@@ -346,3 +346,13 @@ def test_mask_npz_member_declaring_a_huge_shape_is_refused(tmp_path):
     _rewrite_member(path, "roi.npy", header.getvalue() + b"\1" * 16)
     with pytest.raises(InputFileError, match="truncated"):
         read_mask(path)  # was: numpy allocated the declared 100 TB
+
+
+def test_npz_header_with_unbalanced_brackets_is_an_input_error(tmp_path, small_sequence):
+    """Found by the 10 000-case run: numpy's header parser raised tokenize.TokenError."""
+    path = write_npz(small_sequence, tmp_path / "s.npz")
+    header = b"\x93NUMPY\x01\x00" + (118).to_bytes(2, "little")
+    text = b"{'descr': '<f4', 'fortran_order': False, 'shape': (4, 24, 32"
+    _rewrite_member(path, "depth.npy", header + text.ljust(117, b" ") + b"\n" + b"\0" * 64)
+    with pytest.raises(InputFileError, match="depth"):
+        open_frames(path)

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import struct
+import tokenize
 import zipfile
 import zlib
 from os import PathLike
@@ -338,7 +339,9 @@ def read_member(zf: zipfile.ZipFile, member: str) -> np.ndarray:
 
 
 #: What a corrupt archive member raises while being read.
-MEMBER_ERRORS = (zipfile.BadZipFile, OSError, EOFError, ValueError, struct.error, zlib.error)
+#: (numpy's header parser can raise tokenize.TokenError/SyntaxError on a corrupt header)
+MEMBER_ERRORS = (zipfile.BadZipFile, OSError, EOFError, ValueError, struct.error, zlib.error,
+                 tokenize.TokenError, SyntaxError)  # fmt: skip
 
 
 def _read_npy_header(f: Any) -> Any:
