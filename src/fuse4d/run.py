@@ -8,6 +8,7 @@ grow with the recording's length.
 
 from __future__ import annotations
 
+import itertools
 import queue
 import threading
 import time
@@ -398,8 +399,21 @@ def _timed(frames: Iterable[Any], timings: dict[str, float]) -> Iterator[Any]:
 
 
 def _fuse_streaming(
-    src, dst, fmt, params, flow, overwrite, quality, progress, options, *, io_queue: int = 2
+    src,
+    dst,
+    fmt,
+    params,
+    flow,
+    overwrite,
+    quality,
+    progress,
+    options,
+    *,
+    io_queue: int = 2,
+    limit: int | None = None,
 ) -> RunSummary:
+    """The streaming run; ``limit`` fuses the first ``limit`` frames only (``fuse4d bench
+    --input``)."""
     if params.iterations != 1:
         raise ValueError(
             "iterations > 1 needs the whole sequence in memory; convert the input to .npz first"
@@ -407,7 +421,8 @@ def _fuse_streaming(
     timings = dict.fromkeys(STAGES + IO_STAGES, 0.0)
     writer_cls, out_fmt = _writer_for(dst)
     with open_frames(src, **options) as reader:
-        total = len(reader)
+        total = len(reader) if limit is None else min(limit, len(reader))
+        source = reader if limit is None else itertools.islice(reader, total)
         k = reader.intrinsics
         engine = FusionEngine(k, fusion=params, flow=flow, timings=timings)
         summary = RunSummary(
@@ -427,10 +442,10 @@ def _fuse_streaming(
         unit = reader.depth_unit_mm or 1.0  # float-depth inputs (32FC1 bags, zarr): 1 mm steps
         with writer_cls(dst, k, depth_unit_mm=unit, fps=reader.fps, overwrite=overwrite) as writer:
             if io_queue > 0:
-                frames: Any = _ReadAhead(reader, io_queue, timings)
+                frames: Any = _ReadAhead(source, io_queue, timings)
                 sink: Any = _WriteBehind(writer.write, io_queue, timings)
             else:
-                frames = _timed(reader, timings)
+                frames = _timed(source, timings)
                 sink = _Inline(writer.write, timings)
 
             def emit(fused: list[FusedFrame]) -> None:
@@ -452,8 +467,7 @@ def _fuse_streaming(
                     emit(engine.push(frame.depth, frame.intensity))
                 emit(engine.flush())
             finally:
-                if isinstance(frames, _ReadAhead):
-                    frames.close()
+                frames.close()  # the read-ahead thread, or the inline generator
                 sink.close()  # all writes done before the writer is closed
         if tally is not None:
             t0 = time.perf_counter()
