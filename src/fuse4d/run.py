@@ -30,9 +30,9 @@ from .metrics import RunningEvaluation
 __all__ = ["IO_STAGES", "RunSummary", "fuse_file"]
 
 #: Timings of the streaming run outside the engine's :data:`~fuse4d.fusion.STAGES` (seconds):
-#: ``read`` (decode, in the read-ahead thread), ``write`` (encode) and ``summary`` (the
-#: before/after quality tally), both in the write-behind thread, ``io_wait`` (the fusion
-#: thread waiting for a frame or for room in the output queue: what did not overlap).
+#: ``read`` (decode, in the read-ahead thread), ``write`` (encode, in the write-behind thread),
+#: ``summary`` (the before/after quality tally), ``io_wait`` (the fusion thread waiting for a
+#: frame or for room in the write queue: the part of the I/O that did not overlap).
 IO_STAGES = ("read", "write", "summary", "io_wait")
 
 
@@ -328,11 +328,12 @@ class _ReadAhead:
 
 
 class _WriteBehind:
-    """Run ``job(*args)`` calls in a daemon thread, in order, at most ``depth`` queued; the
-    first exception of a job is raised by the next :meth:`submit` or by :meth:`close`."""
+    """Run ``write(*args, **kwargs)`` calls in a daemon thread, in order, at most ``depth``
+    queued; the first exception of the writer is raised by the next :meth:`submit` or by
+    :meth:`close`. Seconds spent writing accumulate in ``timings["write"]``."""
 
-    def __init__(self, job: Callable[..., Any], depth: int, timings: dict[str, float]) -> None:
-        self._job = job
+    def __init__(self, write: Callable[..., Any], depth: int, timings: dict[str, float]) -> None:
+        self._write = write
         self._queue: queue.Queue = queue.Queue(maxsize=max(depth, 1))
         self._timings = timings
         self._error: BaseException | None = None
@@ -341,25 +342,27 @@ class _WriteBehind:
 
     def _run(self) -> None:
         while True:
-            args = self._queue.get()
-            if args is None:
+            job = self._queue.get()
+            if job is None:
                 return
             if self._error is not None:
                 continue  # drain after a failure
+            t0 = time.perf_counter()
             try:
-                self._job(*args)
+                self._write(*job[0], **job[1])
             except BaseException as exc:  # noqa: BLE001 - re-raised in the fusion thread
                 self._error = exc
+            self._timings["write"] += time.perf_counter() - t0
 
-    def submit(self, *args: Any) -> None:
+    def submit(self, *args: Any, **kwargs: Any) -> None:
         if self._error is not None:
             raise self._error
         t0 = time.perf_counter()
-        self._queue.put(args)
+        self._queue.put((args, kwargs))
         self._timings["io_wait"] += time.perf_counter() - t0
 
     def close(self) -> None:
-        """Wait for the queued jobs; raise the first job's exception, if any."""
+        """Wait for the queued writes; raise the writer's exception, if any."""
         self._queue.put(None)
         self._thread.join()
         if self._error is not None:
@@ -369,8 +372,14 @@ class _WriteBehind:
 class _Inline:
     """The single-thread stand-in of :class:`_WriteBehind` (``io_queue=0``)."""
 
-    def __init__(self, job: Callable[..., Any]) -> None:
-        self.submit = job
+    def __init__(self, write: Callable[..., Any], timings: dict[str, float]) -> None:
+        self._write = write
+        self._timings = timings
+
+    def submit(self, *args: Any, **kwargs: Any) -> None:
+        t0 = time.perf_counter()
+        self._write(*args, **kwargs)
+        self._timings["write"] += time.perf_counter() - t0
 
     def close(self) -> None:
         pass
@@ -432,29 +441,22 @@ def _fuse_streaming(
         done = 0
         unit = reader.depth_unit_mm or 1.0  # float-depth inputs (32FC1 bags, zarr): 1 mm steps
         with writer_cls(dst, k, depth_unit_mm=unit, fps=reader.fps, overwrite=overwrite) as writer:
-
-            def output(fr: FusedFrame, raw: Any) -> None:
-                """Score (in frame order) and write one fused frame."""
-                if tally is not None:
-                    t0 = time.perf_counter()
-                    tally.add(depth_to_points(raw.depth, k), fr)
-                    timings["summary"] += time.perf_counter() - t0
-                t0 = time.perf_counter()
-                writer.write(fr.depth, raw.intensity, mask=raw.mask, timestamp=raw.timestamp)
-                timings["write"] += time.perf_counter() - t0
-
-            # the summary tally runs with the writes, behind the fusion
             if io_queue > 0:
                 frames: Any = _ReadAhead(source, io_queue, timings)
-                sink: Any = _WriteBehind(output, io_queue, timings)
+                sink: Any = _WriteBehind(writer.write, io_queue, timings)
             else:
                 frames = _timed(source, timings)
-                sink = _Inline(output)
+                sink = _Inline(writer.write, timings)
 
             def emit(fused: list[FusedFrame]) -> None:
                 nonlocal done
                 for fr in fused:
-                    sink.submit(fr, pending.pop(fr.index))
+                    raw = pending.pop(fr.index)
+                    if tally is not None:
+                        t0 = time.perf_counter()
+                        tally.add(depth_to_points(raw.depth, k), fr)
+                        timings["summary"] += time.perf_counter() - t0
+                    sink.submit(fr.depth, raw.intensity, mask=raw.mask, timestamp=raw.timestamp)
                     done += 1
                     if progress is not None:
                         progress(done, total)
