@@ -148,3 +148,78 @@ def test_demo_small_writes_figure_and_table(tmp_path, capsys):
     assert "<video" in page
     assert (tmp_path / "demo" / "report" / "compare.mp4").stat().st_size > 1000
     assert "report.html" in out.replace("\n", "")  # rich wraps long paths
+
+
+def _ball_folder(tmp_path, frames=5):
+    seq = make_falling_ball(small=True, num_frames=frames)
+    src = tmp_path / "rec"
+    with FrameFolderWriter(src, seq.intrinsics, depth_unit_mm=0.05) as writer:
+        for d, i in zip(seq.depth, seq.intensity, strict=True):
+            writer.write(d, i)
+    return src
+
+
+def test_run_read_ahead_and_write_behind_match_the_inline_run(tmp_path, capsys):
+    """Issue 13: the threaded streaming path writes exactly what the single-thread one does;
+    --no-summary skips the quality tally; I/O and summary are timed stages."""
+    from fuse4d.run import IO_STAGES, fuse_file
+
+    src = _ball_folder(tmp_path)
+    params = FusionParams(num_frames=3)
+    inline = fuse_file(src, tmp_path / "inline", fusion=params, io_queue=0)
+    threaded = fuse_file(src, tmp_path / "threaded", fusion=params, io_queue=2)
+    np.testing.assert_array_equal(
+        load_sequence(tmp_path / "inline").depth, load_sequence(tmp_path / "threaded").depth
+    )
+    assert inline.fused_roughness == threaded.fused_roughness
+    assert set(IO_STAGES) <= set(threaded.timings)
+    assert threaded.timings["read"] > 0
+    assert threaded.timings["write"] > 0
+    assert threaded.timings["summary"] > 0
+    out = tmp_path / "quick"
+    assert main(["run", str(src), "-o", str(out), "--window", "3", "--no-summary", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["frames"] == 5
+    assert math.isnan(summary["fused_roughness_mm"])
+    assert summary["timings_ms_per_frame"]["summary"] == 0.0
+    assert load_sequence(out).num_frames == 5
+
+
+def test_run_reader_and_writer_errors_reach_the_caller(tmp_path, monkeypatch):
+    from fuse4d import run as run_module
+
+    src = _ball_folder(tmp_path, frames=4)
+
+    def failing_write(self, *args, **kwargs):
+        raise OSError("disk full")
+
+    from fuse4d.io.resume import ResumableFolderWriter
+
+    monkeypatch.setattr(ResumableFolderWriter, "write", failing_write)
+    with pytest.raises(OSError, match="disk full"):
+        run_module.fuse_file(src, tmp_path / "out", fusion=FusionParams(num_frames=3))
+    monkeypatch.undo()
+    read_ahead = run_module._ReadAhead
+
+    def broken(frames, depth, timings):
+        def gen():
+            yield from ()
+            raise InputFileError("000000.png", "truncated PNG", frame=0)
+
+        return read_ahead(gen(), depth, timings)
+
+    monkeypatch.setattr(run_module, "_ReadAhead", broken)
+    with pytest.raises(InputFileError, match="truncated"):
+        run_module.fuse_file(src, tmp_path / "out2", fusion=FusionParams(num_frames=3))
+
+
+def test_bench_input_times_a_recording_with_io_stages(tmp_path, capsys):
+    src = _ball_folder(tmp_path, frames=6)
+    args = ["bench", "--input", str(src), "--frames", "4", "--window", "3", "--json"]
+    assert main(args) == 0
+    (result,) = json.loads(capsys.readouterr().out)
+    assert result["frames"] == 4
+    assert result["input"] == str(src)
+    assert {"flow", "fill", "read", "write", "summary", "io_wait"} <= set(result["stage_ms"])
+    assert result["stage_ms"]["read"] > 0
+    assert result["us_per_pixel"] > 0

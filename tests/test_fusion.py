@@ -293,6 +293,53 @@ def test_fill_holes_kernel_matches_oracle(rng):
         fill_holes(points, raw, hole, sigma=0.0)
 
 
+def test_fill_holes_kernel_revisits_only_changed_holes_like_the_oracle(rng):
+    """Issue 13: the kernel re-evaluates only holes near a fill of the last pass; masks must
+    equal the oracle's, which evaluates every hole in every pass (many passes, scattered
+    holes, a wide hole that peels for several passes, gate rejections near a depth edge)."""
+    depth, k = _bumpy_surface(rng, h=30, w=34)
+    raw = depth_to_points(depth, k)
+    hole = rng.random(depth.shape) < 0.35
+    hole[8:20, 4:16] = True  # peels over 6 passes
+    points = raw + rng.normal(0, 0.05, raw.shape).astype(np.float32)
+    points[hole] += np.float32(0.4)
+    for gate, passes in ((math.inf, 10), (1.0, 10), (1.0, 3)):
+        fast_points = points.copy()
+        fast_hole = hole.copy()
+        filled = _fill_holes(
+            fast_points,
+            raw,
+            fast_hole,
+            radius=2,
+            sigma=2.0,
+            passes=passes,
+            min_neighbours=3,
+            gate=gate,
+        )
+        exp_points, exp_hole, exp_filled = naive.fill_holes(
+            points, raw, hole, 2, 2.0, passes, 3, gate
+        )
+        np.testing.assert_array_equal(filled, exp_filled)
+        np.testing.assert_array_equal(fast_hole, exp_hole)
+        np.testing.assert_allclose(fast_points, exp_points, atol=1e-3)
+        assert 0 < filled.sum() <= hole.sum()
+
+
+def test_one_frame_window_computes_no_flow():
+    """Issue 13: num_frames=1 uses no pair, so the tracker is never built."""
+    depth = _plane_depth(4)
+    intensity = np.full(depth.shape, 0.5, np.float32)
+    timings = {}
+    engine = FusionEngine(K, fusion=FusionParams(num_frames=1), timings=timings)
+    out = [fr for d, i in zip(depth, intensity, strict=True) for fr in engine.push(d, i)]
+    out += engine.flush()
+    assert [fr.index for fr in out] == [0, 1, 2, 3]
+    assert engine._flow_estimator is None
+    assert timings["flow"] == 0.0
+    assert timings["tracking"] < 1.0
+    assert (out[0].support == 0).all()
+
+
 def test_project_to_rays_kernel_matches_oracle(rng):
     depth, k = _bumpy_surface(rng)
     depth[:, 9:] += 12.0  # a 12 mm step: an edge for quad = 0, continuous for quad = 2e-5

@@ -292,7 +292,9 @@ class FusionEngine:
         sigma0 = estimate_depth_noise(d, reference=self._smooth[slot][..., 2])
         self._noise[slot] = (sigma0, quad, z_med)
         self._intensity[slot] = inten
-        if index > 0:
+        # a window of one frame uses no pair: no flows, no tracks (issue 13); flows that are
+        # passed in are still stored (and reported through ``on_pair``)
+        if index > 0 and (self.past + self.future > 0 or pair_flow is not None):
             self._add_pair(index, pair_flow)
         self._pushed += 1
         out = []
@@ -557,7 +559,8 @@ class FusionResult:
     confidence : (T, H, W) ndarray of float32
         Fraction of the window's frames that measured the value (see :class:`FusedFrame`).
     flow_forward, flow_backward : (T-1, H, W, 2) ndarray of float32
-        The flows used (px).
+        The flows used (px); zero (and ``motion``, ``fb_error`` NaN) with ``num_frames=1``,
+        whose one-frame window uses no pair and computes no flow.
     motion : (T-1, H, W, 3) ndarray of float32
         One-step 3D motion field (scene flow) m^{t,t+1} in mm; NaN where the step is invalid.
     fb_error : (T-1, H, W) ndarray of float32

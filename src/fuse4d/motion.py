@@ -216,6 +216,8 @@ def _track_window(
     rows = np.empty((k, h, w), np.int32)
     cols = np.empty((k, h, w), np.int32)
     ok = np.empty((k, h, w), np.bool_)
+    if k == 0:  # a window of frame t alone: nothing to track
+        return frame_slot, rows, cols, ok
     _track_kernel(
         fwd_ring,
         bwd_ring,

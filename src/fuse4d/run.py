@@ -8,8 +8,11 @@ grow with the recording's length.
 
 from __future__ import annotations
 
+import itertools
+import queue
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -26,7 +29,13 @@ from .io import write_npz as _write_npz
 from .io.resume import ResumableFolderWriter, partial_path, run_identity
 from .metrics import RunningEvaluation
 
-__all__ = ["RunSummary", "fuse_file"]
+__all__ = ["IO_STAGES", "RunSummary", "fuse_file"]
+
+#: Timings of the streaming run outside the engine's :data:`~fuse4d.fusion.STAGES` (seconds):
+#: ``read`` (decode, in the read-ahead thread), ``write`` (encode, in the write-behind thread),
+#: ``summary`` (the before/after quality tally), ``io_wait`` (the fusion thread waiting for a
+#: frame or for room in the write queue: the part of the I/O that did not overlap).
+IO_STAGES = ("read", "write", "summary", "io_wait")
 
 
 @dataclass
@@ -162,6 +171,7 @@ def fuse_file(
     progress: Callable[[int, int], None] | None = None,
     reader_options: dict[str, Any] | None = None,
     resume: bool = False,
+    io_queue: int = 2,
 ) -> RunSummary:
     """Fuse a recording on disk and write the result next to nothing it reads.
 
@@ -179,7 +189,12 @@ def fuse_file(
     overwrite : bool
         Replace an existing output (never the input).
     quality : bool
-        Compute the before/after roughness (costs ~2 roughness maps per frame).
+        Compute the before/after roughness (costs ~2 roughness maps per frame); ``False``
+        leaves the summary's quality figures NaN (``fuse4d run --no-summary``).
+    io_queue : int
+        Streaming layouts: frames decoded ahead by a reader thread and frames queued for a
+        writer thread, each (bounded queues, so memory stays flat); 0 reads and writes in the
+        fusion thread.
     progress : callable, optional
         ``progress(done, total)`` per output frame.
     reader_options : dict, optional
@@ -213,7 +228,17 @@ def fuse_file(
         summary = _fuse_npz(src, dst, params, flow, overwrite, quality, progress)
     else:
         summary = _fuse_streaming(
-            src, dst, fmt, params, flow, overwrite, quality, progress, reader_options or {}, resume
+            src,
+            dst,
+            fmt,
+            params,
+            flow,
+            overwrite,
+            quality,
+            progress,
+            reader_options or {},
+            resume=resume,
+            io_queue=io_queue,
         )
     summary.seconds = time.perf_counter() - start
     return summary
@@ -252,17 +277,164 @@ def _fuse_npz(src, dst, params, flow, overwrite, quality, progress) -> RunSummar
     return summary
 
 
+class _ReadAhead:
+    """Iterate ``frames`` in a daemon thread, at most ``depth`` items ahead of the consumer.
+
+    Decoding (OpenCV, PNG, video) releases the GIL, and so do the numba kernels, so frame
+    t + 1 is read while frame t fuses. An exception of the reader is raised in the consumer.
+    Seconds spent producing items accumulate in ``timings["read"]``.
+    """
+
+    _END = object()
+
+    def __init__(self, frames: Iterable[Any], depth: int, timings: dict[str, float]) -> None:
+        self._queue: queue.Queue = queue.Queue(maxsize=max(depth, 1))
+        self._stop = threading.Event()
+        self._timings = timings
+        self._thread = threading.Thread(
+            target=self._run, args=(iter(frames),), name="fuse4d-read", daemon=True
+        )
+        self._thread.start()
+
+    def _put(self, item: Any) -> bool:
+        while not self._stop.is_set():
+            try:
+                self._queue.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def _run(self, frames: Iterator[Any]) -> None:
+        try:
+            while not self._stop.is_set():
+                t0 = time.perf_counter()
+                try:
+                    item = next(frames)
+                except StopIteration:
+                    break
+                self._timings["read"] += time.perf_counter() - t0
+                if not self._put((True, item)):
+                    return
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer
+            self._put((False, exc))
+            return
+        self._put((True, self._END))
+
+    def __iter__(self) -> Iterator[Any]:
+        while True:
+            t0 = time.perf_counter()
+            ok, item = self._queue.get()
+            self._timings["io_wait"] += time.perf_counter() - t0
+            if not ok:
+                raise item
+            if item is self._END:
+                return
+            yield item
+
+    def close(self) -> None:
+        """Stop the thread (it may be blocked on a full queue) and wait for it."""
+        self._stop.set()
+        self._thread.join()
+
+
+class _WriteBehind:
+    """Run ``write(*args, **kwargs)`` calls in a daemon thread, in order, at most ``depth``
+    queued; the first exception of the writer is raised by the next :meth:`submit` or by
+    :meth:`close`. Seconds spent writing accumulate in ``timings["write"]``."""
+
+    def __init__(self, write: Callable[..., Any], depth: int, timings: dict[str, float]) -> None:
+        self._write = write
+        self._queue: queue.Queue = queue.Queue(maxsize=max(depth, 1))
+        self._timings = timings
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="fuse4d-write", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            job = self._queue.get()
+            if job is None:
+                return
+            if self._error is not None:
+                continue  # drain after a failure
+            t0 = time.perf_counter()
+            try:
+                self._write(*job[0], **job[1])
+            except BaseException as exc:  # noqa: BLE001 - re-raised in the fusion thread
+                self._error = exc
+            self._timings["write"] += time.perf_counter() - t0
+
+    def submit(self, *args: Any, **kwargs: Any) -> None:
+        if self._error is not None:
+            raise self._error
+        t0 = time.perf_counter()
+        self._queue.put((args, kwargs))
+        self._timings["io_wait"] += time.perf_counter() - t0
+
+    def close(self) -> None:
+        """Wait for the queued writes; raise the writer's exception, if any."""
+        self._queue.put(None)
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+
+
+class _Inline:
+    """The single-thread stand-in of :class:`_WriteBehind` (``io_queue=0``)."""
+
+    def __init__(self, write: Callable[..., Any], timings: dict[str, float]) -> None:
+        self._write = write
+        self._timings = timings
+
+    def submit(self, *args: Any, **kwargs: Any) -> None:
+        t0 = time.perf_counter()
+        self._write(*args, **kwargs)
+        self._timings["write"] += time.perf_counter() - t0
+
+    def close(self) -> None:
+        pass
+
+
+def _timed(frames: Iterable[Any], timings: dict[str, float]) -> Iterator[Any]:
+    """``frames`` with the time spent producing each one added to ``timings["read"]``."""
+    it = iter(frames)
+    while True:
+        t0 = time.perf_counter()
+        try:
+            item = next(it)
+        except StopIteration:
+            return
+        timings["read"] += time.perf_counter() - t0
+        yield item
+
+
 def _fuse_streaming(
-    src, dst, fmt, params, flow, overwrite, quality, progress, options, resume=False
+    src,
+    dst,
+    fmt,
+    params,
+    flow,
+    overwrite,
+    quality,
+    progress,
+    options,
+    *,
+    resume: bool = False,
+    io_queue: int = 2,
+    limit: int | None = None,
 ) -> RunSummary:
+    """The streaming run; ``limit`` fuses the first ``limit`` frames only (``fuse4d bench
+    --input``)."""
     if params.iterations != 1:
         raise ParameterError(
             "iterations > 1 needs the whole sequence in memory; convert the input to .npz first"
         )
-    timings = dict.fromkeys(STAGES, 0.0)
+    timings = dict.fromkeys(STAGES + IO_STAGES, 0.0)
     writer_cls, out_fmt = _writer_for(dst)
     with open_frames(src, **options) as reader:
-        total = len(reader)
+        total = len(reader) if limit is None else min(limit, len(reader))
+        source = reader if limit is None else itertools.islice(reader, total)
         k = reader.intrinsics
         flow_config = _flow_config(flow)
         identity = run_identity(
@@ -318,17 +490,32 @@ def _fuse_streaming(
             )
             pending: dict[int, Any] = {}  # raw frames waiting for their fused output
             written = 0
+            # random access only when resuming; recordings are read in stream order
+            todo = source if first == 0 else (reader.read_frame(t) for t in range(first, total))
+            if io_queue > 0:
+                frames: Any = _ReadAhead(todo, io_queue, timings)
+                # a resumable folder checkpoints what is on disk: its writes stay in this thread
+                sink: Any = (
+                    _Inline(writer.write, timings)
+                    if resumable
+                    else _WriteBehind(writer.write, io_queue, timings)
+                )
+            else:
+                frames = _timed(todo, timings)
+                sink = _Inline(writer.write, timings)
 
-            def emit(frames: list[FusedFrame]) -> None:
+            def emit(fused: list[FusedFrame]) -> None:
                 nonlocal written
-                for fr in frames:
+                for fr in fused:
                     t = first + fr.index
                     raw = pending.pop(t)
                     if resumable and t < writer.frames_done:  # before the checkpoint / on disk
                         continue
                     if tally is not None:
+                        t0 = time.perf_counter()
                         tally.add(depth_to_points(raw.depth, k), fr)
-                    writer.write(fr.depth, raw.intensity, mask=raw.mask, timestamp=raw.timestamp)
+                        timings["summary"] += time.perf_counter() - t0
+                    sink.submit(fr.depth, raw.intensity, mask=raw.mask, timestamp=raw.timestamp)
                     written += 1
                     if resumable and writer.wants_checkpoint() and writer.frames_done < total:
                         start = writer.frames_done - engine.past
@@ -336,18 +523,18 @@ def _fuse_streaming(
                     if progress is not None:
                         progress(writer.frames_done if resumable else written, total)
 
-            # random access only when resuming; recordings are read in stream order
-            frames = (
-                enumerate(reader)
-                if first == 0
-                else ((t, reader.read_frame(t)) for t in range(first, total))
-            )
-            for t, frame in frames:
-                pending[t] = frame
-                emit(engine.push(frame.depth, frame.intensity))
-            emit(engine.flush())
+            try:
+                for order, frame in enumerate(frames):
+                    pending[first + order] = frame
+                    emit(engine.push(frame.depth, frame.intensity))
+                emit(engine.flush())
+            finally:
+                frames.close()  # the read-ahead thread, or the inline generator
+                sink.close()  # all writes done before the writer is closed
         if tally is not None:
+            t0 = time.perf_counter()
             tally.fill(summary)
+            timings["summary"] += time.perf_counter() - t0
     return summary
 
 

@@ -436,30 +436,47 @@ def _fill_holes_kernel(
     start of the pass. A fill is accepted only within ``gate`` mm of the hole's current
     (fallback, bilateral-only) value (A20): first-order extrapolation overshoots on steep,
     curved surfaces such as a sphere's rim.
+
+    Cost linear in the number of holes (issue 13): a hole's candidate depends only on F and
+    the points within ``radius + 1`` px (the window plus the Jacobians' one-pixel reach), so
+    after the first pass only the holes near a pixel filled in the previous pass are
+    evaluated again; the others would repeat their last (rejected) evaluation. The Jacobians
+    of F are cached between holes and passes. The result is that of evaluating every
+    remaining hole in every pass.
     """
     h, w = hole.shape
     in_set = np.zeros((h, w), dtype=np.bool_)
-    for v in range(h):
-        for u in range(w):
-            in_set[v, u] = (not hole[v, u]) and not np.isnan(points[v, u, 2])
-    hv = np.empty(h * w, dtype=np.int64)
-    hu = np.empty(h * w, dtype=np.int64)
     nh = 0
     for v in range(h):
         for u in range(w):
+            in_set[v, u] = (not hole[v, u]) and not np.isnan(points[v, u, 2])
             if hole[v, u]:
-                hv[nh] = v
-                hu[nh] = u
                 nh += 1
+    # the remaining holes, in raster order (compacted after every pass)
+    hv = np.empty(nh, dtype=np.int64)
+    hu = np.empty(nh, dtype=np.int64)
+    k = 0
+    for v in range(h):
+        for u in range(w):
+            if hole[v, u]:
+                hv[k] = v
+                hu[k] = u
+                k += 1
     new_vals = np.empty((nh, 3), dtype=np.float64)
     take = np.zeros(nh, dtype=np.bool_)
-    for _ in range(passes):
-        any_filled = False
+    # dirty[v, u]: F or the points changed within radius + 1 of (v, u) in the last pass
+    dirty = np.zeros((h, w), dtype=np.bool_)
+    # J_n of the members of F, computed when first needed and kept until F changes next to n
+    # (J_n reads F and the points at n and its 4-neighbours): (du, dv) columns, x y z each
+    jac = np.empty((h, w, 6), dtype=np.float64)
+    jac_ok = np.zeros((h, w), dtype=np.bool_)
+    reach = radius + 1
+    for p in range(passes):
         for k in range(nh):
             take[k] = False
             v = hv[k]
             u = hu[k]
-            if not hole[v, u]:
+            if p > 0 and not dirty[v, u]:
                 continue
             px = raw_points[v, u, 0]
             py = raw_points[v, u, 1]
@@ -484,13 +501,21 @@ def _fill_holes_kernel(
                     qz = points[nv, nu, 2]
                     d2 = (qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2
                     wgt = math.exp(-d2 * inv_2sh2)
-                    jux, juy, juz = _jacobian_column(points, in_set, nv, nu, 0, 1)
-                    jvx, jvy, jvz = _jacobian_column(points, in_set, nv, nu, 1, 0)
+                    if not jac_ok[nv, nu]:
+                        jux, juy, juz = _jacobian_column(points, in_set, nv, nu, 0, 1)
+                        jvx, jvy, jvz = _jacobian_column(points, in_set, nv, nu, 1, 0)
+                        jac[nv, nu, 0] = jux
+                        jac[nv, nu, 1] = juy
+                        jac[nv, nu, 2] = juz
+                        jac[nv, nu, 3] = jvx
+                        jac[nv, nu, 4] = jvy
+                        jac[nv, nu, 5] = jvz
+                        jac_ok[nv, nu] = True
                     du = u - nu
                     dv = v - nv
-                    ax += wgt * (qx + jux * du + jvx * dv)
-                    ay += wgt * (qy + juy * du + jvy * dv)
-                    az += wgt * (qz + juz * du + jvz * dv)
+                    ax += wgt * (qx + jac[nv, nu, 0] * du + jac[nv, nu, 3] * dv)
+                    ay += wgt * (qy + jac[nv, nu, 1] * du + jac[nv, nu, 4] * dv)
+                    az += wgt * (qz + jac[nv, nu, 2] * du + jac[nv, nu, 5] * dv)
                     wsum += wgt
             if wsum > 1e-30:
                 nx_ = ax / wsum
@@ -506,6 +531,10 @@ def _fill_holes_kernel(
                     new_vals[k, 1] = ny_
                     new_vals[k, 2] = nz_
                     take[k] = True
+        # clear the marks of this pass, apply its fills, mark their neighbourhoods
+        for k in range(nh):
+            dirty[hv[k], hu[k]] = False
+        any_filled = False
         for k in range(nh):
             if take[k]:
                 v = hv[k]
@@ -517,8 +546,22 @@ def _fill_holes_kernel(
                 in_set[v, u] = True
                 filled[v, u] = True
                 any_filled = True
+                for nv in range(max(v - reach, 0), min(v + reach + 1, h)):
+                    for nu in range(max(u - reach, 0), min(u + reach + 1, w)):
+                        dirty[nv, nu] = True
+                for nv in range(max(v - 1, 0), min(v + 2, h)):
+                    for nu in range(max(u - 1, 0), min(u + 2, w)):
+                        jac_ok[nv, nu] = False
         if not any_filled:
             break
+        # drop the filled holes from the list (order kept)
+        m = 0
+        for k in range(nh):
+            if not take[k]:
+                hv[m] = hv[k]
+                hu[m] = hu[k]
+                m += 1
+        nh = m
 
 
 # --------------------------------------------------------------------------- output on pixel rays

@@ -152,7 +152,9 @@ class BaselineInfo:
         values = dict(params)
         if self.size_name != "size" and self.size_name in values:
             if "size" in values:
-                raise ParameterError(f"baseline {self.name!r}: give size or {self.size_name}, not both")
+                raise ParameterError(
+                    f"baseline {self.name!r}: give size or {self.size_name}, not both"
+                )
             values["size"] = values.pop(self.size_name)
         try:
             return coerce_kwargs(self.function, values, owner=f"baseline {self.name!r}")

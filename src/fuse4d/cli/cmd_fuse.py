@@ -151,6 +151,10 @@ def run_command(
         ),
     ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+    no_summary: Annotated[
+        bool,
+        typer.Option("--no-summary", help="Skip the before/after quality figures (faster)."),
+    ] = False,
     depth_topic: DepthTopicOpt = None,
     intensity_topic: IntensityTopicOpt = None,
     intensity: IntensityOpt = None,
@@ -236,6 +240,7 @@ def run_command(
             fusion=fusion,
             flow=flow,
             overwrite=force,
+            quality=not no_summary,
             progress=progress_callback(progress),
             reader_options=options,
             resume=resume,
@@ -262,6 +267,9 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
             return missing
         verdict = words[0] if fused < raw else words[1] if fused > raw else "unchanged"
         return f"{raw:.3f} -> {fused:.3f} mm ({verdict})"
+
+    def percent(fraction: float, digits: int) -> str:
+        return f"{100 * fraction:.{digits}f} %" if math.isfinite(fraction) else "n/a"
 
     smooth = ("smoother", "rougher")
 
@@ -310,12 +318,12 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
         ),
         (
             "temporal support",
-            f"{100 * summary.support_fraction:.1f} %",
+            percent(summary.support_fraction, 1),
             "valid pixels tracked into at least one other frame",
         ),
         (
             "Eq. 6 filled",
-            f"{100 * summary.filled_fraction:.2f} %",
+            percent(summary.filled_fraction, 2),
             "valid pixels without temporal support, filled from neighbours (not sensor holes)",
         ),
         (
@@ -343,14 +351,25 @@ def bench_command(
         float, typer.Option("--intensity-noise", help="With --quality: sigma_I (fraction).")
     ] = 0.02,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+    recording: Annotated[
+        Path | None,
+        typer.Option(
+            "--input", help="Instead: time `fuse4d run` on this recording (--frames of it)."
+        ),
+    ] = None,
+    no_summary: Annotated[
+        bool, typer.Option("--no-summary", help="With --input: skip the quality summary.")
+    ] = False,
 ) -> None:
     """Time each pipeline stage (ms/frame) and report peak memory, on the synthetic ball.
 
+    With --input REC: a real recording end to end through the streaming path of `fuse4d run`
+    (read, write and summary are stages; reading and writing overlap the fusion).
     With --quality: RMSE/roughness/bad pixels/shape of raw, the depth self-guided filter, a
     9-frame mean and fuse4d against ground truth on the 50-frame 600x600 ball.
     """
     from ..config import PRESETS
-    from ..experiments.speed import benchmark_pipeline
+    from ..experiments.speed import benchmark_pipeline, benchmark_recording
 
     names = list(PRESETS) if preset_name == "all" else [preset_name]
     for name in names:
@@ -362,20 +381,30 @@ def bench_command(
     results = []
     for name in names:
         err_console.print(f"benchmarking preset {name!r} ...")
-        results.append(benchmark_pipeline(name, small=small, num_frames=num_frames, window=window))
+        if recording is not None:
+            results.append(
+                benchmark_recording(
+                    recording, name, num_frames=num_frames, window=window, summary=not no_summary
+                )
+            )
+        else:
+            results.append(
+                benchmark_pipeline(name, small=small, num_frames=num_frames, window=window)
+            )
     if as_json:
         print(json.dumps([r.to_dict() for r in results], indent=2))
         return
     for r in results:
         table = Table(
             title=f"preset {r.preset} ({r.flow_method}), {r.size[0]}x{r.size[1]}, "
-            f"{r.window}-frame window, {r.frames} frames"
+            f"{r.window}-frame window, {r.frames} frames" + (f", {r.input}" if r.input else "")
         )
         table.add_column("stage")
         table.add_column("ms/frame", justify="right")
         for stage, ms in r.stage_ms.items():
             table.add_row(stage, f"{ms:.1f}")
         table.add_row("[bold]total (wall)", f"[bold]{r.ms_per_frame:.1f}")
+        table.add_row("per pixel", f"{r.us_per_pixel:.3f} µs")
         out_console.print(table)
         out_console.print(f"warm-up {r.warmup_s:.1f} s, peak RSS {r.peak_rss_mb:.0f} MiB")
 
