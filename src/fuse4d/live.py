@@ -384,6 +384,9 @@ class LiveStats:
         Capture rate: frames captured per second between the first and the last capture.
     latency_ms : dict
         Capture-to-output latency, ``p50``, ``p95``, ``max`` and ``mean`` in ms.
+    step_ms : dict
+        Wall time of one fusion step (:meth:`fuse4d.FusionEngine.push`), ``p50`` and ``mean``
+        in ms: the rate the pipeline can sustain is about 1000 / step.
     indices : list of int
         Source frame numbers of the output frames, in order.
     window_frames : list of int
@@ -401,6 +404,7 @@ class LiveStats:
     fps: float = 0.0
     input_fps: float = 0.0
     latency_ms: dict[str, float] = field(default_factory=dict)
+    step_ms: dict[str, float] = field(default_factory=dict)
     indices: list[int] = field(default_factory=list)
     window_frames: list[int] = field(default_factory=list)
     latencies_s: list[float] = field(default_factory=list, repr=False)
@@ -415,6 +419,8 @@ class LiveStats:
             fps=self.fps,
             input_fps=self.input_fps,
             latency_ms=dict(self.latency_ms),
+            step_ms=dict(self.step_ms),
+            mean_window=(float(np.mean(self.window_frames)) if self.window_frames else 0.0),
         )
         return out
 
@@ -483,6 +489,7 @@ def run_live(
     queue = DropOldestQueue(queue_size, block=block)
     stop = stop or threading.Event()
     stats = LiveStats()
+    steps: list[float] = []
     errors: list[BaseException] = []
     first_capture: list[float] = []
     last_capture: list[float] = [0.0]
@@ -534,7 +541,9 @@ def run_live(
             last_index = frame.index
             if extra_delay_s > 0:
                 time.sleep(extra_delay_s)
+            t0 = time.perf_counter()
             fused = engine.push(frame.depth, frame.intensity)
+            steps.append(time.perf_counter() - t0)
             history = min(history + 1, params.num_frames)
             for out in fused:  # causal: exactly the frame just pushed
                 if sink is not None:
@@ -571,18 +580,25 @@ def run_live(
             "max": float(lat.max()),
             "mean": float(lat.mean()),
         }
+    if steps:
+        step = np.asarray(steps) * 1000.0
+        stats.step_ms = {"p50": float(np.median(step)), "mean": float(step.mean())}
     return stats
 
 
 def _warm_up(intrinsics: Intrinsics, params: FusionParams, flow: FlowConfig | str | None) -> None:
-    """Fuse two synthetic frames (a noisy plane) so that every kernel is compiled or loaded."""
+    """Fuse three synthetic frames (a noisy plane with a step, sensor holes and a moving
+    texture) so that every kernel, hole filling included, is compiled or loaded."""
     h, w = intrinsics.height, intrinsics.width
     rng = np.random.default_rng(0)
+    texture = rng.uniform(0.2, 0.8, (h, w + 3)).astype(np.float32)
     engine = FusionEngine(intrinsics, fusion=params, flow=flow)
-    for _ in range(2):
+    for t in range(3):
         depth = (1000.0 + rng.normal(0.0, 1.0, (h, w))).astype(np.float32)
-        intensity = rng.uniform(0.2, 0.8, (h, w)).astype(np.float32)
-        engine.push(depth, intensity)
+        depth[:, w // 2 :] += 300.0  # a depth edge
+        depth[rng.random((h, w)) < 0.01] = np.nan  # scattered holes
+        depth[h // 4 : h // 4 + max(h // 8, 1), w // 4 : w // 4 + max(w // 8, 1)] = np.nan
+        engine.push(depth, np.ascontiguousarray(texture[:, t : t + w]))
 
 
 def display_available() -> bool:

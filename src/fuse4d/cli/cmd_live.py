@@ -242,7 +242,13 @@ def _table(s: dict[str, Any]) -> Table:
     table.add_column("")
     table.add_column("")
     rows = [
-        ("window", f"{s['window']} frames (causal), flow {s['flow_method']}"),
+        (
+            "window",
+            (
+                f"{s['window']} frames (causal), flow {s['flow_method']}; "
+                f"{s['mean_window']:.2f} frames fused per output on average"
+            ),
+        ),
         (
             "frames",
             f"{s['frames_captured']} captured, {s['frames_fused']} fused, {s['dropped']} dropped",
@@ -262,6 +268,10 @@ def _table(s: dict[str, Any]) -> Table:
             if not lat
             else f"p50 {lat['p50']:.0f} ms, p95 {lat['p95']:.0f} ms, max {lat['max']:.0f} ms "
             "(capture to output)",
+        ),
+        (
+            "fusion step",
+            "n/a" if not s["step_ms"] else f"{s['step_ms']['p50']:.0f} ms (median)",
         ),
         ("time", f"{s['seconds']:.1f} s"),
     ]
