@@ -215,3 +215,120 @@ def test_cli_live_without_camera_fails_cleanly(capsys, monkeypatch):
     monkeypatch.setattr(fuse4d.live, "realsense_available", lambda: False)
     assert main(["live"]) == 2
     assert "no RealSense camera" in capsys.readouterr().err
+
+
+class _FakeRealSense:
+    """The parts of the pyrealsense2 API that RealSenseSource uses, replaying the ball."""
+
+    def __init__(self, seq) -> None:
+        import types
+
+        self.seq = seq
+        self.stopped = False
+        self.stream = types.SimpleNamespace(depth="depth", infrared="infrared")
+        self.format = types.SimpleNamespace(z16="z16", y8="y8")
+        self.option = types.SimpleNamespace(emitter_enabled="emitter")
+        self.options: dict[str, float] = {}
+        self.enabled: list[tuple] = []
+        fake = self
+
+        class _Frame:
+            def __init__(self, data, number) -> None:
+                self.data, self.number = data, number
+
+            def __bool__(self) -> bool:
+                return True
+
+            def get_data(self):
+                return self.data
+
+            def get_frame_number(self) -> int:
+                return self.number
+
+            def get_timestamp(self) -> float:
+                return 1000.0 * self.number / 30.0
+
+        class _Frameset:
+            def __init__(self, k: int) -> None:
+                d = np.nan_to_num(fake.seq.depth[k], nan=0.0)
+                self.depth = _Frame(np.round(d).astype(np.uint16), k)
+                self.ir = _Frame(np.round(255 * fake.seq.intensity[k]).astype(np.uint8), k)
+
+            def get_depth_frame(self):
+                return self.depth
+
+            def get_infrared_frame(self, index: int):
+                assert index == 1
+                return self.ir
+
+        class _Sensor:
+            def get_depth_scale(self) -> float:
+                return 0.001  # 1 mm per unit
+
+            def supports(self, option) -> bool:
+                return True
+
+            def set_option(self, option, value) -> None:
+                fake.options[option] = value
+
+        k = seq.intrinsics
+        intr = types.SimpleNamespace(
+            fx=k.fx, fy=k.fy, ppx=k.cx, ppy=k.cy, width=k.width, height=k.height
+        )
+        video = types.SimpleNamespace(get_intrinsics=lambda: intr)
+        stream_profile = types.SimpleNamespace(as_video_stream_profile=lambda: video)
+        device = types.SimpleNamespace(first_depth_sensor=_Sensor)
+        profile = types.SimpleNamespace(
+            get_device=lambda: device, get_stream=lambda stream: stream_profile
+        )
+
+        class _Pipeline:
+            def __init__(self) -> None:
+                self.k = 0
+
+            def start(self, config):
+                return profile
+
+            def wait_for_frames(self, timeout_ms: int):
+                time.sleep(1 / 30)
+                self.k += 1
+                return _Frameset((self.k - 1) % len(fake.seq.depth))
+
+            def stop(self) -> None:
+                fake.stopped = True
+
+        class _Config:
+            def enable_stream(self, *args) -> None:
+                fake.enabled.append(args)
+
+            def enable_device(self, serial) -> None:
+                fake.enabled.append(("device", serial))
+
+        self.pipeline, self.config = _Pipeline, _Config
+        self.context = lambda: types.SimpleNamespace(query_devices=lambda: [object()])
+
+
+def test_realsense_source_against_a_fake_pipeline(ball, monkeypatch):
+    """No camera here: the pipeline calls, units and registration against a stand-in."""
+    import sys
+
+    from fuse4d.live import RealSenseSource, realsense_available
+
+    _, seq = ball
+    fake = _FakeRealSense(seq)
+    monkeypatch.setitem(sys.modules, "pyrealsense2", fake)
+    assert realsense_available()
+    source = RealSenseSource(width=150, height=150, fps=30, serial="123", emitter=False)
+    assert ("depth", 150, 150, "z16", 30) in fake.enabled
+    assert ("infrared", 1, 150, 150, "y8", 30) in fake.enabled
+    assert fake.options == {"emitter": 0.0}
+    assert source.depth_unit_mm == pytest.approx(1.0)
+    assert source.intrinsics.width == 150
+    frame = next(iter(source))
+    valid = np.isfinite(seq.depth[0])
+    assert np.array_equal(np.isfinite(frame.depth), valid & (np.round(seq.depth[0]) > 0))
+    np.testing.assert_allclose(frame.depth[valid], seq.depth[0][valid], atol=0.5)
+    stats = run_live(source, fusion=CAUSAL3, max_frames=6, queue_size=8)
+    source.close()
+    assert fake.stopped
+    assert stats.frames_fused == 6
