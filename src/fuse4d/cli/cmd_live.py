@@ -28,7 +28,7 @@ def live_command(
     input_path: Annotated[
         Path | None,
         typer.Argument(
-            metavar="[INPUT]",
+            metavar="INPUT",
             help="A recording to play back (any layout fuse4d run reads). Omitted: the first "
             "attached RealSense camera.",
             show_default=False,
@@ -62,7 +62,7 @@ def live_command(
         int | None, typer.Option("--window", help="Frames fused per output frame (causal).")
     ] = None,
     config: Annotated[
-        Path | None, typer.Option("--config", help="TOML file with [fusion] and [flow].")
+        Path | None, typer.Option("--config", help="TOML file with fusion and flow tables.")
     ] = None,
     sets: Annotated[
         list[str] | None,
