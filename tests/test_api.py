@@ -135,6 +135,7 @@ MODULES = [
     ("fuse4d.run", "File in, file out (what `fuse4d run` calls)"),
     ("fuse4d.report", "The HTML report: video, x-t slices, flicker, roughness, point clouds"),
     ("fuse4d.dask", "Chunked fusion on dask: arrays in, lazy arrays out, zarr v3 stores"),
+    ("fuse4d.live", "Live fusion of a camera or a recording played in real time"),
 ]
 
 

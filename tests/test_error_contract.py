@@ -94,12 +94,12 @@ def test_cli_bad_intrinsics_option_is_a_user_error(npz_path, tmp_path, capsys):
 
 
 def _inject_bug(monkeypatch, exc: BaseException) -> None:
-    from fuse4d.cli import cmd_io
+    import fuse4d.io  # the CLI imports its readers when a command runs (fast start-up)
 
     def broken(*args, **kwargs):
         raise exc
 
-    monkeypatch.setattr(cmd_io, "open_frames", broken)
+    monkeypatch.setattr(fuse4d.io, "open_frames", broken)
 
 
 @pytest.mark.parametrize("exc", [KeyError("oops"), ValueError("shapes (3,) (4,)"), TypeError("x")])

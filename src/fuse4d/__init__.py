@@ -27,24 +27,26 @@ Everything else lives in its subpackage: :mod:`fuse4d.flow` (optical flow, PMBP,
 from __future__ import annotations
 
 import importlib
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ._version import __version__
-from .camera import Intrinsics, depth_to_points, project_points
-from .config import FlowConfig, FusionParams, load_config, preset
-from .errors import (
-    Fuse4dError,
-    InputFileError,
-    InputNotFoundError,
-    OutputExistsError,
-    OutputWriteError,
-    ParameterError,
-    ShapeError,
-)
-from .flow import estimate_flow
-from .fusion import FusedFrame, FusionEngine, FusionResult, fuse_sequence, fuse_stream
-from .io import load_sequence, save_sequence
-from .sequence import Sequence
+if TYPE_CHECKING:  # for type checkers and IDEs; at run time every name loads on first use
+    from ._version import __version__
+    from .baselines import available_baselines, run_baseline
+    from .camera import Intrinsics, depth_to_points, project_points
+    from .config import FlowConfig, FusionParams, load_config, preset
+    from .errors import (
+        Fuse4dError,
+        InputFileError,
+        InputNotFoundError,
+        OutputExistsError,
+        OutputWriteError,
+        ParameterError,
+        ShapeError,
+    )
+    from .flow import estimate_flow
+    from .fusion import FusedFrame, FusionEngine, FusionResult, fuse_sequence, fuse_stream
+    from .io import load_sequence, save_sequence
+    from .sequence import Sequence
 
 __all__ = [
     "FlowConfig",
@@ -75,27 +77,75 @@ __all__ = [
     "save_sequence",
 ]
 
-#: Loaded on first use (the baselines pull in scipy.sparse / Open3D probes).
-_LAZY = {"run_baseline": "baselines", "available_baselines": "baselines"}
+#: Every public name -> the module that defines it. Nothing is imported with the package
+#: (``import fuse4d`` and ``fuse4d --help`` stay fast: numpy, numba, OpenCV and scipy load
+#: when a name that needs them is first used).
+_LAZY = {
+    "__version__": "_version",
+    "available_baselines": "baselines",
+    "run_baseline": "baselines",
+    "Intrinsics": "camera",
+    "depth_to_points": "camera",
+    "project_points": "camera",
+    "FlowConfig": "config",
+    "FusionParams": "config",
+    "load_config": "config",
+    "preset": "config",
+    "Fuse4dError": "errors",
+    "InputFileError": "errors",
+    "InputNotFoundError": "errors",
+    "OutputExistsError": "errors",
+    "OutputWriteError": "errors",
+    "ParameterError": "errors",
+    "ShapeError": "errors",
+    "estimate_flow": "flow",
+    "FusedFrame": "fusion",
+    "FusionEngine": "fusion",
+    "FusionResult": "fusion",
+    "fuse_sequence": "fusion",
+    "fuse_stream": "fusion",
+    "load_sequence": "io",
+    "save_sequence": "io",
+    "Sequence": "sequence",
+}
+#: Modules reachable as attributes (``fuse4d.metrics.evaluate``), imported on first access.
 _SUBPACKAGES = {
     "baselines",
+    "bilateral",
+    "camera",
+    "config",
+    "dask",
+    "errors",
     "experiments",
     "flow",
+    "fusion",
+    "holes",
     "io",
+    "live",
     "metrics",
     "motion",
     "plot",
+    "range_scenes",
+    "report",
+    "run",
+    "sensors",
+    "sequence",
     "synthetic",
 }
 
 
 def __getattr__(name: str) -> Any:
+    """Load a public name (or a subpackage) on first use and cache it in the package."""
     if name in _LAZY:
-        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
-    if name in _SUBPACKAGES:
-        return importlib.import_module(f".{name}", __name__)
-    raise AttributeError(f"module 'fuse4d' has no attribute {name!r}")
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    elif name in _SUBPACKAGES:
+        value = importlib.import_module(f".{name}", __name__)
+    else:
+        raise AttributeError(f"module 'fuse4d' has no attribute {name!r}")
+    globals()[name] = value
+    return value
 
 
 def __dir__() -> list[str]:
+    """The public names and subpackages, loaded or not (for ``dir()`` and tab completion)."""
     return sorted({*globals(), *__all__, *_SUBPACKAGES})

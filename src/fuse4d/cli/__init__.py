@@ -34,6 +34,7 @@ from . import (  # noqa: F401  isort: skip
     cmd_fuse,  # run, bench, demo
     cmd_eval,  # synth, metrics
     cmd_io,  # info, export-ply
+    cmd_live,  # live
     cmd_report,  # report
 )
 

@@ -9,18 +9,13 @@ from __future__ import annotations
 import sys
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
-from typing import Annotated, TypeVar
+from typing import TYPE_CHECKING, Annotated, TypeVar
 
 import typer
 from rich.console import Console
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    TextColumn,
-    TimeElapsedColumn,
-    TimeRemainingColumn,
-)
+
+if TYPE_CHECKING:
+    from rich.progress import Progress
 
 from ..errors import Fuse4dError
 
@@ -95,6 +90,15 @@ def user_values(what: str = "") -> Iterator[None]:
 @contextmanager
 def progress_bar(description: str, total: int | None) -> Iterator[Progress]:
     """A rich progress bar on stderr (hidden when stderr is not a terminal)."""
+    from rich.progress import (  # loaded when a command first shows progress (fast --help)
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
     progress = Progress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),

@@ -6,19 +6,17 @@ import time
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
 from rich.table import Table
 
-from .._params import parse_assignments
-from ..baselines import available_baselines, get_baseline
-from ..io import load_sequence, save_sequence
 from ._app import app, eprint, fail, out_console
 
 __all__ = ["baseline_command"]
 
 
 def _list_table() -> Table:
+    from ..baselines import available_baselines
+
     table = Table(title="fuse4d baselines")
     for col in (
         "name",
@@ -42,6 +40,9 @@ def _list_table() -> Table:
 
 
 def _size_help() -> str:
+    """The ``--size`` help computed from the registry (``SIZE_HELP`` must equal it: tested)."""
+    from ..baselines import available_baselines
+
     names: dict[str, list[str]] = {}
     for name, info in available_baselines().items():
         names.setdefault(info.size_name, []).append(name)
@@ -50,6 +51,16 @@ def _size_help() -> str:
         "The method's size knob, a different quantity per method: "
         f"{per_name}. See --list for units and sweeps; -p NAME=VALUE sets it by name."
     )
+
+
+#: ``_size_help()`` written out, so that the command line does not import the baselines (scipy,
+#: numba) to show its help; ``tests/test_cli_startup.py`` checks that the two agree.
+SIZE_HELP = (
+    "The method's size knob, a different quantity per method: kernel_scale (adgf); "
+    "spatial_radius (adbf, guided, dnbf, adjbf); num_frames (ta, temporal-mean); "
+    "temporal_radius (stmf, kinectfusion, ed); filter_passes (realsense). "
+    "See --list for units and sweeps; -p NAME=VALUE sets it by name."
+)
 
 
 @app.command("baseline")
@@ -64,7 +75,7 @@ def baseline_command(
     output: Annotated[
         Path | None, typer.Option("--output", "-o", help="Output .npz file or folder.")
     ] = None,
-    size: Annotated[str | None, typer.Option("--size", help=_size_help())] = None,
+    size: Annotated[str | None, typer.Option("--size", help=SIZE_HELP)] = None,
     iterations: Annotated[
         str | None, typer.Option("--iterations", help="Repeated applications (>= 1).")
     ] = None,
@@ -97,6 +108,12 @@ def baseline_command(
         return
     if name is None or input_path is None or output is None:
         fail("usage: fuse4d baseline NAME INPUT -o OUTPUT (or fuse4d baseline --list)")
+    import numpy as np
+
+    from .._params import parse_assignments
+    from ..baselines import get_baseline
+    from ..io import load_sequence, save_sequence
+
     info = get_baseline(name)
     if info.needs is not None and not info.available:
         fail(f"baseline {name!r} needs the optional extra: pip install 'fuse4d[{info.needs}]'")

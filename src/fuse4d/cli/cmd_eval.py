@@ -7,13 +7,15 @@ import json
 import math
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-import numpy as np
 import typer
 from rich.table import Table
 
 from ._app import app, err_console, fail, out_console, progress_bar, progress_callback
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ["metrics_command", "synth_command"]
 
@@ -84,6 +86,8 @@ def _read_region(path: Path, what: str, frames: str | None) -> np.ndarray:
 
 def _clean(value: Any) -> Any:
     """JSON-safe: NaN/inf -> None, numpy scalars -> Python."""
+    import numpy as np
+
     if isinstance(value, dict):
         return {k: _clean(v) for k, v in value.items()}
     if isinstance(value, list | tuple):

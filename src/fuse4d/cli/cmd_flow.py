@@ -7,30 +7,16 @@ import os
 from pathlib import Path
 from typing import Annotated
 
-import cv2
 import typer
 from rich.table import Table
 
-from .._params import parse_assignments
-from ..experiments.flow_accuracy import (
-    ball_pairs,
-    default_bench_entries,
-    middlebury_pairs,
-    run_flow_benchmark,
-    summarize_flow_benchmark,
-)
-from ..flow import (
-    estimate_flow,
-    flow_params_from_mapping,
-    get_flow_method,
-    write_flo,
-)
-from ..flow.vis import write_flow_png
-from ..io import read_intensity_image
 from ._app import app, eprint, fail, out_console, progress_bar, progress_callback, user_values
 
 
 def _parse_params(method: str, items: list[str]) -> object:
+    from .._params import parse_assignments
+    from ..flow import flow_params_from_mapping
+
     return flow_params_from_mapping(method, parse_assignments(items, what="--param"))
 
 
@@ -75,6 +61,10 @@ def flow_command(
     force: Annotated[bool, typer.Option("--force", help="Overwrite existing outputs.")] = False,
 ) -> None:
     """Optical flow from IMAGE0 to IMAGE1, written as Middlebury .flo (u = column shift, px)."""
+    from ..flow import estimate_flow, get_flow_method, write_flo
+    from ..flow.vis import write_flow_png
+    from ..io import read_intensity_image
+
     with user_values():
         m = get_flow_method(method.strip().lower())
         params = _parse_params(m.name, param or [])
@@ -141,6 +131,16 @@ def bench_flow_command(
     ] = False,
 ) -> None:
     """EPE / AAE / ms per pair of every flow method on Middlebury and the synthetic ball."""
+    import cv2
+
+    from ..experiments.flow_accuracy import (
+        ball_pairs,
+        default_bench_entries,
+        middlebury_pairs,
+        run_flow_benchmark,
+        summarize_flow_benchmark,
+    )
+
     with user_values():
         entries = default_bench_entries(None if methods is None else methods.split(","))
     pairs = []

@@ -7,11 +7,8 @@ import math
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
 
-from ..camera import depth_to_points
-from ..io import CAMERA_PRESETS, check_output, open_frames, write_ply
 from ._app import app, fail, out_console, track
 from ._recording_opts import (
     DepthTopicOpt,
@@ -23,8 +20,12 @@ from ._recording_opts import (
 
 __all__ = ["export_ply_command", "info_command"]
 
+#: The names of :data:`fuse4d.io.CAMERA_PRESETS`, written out so that ``--help`` does not
+#: import the readers (``tests/test_cli_startup.py`` checks that they agree).
+CAMERA_PRESET_NAMES = ("freiburg1", "freiburg2", "freiburg3", "kinect-v1")
+
 _INTRINSICS_HELP = (
-    "Camera override: a preset (" + ", ".join(CAMERA_PRESETS) + "), 'fx,fy,cx,cy' in px, "
+    "Camera override: a preset (" + ", ".join(CAMERA_PRESET_NAMES) + "), 'fx,fy,cx,cy' in px, "
     "or a camera.json path. Required for TUM folders without camera.json."
 )
 
@@ -72,6 +73,10 @@ def info_command(
     For camera recordings also the streams/topics (messages, rate, size, encoding) and which
     of them are used as depth and intensity.
     """
+    import numpy as np
+
+    from ..io import open_frames
+
     reader = open_frames(
         input_path,
         format=input_format,
@@ -164,6 +169,9 @@ def export_ply_command(
     no_undistort: NoUndistortOpt = False,
 ) -> None:
     """Write one frame as a binary PLY point cloud (mm, camera frame; intensity as gray)."""
+    from ..camera import depth_to_points
+    from ..io import check_output, open_frames, write_ply
+
     check_output(output, overwrite=force, inputs=[input_path])
     with open_frames(
         input_path,

@@ -1,0 +1,282 @@
+"""CLI command ``live``: causal fusion of a RealSense camera or a recording played in real time."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import threading
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.table import Table
+
+from ._app import app, eprint, fail, out_console
+from ._recording_opts import (
+    DepthTopicOpt,
+    IntensityOpt,
+    IntensityTopicOpt,
+    NoUndistortOpt,
+    reader_options,
+)
+
+__all__ = ["live_command"]
+
+
+@app.command("live")
+def live_command(
+    input_path: Annotated[
+        Path | None,
+        typer.Argument(
+            metavar="INPUT",
+            help="A recording to play back (any layout fuse4d run reads). Omitted: the first "
+            "attached RealSense camera.",
+            show_default=False,
+        ),
+    ] = None,
+    output: Annotated[
+        Path | None,
+        typer.Option("-o", "--output", help="Write the fused frames: folder, .mkv, .zarr or .npz."),
+    ] = None,
+    show: Annotated[
+        bool, typer.Option("--show", help="Raw | fused side by side in a window (q quits).")
+    ] = False,
+    realtime: Annotated[
+        bool,
+        typer.Option(
+            "--realtime",
+            help="Play a recording at its recorded rate (timestamps, or --fps), dropping frames "
+            "when the fusion falls behind. Without it: as fast as possible, nothing dropped.",
+        ),
+    ] = False,
+    fps: Annotated[
+        float | None,
+        typer.Option(
+            "--fps", help="Playback rate (frames/s; implies --realtime), or the camera's rate."
+        ),
+    ] = None,
+    preset_name: Annotated[
+        str, typer.Option("--preset", help="Parameter preset: fast (DIS flow) or paper (PMBP).")
+    ] = "fast",
+    window: Annotated[
+        int | None, typer.Option("--window", help="Frames fused per output frame (causal).")
+    ] = None,
+    config: Annotated[
+        Path | None, typer.Option("--config", help="TOML file with fusion and flow tables.")
+    ] = None,
+    sets: Annotated[
+        list[str] | None,
+        typer.Option("--set", help="Fusion parameter KEY=VALUE (repeatable).", show_default=False),
+    ] = None,
+    flow_method: Annotated[
+        str | None, typer.Option("--flow", help="Flow method (overrides the preset).")
+    ] = None,
+    flow_params: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--flow-param", help="Flow parameter KEY=VALUE (repeatable).", show_default=False
+        ),
+    ] = None,
+    queue_size: Annotated[
+        int,
+        typer.Option("--queue", help="Frames waiting for the fusion at most (oldest dropped)."),
+    ] = 2,
+    on_gap: Annotated[
+        str,
+        typer.Option(
+            "--on-gap",
+            help="After a dropped frame: restart (new window and flow warm start) or track "
+            "(across the gap as if consecutive).",
+        ),
+    ] = "restart",
+    max_frames: Annotated[
+        int | None, typer.Option("--frames", help="Stop after this many frames.")
+    ] = None,
+    duration: Annotated[
+        float | None, typer.Option("--duration", help="Stop after this many seconds.")
+    ] = None,
+    width: Annotated[int, typer.Option("--width", help="Camera: stream width (px).")] = 640,
+    height: Annotated[int, typer.Option("--height", help="Camera: stream height (px).")] = 480,
+    serial: Annotated[
+        str | None, typer.Option("--serial", help="Camera: serial number of the device.")
+    ] = None,
+    delay_ms: Annotated[
+        float,
+        typer.Option("--simulate-delay-ms", help="Extra ms per fusion step (test overload)."),
+    ] = 0.0,
+    force: Annotated[bool, typer.Option("--force", help="Overwrite an existing output.")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+    depth_topic: DepthTopicOpt = None,
+    intensity_topic: IntensityTopicOpt = None,
+    intensity: IntensityOpt = None,
+    no_undistort: NoUndistortOpt = False,
+    depth_unit_mm: Annotated[
+        float | None,
+        typer.Option("--depth-unit-mm", "--depth-unit", help="Millimetres per stored depth unit."),
+    ] = None,
+    intrinsics: Annotated[
+        str | None, typer.Option("--intrinsics", help="Camera override: 'fx,fy,cx,cy' or file.")
+    ] = None,
+) -> None:
+    """Fuse a camera or a recording live (causal engine, bounded queue); report fps and latency.
+
+    Frames go through a queue of --queue frames; when the fusion falls behind, the oldest
+    waiting frame is dropped, so latency stays bounded. At a gap the engine restarts (its
+    window and flow warm start begin again) unless --on-gap track.
+    """
+    from ..live import (
+        LiveWriter,
+        RealSenseSource,
+        RecordingSource,
+        display_available,
+        realsense_available,
+        run_live,
+    )
+    from .cmd_fuse import _resolve
+
+    if on_gap not in ("restart", "track"):
+        fail(f"--on-gap must be restart or track, got {on_gap!r}")
+    if queue_size < 1:
+        fail(f"--queue must be >= 1, got {queue_size}")
+    if fps is not None and fps <= 0:
+        fail(f"--fps must be > 0, got {fps}")
+    fusion, flow = _resolve(preset_name, config, window, True, sets, flow_method, flow_params)
+    if input_path is None:
+        if not realsense_available():
+            fail("no RealSense camera attached; give a recording to play back")
+        source: Any = RealSenseSource(width=width, height=height, fps=int(fps or 30), serial=serial)
+        realtime = True
+    else:
+        options = reader_options(depth_topic, intensity_topic, intensity, no_undistort)
+        if depth_unit_mm is not None:
+            options["depth_unit_mm"] = depth_unit_mm
+        if intrinsics is not None:
+            options["intrinsics"] = intrinsics
+        realtime = realtime or fps is not None
+        source = RecordingSource(input_path, realtime=realtime, fps=fps, **options)
+    sinks: list[Any] = []
+    stop = threading.Event()
+    with contextlib.ExitStack() as stack:
+        stack.callback(source.close)
+        if output is not None:
+            from ..io import check_output
+
+            check_output(output, overwrite=force, inputs=[] if input_path is None else [input_path])
+            writer = LiveWriter(
+                output,
+                source.intrinsics,
+                depth_unit_mm=source.depth_unit_mm,
+                fps=source.fps,
+                overwrite=force,
+            )
+            sinks.append(stack.enter_context(writer))
+        if show and not display_available():
+            eprint("fuse4d live: no display: --show skipped")
+        elif show:
+            sinks.append(_window_sink(stop))
+            stack.callback(_close_windows)
+
+        def sink(captured: Any, fused: Any) -> None:
+            for s in sinks:
+                s(captured, fused)
+
+        eprint(
+            "fuse4d live: "
+            + ("camera" if input_path is None else str(input_path))
+            + (f" at {source.fps:g} fps" if realtime and source.fps else "")
+            + f", window {fusion.num_frames} (causal), queue {queue_size}, Ctrl-C stops"
+        )
+        stats = run_live(
+            source,
+            fusion=fusion,
+            flow=flow,
+            queue_size=queue_size,
+            on_gap=on_gap,  # type: ignore[arg-type]
+            sink=sink if sinks else None,
+            max_frames=max_frames,
+            duration_s=duration,
+            stop=stop,
+            block=not realtime,
+            extra_delay_s=delay_ms / 1000.0,
+        )
+    summary = {
+        "input": "camera" if input_path is None else str(input_path),
+        "output": None if output is None else str(output),
+        "window": fusion.num_frames,
+        "flow_method": flow.method,
+        "realtime": realtime,
+        "source_fps": source.fps,
+        "queue": queue_size,
+        "on_gap": on_gap,
+        **stats.to_dict(),
+    }
+    if as_json:
+        print(json.dumps(summary, indent=2))
+        return
+    out_console.print(_table(summary))
+
+
+def _window_sink(stop: Any) -> Any:
+    """A sink showing raw | fused depth in an OpenCV window; q or Esc sets ``stop``."""
+    import cv2
+
+    from ..live import side_by_side
+
+    def sink(captured: Any, fused: Any) -> None:
+        cv2.imshow("fuse4d live: raw | fused", side_by_side(captured.depth, fused.depth))
+        if cv2.waitKey(1) & 0xFF in (ord("q"), 27):
+            stop.set()
+
+    return sink
+
+
+def _close_windows() -> None:
+    import cv2
+
+    cv2.destroyAllWindows()
+
+
+def _table(s: dict[str, Any]) -> Table:
+    lat = s["latency_ms"]
+    table = Table(title=f"fuse4d live: {s['input']}", show_header=False)
+    table.add_column("")
+    table.add_column("")
+    rows = [
+        (
+            "window",
+            (
+                f"{s['window']} frames (causal), flow {s['flow_method']}; "
+                f"{s['mean_window']:.2f} frames fused per output on average"
+            ),
+        ),
+        (
+            "frames",
+            f"{s['frames_captured']} captured, {s['frames_fused']} fused, {s['dropped']} dropped",
+        ),
+        (
+            "gaps",
+            f"{s['gaps']} ({s['restarts']} engine restarts, {s['tracked_gaps']} tracked across)",
+        ),
+        (
+            "rate",
+            f"{s['fps']:.1f} fps fused, {s['input_fps']:.1f} fps in"
+            + (f" (source {s['source_fps']:g} fps)" if s["source_fps"] else ""),
+        ),
+        (
+            "latency",
+            "n/a"
+            if not lat
+            else f"p50 {lat['p50']:.0f} ms, p95 {lat['p95']:.0f} ms, max {lat['max']:.0f} ms "
+            "(capture to output)",
+        ),
+        (
+            "fusion step",
+            "n/a" if not s["step_ms"] else f"{s['step_ms']['p50']:.0f} ms (median)",
+        ),
+        ("time", f"{s['seconds']:.1f} s"),
+    ]
+    if s["output"]:
+        rows.append(("output", s["output"]))
+    for key, value in rows:
+        table.add_row(key, value)
+    return table

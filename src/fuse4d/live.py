@@ -1,0 +1,729 @@
+"""Live fusion: the causal engine on a RealSense camera or a recording played back in real time.
+
+A capture thread reads frames from a :class:`FrameSource` (a camera, or a recording paced at
+its recorded rate) into a bounded queue; the fusion loop takes them out, fuses each with the
+``n - 1`` previous frames (:class:`fuse4d.FusionEngine` with ``FusionParams(causal=True)``: no
+look-ahead) and hands raw and fused frame to a sink (a writer, a window).
+
+Drop policy
+-----------
+When the fusion falls behind, the queue fills; the capture thread then drops the **oldest**
+unprocessed frame, so a frame never waits behind more than ``queue_size`` others and latency
+stays bounded (about ``(queue_size + 1)`` fusion steps). A dropped frame leaves a gap in the
+frame numbers (so does a frame the camera itself dropped). The engine has no notion of gaps:
+:meth:`fuse4d.FusionEngine.push` treats every pushed frame as the successor of the previous
+one and warm-starts its flow from the previous pair. So by default (``on_gap="restart"``) the
+fusion loop starts a new engine at every gap: the window and the flow warm start begin again
+from the frame after the gap (the next ``n - 1`` frames are fused with truncated windows), and
+nothing is tracked across a gap. ``on_gap="track"`` keeps the engine instead and tracks across
+the gap as if the frames were consecutive (a wider-baseline pair); every such gap is counted in
+:attr:`LiveStats.tracked_gaps`. Without drops the output equals a causal
+:func:`fuse4d.fuse_sequence` of the same frames bit for bit.
+
+Latency is measured from the moment a frame enters the pipeline (the camera delivered it, or
+the player released it at its due time) to the moment its fused frame has been passed to the
+sink (written or shown).
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import os
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from os import PathLike
+from pathlib import Path
+from typing import Any, Literal, Protocol, Self
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .camera import Intrinsics
+from .config import FlowConfig, FusionParams
+from .fusion import FusedFrame, FusionEngine
+
+__all__ = [
+    "CapturedFrame",
+    "DropOldestQueue",
+    "FrameSource",
+    "LiveStats",
+    "LiveWriter",
+    "RealSenseSource",
+    "RecordingSource",
+    "display_available",
+    "realsense_available",
+    "run_live",
+    "side_by_side",
+]
+
+
+@dataclass
+class CapturedFrame:
+    """One frame as it entered the live pipeline.
+
+    Attributes
+    ----------
+    index : int
+        Source frame number: consecutive unless frames were dropped (by the camera or by the
+        queue).
+    depth : (H, W) ndarray of float32
+        Depth in mm, NaN = invalid.
+    intensity : (H, W) ndarray of float32
+        Registered intensity in [0, 1].
+    timestamp : float or None
+        Recording or camera time of the frame in seconds.
+    captured : float
+        ``time.perf_counter()`` (s) when the frame entered the pipeline.
+    mask : (H, W) ndarray of bool or None
+        Object mask of the recording, if it stores one (passed to the writer).
+    """
+
+    index: int
+    depth: NDArray[np.float32]
+    intensity: NDArray[np.float32]
+    timestamp: float | None
+    captured: float
+    mask: NDArray[np.bool_] | None = None
+
+
+class FrameSource(Protocol):
+    """What :func:`run_live` reads: a camera or a paced recording."""
+
+    intrinsics: Intrinsics
+    fps: float | None
+    depth_unit_mm: float | None
+
+    def __iter__(self) -> Iterator[CapturedFrame]:
+        """Frames in capture order, each released when it is captured (or due)."""
+        ...
+
+    def close(self) -> None:
+        """Release the device or the file."""
+        ...
+
+
+class RecordingSource:
+    """A recording (any layout :func:`fuse4d.io.open_frames` reads) as a live source.
+
+    Parameters
+    ----------
+    path : path-like
+        The recording.
+    realtime : bool
+        Release each frame at its recorded time (timestamps from the reader; ``fps``
+        overrides them). ``False``: as fast as they can be read.
+    fps : float, optional
+        Playback rate in frames per second instead of the recorded timestamps.
+    frames : str, slice or sequence of int, optional
+        Frames to play (as ``open_frames(...).iter_frames``).
+    **reader_options
+        Passed to :func:`fuse4d.io.open_frames` (``format``, ``intrinsics``,
+        ``depth_unit_mm``, topics, ...).
+
+    Raises
+    ------
+    ValueError
+        With ``realtime`` when the recording stores neither timestamps nor a frame rate and
+        ``fps`` is not given; or when ``fps`` <= 0.
+    """
+
+    def __init__(
+        self,
+        path: str | PathLike[str],
+        *,
+        realtime: bool = True,
+        fps: float | None = None,
+        frames: Any = None,
+        **reader_options: Any,
+    ) -> None:
+        from .io import open_frames
+
+        if fps is not None and not (math.isfinite(fps) and fps > 0):
+            raise ValueError(f"fps must be > 0, got {fps}")
+        self.path = Path(path)
+        self._reader = open_frames(path, **reader_options)
+        self.intrinsics = self._reader.intrinsics
+        self.depth_unit_mm = self._reader.depth_unit_mm
+        self.realtime = realtime
+        self._frames = frames
+        timestamps = self._reader.timestamps
+        self._timestamps = None if fps is not None else timestamps
+        self.fps = fps if fps is not None else self._reader.fps
+        if self.fps is None and timestamps is not None and len(timestamps) > 1:
+            span = float(timestamps[-1] - timestamps[0])
+            self.fps = (len(timestamps) - 1) / span if span > 0 else None
+        if realtime and self._timestamps is None and self.fps is None:
+            self._reader.close()
+            raise ValueError(
+                f"{path}: the recording stores no timestamps or frame rate; give the "
+                "playback rate (--fps)"
+            )
+
+    def _due(self, order: int, index: int) -> float:
+        """Seconds after the start at which frame ``index`` (the ``order``-th played) is due."""
+        ts = self._timestamps
+        if ts is not None and np.isfinite(ts[index]) and np.isfinite(ts[self._first]):
+            return float(ts[index] - ts[self._first])
+        assert self.fps is not None
+        return order / self.fps
+
+    def __iter__(self) -> Iterator[CapturedFrame]:
+        start = None
+        self._first = 0
+        for order, frame in enumerate(self._reader.iter_frames(self._frames)):
+            if order == 0:
+                self._first = frame.index
+                start = time.perf_counter()
+            if self.realtime:
+                assert start is not None
+                wait = start + self._due(order, frame.index) - time.perf_counter()
+                if wait > 0:
+                    time.sleep(wait)
+            yield CapturedFrame(
+                index=frame.index,
+                depth=frame.depth,
+                intensity=frame.intensity,
+                timestamp=frame.timestamp,
+                captured=time.perf_counter(),
+                mask=frame.mask,
+            )
+
+    def close(self) -> None:
+        """Close the reader."""
+        self._reader.close()
+
+
+def realsense_available() -> bool:
+    """True when pyrealsense2 is installed and at least one RealSense device is attached."""
+    try:
+        import pyrealsense2 as rs  # type: ignore[import-not-found]
+    except ImportError:
+        return False
+    try:
+        return len(rs.context().query_devices()) > 0
+    except RuntimeError:
+        return False
+
+
+class RealSenseSource:
+    """A RealSense depth camera through the pyrealsense2 pipeline.
+
+    Streams depth (z16) and the left infrared imager (y8), which is pixel-registered with the
+    depth by construction on the D400 series (the guide intensity, no resampling needed).
+
+    Parameters
+    ----------
+    width, height : int
+        Stream size in px (both streams).
+    fps : int
+        Camera frame rate (frames per second).
+    serial : str, optional
+        Serial number of the device to use (default: the first one).
+    emitter : bool, optional
+        Switch the IR projector on or off (default: the device's setting). Off gives a clean
+        IR guide image but sparser depth on texture-less surfaces.
+    timeout_ms : int
+        Longest wait for a frameset before giving up (ms).
+
+    Raises
+    ------
+    RuntimeError
+        If pyrealsense2 is missing or no device is attached.
+    """
+
+    def __init__(
+        self,
+        *,
+        width: int = 640,
+        height: int = 480,
+        fps: int = 30,
+        serial: str | None = None,
+        emitter: bool | None = None,
+        timeout_ms: int = 5000,
+    ) -> None:
+        try:
+            import pyrealsense2 as rs  # type: ignore[import-not-found]
+        except ImportError as exc:
+            raise RuntimeError("the RealSense source needs pyrealsense2") from exc
+        if not realsense_available():
+            raise RuntimeError("no RealSense camera attached")
+        self._rs = rs
+        self._timeout_ms = timeout_ms
+        self._pipeline = rs.pipeline()
+        config = rs.config()
+        if serial is not None:
+            config.enable_device(serial)
+        config.enable_stream(rs.stream.depth, width, height, rs.format.z16, fps)
+        config.enable_stream(rs.stream.infrared, 1, width, height, rs.format.y8, fps)
+        profile = self._pipeline.start(config)
+        sensor = profile.get_device().first_depth_sensor()
+        if emitter is not None and sensor.supports(rs.option.emitter_enabled):
+            sensor.set_option(rs.option.emitter_enabled, 1.0 if emitter else 0.0)
+        #: millimetres per z16 unit (the device's depth scale is in metres)
+        self.depth_unit_mm = float(sensor.get_depth_scale()) * 1000.0
+        k = profile.get_stream(rs.stream.depth).as_video_stream_profile().get_intrinsics()
+        self.intrinsics = Intrinsics(
+            fx=float(k.fx), fy=float(k.fy), cx=float(k.ppx), cy=float(k.ppy), width=k.width,
+            height=k.height,
+        )  # fmt: skip
+        self.fps: float | None = float(fps)
+        self._stopped = False
+
+    def __iter__(self) -> Iterator[CapturedFrame]:
+        while not self._stopped:
+            frames = self._pipeline.wait_for_frames(self._timeout_ms)
+            captured = time.perf_counter()
+            depth_frame = frames.get_depth_frame()
+            ir_frame = frames.get_infrared_frame(1)
+            if not depth_frame or not ir_frame:
+                continue
+            raw = np.asanyarray(depth_frame.get_data())
+            depth = raw.astype(np.float32) * np.float32(self.depth_unit_mm)
+            depth[raw == 0] = np.nan
+            intensity = np.asanyarray(ir_frame.get_data()).astype(np.float32) / np.float32(255)
+            yield CapturedFrame(
+                index=int(depth_frame.get_frame_number()),
+                depth=depth,
+                intensity=intensity,
+                timestamp=float(depth_frame.get_timestamp()) / 1000.0,
+                captured=captured,
+            )
+
+    def close(self) -> None:
+        """Stop the camera pipeline."""
+        if not self._stopped:
+            self._stopped = True
+            self._pipeline.stop()
+
+
+class DropOldestQueue:
+    """A bounded FIFO whose :meth:`put` drops the oldest item when full (never blocks).
+
+    Parameters
+    ----------
+    maxsize : int
+        Items held at most (>= 1).
+    block : bool
+        ``True``: :meth:`put` waits for room instead of dropping (no frame lost; for
+        playback that is not in real time).
+    """
+
+    def __init__(self, maxsize: int, *, block: bool = False) -> None:
+        if maxsize < 1:
+            raise ValueError(f"queue size must be >= 1, got {maxsize}")
+        self.maxsize = maxsize
+        self.block = block
+        self._items: collections.deque[Any] = collections.deque()
+        self._cond = threading.Condition()
+        self._closed = False
+        self.dropped = 0
+
+    def put(self, item: Any) -> Any | None:
+        """Add ``item``; return the item dropped to make room (None if none was)."""
+        with self._cond:
+            dropped = None
+            if self.block:
+                while len(self._items) >= self.maxsize and not self._closed:
+                    self._cond.wait()
+            elif len(self._items) >= self.maxsize:
+                dropped = self._items.popleft()
+                self.dropped += 1
+            self._items.append(item)
+            self._cond.notify_all()
+            return dropped
+
+    def get(self, timeout: float | None = None) -> Any | None:
+        """The oldest item; None once the queue is closed and empty (or on timeout)."""
+        with self._cond:
+            end = None if timeout is None else time.monotonic() + timeout
+            while not self._items and not self._closed:
+                left = None if end is None else end - time.monotonic()
+                if left is not None and left <= 0:
+                    return None
+                self._cond.wait(left)
+            if not self._items:
+                return None
+            item = self._items.popleft()
+            self._cond.notify_all()
+            return item
+
+    def close(self) -> None:
+        """No more items: :meth:`get` returns None when the queue has run empty."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+
+@dataclass
+class LiveStats:
+    """What a live run achieved.
+
+    Attributes
+    ----------
+    frames_captured : int
+        Frames that entered the pipeline.
+    frames_fused : int
+        Frames fused and passed to the sink.
+    dropped : int
+        Frames the queue dropped (oldest first) because the fusion was behind.
+    gaps : int
+        Breaks in the frame numbers seen by the fusion (queue drops and camera drops).
+    restarts : int
+        Engine restarts at gaps (``on_gap="restart"``).
+    tracked_gaps : int
+        Gaps tracked across as if consecutive (``on_gap="track"``).
+    seconds : float
+        Wall time from the first frame captured to the last frame output (s).
+    fps : float
+        Output rate: frames output per second between the first and the last output.
+    input_fps : float
+        Capture rate: frames captured per second between the first and the last capture.
+    latency_ms : dict
+        Capture-to-output latency, ``p50``, ``p95``, ``max`` and ``mean`` in ms.
+    step_ms : dict
+        Wall time of one fusion step (:meth:`fuse4d.FusionEngine.push`), ``p50`` and ``mean``
+        in ms: the rate the pipeline can sustain is about 1000 / step.
+    indices : list of int
+        Source frame numbers of the output frames, in order.
+    window_frames : list of int
+        Frames of history each output frame was fused with (itself included): ``n`` once
+        the window is full, fewer after a start or a restart.
+    """
+
+    frames_captured: int = 0
+    frames_fused: int = 0
+    dropped: int = 0
+    gaps: int = 0
+    restarts: int = 0
+    tracked_gaps: int = 0
+    seconds: float = 0.0
+    fps: float = 0.0
+    input_fps: float = 0.0
+    latency_ms: dict[str, float] = field(default_factory=dict)
+    step_ms: dict[str, float] = field(default_factory=dict)
+    indices: list[int] = field(default_factory=list)
+    window_frames: list[int] = field(default_factory=list)
+    latencies_s: list[float] = field(default_factory=list, repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary (no per-frame lists)."""
+        keys = ("frames_captured", "frames_fused", "dropped", "gaps", "restarts")
+        out: dict[str, Any] = {k: getattr(self, k) for k in keys}
+        out.update(
+            tracked_gaps=self.tracked_gaps,
+            seconds=self.seconds,
+            fps=self.fps,
+            input_fps=self.input_fps,
+            latency_ms=dict(self.latency_ms),
+            step_ms=dict(self.step_ms),
+            mean_window=(float(np.mean(self.window_frames)) if self.window_frames else 0.0),
+        )
+        return out
+
+
+#: ``sink(captured, fused)``: receives every output frame (raw and fused) in order.
+Sink = Callable[[CapturedFrame, FusedFrame], None]
+
+
+def run_live(
+    source: FrameSource,
+    *,
+    fusion: FusionParams | None = None,
+    flow: FlowConfig | str | None = None,
+    queue_size: int = 2,
+    on_gap: Literal["restart", "track"] = "restart",
+    sink: Sink | None = None,
+    max_frames: int | None = None,
+    duration_s: float | None = None,
+    stop: threading.Event | None = None,
+    block: bool = False,
+    extra_delay_s: float = 0.0,
+    warmup: bool = True,
+) -> LiveStats:
+    """Fuse a live source causally, with a bounded queue that drops the oldest frame.
+
+    Parameters
+    ----------
+    source : FrameSource
+        :class:`RealSenseSource`, :class:`RecordingSource` or any object with
+        ``intrinsics`` and an iterator of :class:`CapturedFrame`.
+    fusion : FusionParams, optional
+        Fusion knobs; ``causal`` is forced on (default ``FusionParams(causal=True)``).
+    flow : FlowConfig or str, optional
+        Tracker (default: the fast preset's DIS).
+    queue_size : int
+        Frames waiting between capture and fusion at most; when full the oldest is dropped.
+    on_gap : {"restart", "track"}
+        At a gap in the frame numbers: start a new engine (window and flow warm start begin
+        again; default), or track across the gap as if consecutive (counted).
+    sink : callable, optional
+        ``sink(captured, fused)`` for each output frame (writer, window), in the fusion thread.
+    max_frames : int, optional
+        Stop after this many frames captured.
+    duration_s : float, optional
+        Stop capturing after this many seconds.
+    stop : threading.Event, optional
+        Set it to stop (e.g. from a window's key handler or a signal).
+    block : bool
+        Never drop: the capture waits for room (non-real-time playback).
+    extra_delay_s : float
+        Extra seconds spent in every fusion step (simulates a slower machine; tests).
+    warmup : bool
+        Before capturing, fuse two synthetic frames on a throw-away engine so that the numba
+        kernels and the tracker are loaded (otherwise the first frames wait for them).
+
+    Returns
+    -------
+    LiveStats
+        Achieved rate, drops, gaps, restarts and capture-to-output latency.
+    """
+    if on_gap not in ("restart", "track"):
+        raise ValueError(f"on_gap must be 'restart' or 'track', got {on_gap!r}")
+    params = (fusion or FusionParams()).replace(causal=True)
+    if params.iterations != 1:
+        raise ValueError("live fusion supports iterations=1 only")
+    queue = DropOldestQueue(queue_size, block=block)
+    stop = stop or threading.Event()
+    stats = LiveStats()
+    steps: list[float] = []
+    errors: list[BaseException] = []
+    first_capture: list[float] = []
+    last_capture: list[float] = [0.0]
+
+    def capture() -> None:
+        try:
+            start = time.perf_counter()
+            for frame in source:
+                if stop.is_set():
+                    break
+                if not first_capture:
+                    first_capture.append(frame.captured)
+                stats.frames_captured += 1
+                last_capture[0] = frame.captured
+                queue.put(frame)
+                if max_frames is not None and stats.frames_captured >= max_frames:
+                    break
+                if duration_s is not None and time.perf_counter() - start >= duration_s:
+                    break
+        except Exception as exc:  # noqa: BLE001  (re-raised by the fusion thread)
+            errors.append(exc)
+        finally:
+            queue.close()
+
+    def new_engine() -> FusionEngine:
+        return FusionEngine(source.intrinsics, fusion=params, flow=flow)
+
+    if warmup:
+        _warm_up(source.intrinsics, params, flow)
+    thread = threading.Thread(target=capture, name="fuse4d-live-capture", daemon=True)
+    engine = new_engine()
+    last_index: int | None = None
+    history = 0
+    last_output = first_output = time.perf_counter()
+    thread.start()
+    try:
+        while True:
+            frame = queue.get()
+            if frame is None:
+                break
+            if last_index is not None and frame.index != last_index + 1:
+                stats.gaps += 1
+                if on_gap == "restart":
+                    engine = new_engine()
+                    stats.restarts += 1
+                    history = 0
+                else:
+                    stats.tracked_gaps += 1
+            last_index = frame.index
+            if extra_delay_s > 0:
+                time.sleep(extra_delay_s)
+            t0 = time.perf_counter()
+            fused = engine.push(frame.depth, frame.intensity)
+            steps.append(time.perf_counter() - t0)
+            history = min(history + 1, params.num_frames)
+            for out in fused:  # causal: exactly the frame just pushed
+                if sink is not None:
+                    sink(frame, out)
+                last_output = time.perf_counter()
+                if stats.frames_fused == 0:
+                    first_output = last_output
+                stats.latencies_s.append(last_output - frame.captured)
+                stats.indices.append(frame.index)
+                stats.window_frames.append(history)
+                stats.frames_fused += 1
+    except KeyboardInterrupt:
+        pass
+    finally:
+        stop.set()
+        queue.close()
+        while queue.get(timeout=0) is not None:  # let a blocked capture thread finish
+            pass
+        thread.join(timeout=10.0)
+    if errors:
+        raise errors[0]
+    stats.dropped = queue.dropped
+    if first_capture:
+        stats.seconds = max(last_output - first_capture[0], 0.0)
+    if stats.frames_fused > 1 and last_output > first_output:
+        stats.fps = (stats.frames_fused - 1) / (last_output - first_output)
+    if stats.frames_captured > 1 and last_capture[0] > first_capture[0]:
+        stats.input_fps = (stats.frames_captured - 1) / (last_capture[0] - first_capture[0])
+    if stats.latencies_s:
+        lat = np.asarray(stats.latencies_s) * 1000.0
+        stats.latency_ms = {
+            "p50": float(np.percentile(lat, 50)),
+            "p95": float(np.percentile(lat, 95)),
+            "max": float(lat.max()),
+            "mean": float(lat.mean()),
+        }
+    if steps:
+        step = np.asarray(steps) * 1000.0
+        stats.step_ms = {"p50": float(np.median(step)), "mean": float(step.mean())}
+    return stats
+
+
+def _warm_up(intrinsics: Intrinsics, params: FusionParams, flow: FlowConfig | str | None) -> None:
+    """Fuse three synthetic frames (a noisy plane with a step, sensor holes and a moving
+    texture) so that every kernel, hole filling included, is compiled or loaded."""
+    h, w = intrinsics.height, intrinsics.width
+    rng = np.random.default_rng(0)
+    texture = rng.uniform(0.2, 0.8, (h, w + 3)).astype(np.float32)
+    engine = FusionEngine(intrinsics, fusion=params, flow=flow)
+    for t in range(3):
+        depth = (1000.0 + rng.normal(0.0, 1.0, (h, w))).astype(np.float32)
+        depth[:, w // 2 :] += 300.0  # a depth edge
+        depth[rng.random((h, w)) < 0.01] = np.nan  # scattered holes
+        depth[h // 4 : h // 4 + max(h // 8, 1), w // 4 : w // 4 + max(w // 8, 1)] = np.nan
+        engine.push(depth, np.ascontiguousarray(texture[:, t : t + w]))
+
+
+def display_available() -> bool:
+    """True when an OpenCV window can be opened (a display on Linux; always elsewhere)."""
+    if sys.platform.startswith("linux"):
+        return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    return True
+
+
+def side_by_side(
+    raw_depth: NDArray[np.float32],
+    fused_depth: NDArray[np.float32],
+    depth_range: tuple[float, float] | None = None,
+) -> NDArray[np.uint8]:
+    """Raw | fused depth as one colour image (BGR, invalid = black) on one colour scale.
+
+    Parameters
+    ----------
+    raw_depth, fused_depth : (H, W) ndarray
+        Depth in mm, NaN = invalid.
+    depth_range : (near, far), optional
+        Depth (mm) mapped to the ends of the colour map (default: 2nd-98th percentile of raw).
+
+    Returns
+    -------
+    (H, 2W, 3) ndarray of uint8
+    """
+    import cv2
+
+    if depth_range is None:
+        valid = raw_depth[np.isfinite(raw_depth)]
+        if valid.size:
+            lo, hi = np.percentile(valid, [2, 98])
+            depth_range = (float(lo), float(hi))
+        else:
+            depth_range = (0.0, 1.0)
+    near, far = depth_range
+    scale = 255.0 / max(far - near, 1e-6)
+    panels = []
+    for d in (raw_depth, fused_depth):
+        v = np.clip((np.nan_to_num(d, nan=near) - near) * scale, 0, 255).astype(np.uint8)
+        img = cv2.applyColorMap(v, cv2.COLORMAP_TURBO)
+        img[~np.isfinite(d)] = 0
+        panels.append(img)
+    return np.concatenate(panels, axis=1)
+
+
+class LiveWriter:
+    """A sink that writes the fused frames: a frame folder, an FFV1 ``.mkv``, a ``.zarr``
+    store (streamed, as ``fuse4d run``), or an ``.npz`` (kept in memory, written at the end).
+
+    Parameters
+    ----------
+    path : path-like
+        Output; its suffix picks the format.
+    intrinsics : Intrinsics
+        Camera of the frames.
+    depth_unit_mm : float, optional
+        Millimetres per stored unit for 16-bit outputs (default 1 mm).
+    fps : float, optional
+        Frame rate stored with the output.
+    overwrite : bool
+        Replace an existing output.
+    """
+
+    def __init__(
+        self,
+        path: str | PathLike[str],
+        intrinsics: Intrinsics,
+        *,
+        depth_unit_mm: float | None = None,
+        fps: float | None = None,
+        overwrite: bool = False,
+    ) -> None:
+        from .io import DepthVideoWriter, FrameFolderWriter, ZarrWriter, check_output
+
+        self.path = Path(path)
+        self.intrinsics = intrinsics
+        self.fps = fps
+        self.overwrite = overwrite
+        suffix = self.path.suffix.lower()
+        self._frames: list[tuple[np.ndarray, np.ndarray, float | None]] | None = None
+        self._writer: Any = None
+        if suffix == ".npz":
+            check_output(self.path, overwrite=overwrite)
+            self._frames = []
+        else:
+            cls = {".mkv": DepthVideoWriter, ".zarr": ZarrWriter}.get(suffix, FrameFolderWriter)
+            self._writer = cls(
+                self.path,
+                intrinsics,
+                depth_unit_mm=depth_unit_mm or 1.0,
+                fps=fps,
+                overwrite=overwrite,
+            )
+
+    def __enter__(self) -> Self:
+        if self._writer is not None:
+            self._writer.__enter__()
+        return self
+
+    def __call__(self, captured: CapturedFrame, fused: FusedFrame) -> None:
+        """Write one output frame (fused depth, the raw intensity, mask and timestamp)."""
+        if self._frames is not None:
+            self._frames.append((fused.depth.copy(), captured.intensity, captured.timestamp))
+            return
+        self._writer.write(
+            fused.depth, captured.intensity, mask=captured.mask, timestamp=captured.timestamp
+        )
+
+    def __exit__(self, *exc: object) -> None:
+        if self._writer is not None:
+            self._writer.__exit__(*exc)
+            return
+        if exc[0] is not None or not self._frames:
+            return
+        from .io import save_sequence
+        from .sequence import Sequence
+
+        ts = [t for _, _, t in self._frames]
+        seq = Sequence(
+            depth=np.stack([d for d, _, _ in self._frames]),
+            intensity=np.stack([i for _, i, _ in self._frames]),
+            intrinsics=self.intrinsics,
+            timestamps=None if any(t is None for t in ts) else np.asarray(ts, np.float64),
+            fps=self.fps,
+        )
+        save_sequence(seq, self.path, overwrite=self.overwrite)

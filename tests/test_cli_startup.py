@@ -1,0 +1,82 @@
+"""Start-up: ``import fuse4d.cli`` (and so ``fuse4d --help``) loads no numerics.
+
+Command modules import only typer/rich/stdlib at module level; the heavy modules (numba
+kernels, OpenCV, scipy, the baselines, the flow registry) load inside the command that needs
+them. Each check runs in a fresh interpreter, since this test process has long imported them.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+#: Modules that must not be loaded by ``import fuse4d.cli`` / ``import fuse4d``.
+HEAVY = ("numba", "cv2", "scipy", "fuse4d.baselines", "fuse4d.flow", "fuse4d.io", "numpy")
+
+#: Every command of the CLI (``fuse4d --help`` must list each of them).
+COMMANDS = (
+    "baseline",
+    "flow",
+    "bench-flow",
+    "run",
+    "bench",
+    "demo",
+    "synth",
+    "metrics",
+    "info",
+    "export-ply",
+    "report",
+    "live",
+)
+
+
+def _python(*args: str) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "PYTHONPATH": str(SRC), "COLUMNS": "200"}
+    return subprocess.run(
+        [sys.executable, *args], capture_output=True, text=True, check=True, env=env, timeout=120
+    )
+
+
+@pytest.mark.parametrize("module", ["fuse4d", "fuse4d.cli"])
+def test_import_loads_no_numerics(module):
+    code = f"import sys, {module}; print(' '.join(sorted(sys.modules)))"
+    loaded = set(_python("-c", code).stdout.split())
+    assert not [m for m in HEAVY if m in loaded], sorted(m for m in HEAVY if m in loaded)
+
+
+def test_help_lists_every_command():
+    out = _python("-m", "fuse4d", "--help").stdout
+    missing = [c for c in COMMANDS if f" {c} " not in out]
+    assert not missing, missing
+
+
+def test_registered_commands_are_the_listed_ones():
+    from fuse4d.cli import app
+
+    names = [c.name for c in app.registered_commands]
+    assert sorted(names) == sorted(COMMANDS)
+
+
+def test_lazy_top_level_names_resolve_and_dir_lists_them():
+    import fuse4d
+
+    for name in fuse4d.__all__:
+        assert getattr(fuse4d, name) is not None, name
+    assert set(fuse4d.__all__) <= set(dir(fuse4d))
+    assert fuse4d.FusionEngine is fuse4d.fusion.FusionEngine
+
+
+def test_written_out_help_matches_the_registries():
+    """The help texts spelled out in the command modules equal what the registries give."""
+    from fuse4d.cli.cmd_baseline import SIZE_HELP, _size_help
+    from fuse4d.cli.cmd_io import CAMERA_PRESET_NAMES
+    from fuse4d.io import CAMERA_PRESETS
+
+    assert _size_help() == SIZE_HELP
+    assert tuple(CAMERA_PRESETS) == CAMERA_PRESET_NAMES

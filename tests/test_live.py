@@ -1,0 +1,334 @@
+"""``fuse4d live`` without a camera: a recording played back in real time.
+
+Checks the achieved rate and drop count, that without drops the output equals a causal
+:func:`fuse4d.fuse_sequence` bit for bit, that a gap restarts the engine (the frames after it
+equal a causal fusion of the frames after the gap alone), and that an overloaded pipeline
+drops frames and keeps its latency bounded.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from fuse4d import FusionParams, Sequence, fuse_sequence
+from fuse4d.cli import main
+from fuse4d.io import load_sequence, write_npz
+from fuse4d.live import (
+    CapturedFrame,
+    DropOldestQueue,
+    RecordingSource,
+    display_available,
+    run_live,
+    side_by_side,
+)
+from fuse4d.synthetic import make_scene
+
+CAUSAL3 = FusionParams(num_frames=3, causal=True)
+
+
+@pytest.fixture(scope="module")
+def ball(tmp_path_factory):
+    """The small ball (12 frames, 150x150) as an .npz recording, and its sequence."""
+    seq = make_scene("ball", small=True, num_frames=12, rng=0)
+    path = tmp_path_factory.mktemp("live") / "ball.npz"
+    write_npz(seq, path)
+    return path, seq
+
+
+@pytest.fixture(scope="module")
+def reference(ball):
+    """Causal 3-frame fusion of the whole ball (the engine's own in-memory face)."""
+    _, seq = ball
+    return fuse_sequence(seq.depth, seq.intensity, seq.intrinsics, fusion=CAUSAL3).depth
+
+
+class _ListSource:
+    """Frames with given source numbers, released at ``fps`` (a camera that dropped some)."""
+
+    def __init__(self, seq, indices, fps: float | None = None) -> None:
+        self.seq, self.indices, self.fps = seq, list(indices), fps
+        self.intrinsics = seq.intrinsics
+        self.depth_unit_mm = None
+
+    def __iter__(self):
+        start = time.perf_counter()
+        for order, k in enumerate(self.indices):
+            if self.fps:
+                time.sleep(max(0.0, start + order / self.fps - time.perf_counter()))
+            yield CapturedFrame(
+                k, self.seq.depth[k], self.seq.intensity[k], None, time.perf_counter()
+            )
+
+    def close(self) -> None:
+        pass
+
+
+def _collect():
+    frames: dict[int, np.ndarray] = {}
+
+    def sink(captured, fused) -> None:
+        frames[captured.index] = fused.depth.copy()
+
+    return frames, sink
+
+
+def test_drop_oldest_queue():
+    q = DropOldestQueue(2)
+    assert q.put(1) is None
+    assert q.put(2) is None
+    assert q.put(3) == 1  # full: the oldest goes
+    assert q.dropped == 1
+    assert q.get() == 2
+    assert q.get() == 3
+    assert q.get(timeout=0.01) is None
+    q.close()
+    assert q.get() is None
+    with pytest.raises(ValueError, match="queue size"):
+        DropOldestQueue(0)
+
+
+def test_realtime_playback_without_drops_equals_causal_fusion(ball, reference):
+    path, _seq = ball
+    frames, sink = _collect()
+    source = RecordingSource(path, realtime=True, fps=30.0)
+    try:
+        stats = run_live(source, fusion=CAUSAL3, queue_size=64, sink=sink)
+    finally:
+        source.close()
+    assert stats.frames_captured == stats.frames_fused == 12
+    assert stats.dropped == stats.gaps == stats.restarts == 0
+    assert 24.0 <= stats.input_fps <= 31.0  # paced at 30 fps
+    assert stats.seconds >= 11 / 30.0 * 0.95
+    assert stats.indices == list(range(12))
+    assert stats.window_frames == [1, 2] + [3] * 10
+    assert set(stats.latency_ms) == {"p50", "p95", "max", "mean"}
+    out = np.stack([frames[k] for k in range(12)])
+    np.testing.assert_array_equal(out, reference)  # bit for bit, NaNs in the same places
+
+
+def test_gap_restarts_the_engine(ball, reference):
+    """Frame 6 missing: 0-5 as the causal fusion of all; 7-11 as that of frames 7-11 alone."""
+    _, seq = ball
+    frames, sink = _collect()
+    indices = [*range(6), *range(7, 12)]
+    stats = run_live(_ListSource(seq, indices), fusion=CAUSAL3, sink=sink, block=True)
+    assert stats.gaps == stats.restarts == 1
+    assert stats.tracked_gaps == 0
+    assert stats.window_frames == [1, 2, 3, 3, 3, 3, 1, 2, 3, 3, 3]
+    for k in range(6):
+        np.testing.assert_array_equal(frames[k], reference[k])
+    after = fuse_sequence(seq.depth[7:], seq.intensity[7:], seq.intrinsics, fusion=CAUSAL3)
+    for k in range(7, 12):
+        np.testing.assert_array_equal(frames[k], after.depth[k - 7])
+
+
+def test_gap_tracked_across_is_counted(ball):
+    _, seq = ball
+    indices = [*range(6), *range(7, 12)]
+    stats = run_live(_ListSource(seq, indices), fusion=CAUSAL3, on_gap="track", block=True)
+    assert stats.gaps == stats.tracked_gaps == 1
+    assert stats.restarts == 0
+    assert stats.window_frames[6] == 3  # the window ran on across the gap
+    with pytest.raises(ValueError, match="on_gap"):
+        run_live(_ListSource(seq, [0]), on_gap="skip")  # type: ignore[arg-type]
+
+
+def test_overload_drops_oldest_and_keeps_latency_bounded(ball):
+    """A fusion step of >= 100 ms against frames every 20 ms: most frames are dropped, and
+    no output is older than the queue allows (1 waiting + 1 in fusion, plus slack)."""
+    _, seq = ball
+    order = list(range(12)) * 3  # the ball three times over: 36 frames at 50 fps
+    long = Sequence(
+        depth=seq.depth[order], intensity=seq.intensity[order], intrinsics=seq.intrinsics
+    )
+    source = _ListSource(long, range(36), fps=50.0)
+    step = 0.1
+    stats = run_live(source, fusion=CAUSAL3, queue_size=1, extra_delay_s=step)
+    assert stats.frames_captured == 36
+    assert stats.dropped > 10
+    assert stats.frames_fused + stats.dropped == stats.frames_captured
+    assert stats.gaps == stats.restarts >= 1
+    assert stats.fps < 15.0
+    assert stats.latency_ms["max"] < 1000 * (2 * step + 0.5)
+    assert all(b > a for a, b in zip(stats.indices, stats.indices[1:], strict=False))
+
+
+def test_stop_event_ends_the_run(ball):
+    _, seq = ball
+    stop = threading.Event()
+    seen = []
+
+    def sink(captured, fused) -> None:
+        seen.append(captured.index)
+        if len(seen) == 3:
+            stop.set()
+
+    source = _ListSource(seq, range(12), fps=30.0)
+    stats = run_live(source, fusion=CAUSAL3, sink=sink, stop=stop, warmup=False)
+    assert stats.frames_fused < 12
+
+
+def test_recording_without_rate_needs_fps(tmp_path, ball):
+    _, seq = ball
+    path = tmp_path / "norate.npz"
+    write_npz(Sequence(depth=seq.depth, intensity=seq.intensity, intrinsics=seq.intrinsics), path)
+    with pytest.raises(ValueError, match="--fps"):
+        RecordingSource(path, realtime=True)
+    RecordingSource(path, realtime=False).close()
+    with pytest.raises(ValueError, match="fps must be > 0"):
+        RecordingSource(path, fps=0.0)
+
+
+def test_side_by_side_image(ball):
+    _, seq = ball
+    img = side_by_side(seq.depth[0], seq.depth[1])
+    assert img.shape == (150, 300, 3)
+    assert img.dtype == np.uint8
+
+
+def test_cli_live_writes_the_causal_fusion(ball, reference, tmp_path, capsys):
+    path, _ = ball
+    out = tmp_path / "fused.npz"
+    args = ["live", str(path), "--fps", "30", "--window", "3", "--queue", "64", "-o", str(out)]
+    assert main([*args, "--json", "--show"]) == 0
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out)
+    assert summary["frames_fused"] == 12
+    assert summary["dropped"] == 0
+    assert summary["window"] == 3
+    assert summary["realtime"] is True
+    if not display_available():
+        assert "no display: --show skipped" in captured.err
+    np.testing.assert_array_equal(load_sequence(out).depth, reference)
+    assert main([*args]) == 2  # the output exists: one error line, no fusion
+    assert capsys.readouterr().err.count("fuse4d: error:") == 1
+
+
+def test_cli_live_without_camera_fails_cleanly(capsys, monkeypatch):
+    import fuse4d.live
+
+    monkeypatch.setattr(fuse4d.live, "realsense_available", lambda: False)
+    assert main(["live"]) == 2
+    assert "no RealSense camera" in capsys.readouterr().err
+
+
+class _FakeRealSense:
+    """The parts of the pyrealsense2 API that RealSenseSource uses, replaying the ball."""
+
+    def __init__(self, seq) -> None:
+        import types
+
+        self.seq = seq
+        self.stopped = False
+        self.stream = types.SimpleNamespace(depth="depth", infrared="infrared")
+        self.format = types.SimpleNamespace(z16="z16", y8="y8")
+        self.option = types.SimpleNamespace(emitter_enabled="emitter")
+        self.options: dict[str, float] = {}
+        self.enabled: list[tuple] = []
+        fake = self
+
+        class _Frame:
+            def __init__(self, data, number) -> None:
+                self.data, self.number = data, number
+
+            def __bool__(self) -> bool:
+                return True
+
+            def get_data(self):
+                return self.data
+
+            def get_frame_number(self) -> int:
+                return self.number
+
+            def get_timestamp(self) -> float:
+                return 1000.0 * self.number / 30.0
+
+        class _Frameset:
+            def __init__(self, k: int) -> None:
+                d = np.nan_to_num(fake.seq.depth[k], nan=0.0)
+                self.depth = _Frame(np.round(d).astype(np.uint16), k)
+                self.ir = _Frame(np.round(255 * fake.seq.intensity[k]).astype(np.uint8), k)
+
+            def get_depth_frame(self):
+                return self.depth
+
+            def get_infrared_frame(self, index: int):
+                assert index == 1
+                return self.ir
+
+        class _Sensor:
+            def get_depth_scale(self) -> float:
+                return 0.001  # 1 mm per unit
+
+            def supports(self, option) -> bool:
+                return True
+
+            def set_option(self, option, value) -> None:
+                fake.options[option] = value
+
+        k = seq.intrinsics
+        intr = types.SimpleNamespace(
+            fx=k.fx, fy=k.fy, ppx=k.cx, ppy=k.cy, width=k.width, height=k.height
+        )
+        video = types.SimpleNamespace(get_intrinsics=lambda: intr)
+        stream_profile = types.SimpleNamespace(as_video_stream_profile=lambda: video)
+        device = types.SimpleNamespace(first_depth_sensor=_Sensor)
+        profile = types.SimpleNamespace(
+            get_device=lambda: device, get_stream=lambda stream: stream_profile
+        )
+
+        class _Pipeline:
+            def __init__(self) -> None:
+                self.k = 0
+
+            def start(self, config):
+                return profile
+
+            def wait_for_frames(self, timeout_ms: int):
+                time.sleep(1 / 30)
+                self.k += 1
+                return _Frameset((self.k - 1) % len(fake.seq.depth))
+
+            def stop(self) -> None:
+                fake.stopped = True
+
+        class _Config:
+            def enable_stream(self, *args) -> None:
+                fake.enabled.append(args)
+
+            def enable_device(self, serial) -> None:
+                fake.enabled.append(("device", serial))
+
+        self.pipeline, self.config = _Pipeline, _Config
+        self.context = lambda: types.SimpleNamespace(query_devices=lambda: [object()])
+
+
+def test_realsense_source_against_a_fake_pipeline(ball, monkeypatch):
+    """No camera here: the pipeline calls, units and registration against a stand-in."""
+    import sys
+
+    from fuse4d.live import RealSenseSource, realsense_available
+
+    _, seq = ball
+    fake = _FakeRealSense(seq)
+    monkeypatch.setitem(sys.modules, "pyrealsense2", fake)
+    assert realsense_available()
+    source = RealSenseSource(width=150, height=150, fps=30, serial="123", emitter=False)
+    assert ("depth", 150, 150, "z16", 30) in fake.enabled
+    assert ("infrared", 1, 150, 150, "y8", 30) in fake.enabled
+    assert fake.options == {"emitter": 0.0}
+    assert source.depth_unit_mm == pytest.approx(1.0)
+    assert source.intrinsics.width == 150
+    frame = next(iter(source))
+    valid = np.isfinite(seq.depth[0])
+    assert np.array_equal(np.isfinite(frame.depth), valid & (np.round(seq.depth[0]) > 0))
+    np.testing.assert_allclose(frame.depth[valid], seq.depth[0][valid], atol=0.5)
+    stats = run_live(source, fusion=CAUSAL3, max_frames=6, queue_size=8)
+    source.close()
+    assert fake.stopped
+    assert stats.frames_fused == 6
