@@ -43,19 +43,26 @@ def experiments_command(
             "(e.g. REPRODUCTION.md).",
         ),
     ] = None,
+    publish_to: Annotated[
+        Path | None,
+        typer.Option(
+            "--publish",
+            help="After the run: copy CSV/Markdown/JSON/PNG (no row files, no flow cache) to "
+            "this folder, e.g. docs/reproduction; --report then judges the claims from it.",
+        ),
+    ] = None,
     log_file: Annotated[
         Path | None, typer.Option("--log", help="Append one line per finished unit to this file.")
     ] = None,
 ) -> None:
     """Reproduce the paper's experiments (EVALUATION.md §4) into OUT/<name>/: tidy CSV,
     Markdown summary, PNG plots and a JSON of every parameter. Ctrl-C and rerun to resume."""
-    from ..experiments.paper import EXPERIMENTS, run_experiment
+    from ..experiments.paper import EXPERIMENTS, publish, run_experiment
+    from ..experiments.paper.verdicts import compute_verdicts, update_report, verdict_table
 
     if name not in _NAMES:
         fail(f"unknown experiment {name!r}; choose one of {', '.join(_NAMES)}")
     if name == "verdicts":
-        from ..experiments.paper.verdicts import compute_verdicts, update_report, verdict_table
-
         verdicts = compute_verdicts(out)
         print(verdict_table(verdicts), end="")
         if report is not None:
@@ -85,3 +92,9 @@ def experiments_command(
         )
         log(msg)
         eprint(msg)
+    if publish_to is not None:
+        files = publish(out, publish_to)
+        eprint(f"published {len(files)} files to {publish_to}")
+        if report is not None:
+            update_report(report, compute_verdicts(publish_to), publish_to)
+            eprint(f"updated {report}")

@@ -10,7 +10,9 @@ experiment (or ``all``) and writes, per experiment, ``DIR/<NAME>/``:
   wall time, so that a rerun is exact.
 
 Finished units are kept in ``DIR/<NAME>/rows/``: an interrupted run resumes where it stopped.
-``fuse4d experiments verdicts --out DIR`` computes the claims C1-C12 from the CSVs.
+``fuse4d experiments verdicts --out DIR`` computes the claims C1-C12 from the CSVs;
+``--publish DOCS`` copies the small outputs (no row files, no flow cache) to a folder that can
+be committed, and ``--report REPRODUCTION.md`` rewrites that report's verdict table from them.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from ._common import Context
 from ._config import PROFILES, Profile, get_profile
 from ._runner import run_units, write_json, write_rows
 
-__all__ = ["EXPERIMENTS", "PROFILES", "Profile", "get_profile", "run_experiment"]
+__all__ = ["EXPERIMENTS", "PROFILES", "Profile", "get_profile", "publish", "run_experiment"]
 
 #: Experiment names in run order (``all`` runs them in this order).
 EXPERIMENTS: tuple[str, ...] = ("E1", "E2", "E3", "E4", "E5", "E6", "real")
@@ -95,3 +97,25 @@ def run_experiment(
     }
     write_json(exp_dir / f"{name}.json", payload)
     return payload
+
+
+def publish(out: str | Path, dest: str | Path) -> list[Path]:
+    """Copy a run's small outputs (CSV, Markdown, JSON, PNG per experiment) to ``dest``.
+
+    Row files, the flow cache and intermediate arrays stay behind, so ``dest`` can be
+    committed (``docs/reproduction``). Returns the copied files.
+    """
+    import shutil
+
+    src, dst = Path(out), Path(dest)
+    copied = []
+    for name in EXPERIMENTS:
+        d = src / name
+        if not (d / f"{name}.csv").exists():
+            continue
+        (dst / name).mkdir(parents=True, exist_ok=True)
+        for f in sorted(d.iterdir()):
+            if f.is_file() and f.suffix in (".csv", ".md", ".json", ".png"):
+                shutil.copy2(f, dst / name / f.name)
+                copied.append(dst / name / f.name)
+    return copied
