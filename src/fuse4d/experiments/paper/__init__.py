@@ -80,6 +80,7 @@ def run_experiment(
     exp_dir = ctx.exp_dir(name)
     exp_dir.mkdir(parents=True, exist_ok=True)
     units = mod.units(ctx)
+    before = _previous_seconds(exp_dir / f"{name}.json")
     t0 = time.perf_counter()
     rows, seconds = run_units(name, units, exp_dir, jobs=jobs, console=console, log=log)
     write_rows(exp_dir / f"{name}.csv", rows)
@@ -92,11 +93,22 @@ def run_experiment(
         "units": len(units),
         "rows": len(rows),
         "seconds_this_call": round(seconds, 1),
+        # compute time summed over every (resumed) call of this run folder
+        "seconds_compute_total": round(before + seconds, 1),
         "seconds_total_with_summary": round(time.perf_counter() - t0, 1),
         "summary": summary,
     }
     write_json(exp_dir / f"{name}.json", payload)
     return payload
+
+
+def _previous_seconds(path: Path) -> float:
+    import json
+
+    if not path.exists():
+        return 0.0
+    old = json.loads(path.read_text())
+    return float(old.get("seconds_compute_total", old.get("seconds_this_call", 0.0)))
 
 
 def publish(out: str | Path, dest: str | Path) -> list[Path]:

@@ -88,7 +88,7 @@ PROFILES: dict[str, Profile] = {
         ed_frames=1,
         e3_iterations=(1, 2),
         e3_max_sizes=3,
-        real_frames=30,
+        real_frames=20,
         extra={"e4_num_frames": 21},
     ),
     "quick": Profile(

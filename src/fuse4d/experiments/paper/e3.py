@@ -213,11 +213,17 @@ def summarize(ctx: Context, rows: list[dict]) -> dict[str, Any]:
             ax.scatter(xs, ys, color=st["color"], marker=st["marker"], s=18, alpha=0.45)
             fr = pareto_front(pts[m])
             ax.plot([p[0] for p in fr], [p[1] for p in fr], label=label(m), **st)
+        fronts = [p for m in pts for p in pareto_front(pts[m])]
+        lo_c = min(p[1] for p in fronts)
+        hi_c = max(p[1] for p in fronts)
+        pad = 0.08 * max(hi_c - lo_c, 1e-3)
+        ax.set_ylim(lo_c - pad, hi_c + pad)
+        ax.set_xlim(0.0, 1.15 * max(raw, max(p[0] for p in fronts)))
         for f in TARGETS:
             ax.axvline(f * raw, color="0.6", linewidth=0.8, linestyle=":")
             ax.text(
                 f * raw,
-                ax.get_ylim()[0],
+                lo_c - pad,
                 f" {f:g}×Π_raw",
                 rotation=90,
                 va="bottom",
@@ -226,7 +232,10 @@ def summarize(ctx: Context, rows: list[dict]) -> dict[str, Any]:
             )
         ax.set_xlabel("mean roughness Π, Eq. 7 (mm)  — lower is smoother")
         ax.set_ylabel("mean shape correctness C_3D, Eq. 8 (%)  — higher is better")
-        ax.set_title(f"{TITLE}\nlines: Pareto fronts; dots: every size × iterations setting")
+        ax.set_title(
+            f"{TITLE}\nlines: Pareto fronts; dots: all size × iterations settings "
+            "(axes zoomed to the fronts)"
+        )
         ax.legend(ncol=2, loc="lower right")
     _side_view(ctx, rows, d)
     header = ["method", "settings", "min Π (mm)", *[f"C at Π = {f:g}×Π_raw (%)" for f in TARGETS]]

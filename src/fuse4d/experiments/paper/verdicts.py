@@ -266,7 +266,9 @@ def _c11(rows: list[Row]) -> tuple[str, str]:
             parts.append(
                 f"{s}: 6D ED {k:.3f} vs Ours {o:.3f} (same {tab[s]['ed']['frames']} frame(s))"
             )
-    return _pf(ok and len(parts) == 3), "; ".join(parts)
+    if len(parts) < 3:
+        return "N/A", "; ".join(parts) + " (a 6D baseline has not been run)"
+    return _pf(ok), "; ".join(parts)
 
 
 # ------------------------------------------------------------------------------------- E6
