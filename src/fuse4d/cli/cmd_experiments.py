@@ -66,7 +66,7 @@ def experiments_command(
         verdicts = compute_verdicts(out)
         print(verdict_table(verdicts), end="")
         if report is not None:
-            update_report(report, verdicts, out)
+            update_report(report, out)
             eprint(f"updated {report}")
         return
     prof = "quick" if quick else profile
@@ -96,5 +96,5 @@ def experiments_command(
         files = publish(out, publish_to)
         eprint(f"published {len(files)} files to {publish_to}")
         if report is not None:
-            update_report(report, compute_verdicts(publish_to), publish_to)
+            update_report(report, publish_to)
             eprint(f"updated {report}")
