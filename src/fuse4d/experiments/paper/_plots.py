@@ -77,10 +77,11 @@ def figure(
     """Create a styled figure, yield ``(fig, axes)``, then save it to ``path`` and close it."""
     with plt.rc_context(STYLE):
         w, h = size or (min(5.2 * ncols, 15.0), 4.2 * nrows)
-        fig, axes = plt.subplots(nrows, ncols, figsize=(w, h), squeeze=False, **kwargs)
+        fig, axes = plt.subplots(
+            nrows, ncols, figsize=(w, h), squeeze=False, layout="constrained", **kwargs
+        )
         try:
             yield fig, axes if axes.size > 1 else axes[0, 0]
-            fig.tight_layout()
             path.parent.mkdir(parents=True, exist_ok=True)
             tmp = path.with_name(f".{path.stem}.tmp.png")
             fig.savefig(tmp)

@@ -69,7 +69,9 @@ def summarize(ctx: Context, rows: list[dict]) -> dict[str, Any]:
             ax.errorbar(xs, ys, yerr=es, label=label(m), capsize=2, **method_style(m))
         ax.set_xlabel("depth noise σ_d (mm)")
         ax.set_ylabel("mean roughness Π, Eq. 7 (mm)")
-        ax.set_title(f"{TITLE}\n(mean over frames; error bars: std over seeds)")
+        seeds = max(st.n_seeds for st in stats.values())
+        bars = "error bars: std over seeds" if seeds > 1 else "one seed, so no error bars"
+        ax.set_title(f"{TITLE}\n(mean over all frames; {bars})")
         ax.legend(ncol=2)
     table = [
         [label(m), *[stats[(m, s)].mean if (m, s) in stats else float("nan") for s in levels]]

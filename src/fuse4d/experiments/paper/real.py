@@ -226,21 +226,42 @@ def _pictures(ctx: Context, d: Path) -> None:
     u0, u1 = max(0, u0 - pad), min(mask.shape[2], u1 + pad)
     zin = depths["raw"][t][mask[t]]
     lo, hi = np.nanpercentile(zin, 2), np.nanpercentile(zin, 98)
-    with figure(d / "real_person_frame.png", ncols=len(avail), size=(3.6 * len(avail), 5.0)) as (
+    n = len(avail)
+    with figure(d / "real_person_frame.png", ncols=n, nrows=2, size=(3.6 * n + 1.2, 9.0)) as (
         fig,
         ax,
     ):
         for j, m in enumerate(avail):
-            a = ax[0, j]
+            a, b = ax[0, j], ax[1, j]
+            crop = depths[m][t, v0:v1, u0:u1]
             im = a.imshow(
-                depths[m][t, v0:v1, u0:u1], cmap="turbo", vmin=lo, vmax=hi, extent=(u0, u1, v1, v0)
+                crop,
+                cmap="turbo",
+                vmin=lo,
+                vmax=hi,
+                extent=(u0, u1, v1, v0),
+                interpolation="nearest",
             )
-            a.set_title(f"{label(m)}\nframe {t}")
-            a.set_xlabel("column u (px)")
-            a.set_ylabel("row v (px)")
-            a.grid(False)
+            a.set_title(f"{label(m)}, frame {t}")
+            diff = crop - depths["raw"][t, v0:v1, u0:u1]
+            im2 = b.imshow(
+                diff,
+                cmap="RdBu_r",
+                vmin=-20,
+                vmax=20,
+                extent=(u0, u1, v1, v0),
+                interpolation="nearest",
+            )
+            b.set_title(f"{label(m)} − Raw")
+            for x in (a, b):
+                x.set_xlabel("column u (px)")
+                x.set_ylabel("row v (px)")
+                x.grid(False)
         fig.colorbar(
-            im, ax=list(ax.ravel()), label="depth Z (mm); black/white = no depth", shrink=0.8
+            im, ax=list(ax[0]), label="depth Z (mm); white = no depth; wall saturated", shrink=0.9
+        )
+        fig.colorbar(
+            im2, ax=list(ax[1]), label="change against Raw (mm); white = no depth", shrink=0.9
         )
     cy = int(np.median(ys))
     with figure(d / "real_person_xt.png", ncols=len(avail), size=(3.6 * len(avail), 5.0)) as (
@@ -256,10 +277,15 @@ def _pictures(ctx: Context, d: Path) -> None:
                 vmin=lo,
                 vmax=hi,
                 aspect="auto",
+                interpolation="nearest",
                 extent=(0, sl.shape[1], sl.shape[0] - 0.5, -0.5),
             )
             a.set_title(f"{label(m)}\nrow v = {cy} over time")
             a.set_xlabel("column u (px)")
             a.set_ylabel("frame t")
             a.grid(False)
-        fig.colorbar(im, ax=list(ax.ravel()), label="depth Z (mm)", shrink=0.8)
+        fig.colorbar(im, ax=list(ax.ravel()), label="depth Z (mm); white = no depth", shrink=0.8)
+        fig.suptitle(
+            "x–t slice: one image row through the person, frames stacked downwards "
+            "(trails = smeared edges, flicker = speckle along t)"
+        )
