@@ -86,7 +86,7 @@ def summarize(ctx: Context, rows: list[dict]) -> dict[str, Any]:
     sup = group_stats(rows, ("method", "sigma_i"), "full_support")
     levels = sorted({k[1] for k in stats})
     pct = [100 * s for s in levels]
-    with figure(d / "E2_roughness_vs_intensity_noise.png", ncols=2, size=(13.0, 5.0)) as (_, ax):
+    with figure(d / "E2_roughness_vs_intensity_noise.png", ncols=2, size=(13.0, 5.8)) as (_, ax):
         a, b = ax[0, 0], ax[0, 1]
         for m in METHODS:
             xs = [s for s in levels if (m, s) in stats]
@@ -101,7 +101,7 @@ def summarize(ctx: Context, rows: list[dict]) -> dict[str, Any]:
         a.set_xlabel("intensity noise σ_I (% of max. intensity)")
         a.set_ylabel("mean roughness Π, Eq. 7 (mm)")
         a.set_title(TITLE)
-        a.legend(ncol=2)
+        a.legend(ncol=3, loc="upper center", bbox_to_anchor=(0.5, -0.14))
         xs = [s for s in levels if ("ours", s) in epe]
         b.plot(
             [100 * s for s in xs],
@@ -113,6 +113,7 @@ def summarize(ctx: Context, rows: list[dict]) -> dict[str, Any]:
         b.set_xlabel("intensity noise σ_I (% of max. intensity)")
         b.set_ylabel("flow end-point error (px)", color="#d62728")
         b.set_title("Why Ours is robust: flow error and temporal support (Ours)")
+        b.set_ylim(bottom=0)
         b2 = b.twinx()
         xs = [s for s in levels if ("ours", s) in sup]
         b2.plot(
