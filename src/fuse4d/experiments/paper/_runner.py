@@ -173,6 +173,8 @@ def run_units(
         task = progress.add_task(name, total=len(units), completed=len(units) - len(todo))
 
         def finished(unit: Unit, rows: list[Row], seconds: float) -> None:
+            # every row carries its unit's wall time: compute time survives kills and resumes
+            rows = [{**r, "unit_seconds": round(seconds, 2)} for r in rows]
             write_rows(unit_file(exp_dir, unit.key), rows)
             progress.advance(task)
             if log is not None:

@@ -507,10 +507,60 @@ def _f(x: float, digits: int = 3) -> str:
     return "–" if not math.isfinite(x) else f"{x:.{digits}f}"
 
 
+#: Columns that identify the unit a row came from (with ``unit_seconds`` per row).
+_UNIT_COLUMNS = (
+    "scene",
+    "method",
+    "variant",
+    "sigma_d",
+    "sigma_i",
+    "size",
+    "iterations",
+    "n_frames",
+    "seed",
+)
+
+
+def time_table(out: str | Path) -> str:
+    """Units, rows and compute time per experiment, from each experiment's JSON."""
+    import json
+
+    from . import EXPERIMENTS
+
+    lines = [
+        "| experiment | profile | units | CSV rows | compute time (min) |",
+        "|---|---|---|---|---|",
+    ]
+    total = 0.0
+    for name in EXPERIMENTS:
+        path = Path(out) / name / f"{name}.json"
+        if not path.exists():
+            lines.append(f"| {name} | not run | – | – | – |")
+            continue
+        js = json.loads(path.read_text())
+        sec = float(js.get("seconds_compute_total", js.get("seconds_this_call", 0.0)))
+        per_unit: dict[tuple[Any, ...], float] = {}
+        for r in _rows(Path(out), name) or []:
+            u = r.get("unit_seconds")
+            if isinstance(u, float) and math.isfinite(u):
+                ident = [r.get(c) for c in _UNIT_COLUMNS]
+                key = tuple(None if isinstance(v, float) and math.isnan(v) else v for v in ident)
+                per_unit[key] = u
+        sec = max(sec, sum(per_unit.values()))
+        total += sec
+        lines.append(
+            f"| {name} | {js['profile']['name']} | {js['units']} | {js['rows']} | {sec / 60:.1f} |"
+        )
+    lines.append(f"| total | | | | {total / 60:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
 def generated_block(out: str | Path) -> str:
-    """The report's generated part: the verdict table and the Table-1 comparison."""
+    """The report's generated part: verdicts, the Table-1 comparison and the run times."""
     return (
         verdict_table(compute_verdicts(out))
         + "\n### E5 beside the paper's Table 1\n\n"
         + table1_comparison(out)
+        + "\n### Time per experiment (wall-clock compute, summed over resumed calls)\n\n"
+        + time_table(out)
     )
