@@ -189,6 +189,10 @@ def summarize(ctx: Context, rows: list[dict]) -> dict[str, Any]:
                     color=colors[i % 2],
                     label=f"σ_I = {100 * si:.0f} %",
                 )
+                if what == "roughness":
+                    for k, v in enumerate(vals):
+                        if math.isfinite(v):
+                            a.text(v, k + i * h, f" {v:.3f}", va="center", fontsize=7)
             a.set_yticks([k + h * (len(levels) - 1) / 2 for k in range(len(names))], names)
             a.invert_yaxis()
             a.set_xlabel(xl)
