@@ -175,7 +175,12 @@ def summarize(ctx: Context, rows: list[dict]) -> dict[str, Any]:
         else ["scene"]
     )
     table = [
-        [SCENE_LABELS[s], key, *c[key], *c[f"fit_{key}"]]
+        [
+            SCENE_LABELS[s],
+            key,
+            *[f"{v:.4f}" for v in (*c[key], *c[f"fit_{key}"][:2])],
+            f"{c[f'fit_{key}'][2]:.3f}",
+        ]
         for s, c in cv.items()
         for key in ("mean", "std")
     ]

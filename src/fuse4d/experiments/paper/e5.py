@@ -119,13 +119,17 @@ def table(rows: list[dict]) -> dict[str, dict[str, Any]]:
     same = group_stats(
         rows, ("scene", "method"), "roughness", where=lambda r: (r["scene"], r["frame"]) in ed_f
     )
+    inner = group_stats(rows, ("scene", "method"), "roughness", where=lambda r: r["interior"] == 1)
     out: dict[str, dict[str, Any]] = {}
     for (s, m), v in st.items():
+        iv = inner.get((s, m))
         out.setdefault(s, {})[m] = {
             "mean": v.mean,
             "std": v.std_frames,
             "frames": v.n_frames,
             "mean_at_ed_frames": same[(s, m)].mean if (s, m) in same else math.nan,
+            "mean_interior": iv.mean if iv else math.nan,
+            "std_interior": iv.std_frames if iv and iv.n_frames >= 3 else math.nan,
         }
     return out
 
@@ -150,16 +154,29 @@ def summarize(ctx: Context, rows: list[dict]) -> dict[str, Any]:
             [
                 label(m),
                 t[m]["mean"],
-                t[m]["std"] if t[m]["frames"] >= 3 else math.nan,
+                f"{t[m]['std']:.4f}" if t[m]["frames"] >= 3 else "–",
                 str(t[m]["frames"]),
                 t[m]["mean_at_ed_frames"],
+                t[m]["mean_interior"],
+                f"{t[m]['std_interior']:.4f}" if math.isfinite(t[m]["std_interior"]) else "–",
             ]
             for m in methods_for(s)
             if m in t
         ]
         lines.append(f"\n## {SCENE_LABELS[s]}\n")
         lines.append(
-            markdown_table(["method", "mean Π", "std Π", "frames", "mean Π at ED frames"], body)
+            markdown_table(
+                [
+                    "method",
+                    "mean Π",
+                    "std Π",
+                    "frames",
+                    "mean Π at ED frames",
+                    "mean Π, interior frames",
+                    "std Π, interior frames",
+                ],
+                body,
+            )
         )
         if "ours" in t and "raw" in t:
             rm = t["ours"]["mean"] / t["raw"]["mean"]
