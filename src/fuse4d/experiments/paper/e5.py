@@ -88,6 +88,7 @@ def units(ctx: Context) -> list[Unit]:
         for seed in p.seeds
         for s in SCENES
         for m in sorted(methods_for(s), key=lambda m: (m == "ed", m != "ours"))
+        if m != "ed" or p.ed_frames > 0  # ed_frames = 0: ED not run (too slow for the machine)
     ]
     return sorted(out, key=lambda u: u.kwargs["method"] == "ed")
 
