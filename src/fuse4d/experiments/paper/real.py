@@ -23,6 +23,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from matplotlib.ticker import MaxNLocator
 from numpy.typing import NDArray
 
 from ...io import load_sequence
@@ -270,7 +271,10 @@ def _pictures(ctx: Context, d: Path) -> None:
     ):
         for j, m in enumerate(avail):
             a = ax[0, j]
-            sl = depths[m][:, cy, :]
+            cols = np.nonzero(mask[:, cy, :].any(axis=0))[0]
+            c0 = max(0, int(cols.min()) - 40) if cols.size else 0
+            c1 = min(mask.shape[2], int(cols.max()) + 40) if cols.size else mask.shape[2]
+            sl = depths[m][:, cy, c0:c1]
             im = a.imshow(
                 sl,
                 cmap="turbo",
@@ -278,11 +282,12 @@ def _pictures(ctx: Context, d: Path) -> None:
                 vmax=hi,
                 aspect="auto",
                 interpolation="nearest",
-                extent=(0, sl.shape[1], sl.shape[0] - 0.5, -0.5),
+                extent=(c0, c1, sl.shape[0] - 0.5, -0.5),
             )
             a.set_title(f"{label(m)}\nrow v = {cy} over time")
             a.set_xlabel("column u (px)")
             a.set_ylabel("frame t")
+            a.yaxis.set_major_locator(MaxNLocator(integer=True))
             a.grid(False)
         fig.colorbar(im, ax=list(ax.ravel()), label="depth Z (mm); white = no depth", shrink=0.8)
         fig.suptitle(
