@@ -289,7 +289,7 @@ def _side_view(ctx: Context, rows: list[dict], d: Path) -> None:
         a.set_ylabel("depth Z (mm; camera at top)")
         a.set_title(
             f"Side view: row v_c(t) = {int(any_npz['row'])} of frame "
-            f"{int(any_npz['frame'])}, at matched roughness (≈ {target:.2f} mm)"
+            f"{int(any_npz['frame'])}, Ours and DNBF at their settings nearest Π = {target:.2f} mm"
         )
         a.legend(fontsize=8)
         b.set_xlabel("image column u (px)")
