@@ -13,6 +13,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+from matplotlib.ticker import FormatStrFormatter
+
 from ._common import Context, tidy
 from ._config import Profile
 from ._plots import figure
@@ -198,6 +200,8 @@ def summarize(ctx: Context, rows: list[dict]) -> dict[str, Any]:
             a.set_xlabel(xl)
             a.legend()
             if what == "c_3d":
+                a.xaxis.set_major_formatter(FormatStrFormatter("%.4f"))
+                a.tick_params(axis="x", labelrotation=30)
                 finite = [x for (v, si), s in st[what].items() if math.isfinite(x := 100 * s.mean)]
                 if finite:
                     a.set_xlim(
