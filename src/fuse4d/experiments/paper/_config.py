@@ -107,7 +107,7 @@ PROFILES: dict[str, Profile] = {
         e3_max_sizes=2,
         e4_frames=(1, 3, 5, 9),
         e6_sigma_i=(0.02,),
-        real_frames=10,
+        real_frames=6,
         # ED's cost is set by its node count, not the image size: coarse nodes keep CI fast
         extra={"ed_params": {"node_spacing": 40.0, "stride": 4}},
     ),
