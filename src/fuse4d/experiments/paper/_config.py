@@ -85,8 +85,8 @@ PROFILES: dict[str, Profile] = {
         seeds=(0,),
         flow_method="pmbp-fast",
         shape_frames=2,
-        # ED at 600x600 needs ~6 min of a free core per pairwise warp on the shared machine
-        # (16 warps per evaluated frame): 1 frame did not finish in 45 min, so it is not run
+        # ED at 600x600: ~25 CPU-s per pairwise warp, 16 warps per evaluated frame; on the
+        # shared machine one frame did not finish in 45 min, so it is not run
         ed_frames=0,
         e3_iterations=(1, 2),
         e3_max_sizes=3,
