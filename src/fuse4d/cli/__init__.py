@@ -33,6 +33,7 @@ from . import (  # noqa: F401  isort: skip
     cmd_flow,  # flow, bench-flow
     cmd_fuse,  # run, bench, demo
     cmd_eval,  # synth, metrics
+    cmd_experiments,  # experiments
     cmd_io,  # info, export-ply
     cmd_live,  # live
     cmd_report,  # report

@@ -1,0 +1,133 @@
+"""The paper's evaluation, end to end: EVALUATION.md §4 (E1-E6), the real recordings, §6 verdicts.
+
+``fuse4d experiments NAME --out DIR [--profile paper|reduced|quick] [--jobs N]`` runs one
+experiment (or ``all``) and writes, per experiment, ``DIR/<NAME>/``:
+
+* ``<NAME>.csv`` — tidy rows, one per method x setting x seed x frame;
+* ``<NAME>.md`` — the summary table(s);
+* ``*.png`` — the plots in the paper's form;
+* ``<NAME>.json`` — every parameter (profile, method settings), the package version and the
+  wall time, so that a rerun is exact.
+
+Finished units are kept in ``DIR/<NAME>/rows/``: an interrupted run resumes where it stopped.
+``fuse4d experiments verdicts --out DIR`` computes the claims C1-C12 from the CSVs;
+``--publish DOCS`` copies the small outputs (no row files, no flow cache) to a folder that can
+be committed, and ``--report REPRODUCTION.md`` rewrites that report's verdict table from them.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+from rich.console import Console
+
+from ._common import Context
+from ._config import PROFILES, Profile, get_profile
+from ._runner import run_units, write_json, write_rows
+
+__all__ = ["EXPERIMENTS", "PROFILES", "Profile", "get_profile", "publish", "run_experiment"]
+
+#: Experiment names in run order (``all`` runs them in this order).
+EXPERIMENTS: tuple[str, ...] = ("E1", "E2", "E3", "E4", "E5", "E6", "real")
+
+
+def _module(name: str) -> ModuleType:
+    import importlib
+
+    return importlib.import_module(f".{'real' if name == 'real' else name.lower()}", __name__)
+
+
+def run_experiment(
+    name: str,
+    out: str | Path,
+    *,
+    profile: str | Profile = "paper",
+    jobs: int = 1,
+    console: Console | None = None,
+    log: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Run experiment ``name`` (resuming), write its CSV, summary, plots and JSON.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`EXPERIMENTS`.
+    out : path
+        Run folder; the experiment writes ``out/<name>/``.
+    profile : str or Profile
+        Run size (:data:`PROFILES`).
+    jobs : int
+        Worker processes.
+    console : rich Console, optional
+        Progress-bar console.
+    log : callable, optional
+        One line per finished unit.
+
+    Returns
+    -------
+    dict
+        The JSON written to ``out/<name>/<name>.json``.
+    """
+    if name not in EXPERIMENTS:
+        raise ValueError(f"unknown experiment {name!r}; choose one of {', '.join(EXPERIMENTS)}")
+    prof = get_profile(profile) if isinstance(profile, str) else profile
+    ctx = Context(prof, Path(out))
+    mod = _module(name)
+    exp_dir = ctx.exp_dir(name)
+    exp_dir.mkdir(parents=True, exist_ok=True)
+    units = mod.units(ctx)
+    before = _previous_seconds(exp_dir / f"{name}.json")
+    t0 = time.perf_counter()
+    rows, seconds = run_units(name, units, exp_dir, jobs=jobs, console=console, log=log)
+    write_rows(exp_dir / f"{name}.csv", rows)
+    summary = mod.summarize(ctx, rows)
+    payload = {
+        "experiment": name,
+        "title": mod.TITLE,
+        "profile": prof.to_dict(),
+        "parameters": mod.parameters(ctx) if hasattr(mod, "parameters") else {},
+        "units": len(units),
+        "rows": len(rows),
+        "seconds_this_call": round(seconds, 1),
+        # compute time summed over every (resumed) call of this run folder
+        "seconds_compute_total": round(before + seconds, 1),
+        "seconds_total_with_summary": round(time.perf_counter() - t0, 1),
+        "summary": summary,
+    }
+    write_json(exp_dir / f"{name}.json", payload)
+    return payload
+
+
+def _previous_seconds(path: Path) -> float:
+    import json
+
+    if not path.exists():
+        return 0.0
+    old = json.loads(path.read_text())
+    return float(old.get("seconds_compute_total", old.get("seconds_this_call", 0.0)))
+
+
+def publish(out: str | Path, dest: str | Path) -> list[Path]:
+    """Copy a run's small outputs (CSV, Markdown, JSON, PNG per experiment) to ``dest``.
+
+    Row files, the flow cache and intermediate arrays stay behind, so ``dest`` can be
+    committed (``docs/reproduction``). Returns the copied files.
+    """
+    import shutil
+
+    src, dst = Path(out), Path(dest)
+    copied = []
+    for name in EXPERIMENTS:
+        d = src / name
+        if not (d / f"{name}.csv").exists():
+            continue
+        (dst / name).mkdir(parents=True, exist_ok=True)
+        for f in sorted(d.iterdir()):
+            if f.is_file() and f.suffix in (".csv", ".md", ".json", ".png"):
+                shutil.copy2(f, dst / name / f.name)
+                copied.append(dst / name / f.name)
+    return copied

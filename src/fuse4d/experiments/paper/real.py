@@ -1,0 +1,296 @@
+"""``real`` — the same methods on the two real recordings of ``../shared/data``.
+
+* ``static_room_rgbd`` (12 frames, 30 Hz, static office corner, near-still camera): roughness
+  on the real planes (walls, floor; default ROI = windows without depth edges) and temporal
+  flicker (per-pixel std over time, median) of the static scene;
+* ``uva_cv2_person_turning`` (Kinect-v1 class, a person turning): roughness on the person
+  (GT mask eroded by 5 px), background flicker (pixels outside the dilated masks of every
+  frame), and the silhouette-band trail check: the fraction of valid pixels in the 8-px band
+  just *outside* the person whose output depth is more than 100 mm nearer than the raw depth
+  (foreground dragged onto the background: trails).
+
+Methods: Raw, the seven filters, Ours (9 frames), the RealSense post-processing chain (when
+``pyrealsense2`` is installed) and the plain 9-frame mean. Pictures: one moving frame side by
+side (raw / Ours / RealSense chain / 9-frame mean) and an x–t slice (one image row through the
+person stacked over time).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from matplotlib.ticker import MaxNLocator
+from numpy.typing import NDArray
+
+from ...io import load_sequence
+from ...metrics import default_roi, roughness_stats, temporal_flicker
+from ._common import Context
+from ._config import Profile
+from ._plots import figure, label
+from ._runner import Unit
+from ._scenes import FILTERS, flow_for, ours_params, run_method
+from ._summary import group_stats, markdown_table
+
+NAME = "real"
+TITLE = "real — static room (flicker, plane roughness) and person turning (roughness, trails)"
+DATA = Path(__file__).resolve().parents[5] / "shared" / "data"
+RECORDINGS = {"room": "static_room_rgbd", "person": "uva_cv2_person_turning"}
+#: Frames of the person shown in the side-by-side picture and the row of the x–t slice.
+BAND_PX, TRAIL_MM, ERODE_PX = 8, 100.0, 5
+PICTURE_METHODS = ("raw", "ours", "realsense", "temporal-mean")
+
+
+def data_dir() -> Path:
+    """``../shared/data`` (override with ``FUSE4D_DATA``)."""
+    import os
+
+    return Path(os.environ.get("FUSE4D_DATA", DATA))
+
+
+def methods() -> tuple[str, ...]:
+    """Methods run on the real data (the RealSense chain only when its package is present)."""
+    from ...baselines import available_baselines
+
+    extra = []
+    try:
+        import pyrealsense2  # noqa: F401
+
+        extra.append("realsense")
+    except ImportError:
+        pass
+    del available_baselines
+    return ("raw", *FILTERS, "ours", *extra, "temporal-mean")
+
+
+def load(profile: Profile, rec: str) -> Any:
+    """The recording (first ``real_frames`` frames)."""
+    path = data_dir() / RECORDINGS[rec]
+    seq = load_sequence(path)
+    return seq.frames(0, min(seq.num_frames, profile.real_frames))
+
+
+def _masks(seq: Any) -> tuple[NDArray[np.bool_], NDArray[np.bool_], NDArray[np.bool_]]:
+    """Person mask eroded, outside band (8 px), and static background (all frames)."""
+    gt = seq.ground_truth
+    m = np.asarray(gt.mask, bool)
+    k_e = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ERODE_PX + 1, 2 * ERODE_PX + 1))
+    k_b = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * BAND_PX + 1, 2 * BAND_PX + 1))
+    inner = np.stack([cv2.erode(f.astype(np.uint8), k_e) > 0 for f in m])
+    dil = np.stack([cv2.dilate(f.astype(np.uint8), k_b) > 0 for f in m])
+    band = dil & ~m
+    k_far = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (41, 41))
+    ever = cv2.dilate(m.any(axis=0).astype(np.uint8), k_far) > 0
+    return inner, band, ~ever
+
+
+def unit(profile: Profile, cache_dir: Path, rec: str, method: str, out_dir: Path) -> list[dict]:
+    """Rows of one (recording, method); per frame roughness, and the sequence flicker."""
+    seq = load(profile, rec)
+    flow = flow_for(seq, profile.flow_method, cache_dir) if method == "ours" else None
+    out = run_method(method, seq, flow=flow)
+    pts = out.points
+    z = pts[..., 2]
+    raw_z = seq.depth
+    if rec == "person":
+        inner, band, background = _masks(seq)
+        roi = inner & default_roi(z)
+        flick = temporal_flicker(z, static_mask=background)
+    else:
+        roi = default_roi(raw_z) & default_roi(z)
+        flick = temporal_flicker(z)
+        band = None
+    stats = roughness_stats(pts, roi=roi)
+    rows = []
+    for t in range(seq.num_frames):
+        row: dict[str, Any] = {
+            "experiment": NAME,
+            "scene": rec,
+            "method": method,
+            "label": label(method),
+            "seed": 0,
+            "frame": t,
+            "roughness": float(stats.frame_means[t]),
+            "roughness_rms": float(stats.frame_rms_means[t]),
+            "n_roi": int(stats.num_pixels[t]),
+            "flicker_median": float(flick.median),
+            "valid_fraction": float(np.isfinite(z[t]).mean()),
+            "seconds_per_frame": out.seconds / seq.num_frames,
+        }
+        if band is not None:
+            b = band[t] & np.isfinite(z[t]) & np.isfinite(raw_z[t])
+            trail = (raw_z[t][b] - z[t][b]) > TRAIL_MM
+            row["trail_fraction"] = float(trail.mean()) if b.any() else math.nan
+        rows.append(row)
+    if rec == "person" and method in PICTURE_METHODS:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        np.save(out_dir / f"{method}_depth.npy", z.astype(np.float16))
+    return rows
+
+
+def units(ctx: Context) -> list[Unit]:
+    """One unit per (recording, method); skipped with a note when the data are absent."""
+    if not all((data_dir() / r).is_dir() for r in RECORDINGS.values()):
+        return []
+    pic = ctx.out / NAME / "pictures"
+    return [
+        Unit(
+            f"{rec}_{m}",
+            unit,
+            {
+                "profile": ctx.profile,
+                "cache_dir": ctx.cache_dir,
+                "rec": rec,
+                "method": m,
+                "out_dir": pic,
+            },
+        )
+        for rec in RECORDINGS
+        for m in sorted(methods(), key=lambda m: m != "ours")
+    ]
+
+
+def parameters(ctx: Context) -> dict[str, Any]:
+    """Every setting of ``real`` (for the JSON)."""
+    return {
+        "data": {k: str(data_dir() / v) for k, v in RECORDINGS.items()},
+        "frames": ctx.profile.real_frames,
+        "methods": list(methods()),
+        "person_roi": f"GT mask eroded by {ERODE_PX} px ∩ default_roi (no depth edge in 5x5)",
+        "trail_band": f"{BAND_PX} px outside the mask; trail = output > {TRAIL_MM} mm nearer "
+        "than raw",
+        "room_roi": "default_roi of raw and output (planar patches without depth edges)",
+        "flow_method": ctx.profile.flow_method,
+        "ours": vars(ours_params()),
+    }
+
+
+def summarize(ctx: Context, rows: list[dict]) -> dict[str, Any]:
+    """Write ``real.md``, ``real_person_frame.png`` and ``real_person_xt.png``."""
+    d = ctx.exp_dir(NAME)
+    if not rows:
+        (d / "real.md").write_text(f"# {TITLE}\n\nData not found in {data_dir()}: skipped.\n")
+        return {}
+    rough = group_stats(rows, ("scene", "method"), "roughness")
+    flick = group_stats(rows, ("scene", "method"), "flicker_median")
+    trail = group_stats(rows, ("scene", "method"), "trail_fraction")
+    ms = [m for m in methods() if ("room", m) in rough or ("person", m) in rough]
+    body = []
+    for m in ms:
+
+        def g(st: dict, s: str, scale: float = 1.0, m: str = m) -> float:
+            return scale * st[(s, m)].mean if (s, m) in st else math.nan
+
+        body.append(
+            [
+                label(m),
+                g(rough, "room"),
+                g(flick, "room"),
+                g(rough, "person"),
+                g(flick, "person"),
+                g(trail, "person", 100),
+            ]
+        )
+    md = f"# {TITLE}\n\n" + markdown_table(
+        [
+            "method",
+            "room: plane roughness Π (mm)",
+            "room: flicker (mm)",
+            "person: roughness Π (mm)",
+            "person: background flicker (mm)",
+            "person: trail pixels in the 8-px band (%)",
+        ],
+        body,
+    )
+    md += "\n![frame](real_person_frame.png)\n\n![x-t](real_person_xt.png)\n"
+    (d / "real.md").write_text(md)
+    _pictures(ctx, d)
+    return {"roughness": {f"{s}@{m}": v.mean for (s, m), v in rough.items()}}
+
+
+def _pictures(ctx: Context, d: Path) -> None:
+    pic = d / "pictures"
+    avail = [m for m in PICTURE_METHODS if (pic / f"{m}_depth.npy").exists()]
+    if "raw" not in avail:
+        return
+    seq = load(ctx.profile, "person")
+    depths = {m: np.load(pic / f"{m}_depth.npy").astype(np.float32) for m in avail}
+    mask = np.asarray(seq.ground_truth.mask, bool)
+    t = seq.num_frames // 2
+    ys, xs = np.nonzero(mask[t])
+    v0, v1, u0, u1 = ys.min(), ys.max(), xs.min(), xs.max()
+    pad = 30
+    v0, v1 = max(0, v0 - pad), min(mask.shape[1], v1 + pad)
+    u0, u1 = max(0, u0 - pad), min(mask.shape[2], u1 + pad)
+    zin = depths["raw"][t][mask[t]]
+    lo, hi = np.nanpercentile(zin, 2), np.nanpercentile(zin, 98)
+    n = len(avail)
+    with figure(d / "real_person_frame.png", ncols=n, nrows=2, size=(3.6 * n + 1.2, 9.0)) as (
+        fig,
+        ax,
+    ):
+        for j, m in enumerate(avail):
+            a, b = ax[0, j], ax[1, j]
+            crop = depths[m][t, v0:v1, u0:u1]
+            im = a.imshow(
+                crop,
+                cmap="turbo",
+                vmin=lo,
+                vmax=hi,
+                extent=(u0, u1, v1, v0),
+                interpolation="nearest",
+            )
+            a.set_title(f"{label(m)}, frame {t}")
+            diff = crop - depths["raw"][t, v0:v1, u0:u1]
+            im2 = b.imshow(
+                diff,
+                cmap="RdBu_r",
+                vmin=-20,
+                vmax=20,
+                extent=(u0, u1, v1, v0),
+                interpolation="nearest",
+            )
+            b.set_title(f"{label(m)} − Raw")
+            for x in (a, b):
+                x.set_xlabel("column u (px)")
+                x.set_ylabel("row v (px)")
+                x.grid(False)
+        fig.colorbar(
+            im, ax=list(ax[0]), label="depth Z (mm); white = no depth; wall saturated", shrink=0.9
+        )
+        fig.colorbar(
+            im2, ax=list(ax[1]), label="change against Raw (mm); white = no depth", shrink=0.9
+        )
+    cy = int(np.median(ys))
+    with figure(d / "real_person_xt.png", ncols=len(avail), size=(3.6 * len(avail), 5.0)) as (
+        fig,
+        ax,
+    ):
+        for j, m in enumerate(avail):
+            a = ax[0, j]
+            cols = np.nonzero(mask[:, cy, :].any(axis=0))[0]
+            c0 = max(0, int(cols.min()) - 40) if cols.size else 0
+            c1 = min(mask.shape[2], int(cols.max()) + 40) if cols.size else mask.shape[2]
+            sl = depths[m][:, cy, c0:c1]
+            im = a.imshow(
+                sl,
+                cmap="turbo",
+                vmin=lo,
+                vmax=hi,
+                aspect="auto",
+                interpolation="nearest",
+                extent=(c0, c1, sl.shape[0] - 0.5, -0.5),
+            )
+            a.set_title(f"{label(m)}\nrow v = {cy} over time")
+            a.set_xlabel("column u (px)")
+            a.set_ylabel("frame t")
+            a.yaxis.set_major_locator(MaxNLocator(integer=True))
+            a.grid(False)
+        fig.colorbar(im, ax=list(ax.ravel()), label="depth Z (mm); white = no depth", shrink=0.8)
+        fig.suptitle(
+            "x–t slice: one image row through the person, frames stacked downwards "
+            "(trails = smeared edges, flicker = speckle along t)"
+        )

@@ -1,0 +1,140 @@
+"""The paper experiments (fuse4d.experiments.paper): runner, resume, quick runs, verdicts."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fuse4d.cli import main
+from fuse4d.experiments.paper import EXPERIMENTS, e3, e4, get_profile, run_experiment
+from fuse4d.experiments.paper._runner import Unit, read_rows, run_units, unit_file, write_rows
+from fuse4d.experiments.paper._summary import group_stats
+from fuse4d.experiments.paper.verdicts import (
+    compute_verdicts,
+    generated_block,
+    report_block,
+    verdict_table,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+COMMITTED = ROOT / "docs" / "reproduction"
+CALLS: list[int] = []
+
+
+def _count(i: int) -> list[dict]:
+    CALLS.append(i)
+    return [{"frame": 0, "value": float(i)}, {"frame": 1, "value": math.nan}]
+
+
+def _boom(i: int) -> list[dict]:
+    raise KeyboardInterrupt
+
+
+def test_rows_round_trip(tmp_path):
+    rows = [{"a": "x", "b": 1.5, "c": math.nan}, {"a": "y", "d": 2}]
+    write_rows(tmp_path / "r.csv", rows)
+    back = read_rows(tmp_path / "r.csv")
+    assert back[0]["a"] == "x"
+    assert back[0]["b"] == 1.5
+    assert math.isnan(back[0]["c"])
+    assert back[1]["d"] == 2.0
+    assert math.isnan(back[1]["b"])
+
+
+def test_resume_never_recomputes_finished_units(tmp_path):
+    CALLS.clear()
+    units = [Unit(f"u{i}", _count, {"i": i}) for i in range(3)]
+    # an interrupted run: u0 and u1 finish, then Ctrl-C in u2's place
+    broken = [*units[:2], Unit("u2", _boom, {"i": 2})]
+    with pytest.raises(KeyboardInterrupt):
+        run_units("T", broken, tmp_path)
+    assert CALLS == [0, 1]
+    assert unit_file(tmp_path, "u1").exists()
+    assert not unit_file(tmp_path, "u2").exists()
+    rows, _ = run_units("T", units, tmp_path)
+    assert CALLS == [0, 1, 2]  # only the unfinished unit ran again
+    assert [r["value"] for r in rows if r["frame"] == 0] == [0.0, 1.0, 2.0]
+
+
+def test_group_stats_over_frames_and_seeds():
+    rows = [{"m": "a", "seed": s, "v": v} for s, vals in ((0, (1, 3)), (1, (5, 7))) for v in vals]
+    st = group_stats(rows, ("m",), "v")[("a",)]
+    assert st.mean == 4.0
+    assert st.std_frames == 1.0
+    assert st.std_seeds == 2.0
+    assert st.n_seeds == 2
+
+
+def test_pareto_front_and_matched_c():
+    pts = [(1.0, 99.0, 1, 1), (2.0, 99.5, 2, 1), (1.5, 98.0, 3, 1), (3.0, 99.4, 4, 1)]
+    front = e3.pareto_front(pts)
+    assert [p[0] for p in front] == [1.0, 2.0]
+    assert e3.c_at(front, 1.5) == pytest.approx(99.25)
+    assert math.isnan(e3.c_at(front, 0.5))
+
+
+def test_e4_fit_recovers_model():
+    ns = list(range(1, 10))
+    ys = [math.sqrt(0.3**2 + 0.8**2 / n) for n in ns]
+    ds, dt, r2 = e4.fit(ns, ys)
+    assert ds == pytest.approx(0.3, rel=1e-3)
+    assert dt == pytest.approx(0.8, rel=1e-3)
+    assert r2 == pytest.approx(1.0)
+
+
+def test_profiles_and_unknown_names():
+    assert get_profile("quick").small
+    assert not get_profile("paper").small
+    with pytest.raises(ValueError, match="unknown profile"):
+        get_profile("huge")
+    with pytest.raises(ValueError, match="unknown experiment"):
+        run_experiment("E9", "x")
+
+
+def test_e1_quick_subset_writes_every_output(tmp_path):
+    """E1 at CI size on two noise levels: CSV, summary, PNG, JSON, and a resumed rerun."""
+    import dataclasses
+
+    prof = dataclasses.replace(get_profile("quick"), sigma_d_levels=(0.1, 0.4), num_frames=6)
+    res = run_experiment("E1", tmp_path, profile=prof)
+    d = tmp_path / "E1"
+    for name in ("E1.csv", "E1.md", "E1.json", "E1_roughness_vs_depth_noise.png"):
+        assert (d / name).is_file(), name
+    rows = read_rows(d / "E1.csv")
+    assert len(rows) == res["rows"] == 2 * 9 * 6  # levels x methods x frames
+    assert {r["label"] for r in rows} >= {"Raw", "Ours (9 frames)", "Ad-JBF", "ST-MF"}
+    stats = group_stats(rows, ("method", "sigma_d"), "roughness")
+    assert stats[("ours", 0.4)].mean < stats[("raw", 0.4)].mean
+    again = run_experiment("E1", tmp_path, profile=prof)
+    assert again["seconds_this_call"] < 1.0  # nothing recomputed
+
+
+def test_cli_lists_experiments_and_rejects_bad_name(tmp_path, capsys):
+    assert main(["experiments", "E9", "--out", str(tmp_path)]) == 2
+    assert "unknown experiment" in capsys.readouterr().err
+    assert set(EXPERIMENTS) == {"E1", "E2", "E3", "E4", "E5", "E6", "real"}
+
+
+@pytest.mark.skipif(not (COMMITTED / "E1" / "E1.csv").exists(), reason="no committed run")
+def test_reproduction_md_verdicts_match_committed_csvs():
+    """REPRODUCTION.md's verdict table is exactly what the committed CSVs give."""
+    verdicts = compute_verdicts(COMMITTED)
+    assert report_block(ROOT / "REPRODUCTION.md") == generated_block(COMMITTED)
+    assert all(v.verdict in ("PASS", "FAIL", "N/A") for v in verdicts)
+
+
+@pytest.mark.slow
+def test_quick_all_runs_every_experiment(tmp_path):
+    """``fuse4d experiments all --quick``: every experiment end to end at CI size."""
+    assert main(["experiments", "all", "--out", str(tmp_path), "--quick"]) == 0
+    for name in EXPERIMENTS:
+        assert (tmp_path / name / f"{name}.csv").is_file(), name
+        assert (tmp_path / name / f"{name}.json").is_file(), name
+        assert list((tmp_path / name).glob("*.png")), name
+    verdicts = compute_verdicts(tmp_path)
+    assert [v.claim for v in verdicts] == [f"C{i}" for i in range(1, 13)]
+    assert all(v.verdict in ("PASS", "FAIL") for v in verdicts), verdict_table(verdicts)
+    assert np.isfinite([r["roughness"] for r in read_rows(tmp_path / "E5" / "E5.csv")]).all()
