@@ -33,6 +33,7 @@ COMMANDS = (
     "export-ply",
     "report",
     "live",
+    "experiments",
 )
 
 

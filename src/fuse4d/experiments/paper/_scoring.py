@@ -82,7 +82,7 @@ def score_frames(
     for i, f in enumerate(idx):
         rmse = math.nan
         if gt is not None and gt.depth is not None:
-            rmse = float(depth_rmse(gt.depth[i], points[i, ..., 2], mask=roi[i]))
+            rmse = float(depth_rmse(gt.depth[i], points[i, ..., 2], roi=roi[i]))
         c3, cp, cm = shape.get(i, (math.nan, math.nan, math.nan))
         rows.append(
             {
@@ -109,7 +109,7 @@ def flow_epe_frames(forward: NDArray[np.float32], seq: Sequence) -> list[float]:
         return [math.nan] * seq.num_frames
     roi = ball_roi(seq)
     out = [
-        float(flow_endpoint_error(gt.flow[t], forward[t], mask=roi[t]))
+        float(flow_endpoint_error(gt.flow[t], forward[t], roi=roi[t]))
         for t in range(seq.num_frames - 1)
     ]
     return [*out, math.nan]
