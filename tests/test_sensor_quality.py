@@ -187,3 +187,36 @@ def test_fusion_params_quadratic_base_runs_on_the_sensor_scene(kinect_ball):
     valid = np.isfinite(seq.depth[:5])
     truth = seq.ground_truth.depth[:5]
     assert _rmse(out, truth, valid) < _rmse(seq.depth[:5], truth, valid)
+
+
+# ------------------------------------------------------------------------------------- CLI
+def test_cli_synth_sensor_writes_a_range_scene_with_ground_truth(tmp_path, capsys):
+    from fuse4d.cli import main
+    from fuse4d.io import load_sequence
+
+    out = tmp_path / "body.npz"
+    assert (
+        main(["synth", "body", "--sensor", "kinect", "--small", "--frames", "2", "-o", str(out)])
+        == 0
+    )
+    seq = load_sequence(out)
+    expected = make_range_scene("body", sensor="kinect", small=True, num_frames=2, rng=0)
+    np.testing.assert_array_equal(seq.depth, expected.depth)
+    np.testing.assert_allclose(seq.ground_truth.depth, expected.ground_truth.depth)
+    assert seq.ground_truth.extra["sensor"] == "kinect"
+    assert "sensor kinect" in capsys.readouterr().err
+    assert main(["synth", "plane", "--sensor", "tof", "-o", str(tmp_path / "p.npz")]) == 2
+    assert "no range version" in capsys.readouterr().err
+    assert main(["synth", "room", "-o", str(tmp_path / "r.npz")]) == 2
+    assert "--sensor" in capsys.readouterr().err
+    args = [
+        "synth",
+        "ball",
+        "--sensor",
+        "d435",
+        "--depth-noise",
+        "1",
+        "-o",
+        str(tmp_path / "b.npz"),
+    ]
+    assert main(args) == 2
