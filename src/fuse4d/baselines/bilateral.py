@@ -18,7 +18,9 @@ from .._kernels.joint_bilateral import _joint_bilateral_kernel
 from .._params import check_bool, check_int, check_number
 from ..camera import Intrinsics, depth_to_points
 from ._common import (
+    DepthNoiseModel,
     check_inputs,
+    estimate_noise_model,
     frame_median_depth,
     iterate,
     resolve_noise_sigma,
@@ -165,7 +167,8 @@ def adaptive_gaussian(
     iterations : int, default 1
         Repeated application to its own output (normals and σ from the raw input).
     noise_sigma : float, optional
-        σ_d in mm (oracle mode); default: estimated from ``depth``.
+        σ_d in mm (oracle mode, one value for every pixel); default: the noise model
+        σ(z) = max(σ0, q z²) estimated from ``depth`` (A22), at each pixel's depth.
 
     Returns
     -------
@@ -176,11 +179,15 @@ def adaptive_gaussian(
     -----
     [R] reconstruction (BASELINES §1): lateral σ_L(θ) = 0.8 + 0.035 θ/(π/2 − θ) px and the
     angular dependence of σ_z rescaled to the measured noise,
-    σ_z(i) = σ̂_d · σ_z^K(1 m, θ_i) / σ_z^K(1 m, 0); depth gate 3 σ_z(i).
+    σ_z(i) = σ̂_d(D_i) · σ_z^K(1 m, θ_i) / σ_z^K(1 m, 0); depth gate 3 σ_z(i).
     """
     d, _ = check_inputs(depth, intensity, intrinsics)
     scale = check_number("adaptive_gaussian", "size", size, gt=0)
-    sigma_d = resolve_noise_sigma(d, noise_sigma, owner="adaptive_gaussian")
+    if noise_sigma is None:
+        model = estimate_noise_model(d)
+    else:
+        sigma = check_number("adaptive_gaussian", "noise_sigma", noise_sigma, gt=0)
+        model = DepthNoiseModel(sigma0=sigma, quad=0.0, z_med=float("nan"))
     points = depth_to_points(d, intrinsics)
     params = []
     for t in range(d.shape[0]):
@@ -188,6 +195,7 @@ def adaptive_gaussian(
         sigma_l = scale * (0.8 + 0.035 * theta / (np.pi / 2 - theta))
         radius = np.maximum(np.ceil(3.0 * sigma_l), 1).astype(np.int32)
         ratio = _kinect_sigma_z(1.0, theta) / _kinect_sigma_z(1.0, np.zeros(1))
+        sigma_d = np.maximum(model.sigma_at(d[t]), 1e-3)  # per pixel (A22)
         params.append((radius, sigma_l.astype(np.float32), (3.0 * sigma_d * ratio)))
 
     def step(cur: F32) -> F32:
@@ -295,7 +303,8 @@ def adaptive_bilateral(
     iterations : int, default 1
         Repeated application (repair + filter) to its own output.
     noise_sigma : float, optional
-        σ_d in mm (oracle); default: estimated from ``depth``.
+        σ_d in mm (oracle); default: the noise model max(σ0, q z²) at the median depth
+        (:func:`fuse4d.baselines._common.estimate_noise_model`, A22).
     hole_repair : bool, default True
         Run step 1 (region growing). It fills holes by definition; with False, NaN stays NaN.
 
@@ -387,7 +396,8 @@ def adaptive_joint_bilateral(
     iterations : int, default 1
         Repeated application to its own output.
     noise_sigma : float, optional
-        σ_d in mm (oracle); default: estimated from ``depth``.
+        σ_d in mm (oracle); default: the noise model max(σ0, q z²) at the median depth
+        (:func:`fuse4d.baselines._common.estimate_noise_model`, A22).
     sigma_intensity : float, default 0.1
         σ_I in [0, 1] units.
     temporal : bool, default False
@@ -458,7 +468,8 @@ def dnbf(
     iterations : int, default 1
         Repeated application to its own output sequence.
     noise_sigma : float, optional
-        σ_d in mm (oracle); default: estimated from ``depth``.
+        σ_d in mm (oracle); default: the noise model max(σ0, q z²) at the median depth
+        (:func:`fuse4d.baselines._common.estimate_noise_model`, A22).
     num_previous : int, default 2
         k, the number of previous frames in the causal window (truncated at the start).
     sigma_temporal : float, default 1

@@ -7,9 +7,20 @@ optional extra ``fuse4d[realsense]`` (``pyrealsense2``) and, on Debian/Ubuntu, t
 package ``libusb-1.0-0``.
 
 The chain runs in the depth domain (no disparity transform: a software sensor without a
-stereo baseline passes Z16 through ``disparity_transform`` unchanged, PEERS.md §3). Depth is
-quantised to ``depth_unit`` mm (20 µm by default), so the SDK's ``filter_smooth_delta``
-thresholds are given here in mm and converted to units.
+stereo baseline passes Z16 through ``disparity_transform`` unchanged, PEERS.md §3), with the
+SDK's default options **in the recording's depth units**, as a RealSense user runs it: depth
+that is in whole mm (a Kinect / RealSense / ToF recording) is sent in 1 mm units, so the
+SDK's default ``filter_smooth_delta`` of 20 units is 20 mm; continuous (float) depth, which
+has no units of its own, is sent in 20 µm units (the finest that fits 16 bits up to 1.3 m),
+where 20 units are 0.4 mm (the paper's 0.2 mm sensor). The deltas can also be given in mm.
+
+``domain="disparity"`` (the default for whole-mm recordings) runs the SDK's recommended
+order for stereo depth: depth → disparity → spatial → temporal → depth → hole filling. The
+disparity transform is done here (``disparity = f b / z`` with the recording's focal length
+and ``baseline_mm``, 50 mm as on a D4xx), in the SDK's disparity units of 1/32 px, sent in
+finer Z16 steps (1/64 px where it fits) with the deltas scaled to match, so the SDK's
+default delta of 20 units is 0.625 px of disparity — on Kinect-class depth, whose disparity
+steps are 1/8 px, the filters then act as on a D4xx. Float depth stays in the depth domain.
 """
 
 from __future__ import annotations
@@ -19,13 +30,49 @@ import importlib.util
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._params import check_choice, check_int
+from .._params import check_choice, check_int, check_number
 from ..camera import Intrinsics
 from ._common import check_inputs, iterate
 
-__all__ = ["have_pyrealsense2", "realsense_chain"]
+__all__ = ["have_pyrealsense2", "realsense_chain", "recording_depth_unit"]
 
 _HOLE_MODES = {"fill_from_left": 0, "farest_from_around": 1, "nearest_from_around": 2}
+
+
+#: the SDK's default filter_smooth_delta of the spatial and temporal filters, depth units
+_SDK_DELTA_UNITS = 20
+
+
+def recording_depth_unit(depth: ArrayLike) -> float:
+    """The depth unit (mm) a RealSense user would record ``depth`` in.
+
+    Parameters
+    ----------
+    depth : ndarray
+        Depth in mm, NaN = invalid.
+
+    Returns
+    -------
+    float
+        1.0 when every valid value is a whole number of mm (a 16-bit sensor recording) and
+        fits 16 bits; else 0.02 mm (20 µm), or coarser (max depth / 65000) when 20 µm would
+        overflow 16 bits.
+
+    Examples
+    --------
+    >>> recording_depth_unit(np.array([1000.0, 2345.0, np.nan]))
+    1.0
+    >>> recording_depth_unit(np.array([1000.3, 999.8]))
+    0.02
+    """
+    d = np.asarray(depth, dtype=np.float64)
+    valid = d[np.isfinite(d) & (d > 0)]
+    if valid.size == 0:
+        return 0.02
+    top = float(valid.max())
+    if top <= 65535 and np.array_equal(valid, np.rint(valid)):
+        return 1.0
+    return max(0.02, top / 65000.0)
 
 
 def have_pyrealsense2() -> bool:
@@ -50,6 +97,44 @@ def _import_rs():
     return rs
 
 
+def _software_sensor(rs, intrinsics: Intrinsics, unit_m: float):
+    """A started ``software_device`` depth sensor: (sensor, profile, queue)."""
+    w, h = intrinsics.width, intrinsics.height
+    device = rs.software_device()
+    sensor = device.add_sensor("Depth")
+    intr = rs.intrinsics()
+    intr.width, intr.height = w, h
+    intr.fx, intr.fy = intrinsics.fx, intrinsics.fy
+    intr.ppx, intr.ppy = intrinsics.cx, intrinsics.cy
+    intr.model = rs.distortion.none
+    intr.coeffs = [0.0] * 5
+    stream = rs.video_stream()
+    stream.type, stream.index, stream.uid = rs.stream.depth, 0, 0
+    stream.width, stream.height, stream.fps = w, h, 30
+    stream.bpp, stream.fmt, stream.intrinsics = 2, rs.format.z16, intr
+    profile = sensor.add_video_stream(stream)
+    sensor.add_read_only_option(rs.option.depth_units, unit_m)
+    queue = rs.frame_queue(2, keep_frames=True)
+    sensor.open(profile)
+    sensor.start(queue)
+    return device, sensor, profile, queue
+
+
+def _push(rs, handle, z16: NDArray, t: int, unit_m: float):
+    """Inject one Z16 frame into the software sensor; the rs.frame that comes out."""
+    _device, sensor, profile, queue = handle
+    frame = rs.software_video_frame()
+    frame.pixels = np.ascontiguousarray(z16.astype(np.uint16))
+    frame.stride, frame.bpp = 2 * z16.shape[1], 2
+    frame.timestamp = t * 1000.0 / 30.0
+    frame.domain = rs.timestamp_domain.hardware_clock
+    frame.frame_number = t + 1
+    frame.profile = profile.as_video_stream_profile()
+    frame.depth_units = unit_m
+    sensor.on_video_frame(frame)
+    return queue.wait_for_frame(5000)
+
+
 def realsense_chain(
     depth: ArrayLike,
     intensity: ArrayLike | None,
@@ -58,10 +143,12 @@ def realsense_chain(
     size: int = 2,
     iterations: int = 1,
     depth_unit: float | None = None,
+    domain: str = "auto",
+    baseline_mm: float = 50.0,
     spatial_alpha: float = 0.5,
-    spatial_delta: float = 0.4,
+    spatial_delta: float | None = None,
     temporal_alpha: float = 0.4,
-    temporal_delta: float = 0.4,
+    temporal_delta: float | None = None,
     persistence: int = 3,
     hole_filling: str | None = "farest_from_around",
 ) -> NDArray[np.float32]:
@@ -74,19 +161,27 @@ def realsense_chain(
     intensity : (T, H, W) ndarray or None
         Unused (common signature).
     intrinsics : Intrinsics
-        Camera (passed to the software sensor's stream profile).
+        Camera (passed to the software sensor's stream profile; ``fx`` for disparity).
     size : int, default 2
         ``filter_passes``: the SDK's ``filter_magnitude`` of the spatial filter (number of
         its passes, 1–5; SDK default 2).
     iterations : int, default 1
         Repeated application of the whole chain (fresh filter state each time).
     depth_unit : float, optional
-        Z16 quantisation step in mm; default 0.02 mm (20 µm) or coarser if the deepest pixel
-        would overflow 16 bits.
+        Z16 quantisation step in mm; default: the recording's own unit, 1 mm when every
+        valid depth is a whole number of mm (:func:`recording_depth_unit`), else 0.02 mm
+        (20 µm), coarser if the deepest pixel would overflow 16 bits.
+    domain : {"auto", "depth", "disparity"}, default "auto"
+        Where the spatial and temporal filters run (module docstring): "auto" = disparity
+        for whole-mm recordings (``depth_unit`` 1 mm), depth otherwise.
+    baseline_mm : float, default 50
+        Stereo baseline of the disparity transform, mm (D4xx: 50).
     spatial_alpha, temporal_alpha : float, default 0.5, 0.4
         ``filter_smooth_alpha`` of the spatial / temporal filters (SDK defaults).
-    spatial_delta, temporal_delta : float, default 0.4, 0.4
-        ``filter_smooth_delta`` in mm (20 units of 20 µm, the SDK's default 20).
+    spatial_delta, temporal_delta : float, optional
+        ``filter_smooth_delta``; default the SDK's default of 20 units (depth domain: 20
+        depth units, 20 mm for whole-mm recordings and 0.4 mm for float depth; disparity
+        domain: 20/32 px). Given: in mm (depth domain) or in 1/32 px (disparity domain).
     persistence : int, default 3
         Temporal ``holes_fill`` persistency index (SDK default 3: valid in 2 of the last 4).
     hole_filling : {"fill_from_left", "farest_from_around", "nearest_from_around"} or None
@@ -102,34 +197,38 @@ def realsense_chain(
     d, _ = check_inputs(depth, intensity, intrinsics)
     magnitude = check_int("realsense_chain", "size", size, minimum=1, maximum=5)
     check_choice("realsense_chain", "hole_filling", hole_filling, (*_HOLE_MODES, None))
+    check_choice("realsense_chain", "domain", domain, ("auto", "depth", "disparity"))
+    check_number("realsense_chain", "baseline_mm", baseline_mm, gt=0)
     rs = _import_rs()
-    finite_max = float(np.nanmax(d)) if np.isfinite(d).any() else 1.0
-    unit_mm = float(depth_unit) if depth_unit is not None else max(0.02, finite_max / 65000.0)
+    finite = d[np.isfinite(d)]
+    finite_max = float(finite.max()) if finite.size else 1.0
+    unit_mm = float(depth_unit) if depth_unit is not None else recording_depth_unit(d)
     if not unit_mm > 0 or finite_max / unit_mm > 65535:
         raise ValueError(f"depth_unit {unit_mm} mm cannot represent depth up to {finite_max} mm")
+    if domain == "auto":
+        domain = "disparity" if unit_mm == 1.0 else "depth"
+    fb = float(intrinsics.fx) * float(baseline_mm)  # disparity (px) = fb / z (mm)
+    if domain == "disparity":
+        z_min = float(finite.min()) if finite.size else 1.0
+        # Z16 steps per px of disparity: 1/64 px where the nearest depth fits in 16 bits (the
+        # SDK's spatial delta is at most 50 steps: 20 SDK units = 40 steps of 1/64 px)
+        per_px = min(64.0, 65000.0 * z_min / fb)
+        filter_unit = per_px / 32.0  # Z16 steps per SDK disparity unit (1/32 px)
+    else:
+        filter_unit = 1.0
 
-    def to_units(mm: float) -> float:
-        return max(1.0, round(mm / unit_mm))
+    def to_units(value: float | None) -> float:
+        if value is None:
+            return max(1.0, round(_SDK_DELTA_UNITS * filter_unit))
+        if domain == "disparity":
+            return max(1.0, round(float(value) * filter_unit))
+        return max(1.0, round(float(value) / unit_mm))
 
     def step(cur: NDArray[np.float32]) -> NDArray[np.float32]:
-        n, h, w = cur.shape
-        device = rs.software_device()
-        sensor = device.add_sensor("Depth")
-        intr = rs.intrinsics()
-        intr.width, intr.height = w, h
-        intr.fx, intr.fy = intrinsics.fx, intrinsics.fy
-        intr.ppx, intr.ppy = intrinsics.cx, intrinsics.cy
-        intr.model = rs.distortion.none
-        intr.coeffs = [0.0] * 5
-        stream = rs.video_stream()
-        stream.type, stream.index, stream.uid = rs.stream.depth, 0, 0
-        stream.width, stream.height, stream.fps = w, h, 30
-        stream.bpp, stream.fmt, stream.intrinsics = 2, rs.format.z16, intr
-        profile = sensor.add_video_stream(stream)
-        sensor.add_read_only_option(rs.option.depth_units, unit_mm / 1000.0)
-        queue = rs.frame_queue(2, keep_frames=True)
-        sensor.open(profile)
-        sensor.start(queue)
+        n = cur.shape[0]
+        unit_m = unit_mm / 1000.0
+        first = _software_sensor(rs, intrinsics, unit_m)
+        second = _software_sensor(rs, intrinsics, unit_m) if domain == "disparity" else None
         spatial = rs.spatial_filter()
         spatial.set_option(rs.option.filter_magnitude, magnitude)
         spatial.set_option(rs.option.filter_smooth_alpha, float(spatial_alpha))
@@ -145,24 +244,30 @@ def realsense_chain(
         out = np.empty_like(cur)
         try:
             for t in range(n):
-                z = np.where(np.isfinite(cur[t]), np.rint(cur[t] / unit_mm), 0)
-                frame = rs.software_video_frame()
-                frame.pixels = np.ascontiguousarray(z.astype(np.uint16))
-                frame.stride, frame.bpp = 2 * w, 2
-                frame.timestamp = t * 1000.0 / 30.0
-                frame.domain = rs.timestamp_domain.hardware_clock
-                frame.frame_number = t + 1
-                frame.profile = profile.as_video_stream_profile()
-                frame.depth_units = unit_mm / 1000.0
-                sensor.on_video_frame(frame)
-                result = temporal.process(spatial.process(queue.wait_for_frame(5000)))
+                ok = np.isfinite(cur[t])
+                if domain == "disparity":
+                    with np.errstate(divide="ignore", invalid="ignore"):
+                        z = np.where(ok, np.rint(per_px * fb / cur[t]), 0)
+                else:
+                    z = np.where(ok, np.rint(cur[t] / unit_mm), 0)
+                result = temporal.process(spatial.process(_push(rs, first, z, t, unit_m)))
+                data = np.asanyarray(result.get_data()).astype(np.float64)
+                if second is not None:
+                    with np.errstate(divide="ignore"):
+                        mm = np.where(data > 0, per_px * fb / np.maximum(data, 1e-9), 0.0)
+                    result = _push(rs, second, np.clip(np.rint(mm / unit_mm), 0, 65535), t, unit_m)
+                    data = np.asanyarray(result.get_data()).astype(np.float64)
                 if holes is not None:
                     result = holes.process(result)
-                data = np.asanyarray(result.get_data()).astype(np.float32) * np.float32(unit_mm)
-                out[t] = np.where(data > 0, data, np.nan)
+                    data = np.asanyarray(result.get_data()).astype(np.float64)
+                if domain == "depth" or second is not None:
+                    data = data * unit_mm
+                out[t] = np.where(data > 0, data, np.nan).astype(np.float32)
         finally:
-            sensor.stop()
-            sensor.close()
+            for handle in (first, second):
+                if handle is not None:
+                    handle[1].stop()
+                    handle[1].close()
         return out
 
     return iterate(step, d, iterations, owner="realsense_chain")

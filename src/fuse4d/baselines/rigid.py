@@ -40,7 +40,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._kernels.tsdf import _surface_bounds_kernel, _tsdf_raycast_kernel
 from .._params import check_choice, check_int, check_number
 from ..camera import Intrinsics, depth_to_points
-from ._common import check_inputs, iterate
+from ._common import check_inputs, iterate, resolve_noise_sigma
 from ._fusion import apply_rigid, projective_fuse, projective_icp
 
 __all__ = ["have_open3d", "kinectfusion", "rigid_pair_transforms", "tsdf_raycast"]
@@ -327,10 +327,11 @@ def kinectfusion(
     iterations: int = 1,
     backend: str = "auto",
     icp: str = "auto",
-    voxel_size: float = 0.5,
+    voxel_size: float | None = None,
     trunc_voxels: float = 4.0,
-    max_distance: float = 2.0,
+    max_distance: float | None = None,
     icp_stride: int = 2,
+    noise_sigma: float | None = None,
 ) -> NDArray[np.float32]:
     """6D rigid fusion: consecutive-frame rigid ICP, TSDF fusion of ±``size`` frames, ray cast.
 
@@ -354,14 +355,19 @@ def kinectfusion(
     icp : {"auto", "open3d", "projective"}, default "auto"
         Registration: "auto" = Open3D ``registration_icp`` when installed, else the NumPy
         projective ICP.
-    voxel_size : float, default 0.5
-        TSDF voxel size (mm); the ray sample spacing of the "projective" backend.
+    voxel_size : float, optional
+        TSDF voxel size (mm); the ray sample spacing of the "projective" backend. Default
+        2.5 σ̂_d (0.5 mm on the paper's 0.2 mm sensor, ~50 mm for a Kinect at 3.5 m).
     trunc_voxels : float, default 4
-        Truncation in voxels (2 mm at the default voxel size); also the "box" z band.
-    max_distance : float, default 2
-        ICP maximum correspondence distance (mm).
+        Truncation in voxels (10 σ̂_d at the default voxel size); also the "box" z band.
+    max_distance : float, optional
+        ICP maximum correspondence distance (mm); default 10 σ̂_d (2 mm on the paper's
+        sensor).
     icp_stride : int, default 2
         ICP source subsampling (our choice, for speed).
+    noise_sigma : float, optional
+        σ̂_d in mm that scales the defaults above; default the noise model max(σ0, q z²) at
+        the median depth (:func:`fuse4d.baselines._common.estimate_noise_model`, A22).
 
     Returns
     -------
@@ -377,6 +383,10 @@ def kinectfusion(
     d, _ = check_inputs(depth, intensity, intrinsics)
     radius = check_int("kinectfusion", "size", size, minimum=0)
     check_int("kinectfusion", "icp_stride", icp_stride, minimum=1)
+    if voxel_size is None or max_distance is None:
+        sigma_d = resolve_noise_sigma(d, noise_sigma, owner="kinectfusion")
+        voxel_size = 2.5 * sigma_d if voxel_size is None else voxel_size
+        max_distance = 10.0 * sigma_d if max_distance is None else max_distance
     check_number("kinectfusion", "voxel_size", voxel_size, gt=0)
     check_number("kinectfusion", "trunc_voxels", trunc_voxels, gt=0)
     check_number("kinectfusion", "max_distance", max_distance, gt=0)

@@ -8,7 +8,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._kernels.baselines import _temporal_average_kernel
 from .._params import check_int, check_number
 from ..camera import Intrinsics
-from ._common import check_inputs, iterate, resolve_noise_sigma
+from ._common import check_inputs, estimate_noise_model, iterate
 
 __all__ = ["temporal_average", "temporal_mean"]
 
@@ -27,6 +27,9 @@ def temporal_average(
 
     ``D'_t(x) = Σ_k w_k D_{t−k}(x) / Σ_k w_k``, ``w_k = exp(−k²/2σ_t²) ·
     exp(−(D_{t−k}(x) − D_t(x))²/2σ_r²)``, σ_r = 3 σ̂_d (BASELINES §5, weights [R]).
+    Without ``noise_sigma``, σ̂_d follows the depth-noise model at each pixel's depth,
+    σ_r(x) = 3 max(σ0, q D_t(x)²) (:func:`fuse4d.baselines._common.estimate_noise_model`,
+    A22): on quantised far depth the gate spans the sensor's depth steps.
 
     Parameters
     ----------
@@ -41,7 +44,8 @@ def temporal_average(
     iterations : int, default 1
         Repeated application to its own output sequence.
     noise_sigma : float, optional
-        σ_d in mm (oracle); default: estimated from ``depth``.
+        σ_d in mm (oracle, one value for every pixel); default: the noise model
+        σ(z) = max(σ0, q z²) estimated from ``depth``.
     sigma_temporal : float, default inf
         σ_t in frames (inf = uniform in time).
 
@@ -53,16 +57,49 @@ def temporal_average(
     d, _ = check_inputs(depth, intensity, intrinsics)
     n = check_int("temporal_average", "size", size, minimum=1)
     check_number("temporal_average", "sigma_temporal", sigma_temporal, gt=0)
-    sigma_r = 3.0 * resolve_noise_sigma(d, noise_sigma, owner="temporal_average")
-    coeff_r = 0.5 / sigma_r**2
     coeff_t = 0.0 if np.isinf(sigma_temporal) else 0.5 / float(sigma_temporal) ** 2
+    if noise_sigma is not None:
+        sigma = check_number("temporal_average", "noise_sigma", noise_sigma, gt=0)
+        model = None
+    else:
+        model = estimate_noise_model(d)
+        sigma = model.sigma_median
+        if model.quad == 0.0:
+            model = None  # constant sigma: the compiled kernel
 
     def step(cur: NDArray[np.float32]) -> NDArray[np.float32]:
-        out = np.empty_like(cur)
-        _temporal_average_kernel(np.ascontiguousarray(cur), n, coeff_t, coeff_r, out)
-        return out
+        if model is None:
+            out = np.empty_like(cur)
+            _temporal_average_kernel(
+                np.ascontiguousarray(cur), n, coeff_t, 0.5 / (3.0 * sigma) ** 2, out
+            )
+            return out
+        sigma_r = 3.0 * np.maximum(model.sigma_at(cur), 1e-3)
+        return _temporal_average_varying(cur, n, coeff_t, 0.5 / sigma_r**2)
 
     return iterate(step, d, iterations, owner="temporal_average")
+
+
+def _temporal_average_varying(
+    depth: NDArray[np.float32], n: int, coeff_t: float, coeff_r: NDArray[np.float64]
+) -> NDArray[np.float32]:
+    """TA with a per-pixel range coefficient ``coeff_r`` (T, H, W) = 1 / (2 σ_r²) (1/mm²).
+
+    Same weights as the compiled kernel; σ_r is taken at the centre sample D_t(x).
+    """
+    acc = np.zeros(depth.shape, np.float64)
+    norm = np.zeros(depth.shape, np.float64)
+    for k in range(min(n, depth.shape[0])):
+        cur = depth[k:].astype(np.float64)
+        past = depth[: depth.shape[0] - k].astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            w = np.exp(-(k * k) * coeff_t - (past - cur) ** 2 * coeff_r[k:])
+        ok = np.isfinite(w)
+        acc[k:] += np.where(ok, w * past, 0.0)
+        norm[k:] += np.where(ok, w, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = acc / norm
+    return np.where(np.isfinite(depth), out, np.nan).astype(np.float32)
 
 
 def temporal_mean(
