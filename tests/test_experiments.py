@@ -127,6 +127,7 @@ def test_reproduction_md_verdicts_match_committed_csvs():
 
 
 @pytest.mark.slow
+@pytest.mark.nightly
 def test_quick_all_runs_every_experiment(tmp_path):
     """``fuse4d experiments all --quick``: every experiment end to end at CI size."""
     assert main(["experiments", "all", "--out", str(tmp_path), "--quick"]) == 0
