@@ -356,3 +356,12 @@ def test_npz_header_with_unbalanced_brackets_is_an_input_error(tmp_path, small_s
     _rewrite_member(path, "depth.npy", header + text.ljust(117, b" ") + b"\n" + b"\0" * 64)
     with pytest.raises(InputFileError, match="depth"):
         open_frames(path)
+
+
+def test_npz_structured_mask_is_an_input_error(tmp_path, small_sequence):
+    """Found by the 10 000-case run after the merge: a structured-dtype ``mask_gt``."""
+    arrays = _valid_arrays(small_sequence)
+    arrays["mask_gt"] = np.zeros(small_sequence.depth.shape, dtype="f4,i2")
+    path = _npz(tmp_path / "s.npz", **arrays)
+    with pytest.raises(InputFileError, match="mask_gt' must hold booleans"):
+        _read_all(path)  # was: TypeError from numpy's cast to bool

@@ -413,7 +413,7 @@ def test_cli_metrics_bad_input(tmp_path, capsys):
     main(["synth", "ball", "-o", str(out), "--small", "--frames", "2"])
     capsys.readouterr()
     assert main(["metrics", str(out), "--roi", str(tmp_path / "roi.npz")]) == 2
-    assert "no mask key (expected one of roi, mask, mask_gt)" in capsys.readouterr().err
+    assert "no mask key: needs a key 'mask' or 'roi'" in capsys.readouterr().err
     assert main(["metrics", str(out), "--window", "4"]) == 2
     assert "--window must be an odd integer" in capsys.readouterr().err
 

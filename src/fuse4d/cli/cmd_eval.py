@@ -110,6 +110,8 @@ def synth_command(
         with err_console.status(f"writing {output}"):
             write_npz(seq, output, overwrite=force)
         t, (h, w) = seq.num_frames, seq.shape
+        import numpy as np
+
         valid = 100.0 * float(np.isfinite(seq.depth).mean())
         err_console.print(
             f"wrote {output}: {scene.value} at range, sensor {sensor.value}, {t} frames "

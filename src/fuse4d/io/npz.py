@@ -240,7 +240,12 @@ class NpzReader(FrameReader):
             )
         mask = None
         if "mask_gt" in self._members:
-            mask = np.array(self._array("mask_gt")[k], dtype=bool)
+            raw_mask = self._array("mask_gt")
+            if raw_mask.dtype.kind not in "fiub" or raw_mask.dtype.names is not None:
+                raise InputFileError(
+                    self.path, f"key 'mask_gt' must hold booleans, got dtype {raw_mask.dtype}"
+                )
+            mask = np.array(raw_mask[k], dtype=bool)
         ts = None if self.timestamps is None else float(self.timestamps[k])
         return Frame(k, depth, intensity, ts, mask)
 

@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..camera import depth_to_points
-from ..errors import ShapeError
+from ..errors import ParameterError, ShapeError
 from ..sequence import Sequence
 from ._sources import RawSource, open_fused, open_raw
 from .planes import Plane, detect_planes, given_plane
@@ -68,7 +68,7 @@ def parse_roi(text: str) -> tuple[int, int, int, int]:
         r0, r1 = (int(x) for x in rows.split(":"))
         c0, c1 = (int(x) for x in cols.split(":"))
     except ValueError:
-        raise ValueError(
+        raise ParameterError(
             f"roi must look like R0:R1,C0:C1 (pixel rows, then columns), got {text!r}"
         ) from None
     return r0, r1, c0, c1
@@ -78,7 +78,7 @@ def _roi_mask(roi: tuple[int, int, int, int], shape: tuple[int, int]) -> NDArray
     r0, r1, c0, c1 = (int(v) for v in roi)
     h, w = shape
     if not (0 <= r0 < r1 <= h and 0 <= c0 < c1 <= w):
-        raise ValueError(
+        raise ParameterError(
             f"roi rows {r0}:{r1}, columns {c0}:{c1} is not a non-empty region of the {h}x{w} image"
         )
     mask = np.zeros(shape, dtype=bool)
@@ -93,14 +93,14 @@ def _check_compare(compare: Iterable[str]) -> list[str]:
     for name in names:
         info = get_baseline(name)  # ValueError listing the valid names
         if not info.available:
-            raise ValueError(
+            raise ParameterError(
                 f"comparison method {name!r} needs the optional extra fuse4d[{info.needs}] "
                 "(its package is not installed)"
             )
         if name in ("raw", "fused"):
-            raise ValueError(f"{name!r} is always shown; do not pass it to compare")
+            raise ParameterError(f"{name!r} is always shown; do not pass it to compare")
     if len(set(names)) != len(names):
-        raise ValueError(f"compare lists a method twice: {names}")
+        raise ParameterError(f"compare lists a method twice: {names}")
     return names
 
 
@@ -378,9 +378,9 @@ def write_report(
     start_time = time.perf_counter()
     start_cpu = time.process_time()
     if row is not None and col is not None:
-        raise ValueError("give row or col for the x–t slice, not both")
+        raise ParameterError("give row or col for the x–t slice, not both")
     if isinstance(chunk_frames, bool) or int(chunk_frames) < 1:
-        raise ValueError(f"chunk_frames must be a positive integer, got {chunk_frames!r}")
+        raise ParameterError(f"chunk_frames must be a positive integer, got {chunk_frames!r}")
     chunk_frames = int(chunk_frames)
     methods_compare = _check_compare(compare)
     roi_box = parse_roi(roi) if isinstance(roi, str) else roi
@@ -457,12 +457,12 @@ def _write(
     if frame is None:
         frame = total // 2
     if not 0 <= int(frame) < total:
-        raise ValueError(f"frame must be in [0, {total - 1}], got {frame}")
+        raise ParameterError(f"frame must be in [0, {total - 1}], got {frame}")
     frame = int(frame)
     if row is not None and not 0 <= int(row) < h:
-        raise ValueError(f"row must be in [0, {h - 1}] for a {h}x{w} image, got {row}")
+        raise ParameterError(f"row must be in [0, {h - 1}] for a {h}x{w} image, got {row}")
     if col is not None and not 0 <= int(col) < w:
-        raise ValueError(f"col must be in [0, {w - 1}] for a {h}x{w} image, got {col}")
+        raise ParameterError(f"col must be in [0, {w - 1}] for a {h}x{w} image, got {col}")
     roi_mask = None if roi_box is None else _roi_mask(roi_box, (h, w))
     names = ["raw", "fused", *compare]
 

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..camera import Intrinsics
-from ..errors import InputFileError, ShapeError
+from ..errors import InputFileError, ParameterError, ShapeError
 from ..fusion import FusionResult
 from ..sequence import Sequence
 
@@ -206,5 +206,5 @@ def open_fused(
         fused.close()
         if isinstance(data, str | PathLike):
             raise InputFileError(Path(data), problem)
-        raise ValueError(f"{name}: {problem}")
+        raise ParameterError(f"{name}: {problem}")
     return fused
