@@ -53,12 +53,28 @@ def local_cluster(workers: int, **kwargs: Any) -> Iterator[Any]:
     options = {"n_workers": workers, "threads_per_worker": 1, "processes": True}
     options.update(kwargs)
     options.setdefault("dashboard_address", ":0")  # no clash with a running dashboard
-    with (
-        dask.config.set({"distributed.nanny.pre-spawn-environ": spawn_env}),
-        LocalCluster(**options) as cluster,
-        Client(cluster) as client,
-    ):
-        yield client
+    # distributed's nanny writes pre-spawn-environ into *this* process's os.environ and leaves
+    # it there; NUMBA_NUM_THREADS=1 in the caller's environment then breaks numba's next
+    # compilation ("Cannot set NUMBA_NUM_THREADS ... once the threads have been launched").
+    # The workers are spawned by the time LocalCluster returns: restore the caller's environment.
+    saved = dict(os.environ)
+    try:
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": spawn_env}):
+            cluster = LocalCluster(**options)
+    finally:
+        _restore_environ(saved)
+    try:
+        with cluster, Client(cluster) as client:
+            yield client
+    finally:
+        _restore_environ(saved)
+
+
+def _restore_environ(saved: dict[str, str]) -> None:
+    """Put ``os.environ`` back to ``saved`` (keys added since are removed)."""
+    for key in set(os.environ) - set(saved):
+        del os.environ[key]
+    os.environ.update(saved)
 
 
 def _compute_with(client: Any, show: bool) -> Callable[..., tuple[Any, ...]]:
