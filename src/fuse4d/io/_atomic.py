@@ -16,6 +16,7 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from os import PathLike
 from pathlib import Path
+from typing import Any, Self
 
 from ..errors import OutputExistsError, OutputWriteError, ParameterError
 
@@ -176,3 +177,46 @@ def _replace_existing(tmp: Path, dest: Path) -> None:
         old.replace(dest)
         raise
     shutil.rmtree(old, ignore_errors=True)
+
+
+class _Abort(Exception):
+    """Raised inside an atomic context to make it delete its temporary file or folder."""
+
+
+class StagedWriter:
+    """Context-manager protocol of the writers that stage their output in an atomic file or
+    folder (:func:`atomic_file` / :func:`atomic_dir` entered on ``self._stack``): ``with`` calls
+    :meth:`open`, then :meth:`close` on success or :meth:`abort` on an exception. Subclasses
+    implement ``open``/``close``/``abort``; ``abort`` ends with :meth:`_discard_stage`."""
+
+    _stack: Any = None
+
+    def __enter__(self) -> Self:
+        self.open()
+        return self
+
+    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+    def open(self) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def close(self) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def abort(self) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _discard_stage(self) -> None:
+        """Leave the atomic context with an exception, so it deletes the staged output."""
+        if self._stack is None:
+            return
+        stack, self._stack = self._stack, None
+        try:
+            with stack:
+                raise _Abort
+        except _Abort:
+            pass

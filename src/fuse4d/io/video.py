@@ -21,13 +21,13 @@ from contextlib import ExitStack
 from fractions import Fraction
 from os import PathLike
 from pathlib import Path
-from typing import Any, Self
+from typing import Any
 
 import numpy as np
 
 from ..camera import Intrinsics
 from ..sequence import Sequence
-from ._atomic import atomic_file, check_output
+from ._atomic import StagedWriter, atomic_file, check_output
 from ._extras import require
 from ._images import QuantizationReport, depth_to_units, intensity_to_uint
 
@@ -36,7 +36,7 @@ __all__ = ["DepthVideoWriter", "write_depth_video"]
 _MS = Fraction(1, 1000)
 
 
-class DepthVideoWriter:
+class DepthVideoWriter(StagedWriter):
     """Write depth + intensity frame by frame to an FFV1 ``.mkv`` (atomic).
 
     Parameters
@@ -82,16 +82,6 @@ class DepthVideoWriter:
         self._streams: tuple[Any, Any] | None = None
         self._t0: float | None = None
         self._last_pts = -1
-
-    def __enter__(self) -> Self:
-        self.open()
-        return self
-
-    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
     def open(self) -> None:
         """Create the temporary file and the two FFV1 tracks (called by ``with``)."""
@@ -183,18 +173,9 @@ class DepthVideoWriter:
         """Discard the partial output."""
         if self._stack is None:
             return
-        stack, self._stack = self._stack, None
         with contextlib.suppress(self._av.FFmpegError, OSError, ValueError):
             self._container.close()  # a half-written container may fail to finalise
-        try:
-            with stack:
-                raise _Abort
-        except _Abort:
-            pass
-
-
-class _Abort(Exception):
-    """Raised inside the atomic context to make it delete the temporary file."""
+        self._discard_stage()
 
 
 def write_depth_video(

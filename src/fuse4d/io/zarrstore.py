@@ -19,14 +19,14 @@ import math
 from contextlib import ExitStack
 from os import PathLike
 from pathlib import Path
-from typing import Any, Self
+from typing import Any
 
 import numpy as np
 
 from ..camera import Intrinsics
 from ..errors import InputFileError
 from ..sequence import Sequence
-from ._atomic import atomic_dir, check_output
+from ._atomic import StagedWriter, atomic_dir, check_output
 from ._base import Frame, FrameReader, IntrinsicsLike, resolve_intrinsics
 from ._extras import require
 
@@ -41,7 +41,7 @@ def is_zarr_store(path: str | PathLike[str]) -> bool:
     return p.is_dir() and (p / "zarr.json").is_file()
 
 
-class ZarrWriter:
+class ZarrWriter(StagedWriter):
     """Append frames to a new zarr v3 store (atomic; see the module docstring).
 
     Parameters
@@ -82,16 +82,6 @@ class ZarrWriter:
         self._stack: ExitStack | None = None
         self._arrays: dict[str, Any] = {}
         self._timestamps: list[float | None] = []
-
-    def __enter__(self) -> Self:
-        self.open()
-        return self
-
-    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
     def open(self) -> None:
         """Create the temporary store with empty (0, H, W) arrays."""
@@ -166,18 +156,7 @@ class ZarrWriter:
 
     def abort(self) -> None:
         """Discard the partial store."""
-        if self._stack is None:
-            return
-        stack, self._stack = self._stack, None
-        try:
-            with stack:
-                raise _Abort
-        except _Abort:
-            pass
-
-
-class _Abort(Exception):
-    """Raised inside the atomic context to make it delete the temporary folder."""
+        self._discard_stage()
 
 
 class ZarrReader(FrameReader):
