@@ -250,6 +250,32 @@ def test_lazy_frame_folder_equals_streaming_reader(ball, tmp_path, frames_per_ta
     _assert_equal(fd.fuse(rec.depth, rec.intensity, rec.intrinsics, chunk_frames=7), ref)
 
 
+def test_reader_options_reach_every_read_task(ball, tmp_path, capsys):
+    """``--depth-unit-mm`` / ``--intrinsics`` (and the topic options, by the same path) are
+    used by the dask engine's read tasks exactly as by the streaming reader."""
+    folder = write_frame_folder(ball, tmp_path / "rec", depth_unit_mm=0.1)
+    k = ball.intrinsics
+    cam = f"{k.fx * 1.1},{k.fy * 1.1},{k.cx},{k.cy}"
+    options = {"depth_unit_mm": 0.2, "intrinsics": cam}
+    with open_frames(folder, **options) as reader:
+        frames = list(reader)
+        intrinsics = reader.intrinsics
+    depth = np.stack([f.depth for f in frames])
+    intensity = np.stack([f.intensity for f in frames])
+    assert np.nanmax(depth) > 1.5 * np.nanmax(ball.depth)  # the option changes what is read
+    ref = fuse_sequence(depth, intensity, intrinsics)
+    rec = fd.open_lazy(folder, frames_per_task=6, **options)
+    assert rec.intrinsics == intrinsics
+    _assert_equal(fd.fuse(rec.depth, rec.intensity, rec.intrinsics, chunk_frames=7), ref)
+    out = tmp_path / "out.zarr"
+    args = ["run", str(folder), "-o", str(out), "--engine", "dask", "--chunk-frames", "6"]
+    assert main([*args, "--depth-unit-mm", "0.2", "--intrinsics", cam, "--json"]) == 0
+    capsys.readouterr()
+    store = zarr.open_group(str(out), mode="r")
+    assert _same(store["depth"][:], ref.depth)
+    assert _same(store["support"][:], ref.support)
+
+
 def test_missing_extra_gives_one_clear_error(monkeypatch):
     import importlib.util
 

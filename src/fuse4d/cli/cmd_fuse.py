@@ -224,6 +224,7 @@ def run_command(
             fail(str(exc))
         opts = {"chunk_frames": chunk_frames, "scheduler": scheduler, "workers": workers}
         opts["save_flows"] = save_flows
+        opts["reader_options"] = options
         print_dask_run(inputs, output, fusion, flow, opts, resume, force, warm_start, as_json)
         return
     if engine != "stream" or len(inputs) != 1:

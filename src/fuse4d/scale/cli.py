@@ -95,6 +95,7 @@ def run_dask(
     warm_start: bool = True,
     save_flows: bool = False,
     progress: bool = True,
+    reader_options: dict[str, Any] | None = None,
 ) -> list[DaskRunSummary]:
     """Fuse ``inputs`` into zarr v3 stores on one scheduler (see :mod:`fuse4d.scale.zarr_out`).
 
@@ -120,6 +121,10 @@ def run_dask(
         Store the pair flows in each output (``flow_forward``, ``flow_backward``).
     progress : bool
         dask's progress bar on stderr.
+    reader_options : dict, optional
+        Keyword arguments of :func:`fuse4d.io.open_frames` for every input (``fuse4d run``'s
+        ``--depth-topic``, ``--intensity-topic``, ``--intensity``, ``--no-undistort``,
+        ``--depth-unit-mm``, ``--intrinsics``).
 
     Returns
     -------
@@ -136,7 +141,7 @@ def run_dask(
     jobs: list[tuple[ZarrOutput, DaskRunSummary]] = []
     tasks: list[Any] = []
     for src, dst in zip(inputs, targets, strict=True):
-        rec = open_lazy(src, frames_per_task=chunk_frames)
+        rec = open_lazy(src, frames_per_task=chunk_frames, **(reader_options or {}))
         result = fuse(
             rec.depth,
             rec.intensity,

@@ -27,26 +27,32 @@ _READERS: dict[tuple[str, str], Any] = {}
 _LOCK = threading.Lock()
 
 
-def _reader(path: str, fmt: str) -> Any:
-    """This process's reader of ``path`` (opened on first use; readers are not thread-safe,
-    so callers hold ``_LOCK`` while reading)."""
-    key = (path, fmt)
+_Options = tuple[tuple[str, Any], ...]
+
+
+def _reader(path: str, fmt: str, options: _Options = ()) -> Any:
+    """This process's reader of ``path`` with these reader options (opened on first use;
+    readers are not thread-safe, so callers hold ``_LOCK`` while reading)."""
+    key = (path, fmt, repr(options))
     if key not in _READERS:
         if len(_READERS) >= 8:  # a worker handling many recordings: keep the newest few open
             old_key = next(iter(_READERS))
             _READERS.pop(old_key).close()
-        _READERS[key] = open_frames(path, format=fmt)
+        _READERS[key] = open_frames(path, format=fmt, **dict(options))
     return _READERS[key]
 
 
-def read_frames(path: str, fmt: str, start: int, stop: int, stamp: int = 0) -> NDArray[np.float32]:
+def read_frames(
+    path: str, fmt: str, start: int, stop: int, stamp: int = 0, options: _Options = ()
+) -> NDArray[np.float32]:
     """Frames ``[start, stop)`` of a recording as a ``(n, 2, H, W)`` float32 array: depth (mm,
     NaN = invalid) and intensity ([0, 1]), exactly as the streaming reader yields them.
-    ``stamp`` (the file's mtime) only keys the task."""
+    ``stamp`` (the file's mtime) only keys the task; ``options`` are the keyword arguments of
+    :func:`fuse4d.io.open_frames` as ``(name, value)`` pairs."""
     out = []
     for index in range(start, stop):
         with _LOCK:
-            frame = _reader(path, fmt).read_frame(index)
+            frame = _reader(path, fmt, options).read_frame(index)
         out.append(np.stack([frame.depth, frame.intensity]).astype(np.float32, copy=False))
     return np.stack(out)
 
@@ -85,7 +91,11 @@ class LazyRecording:
 
 
 def open_lazy(
-    path: str | Path, *, format: str | None = None, frames_per_task: int = 1
+    path: str | Path,
+    *,
+    format: str | None = None,
+    frames_per_task: int = 1,
+    **reader_options: Any,
 ) -> LazyRecording:
     """Open any layout that :func:`fuse4d.io.open_frames` reads as lazy dask arrays.
 
@@ -108,7 +118,8 @@ def open_lazy(
     """
     src = Path(path).resolve()
     fmt = format or detect_format(src)
-    with open_frames(src, format=fmt) as reader:
+    options: _Options = tuple(sorted(reader_options.items()))
+    with open_frames(src, format=fmt, **reader_options) as reader:
         total = len(reader)
         k = reader.intrinsics
         fps, unit = reader.fps, reader.depth_unit_mm
@@ -117,7 +128,7 @@ def open_lazy(
     stamp = src.stat().st_mtime_ns  # a rewritten input gets new task keys
     step = max(1, int(frames_per_task))
     blocks = [
-        da.from_delayed(read(str(src), fmt, a, min(a + step, total), stamp),
+        da.from_delayed(read(str(src), fmt, a, min(a + step, total), stamp, options),
                         (min(a + step, total) - a, 2, h, w), np.float32)
         for a in range(0, total, step)
     ]  # fmt: skip
