@@ -17,8 +17,9 @@ What is timed (wall clock, after every worker has loaded the compiled kernels):
   --scheduler processes --workers N`` does the same);
 - CPU seconds of the workers (user + system, all threads): the overhead figure that survives
   a loaded machine, where wall times swing by tens of percent between identical runs;
-- peak RSS of every worker process (``ru_maxrss``, MiB, includes the ~0.3 GB of imported
-  libraries), for the recording and for one twice as long (flat = independent of length).
+- peak RSS of every worker process (``VmHWM``, MiB, includes the ~0.3 GB of imported
+  libraries), for the recording and for one ``--length-factor`` times as long (flat = independent of
+  length).
 
 The machine's load average is printed with the results: on a shared machine the speed-up
 ratio is only meaningful if the load is below the core count.
@@ -48,7 +49,15 @@ def _make_recording(path: Path, frames: int, full: bool) -> None:
 
 
 def _peak_rss_mib() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    """This process's peak resident set (``VmHWM``), MiB.
+
+    Not ``ru_maxrss``: Linux carries that across ``execve``, so a worker spawned by a parent
+    that once held a large recording reports the parent's peak, not its own."""
+    with open("/proc/self/status", encoding="ascii") as status:
+        for line in status:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # not Linux
 
 
 def _cpu_seconds() -> float:
@@ -139,7 +148,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", default="1,2", help="worker counts, comma-separated")
     parser.add_argument("--chunk-frames", type=int, default=32)
     parser.add_argument("--window", type=int, default=9, help="frames fused per output")
-    parser.add_argument("--no-length-check", action="store_true", help="skip the 2x-length run")
+    parser.add_argument(
+        "--length-factor",
+        type=int,
+        default=2,
+        help="the length check runs a recording this many times longer (default 2)",
+    )
+    parser.add_argument("--no-length-check", action="store_true", help="skip the longer run")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     counts = [int(v) for v in args.workers.split(",")]
@@ -171,15 +186,17 @@ def main(argv: list[str] | None = None) -> int:
             report[f"dask_{n}_rss_mib"] = rss
         if not args.no_length_check:
             longer = folder / "long.npz"
-            _make_recording(longer, 2 * args.frames, args.full)
+            factor = args.length_factor
+            _make_recording(longer, factor * args.frames, args.full)
             n = max(counts)
             seconds, rss, cpu = _with_cluster(
                 n,
                 lambda c: _dask_run(c, longer, folder / "o2.zarr", args.chunk_frames, args.window),
             )
-            report[f"dask_{n}_2x_length_s"] = seconds
-            report[f"dask_{n}_2x_length_cpu_s"] = cpu
-            report[f"dask_{n}_2x_length_rss_mib"] = rss
+            report["long_frames"] = factor * args.frames
+            report[f"dask_{n}_long_s"] = seconds
+            report[f"dask_{n}_long_cpu_s"] = cpu
+            report[f"dask_{n}_long_rss_mib"] = rss
     report["load_after"] = os.getloadavg()
     one = report.get("dask_1_s")
     if one:

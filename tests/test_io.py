@@ -177,6 +177,29 @@ def test_npz_streaming_memmaps_uncompressed_and_matches_compressed(tmp_path, sma
     assert packed.stat().st_size < plain.stat().st_size
 
 
+@pytest.mark.skipif(not Path("/proc/self/statm").exists(), reason="needs Linux /proc")
+def test_npz_streaming_resident_memory_does_not_grow_with_frames_read(tmp_path):
+    """Frames read through the memory map are released again: reading a 100 MB recording
+    frame by frame leaves the reader's resident set flat (it used to grow by the whole file)."""
+    t, h, w = 200, 256, 256
+    depth = np.full((t, h, w), 1000.0, np.float32)
+    intensity = np.full((t, h, w), 0.5, np.float32)
+    path = tmp_path / "long.npz"
+    np.savez(path, depth=depth, intensity=intensity, intrinsics=np.array([200.0, 200, 128, 128]))
+    del depth, intensity
+
+    def resident_mib() -> float:
+        return int(Path("/proc/self/statm").read_text().split()[1]) * 4096 / 2**20
+
+    with open_frames(path) as reader:
+        reader.read_frame(0)
+        before = resident_mib()
+        for frame in reader:
+            assert frame.depth[0, 0] == 1000.0
+        grown = resident_mib() - before
+    assert grown < 20.0, f"resident set grew by {grown:.0f} MiB reading 100 MiB of frames"
+
+
 def test_npz_extra_key_reserved(tmp_path, small_sequence):
     with pytest.raises(ValueError, match="extra key 'depth' is reserved"):
         write_npz(small_sequence, tmp_path / "s.npz", extra={"depth": small_sequence.depth})

@@ -22,6 +22,7 @@ loading the whole array.
 from __future__ import annotations
 
 import math
+import mmap
 import struct
 import tokenize
 import zipfile
@@ -215,6 +216,25 @@ class NpzReader(FrameReader):
         order = "F" if fortran else "C"
         return np.memmap(self.path, dtype=dtype, mode="r", offset=offset, shape=shape, order=order)
 
+    def _release(self, key: str, k: int) -> None:
+        """Drop frame ``k`` of a memory-mapped member from this process's resident set.
+
+        The pages stay in the OS page cache; without this, every frame read through the map
+        stays counted in the reader's RSS, which then grows with the recording's length
+        (a 1200-frame 600 x 600 recording maps 3.5 GB) although each frame is copied out once.
+        """
+        arr = self._cache.get(key)
+        handle = getattr(arr, "_mmap", None)
+        if handle is None or not arr.flags.c_contiguous or arr.ndim < 1:
+            return
+        frame_bytes = arr[0].nbytes
+        start = arr.offset % mmap.ALLOCATIONGRANULARITY + k * frame_bytes
+        page = start - start % mmap.PAGESIZE
+        try:
+            handle.madvise(mmap.MADV_DONTNEED, page, start + frame_bytes - page)
+        except (AttributeError, OSError, ValueError):  # not Linux, or a closed map
+            return
+
     def close(self) -> None:
         """Close the archive (memory-mapped arrays already handed out stay valid)."""
         zf = getattr(self, "_zip", None)
@@ -231,6 +251,8 @@ class NpzReader(FrameReader):
         depth = np.array(self._array("depth")[k], dtype=np.float32)
         depth[~(np.isfinite(depth) & (depth > 0))] = np.nan
         intensity = _intensity_frame(self._array("intensity")[k])
+        self._release("depth", k)
+        self._release("intensity", k)
         if not (np.isfinite(intensity).all() and intensity.min() >= 0 and intensity.max() <= 1):
             raise InputFileError(
                 self.path,
@@ -246,6 +268,7 @@ class NpzReader(FrameReader):
                     self.path, f"key 'mask_gt' must hold booleans, got dtype {raw_mask.dtype}"
                 )
             mask = np.array(raw_mask[k], dtype=bool)
+            self._release("mask_gt", k)
         ts = None if self.timestamps is None else float(self.timestamps[k])
         return Frame(k, depth, intensity, ts, mask)
 
