@@ -53,7 +53,7 @@ def _peak_rss_mib() -> float:
 
     Not ``ru_maxrss``: Linux carries that across ``execve``, so a worker spawned by a parent
     that once held a large recording reports the parent's peak, not its own."""
-    with open("/proc/self/status", encoding="ascii") as status:
+    with Path("/proc/self/status").open(encoding="ascii") as status:
         for line in status:
             if line.startswith("VmHWM:"):
                 return int(line.split()[1]) / 1024.0
