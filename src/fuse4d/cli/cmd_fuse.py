@@ -110,7 +110,7 @@ def run_command(
         int | None, typer.Option("--window", help="Frames fused per output frame (n, paper: 9).")
     ] = None,
     config: Annotated[
-        Path | None, typer.Option("--config", help="TOML file with [fusion] and [flow].")
+        Path | None, typer.Option("--config", help="TOML file with \\[fusion] and \\[flow] tables.")
     ] = None,
     causal: Annotated[
         bool, typer.Option("--causal", help="Online mode: no look-ahead (live cameras).")
