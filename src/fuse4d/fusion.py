@@ -202,6 +202,14 @@ class FusionEngine:
         )
         self._fwd = np.zeros((s, h, w, 2), np.float32)
         self._bwd = np.zeros((s, h, w, 2), np.float32)
+        # the tracks of the frame being emitted (landing row, column, validity per other
+        # frame of the window): one set of buffers, refilled for every output frame
+        k = self.past + self.future
+        self._tracks = (
+            np.empty((k, h, w), np.int32),
+            np.empty((k, h, w), np.int32),
+            np.empty((k, h, w), np.bool_),
+        )
         tw = np.arange(max(self.past, self.future) + 1, dtype=np.float64)
         if math.isinf(p.sigma_temporal):
             self._temporal_weight = np.ones_like(tw)
@@ -400,6 +408,7 @@ class FusionEngine:
             max_step=p.max_depth_step,
             quad=quad,
             per_step=p.quantize == "per_step",
+            out=self._tracks,
         )
         t1 = time.perf_counter()
         points = np.empty((h, w, 3), np.float32)

@@ -194,12 +194,15 @@ def _track_window(
     max_step: float,
     quad: float,
     per_step: bool,
+    out: tuple[NDArray[np.int32], NDArray[np.int32], NDArray[np.bool_]] | None = None,
 ) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int32], NDArray[np.bool_]]:
     """Tracks of every pixel of frame ``t`` through frames ``first..last`` (Eq. 4 per step).
 
     Private and unvalidated: rings follow the module's slot convention (ring size S =
     ``depth_ring.shape[0]``), float32 (S, H, W, 2) flows and (S, H, W) depth in mm.
     ``quad`` is frame t's depth-noise coefficient (mm^-1) of the step rule (A22).
+    ``out``: (rows, cols, ok) buffers of at least K = last - first frames, reused between
+    calls (the streaming engine's; the results are views of their first K frames).
 
     Returns
     -------
@@ -213,9 +216,12 @@ def _track_window(
     _s, h, w = depth_ring.shape
     k = last - first
     frame_slot = np.arange(first, last + 1, dtype=np.int64) % depth_ring.shape[0]
-    rows = np.empty((k, h, w), np.int32)
-    cols = np.empty((k, h, w), np.int32)
-    ok = np.empty((k, h, w), np.bool_)
+    if out is None:
+        rows = np.empty((k, h, w), np.int32)
+        cols = np.empty((k, h, w), np.int32)
+        ok = np.empty((k, h, w), np.bool_)
+    else:
+        rows, cols, ok = out[0][:k], out[1][:k], out[2][:k]
     if k == 0:  # a window of frame t alone: nothing to track
         return frame_slot, rows, cols, ok
     _track_kernel(

@@ -3,6 +3,7 @@
 * :data:`ROW_CHUNKS`: parallel loops run over this many row chunks.
 * :func:`_exp_neg_fast`: the bilateral weight function exp(-x) ~ (1 - x/1024)^1024.
 * :func:`_bilinear2`: bilinear sample of a two-component (flow) field, stencil clamped.
+* :func:`_bilinear2_plane`: the same on one (H, W, 2) field (a ring slot taken once per loop).
 * :func:`_round_half_up`: METHOD §4.1 rounding floor(x + 0.5).
 * :func:`_step_limit`: the one depth-step rule (A22) of every depth-continuity test.
 * :func:`_difference`: central / one-sided difference of a point map (Eq. 6 Jacobian, A17
@@ -21,6 +22,7 @@ __all__ = [
     "EXP_POWER",
     "ROW_CHUNKS",
     "_bilinear2",
+    "_bilinear2_plane",
     "_difference",
     "_exp_neg_fast",
     "_round_half_up",
@@ -76,6 +78,37 @@ def _bilinear2(ring, slot, x, y):
         + w01 * ring[slot, y0, x1, 1]
         + w10 * ring[slot, y1, x0, 1]
         + w11 * ring[slot, y1, x1, 1]
+    )
+    return a, b
+
+
+@njit(inline="always")
+def _bilinear2_plane(field, x, y):
+    """:func:`_bilinear2` on one (H, W, 2) field (``ring[slot]``): the same arithmetic, so
+    the same bits; the slot's offset is taken once per loop instead of once per sample."""
+    h = field.shape[0]
+    w = field.shape[1]
+    x0 = min(max(int(math.floor(x)), 0), max(w - 2, 0))
+    y0 = min(max(int(math.floor(y)), 0), max(h - 2, 0))
+    x1 = min(x0 + 1, w - 1)
+    y1 = min(y0 + 1, h - 1)
+    fx = x - x0 if w > 1 else 0.0
+    fy = y - y0 if h > 1 else 0.0
+    w00 = (1.0 - fx) * (1.0 - fy)
+    w01 = fx * (1.0 - fy)
+    w10 = (1.0 - fx) * fy
+    w11 = fx * fy
+    a = (
+        w00 * field[y0, x0, 0]
+        + w01 * field[y0, x1, 0]
+        + w10 * field[y1, x0, 0]
+        + w11 * field[y1, x1, 0]
+    )
+    b = (
+        w00 * field[y0, x0, 1]
+        + w01 * field[y0, x1, 1]
+        + w10 * field[y1, x0, 1]
+        + w11 * field[y1, x1, 1]
     )
     return a, b
 

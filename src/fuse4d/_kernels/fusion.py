@@ -18,6 +18,7 @@ import numpy as np
 from ._common import (
     ROW_CHUNKS,
     _bilinear2,
+    _bilinear2_plane,
     _difference,
     _exp_neg_fast,
     _round_half_up,
@@ -219,25 +220,31 @@ def _track_kernel(
     h = depth_ring.shape[1]
     w = depth_ring.shape[2]
     st = frame_slot[t - first]
+    theta2 = theta * theta
     n_chunks = min(h, ROW_CHUNKS)
     for ci in prange(n_chunks):  # scratch allocated once per chunk, not per row
         xs = np.empty(w, dtype=np.float64)
         ys = np.empty(w, dtype=np.float64)
-        pr = np.empty(w, dtype=np.int64)
-        pc = np.empty(w, dtype=np.int64)
+        su = np.empty(w, dtype=np.float64)
+        sv = np.empty(w, dtype=np.float64)
+        cu_row = np.empty(w, dtype=np.float64)
+        cv_row = np.empty(w, dtype=np.float64)
+        pr = np.empty(w, dtype=np.int32)
+        pc = np.empty(w, dtype=np.int32)
         prev_depth = np.empty(w, dtype=np.float32)
         alive = np.empty(w, dtype=np.bool_)
         for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
             # step-major order: all pixels of the row advance one step at a time, so the
             # independent per-pixel chains overlap in the CPU (a per-pixel chain is latency-bound)
             for direction in (1, -1):
+                d0 = depth_ring[st, v]
                 for u in range(w):
                     xs[u] = u
                     ys[u] = v
                     pr[u] = v
                     pc[u] = u
-                    prev_depth[u] = depth_ring[st, v, u]
-                    alive[u] = not np.isnan(depth_ring[st, v, u])
+                    prev_depth[u] = d0[u]
+                    alive[u] = not np.isnan(d0[u])
                 n_steps = last - t if direction == 1 else t - first
                 for step in range(1, n_steps + 1):
                     T = t + direction * step
@@ -245,17 +252,50 @@ def _track_kernel(
                     slot = frame_slot[T - first]
                     # pair (T-1, T) lives in the slot of T, pair (T, T+1) in the slot of T+1
                     flow_slot = slot if direction == 1 else frame_slot[T + 1 - first]
-                    step_ring = fwd_ring if direction == 1 else bwd_ring
-                    check_ring = bwd_ring if direction == 1 else fwd_ring
+                    step_flow = fwd_ring[flow_slot] if direction == 1 else bwd_ring[flow_slot]
+                    check_flow = bwd_ring[flow_slot] if direction == 1 else fwd_ring[flow_slot]
+                    depth_T = depth_ring[slot]
+                    # one step of _track_step in two passes over the row: first every flow
+                    # sample (branch-free, short independent iterations), then the checks;
+                    # the same arithmetic, so the same bits as chaining pixel by pixel.
+                    # A dead track keeps an in-image position, so sampling it is safe.
+                    for u in range(w):
+                        if per_step:
+                            iu = _round_half_up(xs[u])
+                            iv = _round_half_up(ys[u])
+                            su[u] = float(step_flow[iv, iu, 0])
+                            sv[u] = float(step_flow[iv, iu, 1])
+                        else:
+                            su[u], sv[u] = _bilinear2_plane(step_flow, xs[u], ys[u])
+                    # the reverse flow at the landing point, clamped into the image (a landing
+                    # outside fails below, whatever the sample)
+                    for u in range(w):
+                        nx = min(max(xs[u] + su[u], 0.0), w - 1.0)
+                        ny = min(max(ys[u] + sv[u], 0.0), h - 1.0)
+                        if per_step:
+                            ix = _round_half_up(nx)
+                            iy = _round_half_up(ny)
+                            cu_row[u] = float(check_flow[iy, ix, 0])
+                            cv_row[u] = float(check_flow[iy, ix, 1])
+                        else:
+                            cu_row[u], cv_row[u] = _bilinear2_plane(check_flow, nx, ny)
                     for u in range(w):
                         if alive[u]:
-                            ok, nx, ny = _track_step(
-                                step_ring, check_ring, flow_slot, xs[u], ys[u], theta, per_step
-                            )
+                            nx = xs[u] + su[u]
+                            ny = ys[u] + sv[u]
+                            ok = nx >= 0.0 and nx <= w - 1.0 and ny >= 0.0 and ny <= h - 1.0
                             if ok:
+                                cu = cu_row[u]
+                                cv = cv_row[u]
+                                e2 = (su[u] + cu) * (su[u] + cu) + (sv[u] + cv) * (sv[u] + cv)
+                                ok = e2 < theta2
+                            if ok:
+                                if per_step:
+                                    nx = float(_round_half_up(nx))
+                                    ny = float(_round_half_up(ny))
                                 r = _round_half_up(ny)
                                 c = _round_half_up(nx)
-                                d1 = depth_ring[slot, r, c]
+                                d1 = depth_T[r, c]
                                 limit = _step_limit(prev_depth[u], max_step, quad)
                                 if np.isnan(d1) or not (abs(d1 - prev_depth[u]) < limit):
                                     ok = False
@@ -267,9 +307,13 @@ def _track_kernel(
                                     prev_depth[u] = d1
                             if not ok:
                                 alive[u] = False
-                        land_ok[k, v, u] = alive[u]
-                        land_row[k, v, u] = pr[u]
-                        land_col[k, v, u] = pc[u]
+                    ok_row = land_ok[k, v]
+                    row_row = land_row[k, v]
+                    col_row = land_col[k, v]
+                    for u in range(w):
+                        ok_row[u] = alive[u]
+                        row_row[u] = pr[u]
+                        col_row[u] = pc[u]
 
 
 # --------------------------------------------------------------------------- fusion (Eq. 5)
@@ -361,13 +405,15 @@ def _fuse_kernel(
                     acc[7, u] += 1.0
                     acc[8, u] += wt * tau
                     acc[9, u] += wt * tau * tau
-                    acc[17, u] += wt * tau * tau * tau
-                    acc[18, u] += wt * tau * tau * tau * tau
+                    if trajectory == 2:  # the parabola's sums (A28), unused otherwise
+                        acc[17, u] += wt * tau * tau * tau
+                        acc[18, u] += wt * tau * tau * tau * tau
                     for q in range(3):
                         m = ref_ring[sT, r, c, q] - ref_ring[st, v, u, q]
                         acc[10 + q, u] += wt * m
                         acc[13 + q, u] += wt * tau * m
-                        acc[19 + q, u] += wt * tau * tau * m
+                        if trajectory == 2:
+                            acc[19 + q, u] += wt * tau * tau * m
             for u in range(w):
                 if np.isnan(ref_ring[st, v, u, 2]):
                     for c in range(3):

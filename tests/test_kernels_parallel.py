@@ -1,0 +1,99 @@
+"""The row-parallel tracking kernel equals its serial, pixel-by-pixel reference bit for bit
+(issue 13: the kernel was restructured for speed, its results must not move; the fusion
+kernel's oracle test is in test_fusion.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fuse4d._kernels._common import _round_half_up, _step_limit
+from fuse4d._kernels._numba import njit
+from fuse4d._kernels.fusion import _track_kernel, _track_step
+from fuse4d.motion import _track_window
+
+
+@njit
+def _serial_track(fwd_ring, bwd_ring, depth_ring, frame_slot, t, first, last, theta, max_step,
+                  quad, per_step, land_row, land_col, land_ok):  # fmt: skip
+    """The tracking kernel as it was before issue 13: one pixel's chain after the other."""
+    h = depth_ring.shape[1]
+    w = depth_ring.shape[2]
+    st = frame_slot[t - first]
+    for v in range(h):
+        for u in range(w):
+            for direction in (1, -1):
+                x = float(u)
+                y = float(v)
+                r = v
+                c = u
+                prev = depth_ring[st, v, u]
+                alive = not np.isnan(prev)
+                n_steps = last - t if direction == 1 else t - first
+                for step in range(1, n_steps + 1):
+                    T = t + direction * step
+                    k = T - first - 1 if direction == 1 else T - first
+                    slot = frame_slot[T - first]
+                    flow_slot = slot if direction == 1 else frame_slot[T + 1 - first]
+                    step_ring = fwd_ring if direction == 1 else bwd_ring
+                    check_ring = bwd_ring if direction == 1 else fwd_ring
+                    if alive:
+                        ok, nx, ny = _track_step(
+                            step_ring, check_ring, flow_slot, x, y, theta, per_step
+                        )
+                        if ok:
+                            nr = _round_half_up(ny)
+                            nc = _round_half_up(nx)
+                            d1 = depth_ring[slot, nr, nc]
+                            if np.isnan(d1) or not (
+                                abs(d1 - prev) < _step_limit(prev, max_step, quad)
+                            ):
+                                ok = False
+                            else:
+                                x, y, r, c, prev = nx, ny, nr, nc, d1
+                        alive = ok
+                    land_ok[k, v, u] = alive
+                    land_row[k, v, u] = r
+                    land_col[k, v, u] = c
+
+
+def _window_case(rng, s=9, h=37, w=53):
+    """A ring of s noisy frames with random sub-pixel flows, holes and depth steps."""
+    depth = (600.0 + rng.normal(0, 0.5, (s, h, w))).astype(np.float32)
+    depth[:, :, w // 2 :] += 40.0  # a depth edge
+    depth[rng.random((s, h, w)) < 0.03] = np.nan
+    fwd = rng.uniform(-1.5, 1.8, (s, h, w, 2)).astype(np.float32)
+    bwd = (-fwd + rng.normal(0, 0.7, fwd.shape)).astype(np.float32)
+    return fwd, bwd, depth
+
+
+@pytest.mark.parametrize("per_step", [False, True])
+@pytest.mark.parametrize(("t", "first", "last"), [(13, 9, 17), (4, 0, 8), (2, 0, 5), (8, 8, 8)])
+def test_track_kernel_equals_serial_reference(rng, per_step, t, first, last):
+    fwd, bwd, depth = _window_case(rng)
+    s = depth.shape[0]
+    slots = np.arange(first, last + 1, dtype=np.int64) % s  # ring wrap-around for t = 13
+    k = max(last - first, 1)
+    got = [np.zeros((k, 37, 53), dt) for dt in (np.int32, np.int32, np.bool_)]
+    exp = [np.zeros((k, 37, 53), dt) for dt in (np.int32, np.int32, np.bool_)]
+    args = (fwd, bwd, depth, slots, t, first, last, 1.0, 5.0, 1e-5, per_step)
+    _track_kernel(*args, *got)
+    _serial_track(*args, *exp)
+    for a, b in zip(got, exp, strict=True):
+        np.testing.assert_array_equal(a, b)
+    if last > first:
+        assert 0.05 < got[2].mean() < 0.95  # both outcomes exercised
+
+
+def test_track_window_reuses_buffers(rng):
+    fwd, bwd, depth = _window_case(rng)
+    kw = {"fb_threshold": 1.0, "max_step": 5.0, "quad": 0.0, "per_step": False}
+    _s, rows, cols, ok = _track_window(fwd, bwd, depth, 4, 0, 8, **kw)
+    bufs = (np.empty((8, 37, 53), np.int32), np.empty((8, 37, 53), np.int32))
+    bufs += (np.empty((8, 37, 53), np.bool_),)
+    _s, r2, _c2, _ok2 = _track_window(fwd, bwd, depth, 2, 0, 5, **kw, out=bufs)
+    assert r2.base is bufs[0]
+    assert r2.shape == (5, 37, 53)
+    _s, r3, c3, ok3 = _track_window(fwd, bwd, depth, 4, 0, 8, **kw, out=bufs)
+    for a, b in ((rows, r3), (cols, c3), (ok, ok3)):
+        np.testing.assert_array_equal(a, b)
