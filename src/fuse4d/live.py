@@ -22,7 +22,7 @@ the gap as if the frames were consecutive (a wider-baseline pair); every such ga
 
 Latency is measured from the moment a frame enters the pipeline (the camera delivered it, or
 the player released it at its due time) to the moment its fused frame has been passed to the
-sink (written or shown).
+sink (shown, or queued for writing: :class:`LiveWriter` writes in a background thread).
 """
 
 from __future__ import annotations
