@@ -375,3 +375,28 @@ def test_realsense_source_against_a_fake_pipeline(ball, monkeypatch):
     source.close()
     assert fake.stopped
     assert stats.frames_fused == 6
+
+
+def test_window_sink_keeps_the_first_frames_scale(ball, monkeypatch):
+    import cv2
+
+    from fuse4d.cli.cmd_live import _window_sink
+
+    _, seq = ball
+    shown = []
+    monkeypatch.setattr(cv2, "imshow", lambda name, image: shown.append(image))
+    monkeypatch.setattr(cv2, "waitKey", lambda ms: -1)
+    stop = threading.Event()
+    sink = _window_sink(stop)
+    for t in (0, 1):
+        sink(CapturedFrame(t, seq.depth[t], seq.intensity[t], None, 0.0), _Fused(seq.depth[t]))
+    assert not stop.is_set()
+    np.testing.assert_array_equal(shown[0], side_by_side(seq.depth[0], seq.depth[0]))
+    expected = side_by_side(seq.depth[1], seq.depth[1], _scale(seq.depth[0]))  # frame 0's scale
+    np.testing.assert_array_equal(shown[1], expected)
+
+
+def _scale(depth):
+    from fuse4d.live import display_range
+
+    return display_range(depth)
