@@ -81,3 +81,32 @@ def test_written_out_help_matches_the_registries():
 
     assert _size_help() == SIZE_HELP
     assert tuple(CAMERA_PRESETS) == CAMERA_PRESET_NAMES
+
+
+def test_io_import_loads_no_numba():
+    """``import fuse4d.io`` leaves numba unloaded: the RVL kernels load on the first decode."""
+    code = "import sys, fuse4d.io; print('numba' in sys.modules)"
+    assert _python("-c", code).stdout.strip() == "False"
+
+
+def test_info_loads_no_numba(tmp_path):
+    """``fuse4d info`` on a recording reads frames without loading numba or the baselines."""
+    import numpy as np
+
+    from fuse4d import Intrinsics, Sequence
+    from fuse4d.io import write_npz
+
+    depth = np.full((3, 8, 10), 1000.0, dtype=np.float32)
+    seq = Sequence(
+        depth=depth, intensity=np.zeros_like(depth), intrinsics=Intrinsics(50, 50, 5, 4, 10, 8)
+    )
+    path = write_npz(seq, tmp_path / "s.npz")
+    code = (
+        "import sys\nfrom fuse4d.cli import main\n"
+        f"rc = main(['info', {str(path)!r}])\n"
+        "print('LOADED', [m for m in ('numba', 'fuse4d.baselines', 'fuse4d.flow') if m in sys.modules])\n"
+        "sys.exit(rc)"
+    )
+    out = _python("-c", code).stdout
+    assert "LOADED []" in out, out
+    assert "valid pixels: 100.0 %" in out

@@ -18,6 +18,7 @@ from fuse4d.metrics import (
     RunningEvaluation,
     default_roi,
     evaluate,
+    roughness_maps,
     roughness_stats,
     shape_correctness,
 )
@@ -108,6 +109,55 @@ def test_running_evaluation_matches_evaluate_per_frame(plane):
     assert res["static_pixels"] == rep.raw.flicker.num_pixels
     assert res["raw_flicker"] == pytest.approx(rep.raw.flicker.step_mean, rel=1e-9)
     assert res["output_flicker"] == pytest.approx(rep.output.flicker.step_mean, rel=1e-9)
+
+
+def test_masked_roughness_maps_equal_the_full_maps_on_the_mask(plane):
+    from fuse4d.metrics.roughness import _roughness_maps_on
+
+    _, raw = plane
+    pts = raw.points()[:2].astype(np.float32)
+    pts[0, 5:9, 7:12] = np.nan  # a hole: windows near it are undefined in both
+    mask = np.zeros(pts.shape[:3], bool)
+    mask[:, ::3] = True
+    full = roughness_maps(pts)
+    part = _roughness_maps_on(pts, mask)
+    for f, q in zip(full, part, strict=True):
+        np.testing.assert_array_equal(q[mask], f[mask])  # bit for bit (NaN where undefined)
+        assert np.isnan(q[~mask]).all()
+
+
+def test_running_evaluation_every_scores_one_frame_in_n(plane):
+    """every=n: roughness on frames 0, n, 2n, ... (the same as scoring those alone); the
+    flicker on every frame (the same as every=1)."""
+    truth, raw = plane
+    out_pts = depth_to_points(truth.ground_truth.depth, raw.intrinsics)
+    raw_pts = raw.points()
+    full, sampled, alone = RunningEvaluation(), RunningEvaluation(every=3), RunningEvaluation()
+    for t in range(raw.num_frames):
+        full.add(raw_pts[t], out_pts[t])
+        sampled.add(raw_pts[t], out_pts[t])
+        if t % 3 == 0:
+            alone.add(raw_pts[t], out_pts[t])
+    f, s, a = full.result(), sampled.result(), alone.result()
+    assert s["roughness_frames"] == len(range(0, raw.num_frames, 3)) == a["frames"]
+    assert f["roughness_frames"] == f["frames"] == s["frames"] == raw.num_frames
+    for key in ("raw_roughness", "output_roughness", "raw_rms_residual", "roughness_pixels"):
+        assert s[key] == a[key], key
+    for key in ("raw_flicker", "output_flicker", "static_pixels"):
+        assert s[key] == f[key], key
+    assert f"on {s['roughness_frames']} of {raw.num_frames} frames" in s["roi_description"]
+    with pytest.raises(ValueError, match="every"):
+        RunningEvaluation(every=0)
+
+
+def test_run_summary_every_default_matches_the_cli():
+    import inspect
+
+    from fuse4d.cli.cmd_fuse import run_command
+    from fuse4d.run import SUMMARY_EVERY
+
+    default = inspect.signature(run_command).parameters["summary_every"].default
+    assert default == SUMMARY_EVERY
 
 
 def test_evaluate_input_errors(plane):

@@ -55,6 +55,33 @@ def test_info_json(npz_path, capsys):
     assert info["format"] == "npz"
 
 
+def test_info_samples_long_recordings(tmp_path, small_intrinsics, capsys):
+    """Over 10 frames, info reads 10 evenly spaced ones (says so); --all-frames reads all."""
+    from fuse4d.cli.cmd_io import stats_frames
+
+    assert stats_frames(4, 10) == [0, 1, 2, 3]
+    assert stats_frames(100, 10) == [0, 11, 22, 33, 44, 55, 66, 77, 88, 99]
+    assert stats_frames(100, None) == list(range(100))
+    h, w = small_intrinsics.height, small_intrinsics.width
+    depth = np.full((23, h, w), 800.0, dtype=np.float32)
+    depth[:, 0, :] = np.nan  # 1 row of 24 invalid everywhere
+    depth[3, :, :] = np.nan  # frame 3 (not sampled) fully invalid
+    depth[22, 1, 1] = 900.0  # last frame: always sampled
+    path = write_npz(Sequence(depth, np.zeros_like(depth), small_intrinsics), tmp_path / "l.npz")
+    assert main(["info", str(path), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["stats_frames"] == 10
+    assert info["valid_fraction"] == pytest.approx(23 / 24)
+    assert info["depth_max_mm"] == 900.0
+    assert main(["info", str(path), "--json", "--all-frames"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["stats_frames"] == 23
+    assert info["valid_fraction"] == pytest.approx(22 * 23 / (23 * 24))
+    assert main(["info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "valid pixels: 95.8 % (10 of 23 frames, evenly spaced; --all-frames for all)" in out
+
+
 def test_info_tum_needs_intrinsics(tmp_path, small_sequence, capsys):
     _write_tum(tmp_path / "tum", small_sequence)
     assert main(["info", str(tmp_path / "tum")]) == 2

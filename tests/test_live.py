@@ -191,6 +191,49 @@ def test_side_by_side_image(ball):
     assert img.dtype == np.uint8
 
 
+def test_side_by_side_with_a_kept_scale_equals_the_per_frame_default(ball):
+    from fuse4d.live import display_range
+
+    _, seq = ball
+    lo, hi = display_range(seq.depth[0])
+    assert lo < hi
+    np.testing.assert_array_equal(
+        side_by_side(seq.depth[0], seq.depth[1], (lo, hi)), side_by_side(seq.depth[0], seq.depth[1])
+    )
+    assert display_range(np.full((4, 4), np.nan, np.float32)) is None
+
+
+@pytest.mark.parametrize("suffix", ["", ".mkv"])
+def test_live_writer_behind_writes_what_the_inline_writer_writes(ball, tmp_path, suffix):
+    """The write-behind LiveWriter (default) and the inline one (behind=0) give equal files."""
+    from fuse4d.io import open_frames
+    from fuse4d.live import LiveWriter
+
+    if suffix == ".mkv":
+        pytest.importorskip("av")
+    _, seq = ball
+    outs = []
+    for behind in (0, 2):
+        out = tmp_path / f"w{behind}{suffix}"
+        with LiveWriter(out, seq.intrinsics, depth_unit_mm=0.1, fps=30.0, behind=behind) as w:
+            for t, fr in enumerate(
+                fuse_sequence(
+                    seq.depth[:5], seq.intensity[:5], seq.intrinsics, fusion=CAUSAL3
+                ).depth
+            ):
+                cap = CapturedFrame(t, seq.depth[t], seq.intensity[t], t / 30.0, 0.0)
+                w(cap, _Fused(fr))
+        with open_frames(out) as r:
+            outs.append(np.stack([f.depth for f in r]))
+    assert outs[0].shape[0] == 5
+    np.testing.assert_array_equal(outs[0], outs[1])
+
+
+class _Fused:
+    def __init__(self, depth) -> None:
+        self.depth = depth
+
+
 def test_cli_live_writes_the_causal_fusion(ball, reference, tmp_path, capsys):
     path, _ = ball
     out = tmp_path / "fused.npz"
@@ -332,3 +375,28 @@ def test_realsense_source_against_a_fake_pipeline(ball, monkeypatch):
     source.close()
     assert fake.stopped
     assert stats.frames_fused == 6
+
+
+def test_window_sink_keeps_the_first_frames_scale(ball, monkeypatch):
+    import cv2
+
+    from fuse4d.cli.cmd_live import _window_sink
+
+    _, seq = ball
+    shown = []
+    monkeypatch.setattr(cv2, "imshow", lambda name, image: shown.append(image))
+    monkeypatch.setattr(cv2, "waitKey", lambda ms: -1)
+    stop = threading.Event()
+    sink = _window_sink(stop)
+    for t in (0, 1):
+        sink(CapturedFrame(t, seq.depth[t], seq.intensity[t], None, 0.0), _Fused(seq.depth[t]))
+    assert not stop.is_set()
+    np.testing.assert_array_equal(shown[0], side_by_side(seq.depth[0], seq.depth[0]))
+    expected = side_by_side(seq.depth[1], seq.depth[1], _scale(seq.depth[0]))  # frame 0's scale
+    np.testing.assert_array_equal(shown[1], expected)
+
+
+def _scale(depth):
+    from fuse4d.live import display_range
+
+    return display_range(depth)

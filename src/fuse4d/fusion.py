@@ -512,11 +512,16 @@ class FusionEngine:
                 quad=quad,
                 temporal_weight=self._temporal_weight,
             )
-            got = (count > 0) & _side_consistent(
+            # the side check only for the holes the time fill reached (exact: the kernel's
+            # value at a pixel does not depend on the other targets); most sensor holes of a
+            # real recording (glass, range, shadows of static objects) are never reached
+            reached = count > 0
+            reached &= holes
+            got = _side_consistent(
                 filled_points[..., 2],
                 self._depth[slot],
                 self._intensity[slot],
-                holes,
+                reached,
                 radius=p.fill_space_radius,
                 sigma_intensity=p.sigma_intensity,
                 max_step=p.max_depth_step,

@@ -22,7 +22,7 @@ the gap as if the frames were consecutive (a wider-baseline pair); every such ga
 
 Latency is measured from the moment a frame enters the pipeline (the camera delivered it, or
 the player released it at its due time) to the moment its fused frame has been passed to the
-sink (written or shown).
+sink (shown, or queued for writing: :class:`LiveWriter` writes in a background thread).
 """
 
 from __future__ import annotations
@@ -55,6 +55,7 @@ __all__ = [
     "RealSenseSource",
     "RecordingSource",
     "display_available",
+    "display_range",
     "realsense_available",
     "run_live",
     "side_by_side",
@@ -608,6 +609,19 @@ def display_available() -> bool:
     return True
 
 
+def display_range(depth: NDArray[np.float32]) -> tuple[float, float] | None:
+    """The 2nd-98th percentile (mm) of a depth map's valid pixels (None: no valid pixel).
+
+    The colour scale of :func:`side_by_side`; ``fuse4d live --show`` takes it from the first
+    frame and keeps it (a steady scale, and no percentile per frame).
+    """
+    valid = depth[np.isfinite(depth)]
+    if not valid.size:
+        return None
+    lo, hi = np.percentile(valid, [2, 98])
+    return float(lo), float(hi)
+
+
 def side_by_side(
     raw_depth: NDArray[np.float32],
     fused_depth: NDArray[np.float32],
@@ -629,12 +643,7 @@ def side_by_side(
     import cv2
 
     if depth_range is None:
-        valid = raw_depth[np.isfinite(raw_depth)]
-        if valid.size:
-            lo, hi = np.percentile(valid, [2, 98])
-            depth_range = (float(lo), float(hi))
-        else:
-            depth_range = (0.0, 1.0)
+        depth_range = display_range(raw_depth) or (0.0, 1.0)
     near, far = depth_range
     scale = 255.0 / max(far - near, 1e-6)
     panels = []
@@ -662,6 +671,11 @@ class LiveWriter:
         Frame rate stored with the output.
     overwrite : bool
         Replace an existing output.
+    behind : int
+        Streamed outputs: encode and write in a background thread, at most ``behind`` frames
+        queued (the fusion thread blocks when the queue is full: no output frame is dropped),
+        so PNG/FFV1 encoding overlaps the next fusion step; 0 writes in the caller's thread.
+        The latency of :func:`run_live` then ends when the frame is queued for writing.
     """
 
     def __init__(
@@ -672,9 +686,14 @@ class LiveWriter:
         depth_unit_mm: float | None = None,
         fps: float | None = None,
         overwrite: bool = False,
+        behind: int = 2,
     ) -> None:
         from .io import DepthVideoWriter, FrameFolderWriter, ZarrWriter, check_output
 
+        self.behind = int(behind)
+        self._sink: Any = None
+        #: seconds spent writing (in the writer thread) and waiting for room in its queue
+        self.timings = {"write": 0.0, "io_wait": 0.0}
         self.path = Path(path)
         self.intrinsics = intrinsics
         self.fps = fps
@@ -698,6 +717,10 @@ class LiveWriter:
     def __enter__(self) -> Self:
         if self._writer is not None:
             self._writer.__enter__()
+            if self.behind > 0:
+                from .run import _WriteBehind
+
+                self._sink = _WriteBehind(self._writer.write, self.behind, self.timings)
         return self
 
     def __call__(self, captured: CapturedFrame, fused: FusedFrame) -> None:
@@ -705,12 +728,22 @@ class LiveWriter:
         if self._frames is not None:
             self._frames.append((fused.depth.copy(), captured.intensity, captured.timestamp))
             return
-        self._writer.write(
-            fused.depth, captured.intensity, mask=captured.mask, timestamp=captured.timestamp
-        )
+        args = (fused.depth, captured.intensity)
+        kwargs = {"mask": captured.mask, "timestamp": captured.timestamp}
+        if self._sink is not None:
+            self._sink.submit(*args, **kwargs)  # FusedFrame arrays are not reused by the engine
+        else:
+            self._writer.write(*args, **kwargs)
 
     def __exit__(self, *exc: object) -> None:
         if self._writer is not None:
+            sink, self._sink = self._sink, None
+            if sink is not None:
+                try:
+                    sink.close(abort=exc[0] is not None)
+                except BaseException:
+                    self._writer.__exit__(*sys.exc_info())
+                    raise
             self._writer.__exit__(*exc)
             return
         if exc[0] is not None or not self._frames:

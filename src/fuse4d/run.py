@@ -29,13 +29,17 @@ from .io import write_npz as _write_npz
 from .io.resume import ResumableFolderWriter, partial_path, run_identity
 from .metrics import RunningEvaluation
 
-__all__ = ["IO_STAGES", "RunSummary", "fuse_file"]
+__all__ = ["IO_STAGES", "SUMMARY_EVERY", "RunSummary", "fuse_file"]
 
 #: Timings of the streaming run outside the engine's :data:`~fuse4d.fusion.STAGES` (seconds):
 #: ``read`` (decode, in the read-ahead thread), ``write`` (encode, in the write-behind thread),
 #: ``summary`` (the before/after quality tally), ``io_wait`` (the fusion thread waiting for a
 #: frame or for room in the write queue: the part of the I/O that did not overlap).
 IO_STAGES = ("read", "write", "summary", "io_wait")
+
+#: ``fuse4d run``'s summary scores the roughness on one frame in this many (the two Eq. 7 maps
+#: of a 640x480 frame cost more than its fusion); the flicker on every frame.
+SUMMARY_EVERY = 4
 
 
 @dataclass
@@ -62,6 +66,9 @@ class RunSummary:
         video: valid in every frame, depth range over time within 3 step limits).
     roughness_pixels, static_pixels : int
         Pixels the roughness (summed over frames) and the flicker were scored on.
+    roughness_frames : int
+        Frames the roughness and the residual were scored on: one in ``summary_every``
+        (:data:`SUMMARY_EVERY` by default), from frame 0; the flicker uses every frame.
     support_fraction : float
         Fraction of valid pixels tracked into at least one other frame.
     filled_fraction : float
@@ -88,6 +95,7 @@ class RunSummary:
     raw_flicker: float = float("nan")
     fused_flicker: float = float("nan")
     roughness_pixels: int = 0
+    roughness_frames: int = 0
     static_pixels: int = 0
     support_fraction: float = float("nan")
     filled_fraction: float = float("nan")
@@ -117,6 +125,7 @@ class RunSummary:
             "raw_flicker_mm": self.raw_flicker,
             "fused_flicker_mm": self.fused_flicker,
             "roughness_pixels": self.roughness_pixels,
+            "roughness_frames": self.roughness_frames,
             "static_pixels": self.static_pixels,
             "support_fraction": self.support_fraction,
             "filled_fraction": self.filled_fraction,
@@ -132,8 +141,8 @@ class _QualityTally:
     """Before/after scores over streamed frames (:class:`~fuse4d.metrics.RunningEvaluation`)
     plus the fusion's own support and fill fractions."""
 
-    def __init__(self) -> None:
-        self.scores = RunningEvaluation()
+    def __init__(self, every: int = 1) -> None:
+        self.scores = RunningEvaluation(every=every)
         self.valid = 0
         self.supported = 0
         self.filled = 0
@@ -154,6 +163,7 @@ class _QualityTally:
         summary.raw_flicker = res["raw_flicker"]
         summary.fused_flicker = res["output_flicker"]
         summary.roughness_pixels = res["roughness_pixels"]
+        summary.roughness_frames = res["roughness_frames"]
         summary.static_pixels = res["static_pixels"]
         if self.valid:
             summary.support_fraction = self.supported / self.valid
@@ -172,6 +182,7 @@ def fuse_file(
     reader_options: dict[str, Any] | None = None,
     resume: bool = False,
     io_queue: int = 2,
+    summary_every: int = SUMMARY_EVERY,
 ) -> RunSummary:
     """Fuse a recording on disk and write the result next to nothing it reads.
 
@@ -189,8 +200,12 @@ def fuse_file(
     overwrite : bool
         Replace an existing output (never the input).
     quality : bool
-        Compute the before/after roughness (costs ~2 roughness maps per frame); ``False``
-        leaves the summary's quality figures NaN (``fuse4d run --no-summary``).
+        Compute the before/after roughness (costs ~2 roughness maps per scored frame);
+        ``False`` leaves the summary's quality figures NaN (``fuse4d run --no-summary``).
+    summary_every : int
+        With ``quality``: score the roughness on one frame in ``summary_every`` (frames 0,
+        n, 2n, ...; raw and fused on the same frames and pixels; 1 = all frames). The flicker
+        is scored on every frame. :attr:`RunSummary.roughness_frames` says how many.
     io_queue : int
         Streaming layouts: frames decoded ahead by a reader thread and frames queued for a
         writer thread, each (bounded queues, so memory stays flat); 0 reads and writes in the
@@ -225,7 +240,7 @@ def fuse_file(
         raise ParameterError("--resume applies to frame-folder outputs; .npz is written at once")
     start = time.perf_counter()
     if fmt == "npz":
-        summary = _fuse_npz(src, dst, params, flow, overwrite, quality, progress)
+        summary = _fuse_npz(src, dst, params, flow, overwrite, quality, progress, summary_every)
     else:
         summary = _fuse_streaming(
             src,
@@ -239,12 +254,15 @@ def fuse_file(
             reader_options or {},
             resume=resume,
             io_queue=io_queue,
+            summary_every=summary_every,
         )
     summary.seconds = time.perf_counter() - start
     return summary
 
 
-def _fuse_npz(src, dst, params, flow, overwrite, quality, progress) -> RunSummary:
+def _fuse_npz(
+    src, dst, params, flow, overwrite, quality, progress, summary_every=SUMMARY_EVERY
+) -> RunSummary:
     from .io import load_sequence
 
     seq = load_sequence(src)
@@ -263,7 +281,7 @@ def _fuse_npz(src, dst, params, flow, overwrite, quality, progress) -> RunSummar
         timings=result.timings,
     )
     if quality:
-        tally = _QualityTally()
+        tally = _QualityTally(summary_every)
         raw_points = seq.points()
         for t in range(seq.num_frames):
             frame = FusedFrame(
@@ -348,6 +366,7 @@ class _WriteBehind:
         self._queue: queue.Queue = queue.Queue(maxsize=max(depth, 1))
         self._timings = timings
         self._error: BaseException | None = None
+        self._abort = False
         self._thread = threading.Thread(target=self._run, name="fuse4d-write", daemon=True)
         self._thread.start()
 
@@ -356,27 +375,37 @@ class _WriteBehind:
             job = self._queue.get()
             if job is None:
                 return
-            if self._error is not None:
-                continue  # drain after a failure
+            if self._error is not None or self._abort:
+                continue  # drain after a failure or an interrupt
             t0 = time.perf_counter()
             try:
-                self._write(*job[0], **job[1])
+                job[0](*job[1], **job[2])
             except BaseException as exc:  # noqa: BLE001 - re-raised in the fusion thread
                 self._error = exc
             self._timings["write"] += time.perf_counter() - t0
 
     def submit(self, *args: Any, **kwargs: Any) -> None:
+        """Queue ``write(*args, **kwargs)``."""
+        self.call(self._write, *args, **kwargs)
+
+    def call(self, func: Callable[..., Any], *args: Any, **kwargs: Any) -> None:
+        """Queue ``func(*args, **kwargs)``, run after every job queued before it."""
         if self._error is not None:
             raise self._error
         t0 = time.perf_counter()
-        self._queue.put((args, kwargs))
+        self._queue.put((func, args, kwargs))
         self._timings["io_wait"] += time.perf_counter() - t0
 
-    def close(self) -> None:
-        """Wait for the queued writes; raise the writer's exception, if any."""
+    def close(self, abort: bool = False) -> None:
+        """Wait for the queued writes; raise the writer's exception, if any.
+
+        ``abort`` (the fusion thread failed or was interrupted): drop the writes not yet
+        started, wait for the one in progress, raise nothing (the caller's exception wins).
+        """
+        self._abort = abort
         self._queue.put(None)
         self._thread.join()
-        if self._error is not None:
+        if self._error is not None and not abort:
             raise self._error
 
 
@@ -388,11 +417,14 @@ class _Inline:
         self._timings = timings
 
     def submit(self, *args: Any, **kwargs: Any) -> None:
+        self.call(self._write, *args, **kwargs)
+
+    def call(self, func: Callable[..., Any], *args: Any, **kwargs: Any) -> None:
         t0 = time.perf_counter()
-        self._write(*args, **kwargs)
+        func(*args, **kwargs)
         self._timings["write"] += time.perf_counter() - t0
 
-    def close(self) -> None:
+    def close(self, abort: bool = False) -> None:
         pass
 
 
@@ -423,6 +455,7 @@ def _fuse_streaming(
     resume: bool = False,
     io_queue: int = 2,
     limit: int | None = None,
+    summary_every: int = SUMMARY_EVERY,
 ) -> RunSummary:
     """The streaming run; ``limit`` fuses the first ``limit`` frames only (``fuse4d bench
     --input``)."""
@@ -456,7 +489,7 @@ def _fuse_streaming(
             params=params,
             timings=timings,
         )
-        tally = _QualityTally() if quality else None
+        tally = _QualityTally(summary_every) if quality else None
         unit = reader.depth_unit_mm or 1.0  # float-depth inputs (32FC1 bags, zarr): 1 mm steps
         resumable = out_fmt == "folder"
         if resumable:
@@ -494,22 +527,22 @@ def _fuse_streaming(
             todo = source if first == 0 else (reader.read_frame(t) for t in range(first, total))
             if io_queue > 0:
                 frames: Any = _ReadAhead(todo, io_queue, timings)
-                # a resumable folder checkpoints what is on disk: its writes stay in this thread
-                sink: Any = (
-                    _Inline(writer.write, timings)
-                    if resumable
-                    else _WriteBehind(writer.write, io_queue, timings)
-                )
+                # a resumable folder's checkpoints are queued behind the writes they follow, so
+                # a checkpoint on disk only ever names frames already on disk
+                sink: Any = _WriteBehind(writer.write, io_queue, timings)
             else:
                 frames = _timed(todo, timings)
                 sink = _Inline(writer.write, timings)
 
+            # frames handed to the writer (the writer thread's `frames_done` lags behind it)
+            queued = writer.frames_done if resumable else 0
+
             def emit(fused: list[FusedFrame]) -> None:
-                nonlocal written
+                nonlocal written, queued
                 for fr in fused:
                     t = first + fr.index
                     raw = pending.pop(t)
-                    if resumable and t < writer.frames_done:  # before the checkpoint / on disk
+                    if resumable and t < queued:  # before the checkpoint / already on disk
                         continue
                     if tally is not None:
                         t0 = time.perf_counter()
@@ -517,20 +550,26 @@ def _fuse_streaming(
                         timings["summary"] += time.perf_counter() - t0
                     sink.submit(fr.depth, raw.intensity, mask=raw.mask, timestamp=raw.timestamp)
                     written += 1
-                    if resumable and writer.wants_checkpoint() and writer.frames_done < total:
-                        start = writer.frames_done - engine.past
-                        writer.checkpoint(_seed(engine, first, start, writer.seed))
+                    queued += 1
+                    if resumable and queued % writer.checkpoint_every == 0 and queued < total:
+                        # the seed is the engine's state now; the writer stores it after frame
+                        # `queued - 1` is on disk
+                        seed = _seed(engine, first, queued - engine.past, writer.seed)
+                        sink.call(writer.checkpoint, seed)
                     if progress is not None:
-                        progress(writer.frames_done if resumable else written, total)
+                        progress(queued, total)
 
             try:
                 for order, frame in enumerate(frames):
                     pending[first + order] = frame
                     emit(engine.push(frame.depth, frame.intensity))
                 emit(engine.flush())
-            finally:
-                frames.close()  # the read-ahead thread, or the inline generator
-                sink.close()  # all writes done before the writer is closed
+            except BaseException:
+                frames.close()
+                sink.close(abort=True)  # Ctrl-C or a failure: only the write in progress ends
+                raise
+            frames.close()  # the read-ahead thread, or the inline generator
+            sink.close()  # all writes done before the writer is closed
         if tally is not None:
             t0 = time.perf_counter()
             tally.fill(summary)

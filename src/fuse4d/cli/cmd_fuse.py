@@ -155,6 +155,14 @@ def run_command(
         bool,
         typer.Option("--no-summary", help="Skip the before/after quality figures (faster)."),
     ] = False,
+    summary_every: Annotated[
+        int,
+        typer.Option(
+            "--summary-every",
+            min=1,
+            help="Score the summary's roughness on one frame in N (1: all; flicker: all).",
+        ),
+    ] = 4,
     depth_topic: DepthTopicOpt = None,
     intensity_topic: IntensityTopicOpt = None,
     intensity: IntensityOpt = None,
@@ -245,6 +253,7 @@ def run_command(
             progress=progress_callback(progress),
             reader_options=options,
             resume=resume,
+            summary_every=summary_every,
         )
     if report is not None:
         from .cmd_report import make_report
@@ -297,6 +306,11 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
                 "sum over the 5x5 window of distances to its plane, mean over frames; the same "
                 f"{summary.roughness_pixels} pixels (x frames) for both: raw windows free of "
                 "depth edges by the noise model's step limit"
+                + (
+                    f"; scored on {summary.roughness_frames} of {summary.frames} frames"
+                    if 0 < summary.roughness_frames < summary.frames
+                    else ""
+                )
             ),
         ),
         (

@@ -22,6 +22,9 @@ __all__ = ["export_ply_command", "info_command"]
 
 #: The names of :data:`fuse4d.io.CAMERA_PRESETS`, written out so that ``--help`` does not
 #: import the readers (``tests/test_cli_startup.py`` checks that they agree).
+#: Frames ``fuse4d info`` reads for the valid fraction and depth range (``--all-frames``: all).
+INFO_SAMPLE_FRAMES = 10
+
 CAMERA_PRESET_NAMES = ("freiburg1", "freiburg2", "freiburg3", "kinect-v1")
 
 _INTRINSICS_HELP = (
@@ -67,11 +70,21 @@ def info_command(
     intensity_topic: IntensityTopicOpt = None,
     intensity: IntensityOpt = None,
     no_undistort: NoUndistortOpt = False,
+    all_frames: Annotated[
+        bool,
+        typer.Option(
+            "--all-frames",
+            help=f"Valid fraction and depth range over every frame (default: at most "
+            f"{INFO_SAMPLE_FRAMES} evenly spaced frames, so that info answers at once).",
+        ),
+    ] = False,
 ) -> None:
     """Describe a recording: layout, frames, size, valid fraction, depth range, camera, GT.
 
     For camera recordings also the streams/topics (messages, rate, size, encoding) and which
-    of them are used as depth and intensity.
+    of them are used as depth and intensity. The valid fraction and depth range are computed
+    on at most 10 evenly spaced frames (first and last included; the output says how many),
+    or on all of them with ``--all-frames``.
     """
     import numpy as np
 
@@ -87,7 +100,9 @@ def info_command(
     with reader:
         n_valid = 0
         lo, hi = math.inf, -math.inf
-        for frame in track(reader, "reading frames", total=len(reader)):
+        picked = stats_frames(len(reader), None if all_frames else INFO_SAMPLE_FRAMES)
+        for index in track(picked, "reading frames", total=len(picked)):
+            frame = reader.read_frame(index)
             valid = np.isfinite(frame.depth)
             count = int(valid.sum())
             if count:
@@ -95,7 +110,7 @@ def info_command(
                 lo = min(lo, float(np.nanmin(frame.depth)))
                 hi = max(hi, float(np.nanmax(frame.depth)))
         k = reader.intrinsics
-        total = len(reader) * k.width * k.height
+        total = len(picked) * k.width * k.height
         ts = reader.timestamps
         summary = {
             "input": str(input_path),
@@ -107,7 +122,8 @@ def info_command(
             "depth_unit_mm": reader.depth_unit_mm,
             "fps": reader.fps,
             "duration_s": None if ts is None else float(ts[-1] - ts[0]),
-            "valid_fraction": n_valid / total,
+            "valid_fraction": n_valid / total if total else 0.0,
+            "stats_frames": len(picked),
             "depth_min_mm": lo if n_valid else None,
             "depth_max_mm": hi if n_valid else None,
             "ground_truth": list(reader.ground_truth_keys),
@@ -117,6 +133,11 @@ def info_command(
     if as_json:
         print(json.dumps(summary))
         return
+    sampled = (
+        ""
+        if len(picked) == len(reader)
+        else f" ({len(picked)} of {len(reader)} frames, evenly spaced; --all-frames for all)"
+    )
     rows = [
         ("input", summary["input"]),
         ("format", summary["format"]),
@@ -134,10 +155,10 @@ def info_command(
             "timestamps",
             "not stored" if ts is None else f"{ts[0]:.6f} .. {ts[-1]:.6f} s ({len(ts)} values)",
         ),
-        ("valid pixels", f"{100.0 * summary['valid_fraction']:.1f} %"),
+        ("valid pixels", f"{100.0 * summary['valid_fraction']:.1f} %{sampled}"),
         (
             "depth range",
-            "no valid depth" if not n_valid else f"{lo:.1f} .. {hi:.1f} mm",
+            "no valid depth" if not n_valid else f"{lo:.1f} .. {hi:.1f} mm{sampled}",
         ),
         ("ground truth", ", ".join(summary["ground_truth"]) or "none"),
     ]
@@ -192,6 +213,28 @@ def export_ply_command(
         markup=False,
         soft_wrap=True,
     )
+
+
+def stats_frames(total: int, limit: int | None) -> list[int]:
+    """Indices of the frames ``info`` reads: all, or ``limit`` evenly spaced ones.
+
+    Parameters
+    ----------
+    total : int
+        Frames in the recording.
+    limit : int or None
+        Most frames to read (``None``: all). The first and the last frame are always read.
+
+    Returns
+    -------
+    list of int
+        Sorted, distinct 0-based frame indices.
+    """
+    if limit is None or total <= limit:
+        return list(range(total))
+    if limit <= 1:
+        return [0]
+    return sorted({round(i * (total - 1) / (limit - 1)) for i in range(limit)})
 
 
 def _streams(reader: object) -> list[dict[str, object]]:

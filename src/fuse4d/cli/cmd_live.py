@@ -220,10 +220,17 @@ def _window_sink(stop: Any) -> Any:
     """A sink showing raw | fused depth in an OpenCV window; q or Esc sets ``stop``."""
     import cv2
 
-    from ..live import side_by_side
+    from ..live import display_range, side_by_side
+
+    scale: list[Any] = []  # the colour scale of the first frame with depth, kept (steady, cheap)
 
     def sink(captured: Any, fused: Any) -> None:
-        cv2.imshow("fuse4d live: raw | fused", side_by_side(captured.depth, fused.depth))
+        if not scale:
+            lo_hi = display_range(captured.depth)
+            if lo_hi is not None:
+                scale.append(lo_hi)
+        image = side_by_side(captured.depth, fused.depth, scale[0] if scale else None)
+        cv2.imshow("fuse4d live: raw | fused", image)
         if cv2.waitKey(1) & 0xFF in (ord("q"), 27):
             stop.set()
 

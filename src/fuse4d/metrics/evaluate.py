@@ -43,7 +43,13 @@ from .roi import (
     static_mask_from_ground_truth,
     static_pixels,
 )
-from .roughness import RoughnessStats, _mean_std, roughness_maps, stats_from_maps
+from .roughness import (
+    RoughnessStats,
+    _mean_std,
+    _roughness_maps_on,
+    roughness_maps,
+    stats_from_maps,
+)
 from .shape import ShapeCorrectness, shape_correctness
 
 __all__ = ["MetricsReport", "RunningEvaluation", "Scores", "evaluate"]
@@ -396,11 +402,26 @@ class RunningEvaluation:
         Roughness window n (odd, px).
     max_step : float, optional
         Floor (mm) of the depth-step limit.
+    every : int, optional
+        Score the roughness (Eq. 7, the plane-fit residual) on every ``every``-th frame only
+        (frames 0, every, 2 every, ...; raw and output on the same frames and pixels); the
+        flicker always uses every frame. 1 = all frames. ``fuse4d run`` uses 4: the roughness
+        maps cost more than the fusion of a frame.
+
+    Notes
+    -----
+    Eq. 7 is evaluated on the ROI pixels only (:func:`~fuse4d.metrics.roughness._roughness_maps_on`,
+    the same values as :func:`~fuse4d.metrics.roughness_maps` there), since no other pixel is
+    scored.
     """
 
-    def __init__(self, *, window: int = 5, max_step: float = 10.0) -> None:
+    def __init__(self, *, window: int = 5, max_step: float = 10.0, every: int = 1) -> None:
+        if isinstance(every, bool) or int(every) != every or every < 1:
+            raise ValueError(f"every must be an integer >= 1, got {every!r}")
         self.window = window
         self.max_step = max_step
+        self.every = int(every)
+        self.roughness_frames = 0
         self.frames = 0
         self._raw_means: list[float] = []
         self._out_means: list[float] = []
@@ -416,17 +437,19 @@ class RunningEvaluation:
         op = np.asarray(output_points, dtype=np.float32)[None]
         rd, od = rp[..., 2], op[..., 2]
         quad = float(_frame_quads(rd, None)[0])
-        region = default_roi(rd, window=self.window, max_step=self.max_step, noise_quad=quad)
-        raw_maps = roughness_maps(rp, window=self.window)
-        out_maps = roughness_maps(op, window=self.window)
-        scored = region & np.isfinite(raw_maps[0]) & np.isfinite(out_maps[0])
-        rs, os_ = stats_from_maps(*raw_maps, scored), stats_from_maps(*out_maps, scored)
-        if scored.any():
-            self._raw_means.append(float(rs.frame_means[0]))
-            self._out_means.append(float(os_.frame_means[0]))
-            self._raw_rms.append(float(rs.frame_rms_means[0]))
-            self._out_rms.append(float(os_.frame_rms_means[0]))
-            self._pixels += int(scored.sum())
+        if self.frames % self.every == 0:
+            self.roughness_frames += 1
+            region = default_roi(rd, window=self.window, max_step=self.max_step, noise_quad=quad)
+            raw_maps = _roughness_maps_on(rp, region, window=self.window)
+            out_maps = _roughness_maps_on(op, region, window=self.window)
+            scored = region & np.isfinite(raw_maps[0]) & np.isfinite(out_maps[0])
+            rs, os_ = stats_from_maps(*raw_maps, scored), stats_from_maps(*out_maps, scored)
+            if scored.any():
+                self._raw_means.append(float(rs.frame_means[0]))
+                self._out_means.append(float(os_.frame_means[0]))
+                self._raw_rms.append(float(rs.frame_rms_means[0]))
+                self._out_rms.append(float(os_.frame_rms_means[0]))
+                self._pixels += int(scored.sum())
         self._quads.append(quad)
         self._add_temporal(rd[0].astype(np.float64), od[0].astype(np.float64))
         self.frames += 1
@@ -461,7 +484,7 @@ class RunningEvaluation:
 
         Keys: ``raw_roughness``, ``output_roughness`` (mean over frames of the frame mean of
         Eq. 7), ``raw_rms_residual``, ``output_rms_residual``, ``roughness_pixels``,
-        ``raw_flicker``, ``output_flicker`` (mean frame-to-frame |Δ| on static pixels, NaN for
+        ``roughness_frames`` (frames scored for roughness), ``frames``, ``raw_flicker``, ``output_flicker`` (mean frame-to-frame |Δ| on static pixels, NaN for
         fewer than 2 frames), ``static_pixels``, ``roi_description``,
         ``static_description``.
         """
@@ -471,6 +494,8 @@ class RunningEvaluation:
             "raw_rms_residual": _mean_std(np.asarray(self._raw_rms, dtype=np.float64))[0],
             "output_rms_residual": _mean_std(np.asarray(self._out_rms, dtype=np.float64))[0],
             "roughness_pixels": self._pixels,
+            "roughness_frames": self.roughness_frames,
+            "frames": self.frames,
             "raw_flicker": math.nan,
             "output_flicker": math.nan,
             "static_pixels": 0,
@@ -478,6 +503,12 @@ class RunningEvaluation:
                 f"{self.window}x{self.window} windows fully valid in the raw frame, no step "
                 f"between neighbours above max({self.max_step:g} mm, 2.5 q z^2); pixels where "
                 "Eq. 7 is defined in raw and output"
+                + (
+                    ""
+                    if self.every == 1
+                    else f"; on {self.roughness_frames} of {self.frames} frames (one in "
+                    f"{self.every}, from frame 0)"
+                )
             ),
             "static_description": (
                 "detected: valid in every frame, raw depth range over time <= 3 step limits"

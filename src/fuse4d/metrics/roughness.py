@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._kernels.roughness import _roughness_kernel
+from .._kernels.roughness import _roughness_kernel, _roughness_masked_kernel
 from .._validation import as_float32, check_shape
 from ..errors import ShapeError
 from .roi import default_roi
@@ -70,6 +70,24 @@ def roughness_maps(
     _roughness_kernel(p, window // 2, min_count, out_sum, out_rms)
     if single:
         return out_sum[0], out_rms[0]
+    return out_sum, out_rms
+
+
+def _roughness_maps_on(
+    points: NDArray[np.float32], mask: NDArray[np.bool_], *, window: int = 5
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """:func:`roughness_maps` of ``(T, H, W, 3)`` float32 points on the ``mask`` pixels only.
+
+    Where ``mask`` is set the values equal :func:`roughness_maps`' bit for bit; elsewhere NaN.
+    For scores restricted to a region anyway (:class:`~fuse4d.metrics.RunningEvaluation`).
+    """
+    p = np.ascontiguousarray(points, dtype=np.float32)
+    t, h, w = p.shape[:3]
+    m = np.ascontiguousarray(np.broadcast_to(mask, (t, h, w)), dtype=np.bool_)
+    out_sum = np.empty((t, h, w), dtype=np.float32)
+    out_rms = np.empty((t, h, w), dtype=np.float32)
+    min_count = max(1, math.ceil(0.8 * window * window - 1e-9))
+    _roughness_masked_kernel(p, m, window // 2, min_count, out_sum, out_rms)
     return out_sum, out_rms
 
 
