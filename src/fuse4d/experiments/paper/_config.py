@@ -6,7 +6,7 @@ Three profiles:
   the paper's PMBP tracker, shape correctness on every frame, the 6D ED baseline on every frame.
 * ``reduced`` — what a shared 2-core machine finishes in about an hour: the same 600x600 scenes
   and noise levels, but short sequences, one seed, shape correctness on a few frames, the 6D ED baseline on
-  one frame with a coarse (40 mm) node graph.
+  one frame with a coarse (80 mm) node graph.
 * ``quick`` — CI size (150x150 scenes, 12 frames, one seed, DIS flow, short sweeps): checks
   that every experiment runs end to end, never for reported numbers.
 """
@@ -89,13 +89,13 @@ PROFILES: dict[str, Profile] = {
         shape_frames=2,
         # ED: one evaluated frame (its own 9-frame window, 16 pairwise warps). At the BASELINES
         # default node spacing of 8 mm the graph has ~6 000 nodes and one frame did not finish
-        # in 45 min on the shared machine; 40 mm nodes (~250) and every 8th source pixel in the
-        # registration make it ~10 s per warp. The fusion itself uses every pixel.
+        # in 45 min on the shared machine; 80 mm nodes (~60) and every 16th source pixel in the
+        # registration make it a few CPU-s per warp. The fusion itself uses every pixel.
         ed_frames=1,
         e3_iterations=(1, 2),
         e3_max_sizes=3,
         real_frames=20,
-        extra={"e4_num_frames": 21, "ed_params": {"node_spacing": 40.0, "stride": 8}},
+        extra={"e4_num_frames": 21, "ed_params": {"node_spacing": 80.0, "stride": 16}},
     ),
     "quick": Profile(
         name="quick",

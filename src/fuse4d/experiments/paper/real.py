@@ -138,7 +138,7 @@ def unit(profile: Profile, cache_dir: Path, rec: str, method: str, out_dir: Path
     if rec == "person":
         inner, band, background = _masks(seq)
         roi = inner & default_roi(z)
-        flick = temporal_flicker(z, static_mask=background)
+        flick = temporal_flicker(z, static=background)
     else:
         roi = default_roi(raw_z) & default_roi(z)
         flick = temporal_flicker(z)
