@@ -113,6 +113,28 @@ def test_e1_quick_subset_writes_every_output(tmp_path):
     assert again["seconds_this_call"] < 1.0  # nothing recomputed
 
 
+def test_real_crop_keeps_the_geometry():
+    """The quick profile's crop of a real recording: same 3D points, mask cut to match."""
+    from fuse4d.camera import depth_to_points
+    from fuse4d.experiments.paper.real import _crop
+    from fuse4d.synthetic import make_falling_ball
+
+    seq = make_falling_ball(small=True, num_frames=3, rng=0)
+    out = _crop(seq, 60, 80)
+    assert out.depth.shape == out.intensity.shape == out.ground_truth.mask.shape == (3, 60, 80)
+    assert (out.intrinsics.width, out.intrinsics.height) == (80, 60)
+    full = depth_to_points(seq.depth, seq.intrinsics)
+    ys, xs = np.nonzero(seq.ground_truth.mask.any(axis=0))
+    v0 = (ys.min() + ys.max()) // 2 - 30
+    u0 = (xs.min() + xs.max()) // 2 - 40
+    np.testing.assert_allclose(
+        depth_to_points(out.depth, out.intrinsics),
+        full[:, v0 : v0 + 60, u0 : u0 + 80],
+        rtol=1e-6,
+    )
+    assert out.ground_truth.mask.sum() == seq.ground_truth.mask[:, v0 : v0 + 60, u0 : u0 + 80].sum()
+
+
 def test_cli_lists_experiments_and_rejects_bad_name(tmp_path, capsys):
     assert main(["experiments", "E9", "--out", str(tmp_path)]) == 2
     assert "unknown experiment" in capsys.readouterr().err

@@ -5,8 +5,8 @@ Three profiles:
 * ``paper`` — the protocol as written: 600x600 scenes, 50 frames, seeds 0-2, all noise levels,
   the paper's PMBP tracker, shape correctness on every frame, the 6D ED baseline on every frame.
 * ``reduced`` — what a shared 2-core machine finishes in about an hour: the same 600x600 scenes
-  and noise levels, but short sequences, one seed, shape correctness on a few frames, the 6D ED baseline on
-  one frame with a coarse (80 mm) node graph.
+  and noise levels, but short sequences, one seed, shape correctness on a few frames, the 6D
+  ED baseline on one frame with a coarse (80 mm) node graph.
 * ``quick`` — CI size (150x150 scenes, 12 frames, one seed, DIS flow, short sweeps): checks
   that every experiment runs end to end, never for reported numbers.
 """
@@ -116,7 +116,7 @@ PROFILES: dict[str, Profile] = {
         # 3-frame window (4 warps instead of 16) keep CI fast
         extra={
             "ed_params": {"node_spacing": 80.0, "stride": 8, "size": 1},
-            # real data at a quarter of the pixels (Ad-BF alone took ~2 min on the full person)
+            # real data at a quarter of the pixels (Ad-BF took ~2 min wall on 6 full person frames)
             "real_crop": (240, 320),
         },
     ),
