@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -112,6 +113,28 @@ def test_e1_quick_subset_writes_every_output(tmp_path):
     assert again["seconds_this_call"] < 1.0  # nothing recomputed
 
 
+def test_real_crop_keeps_the_geometry():
+    """The quick profile's crop of a real recording: same 3D points, mask cut to match."""
+    from fuse4d.camera import depth_to_points
+    from fuse4d.experiments.paper.real import _crop
+    from fuse4d.synthetic import make_falling_ball
+
+    seq = make_falling_ball(small=True, num_frames=3, rng=0)
+    out = _crop(seq, 60, 80)
+    assert out.depth.shape == out.intensity.shape == out.ground_truth.mask.shape == (3, 60, 80)
+    assert (out.intrinsics.width, out.intrinsics.height) == (80, 60)
+    full = depth_to_points(seq.depth, seq.intrinsics)
+    ys, xs = np.nonzero(seq.ground_truth.mask.any(axis=0))
+    v0 = (ys.min() + ys.max()) // 2 - 30
+    u0 = (xs.min() + xs.max()) // 2 - 40
+    np.testing.assert_allclose(
+        depth_to_points(out.depth, out.intrinsics),
+        full[:, v0 : v0 + 60, u0 : u0 + 80],
+        rtol=1e-6,
+    )
+    assert out.ground_truth.mask.sum() == seq.ground_truth.mask[:, v0 : v0 + 60, u0 : u0 + 80].sum()
+
+
 def test_cli_lists_experiments_and_rejects_bad_name(tmp_path, capsys):
     assert main(["experiments", "E9", "--out", str(tmp_path)]) == 2
     assert "unknown experiment" in capsys.readouterr().err
@@ -126,16 +149,62 @@ def test_reproduction_md_verdicts_match_committed_csvs():
     assert all(v.verdict in ("PASS", "FAIL", "N/A") for v in verdicts)
 
 
+#: The plots every experiment must write (the paper's figures, EVALUATION.md §4).
+PLOTS = {
+    "E1": ("E1_roughness_vs_depth_noise.png",),
+    "E2": ("E2_roughness_vs_intensity_noise.png",),
+    "E3": ("E3_tradeoff.png", "E3_side_view.png"),
+    "E4": ("E4_roughness_vs_frames.png",),
+    "E5": ("E5_table1.png",),
+    "E6": ("E6_ablations.png",),
+    "real": ("real_person_frame.png", "real_person_xt.png"),
+}
+
+
 @pytest.mark.slow
-@pytest.mark.nightly
 def test_quick_all_runs_every_experiment(tmp_path):
-    """``fuse4d experiments all --quick``: every experiment end to end at CI size."""
+    """``fuse4d experiments all --quick``: every experiment end to end at CI size, every output
+    well-formed (tidy CSV, Markdown summary with its figures, readable PNGs, parameter JSON)."""
+    import json
+
+    from PIL import Image
+
+    from fuse4d.experiments.paper.real import RECORDINGS, data_dir
+
     assert main(["experiments", "all", "--out", str(tmp_path), "--quick"]) == 0
+    have_data = all((data_dir() / r).is_dir() for r in RECORDINGS.values())
     for name in EXPERIMENTS:
-        assert (tmp_path / name / f"{name}.csv").is_file(), name
-        assert (tmp_path / name / f"{name}.json").is_file(), name
-        assert list((tmp_path / name).glob("*.png")), name
+        d = tmp_path / name
+        meta = json.loads((d / f"{name}.json").read_text())
+        assert meta["experiment"] == name
+        assert meta["profile"]["name"] == "quick"
+        assert meta["fuse4d_version"]
+        assert "parameters" in meta
+        md = (d / f"{name}.md").read_text()
+        assert md.startswith("# "), name
+        if name == "real" and not have_data:
+            assert "skipped" in md
+            continue
+        rows = read_rows(d / f"{name}.csv")
+        assert len(rows) == meta["rows"] > 0, name
+        assert all(r["experiment"] == name and isinstance(r["method"], str) for r in rows)
+        assert np.isfinite([r["roughness"] for r in rows]).mean() > 0.9, name
+        assert "|---" in md, name  # a Markdown table
+        for png in PLOTS[name]:
+            with Image.open(d / png) as im:
+                im.verify()
+                assert im.format == "PNG", (name, png)
+                assert min(im.size) >= 200, (name, png)
+        for link in re.findall(r"!\[[^]]*\]\(([^)]+)\)", md):
+            assert (d / link).is_file(), (name, link)
+    e5 = read_rows(tmp_path / "E5" / "E5.csv")
+    assert {(r["scene"], r["method"]) for r in e5} >= {
+        ("plane", "kinectfusion"),
+        ("ball", "ed"),
+        ("sheet", "ed"),
+    }
+    assert np.isfinite([r["roughness"] for r in e5]).all()
+    assert np.isfinite([r["c_3d"] for r in read_rows(tmp_path / "E3" / "E3.csv")]).any()
     verdicts = compute_verdicts(tmp_path)
     assert [v.claim for v in verdicts] == [f"C{i}" for i in range(1, 13)]
     assert all(v.verdict in ("PASS", "FAIL") for v in verdicts), verdict_table(verdicts)
-    assert np.isfinite([r["roughness"] for r in read_rows(tmp_path / "E5" / "E5.csv")]).all()

@@ -22,7 +22,7 @@ from ...camera import depth_to_points
 from ...config import FusionParams
 from ...flow import FlowCache, SequenceFlow, estimate_sequence_flow, flow_params_from_mapping
 from ...fusion import FusionResult, fuse_sequence
-from ...sequence import GroundTruth, Sequence
+from ...sequence import Sequence
 from ._config import Profile
 
 __all__ = [
@@ -171,16 +171,7 @@ def subset(seq: Sequence, frames: list[int] | NDArray[np.integer]) -> Sequence:
     idx = np.asarray(frames, dtype=np.int64)
     gt = seq.ground_truth
     if gt is not None:
-        n = seq.num_frames
-        gt = GroundTruth(
-            depth=None if gt.depth is None else gt.depth[idx],
-            mask=None if gt.mask is None else gt.mask[idx],
-            flow=None,
-            extra={
-                k: (v[idx] if isinstance(v, np.ndarray) and v.shape[:1] == (n,) else v)
-                for k, v in gt.extra.items()
-            },
-        )
+        gt = gt.select(idx, seq.num_frames)  # typed scene geometry sliced too; flow dropped
     return replace(
         seq,
         depth=seq.depth[idx],

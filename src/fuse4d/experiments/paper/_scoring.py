@@ -75,7 +75,7 @@ def score_frames(
     if shape_frames:
         want = [i for i, f in enumerate(idx) if f in set(shape_frames)]
         if want:
-            sc = shape_correctness(points[want], subset(sub, want), rng=0)
+            sc = shape_correctness(subset(sub, want), points[want], rng=0)
             for j, i in enumerate(want):
                 shape[i] = (float(sc.c_3d[j]), float(sc.c_profile[j]), float(sc.c_minimal[j]))
     rows = []

@@ -64,8 +64,8 @@ def unit(
     if method in PROFILE_METHODS:
         gt = seq.ground_truth
         t = shape_frames[len(shape_frames) // 2]
-        row = round(float(gt.extra["center_row"][t]))
-        c0, c1 = (int(v) for v in gt.extra["fit_columns"])
+        row = round(float(gt.scene.center_row[t]))
+        c0, c1 = (int(v) for v in gt.scene.fit_columns)
         path = _profile_path(cache_dir, key)
         path.parent.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(

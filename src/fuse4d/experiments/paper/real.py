@@ -18,6 +18,8 @@ person stacked over time).
 from __future__ import annotations
 
 import math
+from dataclasses import replace
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +30,7 @@ from numpy.typing import NDArray
 
 from ...io import load_sequence
 from ...metrics import default_roi, roughness_stats, temporal_flicker
+from ...sequence import Sequence
 from ._common import Context
 from ._config import Profile
 from ._plots import figure, label
@@ -67,10 +70,47 @@ def methods() -> tuple[str, ...]:
 
 
 def load(profile: Profile, rec: str) -> Any:
-    """The recording (first ``real_frames`` frames)."""
-    path = data_dir() / RECORDINGS[rec]
-    seq = load_sequence(path)
-    return seq.frames(0, min(seq.num_frames, profile.real_frames))
+    """The recording: its first ``real_frames`` frames, cropped to ``extra["real_crop"]``.
+
+    Only those frames are read, and once per process (every method of a recording shares
+    them). ``real_crop = (rows, cols)`` (the quick profile's) keeps a window of that size centred
+    on the person's bounding box over the frames (the image centre for the room), so the
+    silhouette, its band and some background stay inside; the intrinsics are shifted to match.
+    """
+    crop = profile.extra.get("real_crop")
+    return _load(str(data_dir() / RECORDINGS[rec]), profile.real_frames, crop and tuple(crop))
+
+
+@lru_cache(maxsize=2)
+def _load(path: str, num_frames: int, crop: tuple[int, int] | None) -> Sequence:
+    seq = load_sequence(path, frames=(0, num_frames))  # clipped to the recording's length
+    return seq if crop is None else _crop(seq, *crop)
+
+
+def _crop(seq: Sequence, rows: int, cols: int) -> Sequence:
+    """``seq`` cut to a ``rows x cols`` window (centred on the GT mask's box when there is one)."""
+    _, h, w = seq.depth.shape
+    rows, cols = min(rows, h), min(cols, w)
+    gt = seq.ground_truth
+    cy, cx = h // 2, w // 2
+    if gt is not None and gt.mask is not None and np.asarray(gt.mask).any():
+        ys, xs = np.nonzero(np.asarray(gt.mask, bool).any(axis=0))
+        cy, cx = (int(ys.min()) + int(ys.max())) // 2, (int(xs.min()) + int(xs.max())) // 2
+    v0 = min(max(0, cy - rows // 2), h - rows)
+    u0 = min(max(0, cx - cols // 2), w - cols)
+    win = (slice(None), slice(v0, v0 + rows), slice(u0, u0 + cols))
+    k = seq.intrinsics
+    k = replace(k, cx=k.cx - u0, cy=k.cy - v0, width=cols, height=rows)
+    if gt is not None:
+        gt = replace(
+            gt,
+            depth=None if gt.depth is None else gt.depth[win],
+            mask=None if gt.mask is None else np.asarray(gt.mask)[win],
+            flow=None if gt.flow is None else gt.flow[win],
+        )
+    return replace(
+        seq, depth=seq.depth[win], intensity=seq.intensity[win], intrinsics=k, ground_truth=gt
+    )
 
 
 def _masks(seq: Any) -> tuple[NDArray[np.bool_], NDArray[np.bool_], NDArray[np.bool_]]:
@@ -98,7 +138,7 @@ def unit(profile: Profile, cache_dir: Path, rec: str, method: str, out_dir: Path
     if rec == "person":
         inner, band, background = _masks(seq)
         roi = inner & default_roi(z)
-        flick = temporal_flicker(z, static_mask=background)
+        flick = temporal_flicker(z, static=background)
     else:
         roi = default_roi(raw_z) & default_roi(z)
         flick = temporal_flicker(z)
@@ -158,6 +198,7 @@ def parameters(ctx: Context) -> dict[str, Any]:
     return {
         "data": {k: str(data_dir() / v) for k, v in RECORDINGS.items()},
         "frames": ctx.profile.real_frames,
+        "crop": ctx.profile.extra.get("real_crop", "none (full frames)"),
         "methods": list(methods()),
         "person_roi": f"GT mask eroded by {ERODE_PX} px ∩ default_roi (no depth edge in 5x5)",
         "trail_band": f"{BAND_PX} px outside the mask; trail = output > {TRAIL_MM} mm nearer "
