@@ -87,6 +87,35 @@ def _masks(seq: Any) -> tuple[NDArray[np.bool_], NDArray[np.bool_], NDArray[np.b
     return inner, band, ~ever
 
 
+def person_scores(seq: Any, z: NDArray[np.floating]) -> dict[str, Any]:
+    """The person measures of one output depth video ``z`` (T, H, W) mm of the person clip.
+
+    Returns ``roughness`` (per frame: mean Eq. 7 on the eroded person mask, on the pixels
+    where raw *and* output have a full edge-free window, i.e. the same pixels for every method;
+    mm), ``flicker`` (:func:`temporal_flicker` on the static background), and ``trail`` (per
+    frame: fraction of the 8-px silhouette band where the output is more than 100 mm nearer
+    than raw). The one home of these measures (``benchmarks/real_person.py`` uses it too).
+    """
+    raw_z = seq.depth
+    inner, band, background = _masks(seq)
+    k = seq.intrinsics
+    from ...camera import depth_to_points
+
+    roi = inner & default_roi(raw_z) & default_roi(z)
+    stats = roughness_stats(depth_to_points(np.asarray(z, np.float32), k), roi=roi)
+    trail = []
+    for t in range(seq.num_frames):
+        b = band[t] & np.isfinite(z[t]) & np.isfinite(raw_z[t])
+        tr = (raw_z[t][b] - z[t][b]) > TRAIL_MM
+        trail.append(float(tr.mean()) if b.any() else math.nan)
+    return {
+        "roughness": stats.frame_means,
+        "n_roi": stats.num_pixels,
+        "flicker": temporal_flicker(z, static_mask=background),
+        "trail": np.asarray(trail),
+    }
+
+
 def unit(profile: Profile, cache_dir: Path, rec: str, method: str, out_dir: Path) -> list[dict]:
     """Rows of one (recording, method); per frame roughness, and the sequence flicker."""
     seq = load(profile, rec)
