@@ -43,7 +43,7 @@ def _variants(extra: list[str]) -> dict[str, FusionParams]:
     for b in BASES:
         out[f"n=9 {b}"] = FusionParams(base=b)
         if b != "frame":
-            out[f"n=9 {b}, A29 off"] = FusionParams(base=b, base_smoothing=0.0)
+            out[f"n=9 {b} A29-off"] = FusionParams(base=b, base_smoothing=0.0)
     for spec in extra:
         name, _, fields = spec.partition("=")
         kw: dict[str, Any] = {}

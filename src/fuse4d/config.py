@@ -178,7 +178,7 @@ class FusionParams:
     min_gate_mm: float = param(0.05, gt=0)
     base: Literal["trajectory", "frame", "quadratic"] = "trajectory"
     base_smoothing: float = param(2.0, ge=0)
-    base_fine_limit: float = param(0.1, ge=0)
+    base_fine_limit: float = param(0.075, ge=0)
     motion_depth: MotionDepth = "smoothed"
     quantize: Quantize = "final"
     min_temporal_support: int = param(1, ge=0)
