@@ -174,6 +174,7 @@ def test_track_and_fuse_kernels_match_oracles(rng, quad, per_step, sigma0, min_g
     out = np.empty((14, 16, 3), np.float32)
     support = np.empty((14, 16), np.uint8)
     hole = np.empty((14, 16), bool)
+    base = np.empty((14, 16, 3), np.float32)
     gate_factor = 1.0 if quad == 0 else 3.0
     sigma0 = 0.8 if quad == 0 else sigma0  # quad = 0: a plain 0.8 mm gate
     gate = naive.noise_gate(gate_factor, sigma0, quad, min_gate)
@@ -197,6 +198,7 @@ def test_track_and_fuse_kernels_match_oracles(rng, quad, per_step, sigma0, min_g
             out,
             support,
             hole,
+            base,
         )
         expected, exp_support = naive.fuse(
             bil, ref, oracle, t, first, last, weights, gate, trajectory=trajectory
@@ -205,6 +207,13 @@ def test_track_and_fuse_kernels_match_oracles(rng, quad, per_step, sigma0, min_g
         fused = support >= 1
         np.testing.assert_allclose(out[fused], expected[fused], atol=1e-4)
         np.testing.assert_array_equal(out[hole], bil[t][hole])  # holes keep B^t (fallback)
+        # base_out (A29) is the trajectory fit's offset: output minus it = the frame-base output
+        valid = np.isfinite(ref[t, ..., 2])
+        assert np.isnan(base[~valid]).all()
+        if trajectory == 0:
+            frame_out = out.copy()
+            np.testing.assert_array_equal(base[valid], 0.0)
+        np.testing.assert_allclose((out - base)[fused], frame_out[fused], atol=1e-4)
         # the gate rejected some tracked samples, and not all
         assert 0 < support.sum() < ok[:, np.isfinite(ref[t, ..., 2])].sum()
 
@@ -421,6 +430,8 @@ SWITCHES = {
     "motion-raw": {"motion_depth": "raw"},
     "base-frame": {"base": "frame"},
     "base-quadratic": {"base": "quadratic"},
+    "base-smoothing-off": {"base_smoothing": 0.0},  # A29
+    "base-fine-limit-0": {"base_fine_limit": 0.0},  # A29: the plain spatial mean
     "temporal-gate-off": {"temporal_gate": math.inf},
     "literal": {**LITERAL, "quantize": "per_step", "fill_fallback": "nan"},
 }
@@ -836,3 +847,46 @@ def test_distance_kernel_widens_with_quantised_far_depth(rng):
     assert rough[1.5] < 0.8 * rough[0.0]
     with pytest.raises(ValueError, match="distance_noise_scale"):
         FusionParams(distance_noise_scale=-1.0)
+
+
+# ------------------------------------------------------------------ A29: base offset smoothing
+def test_smooth_base_removes_offset_steps_and_keeps_small_fine_detail():
+    """A29: a 1 mm step in the trajectory base offset (chord bias that changes with the
+    support) is reduced to +-limit q z^2; a fine-scale offset within the bound is kept."""
+    from fuse4d.fusion import _smooth_base
+
+    h, w = 20, 30
+    depth = np.full((h, w), 1000.0, np.float32)
+    quad = 1e-6  # q z^2 = 1 mm at 1 m
+    base = np.zeros((h, w, 3), np.float32)
+    base[:, 15:, 2] = 1.0  # a step of the offset along a support boundary
+    points = np.zeros((h, w, 3), np.float32) + base  # output = 0 + offset
+    hole = np.zeros((h, w), bool)
+    hole[0, 0] = True
+    _smooth_base(
+        points, base, depth, hole, sigma=2.0, max_step=10.0, quad=quad, limit_quad=0.1 * quad
+    )
+    jump = np.abs(np.diff(points[5, :, 2]))
+    assert jump.max() < 0.45  # the 1 mm step became a ramp (+- the fine part, clipped to 0.1)
+    assert np.all(np.abs(points[..., 2] - base[..., 2]) <= 0.5 + 1e-6)
+    assert points[0, 0, 2] == base[0, 0, 2]  # holes untouched
+    # small fine-scale offsets (|.| << 0.1 q z^2) are kept exactly
+    fine = (0.01 * (-1.0) ** np.arange(w))[None, :].repeat(h, 0).astype(np.float32)
+    base2 = np.zeros((h, w, 3), np.float32)
+    base2[..., 2] = fine
+    pts2 = base2.copy()
+    _smooth_base(
+        pts2, base2, depth, hole, sigma=2.0, max_step=10.0, quad=quad, limit_quad=0.1 * quad
+    )
+    np.testing.assert_allclose(pts2, base2, atol=1e-6)
+
+
+def test_base_smoothing_off_is_the_a21_line():
+    """base_smoothing=0 and base_fine_limit=inf both leave the per-pixel line base (A21)."""
+    depth, inten, fwd, bwd, k = _switch_scene(np.random.default_rng(3))
+    flows = SequenceFlow(fwd, bwd)
+    off = fuse_sequence(depth, inten, k, fusion=SWITCH_BASE.replace(base_smoothing=0.0), flow=flows)
+    inf = fuse_sequence(
+        depth, inten, k, fusion=SWITCH_BASE.replace(base_fine_limit=math.inf), flow=flows
+    )
+    np.testing.assert_array_equal(off.points, inf.points)

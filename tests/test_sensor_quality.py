@@ -93,6 +93,42 @@ def test_summary_verdict_agrees_with_person_roughness_on_real_kinect(shared_data
     assert smoother == fixed_roi_smoother, (res, rough_raw[scored].mean(), rough_out[scored].mean())
 
 
+def test_nine_frames_smoother_than_one_on_the_real_person(shared_data):
+    """Issue 10: on uva_cv2_person_turning, fusing 9 frames is smoother on the person than
+    fusing 1 (Eq. 7 on the same pixels: person mask, raw-valid, Eq. 7 finite in raw and both
+    outputs; frames with the full 9-frame window). Before A29 the line base was rougher."""
+    from fuse4d import load_sequence
+    from fuse4d.flow import estimate_sequence_flow
+
+    path = shared_data / "uva_cv2_person_turning"
+    if not path.is_dir():
+        pytest.skip(f"{path} not found")
+    seq = load_sequence(path, frames="10:22")
+    person = seq.ground_truth.mask
+    rows, cols = np.nonzero(person.any(axis=0))
+    r0, r1 = max(rows.min() - 16, 0), min(rows.max() + 17, seq.shape[0])
+    c0, c1 = max(cols.min() - 16, 0), min(cols.max() + 17, seq.shape[1])
+    k0 = seq.intrinsics
+    k = Intrinsics(k0.fx, k0.fy, k0.cx - c0, k0.cy - r0, int(c1 - c0), int(r1 - r0))
+    crop = np.s_[:, r0:r1, c0:c1]
+    raw = np.ascontiguousarray(seq.depth[crop])
+    inten = np.ascontiguousarray(seq.intensity[crop])
+    flow = estimate_sequence_flow(inten, method="dis")
+    one = fuse_sequence(raw, inten, k, fusion=FusionParams(num_frames=1)).depth
+    nine = fuse_sequence(raw, inten, k, flow=flow).depth
+    mask = person[crop]
+    frames = slice(4, 8)
+    r_raw = roughness(depth_to_points(raw[frames], k))
+    r_one = roughness(depth_to_points(np.where(np.isfinite(raw), one, np.nan)[frames], k))
+    r_nine = roughness(depth_to_points(np.where(np.isfinite(raw), nine, np.nan)[frames], k))
+    scored = mask[frames] & np.isfinite(r_raw) & np.isfinite(r_one) & np.isfinite(r_nine)
+    assert scored.sum() > 10_000
+    assert r_nine[scored].mean() < 0.97 * r_one[scored].mean(), (
+        r_nine[scored].mean(),
+        r_one[scored].mean(),
+    )
+
+
 # ------------------------------------------------------------------------------ hole fill
 def test_holes_filled_from_time_mostly_land_on_the_true_surface(kinect_ball):
     """A26 fill on a moving-ball scene: the typical time-filled pixel is within a step."""

@@ -103,7 +103,25 @@ class FusionParams:
         raw-valid pixels / mean frame-to-frame |change| on static background): trajectory
         6.56 / 1.38 mm, quadratic 4.96 / 1.52 mm, frame 4.16 / 3.36 mm, one frame 4.58 /
         4.35 mm; falling ball 600x600 (14 frames, RMSE in the ball ROI): trajectory 0.0157 mm,
-        quadratic 0.0176 mm. The default stays "trajectory".
+        quadratic 0.0176 mm. The default stays "trajectory". (These figures are without A29,
+        ``base_smoothing=0``; with the A29 defaults the person's roughness is 4.50 mm with the
+        line, 4.26 with the parabola, at 1.45 / 1.64 mm flicker.)
+    base_smoothing : float
+        Our A29: sigma (px) of an edge-limited spatial smoothing (the A3 operator, on frame
+        t's depth-continuous segments) of the base offset that the trajectory fit adds to
+        P~^t, before the averaged detail is added. The per-pixel offset holds the line's
+        chord bias on turning surfaces, which depends on how many frames each pixel was
+        tracked through, so it steps by mm where that number changes; smoothing removes the
+        steps. 0 = off (each pixel's own fit, A21/A28). No effect with ``base="frame"``.
+        Default 2 px, measured (with ``base_fine_limit`` 0.075; ``benchmarks/real_person.py``):
+        uva person (30 frames) Eq. 7 6.56 -> 4.50 mm (one frame 4.58), background flicker
+        1.44 -> 1.45 mm; Kinect body 34.3 -> 20.1 mm (one frame 21.1); ball RMSE +0.8 %.
+    base_fine_limit : float
+        Of the base offset's fine-scale part (offset minus its A29 spatial mean), only what
+        lies within ``base_fine_limit`` times the frame's quantisation noise q z^2 (A22) is
+        kept: the small part that cancels frame t's own reference noise stays (hundredths of
+        a mm on the 0.2 mm ball), mm steps from the chord bias go. ``inf`` keeps it all (no
+        effect), 0 = the plain spatial mean.
     motion_depth : {"smoothed", "raw"}
         Depth used for the 3D motion vectors m (Eq. 3). "smoothed" (default, A3) or "raw"
         (the literal paper, kept as an ablation).
@@ -164,6 +182,8 @@ class FusionParams:
     temporal_gate: float = param(3.0, gt=0)
     min_gate_mm: float = param(0.05, gt=0)
     base: Literal["trajectory", "frame", "quadratic"] = "trajectory"
+    base_smoothing: float = param(2.0, ge=0)
+    base_fine_limit: float = param(0.075, ge=0)
     motion_depth: MotionDepth = "smoothed"
     quantize: Quantize = "final"
     min_temporal_support: int = param(1, ge=0)

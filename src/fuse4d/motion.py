@@ -91,9 +91,29 @@ def motion_reference_depth(
     check_shape(d, ("H", "W"), name="depth")
     if not sigma > 0:
         raise ValueError(f"sigma must be > 0 px, got {sigma}")
+    return _segment_smooth(d, d, sigma=sigma, max_step=max_step, noise_quad=noise_quad)
+
+
+def _segment_smooth(
+    values: NDArray[np.float32],
+    depth: NDArray[np.float32],
+    *,
+    sigma: float,
+    max_step: float,
+    noise_quad: float = 0.0,
+) -> NDArray[np.float32]:
+    """The edge-limited smoothing of :func:`motion_reference_depth` applied to any value map.
+
+    ``values`` (H, W) are averaged over the depth-continuous segments of ``depth`` (H, W) mm
+    (NaN = excluded): two local-linear box passes along rows and two along columns, radius r
+    with (2r+1)^2 = 6 sigma^2 + 1 (sigma in px). Returns (H, W) float32, NaN where ``depth``
+    is NaN. ``_segment_smooth(d, d, ...)`` is the motion-reference depth D~; the base offsets
+    of A29 are smoothed with it too.
+    """
+    d = np.ascontiguousarray(depth, dtype=np.float32)
     radius = max(1, round((np.sqrt(6.0 * sigma**2 + 1.0) - 1.0) / 2.0))
     step = float(max_step)
-    a = d.copy()
+    a = np.ascontiguousarray(values, dtype=np.float32).copy()
     b = np.empty_like(d)
     for _ in range(2):
         _segment_box_rows_kernel(a, d, radius, step, float(noise_quad), b)

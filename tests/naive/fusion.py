@@ -173,10 +173,13 @@ def pair_motion(fwd, bwd, ref_t, ref_t1, depth_t, depth_t1, theta, max_step, qua
     return fb, motion
 
 
-def fuse(bilateral, reference, tracks, t, first, last, weights, gate, *, trajectory=False):
+def fuse(
+    bilateral, reference, tracks, t, first, last, weights, gate, *, trajectory=False, base_out=None
+):
     """Outer sum of Eq. 5 along given tracks, with the temporal range gate (A19) and,
     optionally, the trajectory base (A21: least-squares line through the motion vectors;
-    ``trajectory=2``: a parabola, A28).
+    ``trajectory=2``: a parabola, A28). ``base_out`` (H, W, 3), if given, receives each
+    pixel's base offset (A29; NaN where the reference is NaN).
 
     ``gate``: mm, or a function of frame t's reference depth z (mm) giving the gate in mm.
     """
@@ -225,7 +228,24 @@ def fuse(bilateral, reference, tracks, t, first, last, weights, gate, *, traject
             out[v, u] = (
                 reference[t, v, u] + base + np.average(np.array(details), axis=0, weights=wts_a)
             )
+            if base_out is not None:
+                base_out[v, u] = base
     return out, support
+
+
+def smooth_base(out, base, depth, hole, sigma, max_step, quad, limit):
+    """A29: keep the edge-limited spatial mean S of the base offset and its fine-scale part
+    clipped to +-limit q z^2 (S from fuse4d's oracle-tested segment smoothing). In place."""
+    from fuse4d.motion import _segment_smooth
+
+    d = np.where(hole, np.nan, depth).astype(np.float32)
+    bound = limit * quad * np.nan_to_num(depth).astype(np.float64) ** 2
+    for c in range(3):
+        own = np.nan_to_num(base[..., c]).astype(np.float32)
+        sm = _segment_smooth(own, d, sigma=sigma, max_step=max_step, noise_quad=quad)
+        for v, u in zip(*np.nonzero(np.isfinite(sm)), strict=True):
+            fine = min(max(own[v, u] - sm[v, u], -bound[v, u]), bound[v, u])
+            out[v, u, c] += sm[v, u] + fine - own[v, u]
 
 
 def noise_gate(gate_factor, sigma0, quad, min_gate):
@@ -387,6 +407,7 @@ def engine_frame(depth, intensity, fwd, bwd, intrinsics, params, t):
     bil_all = np.stack([f[3] for f in frames])
     ref_all = np.stack([f[2] for f in frames])
     gate = noise_gate(p.temporal_gate, sigma0, quad, p.min_gate_mm)
+    base = np.full(bil_all.shape[1:], np.nan)
     out, support = fuse(
         bil_all,
         ref_all,
@@ -397,8 +418,20 @@ def engine_frame(depth, intensity, fwd, bwd, intrinsics, params, t):
         weights,
         gate,
         trajectory={"frame": 0, "trajectory": 1, "quadratic": 2}[p.base],
+        base_out=base,
     )
     hole = np.isfinite(ref_all[t, ..., 2]) & (support < p.min_temporal_support)
+    if p.base_smoothing > 0 and p.base != "frame" and not math.isinf(p.base_fine_limit):
+        smooth_base(
+            out,
+            base,
+            d_all[t],
+            hole,
+            p.base_smoothing,
+            p.max_depth_step,
+            quad,
+            p.base_fine_limit,
+        )
     out[hole] = bil_t[hole]
     if p.fill_holes and hole.any():
         frame_gate = max(p.temporal_gate * max(sigma0, quad * z_med**2), p.min_gate_mm)

@@ -337,6 +337,7 @@ def _fuse_kernel(
     out_points,
     support,
     hole,
+    base_out,
 ):
     """Outer sum of Eq. 5 along the tracks (METHOD §5.2, motion vectors per §4.2/§4.3).
 
@@ -357,6 +358,10 @@ def _fuse_kernel(
     (A28): the same with a weighted least-squares parabola (curved trajectories of turning or
     accelerating surfaces; falls back to the line when fewer than 3 distinct times
     determine it). 0 (or False): the frame base.
+
+    base_out (H,W,3) receives the base offset (mm) added to P~^t[x_i]: the trajectory fit's
+    value at t minus P~^t[x_i] (0 with the frame base and at holes, NaN where P~^t is NaN),
+    for the spatial smoothing of the base (A29, ``fuse4d.fusion``).
     """
     h = bil_ring.shape[1]
     w = bil_ring.shape[2]
@@ -418,6 +423,7 @@ def _fuse_kernel(
                 if np.isnan(ref_ring[st, v, u, 2]):
                     for c in range(3):
                         out_points[v, u, c] = np.nan
+                        base_out[v, u, c] = np.nan
                     support[v, u] = 0
                     hole[v, u] = False
                     continue
@@ -427,6 +433,7 @@ def _fuse_kernel(
                     hole[v, u] = True
                     for c in range(3):
                         out_points[v, u, c] = bil_ring[st, v, u, c]
+                        base_out[v, u, c] = 0.0
                     continue
                 hole[v, u] = False
                 wsum = acc[6, u]
@@ -455,6 +462,7 @@ def _fuse_kernel(
                     elif trajectory:
                         base = y0 / wsum
                     out_points[v, u, c] = ref_ring[st, v, u, c] + base + acc[3 + c, u] / wsum
+                    base_out[v, u, c] = base
 
 
 # --------------------------------------------------------------------------- hole filling (Eq. 6)

@@ -127,6 +127,42 @@ def _masks(seq: Any) -> tuple[NDArray[np.bool_], NDArray[np.bool_], NDArray[np.b
     return inner, band, ~ever
 
 
+def person_scores(
+    seq: Any, z: NDArray[np.floating], points: NDArray[np.floating] | None = None
+) -> dict[str, Any]:
+    """The person measures of one output depth video ``z`` (T, H, W) mm of the person clip.
+
+    Returns ``stats`` (:class:`~fuse4d.metrics.RoughnessStats` of Eq. 7 on the eroded person
+    mask where raw has a full edge-free window: one ROI for every method, a method's pixels
+    without a defined Eq. 7 drop out; of ``points`` (T, H, W, 3) mm when given, else of ``z``
+    on the pixel rays), ``roughness`` (its per-frame means, mm), ``flicker``
+    (:func:`temporal_flicker` on the static background), and ``trail`` (per frame: fraction
+    of the 8-px silhouette band where the output is more than 100 mm nearer than raw). The
+    one home of these measures (``benchmarks/real_person.py`` uses it too).
+    """
+    raw_z = seq.depth
+    inner, band, background = _masks(seq)
+    k = seq.intrinsics
+    from ...camera import depth_to_points
+
+    roi = inner & default_roi(raw_z)
+    if points is None:
+        points = depth_to_points(np.asarray(z, np.float32), k)
+    stats = roughness_stats(points, roi=roi)
+    trail = []
+    for t in range(seq.num_frames):
+        b = band[t] & np.isfinite(z[t]) & np.isfinite(raw_z[t])
+        tr = (raw_z[t][b] - z[t][b]) > TRAIL_MM
+        trail.append(float(tr.mean()) if b.any() else math.nan)
+    return {
+        "stats": stats,
+        "roughness": stats.frame_means,
+        "n_roi": stats.num_pixels,
+        "flicker": temporal_flicker(z, static=background),
+        "trail": np.asarray(trail),
+    }
+
+
 def unit(profile: Profile, cache_dir: Path, rec: str, method: str, out_dir: Path) -> list[dict]:
     """Rows of one (recording, method); per frame roughness, and the sequence flicker."""
     seq = load(profile, rec)
@@ -135,15 +171,12 @@ def unit(profile: Profile, cache_dir: Path, rec: str, method: str, out_dir: Path
     pts = out.points
     z = pts[..., 2]
     raw_z = seq.depth
-    if rec == "person":
-        inner, band, background = _masks(seq)
-        roi = inner & default_roi(z)
-        flick = temporal_flicker(z, static=background)
+    person = person_scores(seq, z, pts) if rec == "person" else None
+    if person is not None:
+        stats, flick = person["stats"], person["flicker"]
     else:
-        roi = default_roi(raw_z) & default_roi(z)
+        stats = roughness_stats(pts, roi=default_roi(raw_z) & default_roi(z))
         flick = temporal_flicker(z)
-        band = None
-    stats = roughness_stats(pts, roi=roi)
     rows = []
     for t in range(seq.num_frames):
         row: dict[str, Any] = {
@@ -160,10 +193,8 @@ def unit(profile: Profile, cache_dir: Path, rec: str, method: str, out_dir: Path
             "valid_fraction": float(np.isfinite(z[t]).mean()),
             "seconds_per_frame": out.seconds / seq.num_frames,
         }
-        if band is not None:
-            b = band[t] & np.isfinite(z[t]) & np.isfinite(raw_z[t])
-            trail = (raw_z[t][b] - z[t][b]) > TRAIL_MM
-            row["trail_fraction"] = float(trail.mean()) if b.any() else math.nan
+        if person is not None:
+            row["trail_fraction"] = float(person["trail"][t])
         rows.append(row)
     if rec == "person" and method in PICTURE_METHODS:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -200,7 +231,8 @@ def parameters(ctx: Context) -> dict[str, Any]:
         "frames": ctx.profile.real_frames,
         "crop": ctx.profile.extra.get("real_crop", "none (full frames)"),
         "methods": list(methods()),
-        "person_roi": f"GT mask eroded by {ERODE_PX} px ∩ default_roi (no depth edge in 5x5)",
+        "person_roi": f"GT mask eroded by {ERODE_PX} px ∩ default_roi of raw "
+        "(no depth edge in 5x5; one ROI for every method)",
         "trail_band": f"{BAND_PX} px outside the mask; trail = output > {TRAIL_MM} mm nearer "
         "than raw",
         "room_roi": "default_roi of raw and output (planar patches without depth edges)",
