@@ -628,6 +628,64 @@ def _best_label_kernel(lab, dis, roi, out):
 # post-step: edge-aware fill of forward-backward inconsistent pixels
 
 
+@njit(inline="always")
+def _weighted_median(vals, wts, m, target):
+    """Value of the first element, in ascending value order, at which the cumulative weight of
+    ``vals[:m]`` reaches ``target`` (the weighted median for ``target`` = half the total).
+
+    Weighted quickselect (three-way partition around a median-of-three pivot), expected O(m)
+    instead of a sort; ``vals`` and ``wts`` are permuted in place. Requires 0 < target <=
+    Σ wts[:m].
+    """
+    lo = 0
+    hi = m - 1
+    cum = 0.0  # weight of the elements already known to lie below [lo, hi]
+    while lo < hi:
+        a = vals[lo]
+        b = vals[(lo + hi) >> 1]
+        c = vals[hi]
+        if a > b:
+            a, b = b, a
+        if b > c:
+            b = c
+        pivot = max(a, b)  # median of the three
+        # Dutch-flag partition: [lo, lt) < pivot, [lt, i) == pivot, (gt, hi] > pivot
+        lt = lo
+        i = lo
+        gt = hi
+        w_lt = 0.0
+        w_eq = 0.0
+        while i <= gt:
+            v = vals[i]
+            if v < pivot:
+                wv = wts[i]
+                vals[i] = vals[lt]
+                wts[i] = wts[lt]
+                vals[lt] = v
+                wts[lt] = wv
+                w_lt += wv
+                lt += 1
+                i += 1
+            elif v > pivot:
+                wv = wts[i]
+                vals[i] = vals[gt]
+                wts[i] = wts[gt]
+                vals[gt] = v
+                wts[gt] = wv
+                gt -= 1
+            else:
+                w_eq += wts[i]
+                i += 1
+        if cum + w_lt >= target:
+            hi = lt - 1
+        elif cum + w_lt + w_eq >= target:
+            return pivot
+        else:
+            cum += w_lt + w_eq
+            lo = gt + 1
+    return vals[lo]
+
+
 @njit_parallel
 def _fill_inconsistent_kernel(flow, valid, guide, radius, inv_sigma_i, inv_2sigma_s2, out):
     """Replace every pixel with ``valid[p] == False`` by the weighted median of the consistent
@@ -637,13 +695,40 @@ def _fill_inconsistent_kernel(flow, valid, guide, radius, inv_sigma_i, inv_2sigm
     ``flow`` / ``out`` (H, W, 2) float32 (``out`` pre-filled with ``flow``); ``valid`` (H, W)
     bool; ``guide`` (H, W) float32 intensity. Reads only ``flow`` (never ``out``), so the result
     does not depend on the thread schedule. A pixel with no consistent pixel in its window keeps
-    its value.
+    its value. The median is found by weighted quickselect (:func:`_weighted_median`), and the
+    weights are products of per-pixel and per-offset tables instead of an exp each: on a real 640x480 pair with ~20 % of
+    pixels inconsistent this took the fill from 1.75 to ~0.2 CPU s (issue 13).
     """
     h, w = valid.shape
     side = 2 * radius + 1
+    spatial = np.empty(side * side, dtype=np.float64)
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            spatial[(dy + radius) * side + dx + radius] = math.exp(
+                -(dx * dx + dy * dy) * inv_2sigma_s2
+            )
+    # exp(−|g_p − g_q|·k) = e^{−g_p k}·e^{g_q k} if g_q <= g_p, else e^{g_p k}·e^{−g_q k}: two
+    # tables instead of one exp per neighbour (when the intensity range keeps them finite)
+    g_lo = np.inf
+    g_hi = -np.inf
+    for r in range(h):
+        for c in range(w):
+            g_lo = min(g_lo, guide[r, c])
+            g_hi = max(g_hi, guide[r, c])
+    tables = (g_hi - g_lo) * inv_sigma_i < 300.0
+    e_pos = np.ones((h, w), dtype=np.float64)
+    e_neg = np.ones((h, w), dtype=np.float64)
+    if tables:
+        for r in prange(h):
+            for c in range(w):
+                t = (guide[r, c] - g_lo) * inv_sigma_i
+                e_pos[r, c] = math.exp(t)
+                e_neg[r, c] = math.exp(-t)
     for r in prange(h):
-        vals = np.empty((2, side * side), dtype=np.float32)
-        wts = np.empty(side * side, dtype=np.float64)
+        vals0 = np.empty(side * side, dtype=np.float32)
+        vals1 = np.empty(side * side, dtype=np.float32)
+        wts0 = np.empty(side * side, dtype=np.float64)
+        wts1 = np.empty(side * side, dtype=np.float64)
         for c in range(w):
             if valid[r, c]:
                 continue
@@ -654,25 +739,26 @@ def _fill_inconsistent_kernel(flow, valid, guide, radius, inv_sigma_i, inv_2sigm
                 qr = r + dy
                 if qr < 0 or qr >= h:
                     continue
+                base = (dy + radius) * side + radius
                 for dx in range(-radius, radius + 1):
                     qc = c + dx
                     if qc < 0 or qc >= w or not valid[qr, qc]:
                         continue
-                    wt = math.exp(
-                        -abs(g - guide[qr, qc]) * inv_sigma_i - (dx * dx + dy * dy) * inv_2sigma_s2
-                    )
-                    vals[0, m] = flow[qr, qc, 0]
-                    vals[1, m] = flow[qr, qc, 1]
-                    wts[m] = wt
+                    gq = guide[qr, qc]
+                    if not tables:
+                        wt = math.exp(-abs(g - gq) * inv_sigma_i)
+                    elif gq <= g:
+                        wt = e_neg[r, c] * e_pos[qr, qc]
+                    else:
+                        wt = e_pos[r, c] * e_neg[qr, qc]
+                    wt *= spatial[base + dx]
+                    vals0[m] = flow[qr, qc, 0]
+                    vals1[m] = flow[qr, qc, 1]
+                    wts0[m] = wt
+                    wts1[m] = wt
                     total += wt
                     m += 1
             if m == 0 or total <= 0.0:
                 continue
-            for ch in range(2):
-                order = np.argsort(vals[ch, :m], kind="mergesort")
-                acc = 0.0
-                for i in order:
-                    acc += wts[i]
-                    if acc >= 0.5 * total:
-                        out[r, c, ch] = vals[ch, i]
-                        break
+            out[r, c, 0] = _weighted_median(vals0, wts0, m, 0.5 * total)
+            out[r, c, 1] = _weighted_median(vals1, wts1, m, 0.5 * total)
