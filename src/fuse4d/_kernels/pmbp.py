@@ -519,12 +519,39 @@ def _sweep_lines_kernel(
 # set-up and read-out
 
 
+@njit
+def _exp_tables(guide, inv):
+    """(ok, e_pos, e_neg): e_pos = exp((Ī − min Ī)·inv), e_neg = 1 / e_pos per pixel (float64),
+    so that exp(−|Ī(p) − Ī(q)|·inv) = e_neg[p]·e_pos[q] if Ī(q) <= Ī(p), else e_pos[p]·e_neg[q]
+    -- two exp per pixel instead of one per pair. ``ok`` is False (tables not filled) when the
+    intensity range would overflow them; callers then evaluate exp directly."""
+    h, w = guide.shape
+    g_lo = np.inf
+    g_hi = -np.inf
+    for r in range(h):
+        for c in range(w):
+            g_lo = min(g_lo, guide[r, c])
+            g_hi = max(g_hi, guide[r, c])
+    ok = h * w > 0 and (g_hi - g_lo) * inv < 300.0
+    e_pos = np.ones((h, w), dtype=np.float64)
+    e_neg = np.ones((h, w), dtype=np.float64)
+    if ok:
+        for r in range(h):
+            for c in range(w):
+                t = (guide[r, c] - g_lo) * inv
+                e_pos[r, c] = math.exp(t)
+                e_neg[r, c] = math.exp(-t)
+    return ok, e_pos, e_neg
+
+
 @njit_parallel
 def _asw_kernel(guide, rho, gamma, roi, out):
-    """out[p, j] = exp(−|Ī(p) − Ī(q_j)| / γ) for the (2ρ+1)² patch offsets q_j; 0 off-image."""
+    """out[p, j] = exp(−|Ī(p) − Ī(q_j)| / γ) for the (2ρ+1)² patch offsets q_j; 0 off-image
+    (products of :func:`_exp_tables`, not one exp per weight)."""
     h, w = guide.shape
     side = 2 * rho + 1
     inv = 1.0 / gamma
+    tables, e_pos, e_neg = _exp_tables(guide, inv)
     for r in prange(roi[0], roi[1]):
         for c in range(roi[2], roi[3]):
             g = guide[r, c]
@@ -535,8 +562,12 @@ def _asw_kernel(guide, rho, gamma, roi, out):
                     j = (dy + rho) * side + dx + rho
                     if qr < 0 or qr >= h or qc < 0 or qc >= w:
                         out[r, c, j] = 0.0
-                    else:
+                    elif not tables:
                         out[r, c, j] = math.exp(-abs(g - guide[qr, qc]) * inv)
+                    elif guide[qr, qc] <= g:
+                        out[r, c, j] = e_neg[r, c] * e_pos[qr, qc]
+                    else:
+                        out[r, c, j] = e_pos[r, c] * e_neg[qr, qc]
 
 
 @njit_parallel
@@ -629,13 +660,33 @@ def _best_label_kernel(lab, dis, roi, out):
 
 
 @njit(inline="always")
+def _partition_below(vals, wts, lo, hi, pivot, strict):
+    """Move the elements of ``[lo, hi]`` below ``pivot`` (``strict``: < pivot, else <= pivot)
+    to the front; returns (first index not moved, their total weight). Branch-free body (the
+    comparisons are data-dependent, so branches would mispredict half the time)."""
+    st = lo
+    acc = 0.0
+    for i in range(lo, hi + 1):
+        v = vals[i]
+        wv = wts[i]
+        take = (v < pivot) if strict else (v <= pivot)
+        vals[i] = vals[st]
+        wts[i] = wts[st]
+        vals[st] = v
+        wts[st] = wv
+        st += take
+        acc += wv * take
+    return st, acc
+
+
+@njit(inline="always")
 def _weighted_median(vals, wts, m, target):
     """Value of the first element, in ascending value order, at which the cumulative weight of
     ``vals[:m]`` reaches ``target`` (the weighted median for ``target`` = half the total).
 
-    Weighted quickselect (three-way partition around a median-of-three pivot), expected O(m)
-    instead of a sort; ``vals`` and ``wts`` are permuted in place. Requires 0 < target <=
-    Σ wts[:m].
+    Weighted quickselect (median-of-three pivot; one pass for < pivot, one for == pivot),
+    expected O(m) instead of a sort; ``vals`` and ``wts`` are permuted in place. Requires
+    0 < target <= Σ wts[:m].
     """
     lo = 0
     hi = m - 1
@@ -648,41 +699,17 @@ def _weighted_median(vals, wts, m, target):
             a, b = b, a
         if b > c:
             b = c
-        pivot = max(a, b)  # median of the three
-        # Dutch-flag partition: [lo, lt) < pivot, [lt, i) == pivot, (gt, hi] > pivot
-        lt = lo
-        i = lo
-        gt = hi
-        w_lt = 0.0
-        w_eq = 0.0
-        while i <= gt:
-            v = vals[i]
-            if v < pivot:
-                wv = wts[i]
-                vals[i] = vals[lt]
-                wts[i] = wts[lt]
-                vals[lt] = v
-                wts[lt] = wv
-                w_lt += wv
-                lt += 1
-                i += 1
-            elif v > pivot:
-                wv = wts[i]
-                vals[i] = vals[gt]
-                wts[i] = wts[gt]
-                vals[gt] = v
-                wts[gt] = wv
-                gt -= 1
-            else:
-                w_eq += wts[i]
-                i += 1
+        pivot = max(a, b)  # median of the three, one of the values in [lo, hi]
+        st, w_lt = _partition_below(vals, wts, lo, hi, pivot, True)
         if cum + w_lt >= target:
-            hi = lt - 1
-        elif cum + w_lt + w_eq >= target:
+            hi = st - 1
+            continue
+        cum += w_lt
+        st, w_eq = _partition_below(vals, wts, st, hi, pivot, False)
+        if cum + w_eq >= target:
             return pivot
-        else:
-            cum += w_lt + w_eq
-            lo = gt + 1
+        cum += w_eq
+        lo = st
     return vals[lo]
 
 
@@ -695,9 +722,10 @@ def _fill_inconsistent_kernel(flow, valid, guide, radius, inv_sigma_i, inv_2sigm
     ``flow`` / ``out`` (H, W, 2) float32 (``out`` pre-filled with ``flow``); ``valid`` (H, W)
     bool; ``guide`` (H, W) float32 intensity. Reads only ``flow`` (never ``out``), so the result
     does not depend on the thread schedule. A pixel with no consistent pixel in its window keeps
-    its value. The median is found by weighted quickselect (:func:`_weighted_median`), and the
-    weights are products of per-pixel and per-offset tables instead of an exp each: on a real 640x480 pair with ~20 % of
-    pixels inconsistent this took the fill from 1.75 to ~0.2 CPU s (issue 13).
+    its value. The median is found by weighted quickselect (:func:`_weighted_median`) instead
+    of two sorts, and the weights are products of :func:`_exp_tables` entries and a table of
+    the spatial factor instead of one exp each (issue 13: 1.75 → 0.40 CPU s for the two fills
+    of a real 640x480 pair with 18 % of its pixels inconsistent).
     """
     h, w = valid.shape
     side = 2 * radius + 1
@@ -707,23 +735,7 @@ def _fill_inconsistent_kernel(flow, valid, guide, radius, inv_sigma_i, inv_2sigm
             spatial[(dy + radius) * side + dx + radius] = math.exp(
                 -(dx * dx + dy * dy) * inv_2sigma_s2
             )
-    # exp(−|g_p − g_q|·k) = e^{−g_p k}·e^{g_q k} if g_q <= g_p, else e^{g_p k}·e^{−g_q k}: two
-    # tables instead of one exp per neighbour (when the intensity range keeps them finite)
-    g_lo = np.inf
-    g_hi = -np.inf
-    for r in range(h):
-        for c in range(w):
-            g_lo = min(g_lo, guide[r, c])
-            g_hi = max(g_hi, guide[r, c])
-    tables = (g_hi - g_lo) * inv_sigma_i < 300.0
-    e_pos = np.ones((h, w), dtype=np.float64)
-    e_neg = np.ones((h, w), dtype=np.float64)
-    if tables:
-        for r in prange(h):
-            for c in range(w):
-                t = (guide[r, c] - g_lo) * inv_sigma_i
-                e_pos[r, c] = math.exp(t)
-                e_neg[r, c] = math.exp(-t)
+    tables, e_pos, e_neg = _exp_tables(guide, inv_sigma_i)
     for r in prange(h):
         vals0 = np.empty(side * side, dtype=np.float32)
         vals1 = np.empty(side * side, dtype=np.float32)
