@@ -52,7 +52,8 @@ available), all measured with ``benchmarks/bench_pmbp.py``:
   (``cv2.VariationalRefinement``, the Brox et al. energy that DIS and EpicFlow / CPM-Flow
   apply to their matches) for the sub-pixel part (``variational_refinement_iterations``). The
   refinement also regularises, so the MRF smoothness is lowered to λ = 0.01 and the random
-  search stops at r_min = 0.2 px (0.3 px and 15 refinement iterations since decision A28). Middlebury mean EPE 0.373 → 0.184 px (pmbp) and 0.418 →
+  search stops at r_min = 0.2 px (for pmbp 0.3 px with 15 refinement iterations since
+  decision A23′). Middlebury mean EPE 0.373 → 0.184 px (pmbp) and 0.418 →
   0.197 px (pmbp-fast), against DIS-medium 0.254 and Dual TV-L1 0.210; the 600x600 solve costs
   1.5x the CPU time (two PMBP solves instead of one, r_min 0.2 instead of 0.05). Both
   post-steps are off with ``consistency_check=False, variational_refinement_iterations=0``,
@@ -158,7 +159,7 @@ class PMBPParams:
         upsampled coarse flow is already within about a pixel).
     min_search_radius : float
         r_min (px): radii r0, r0/2, ... are drawn while r >= r_min. Default 0.3 (0.05 before
-        decision A23, 0.2 before A28; ``"pmbp-fast"`` keeps 0.2): the variational refinement
+        decision A23, 0.2 before A23′; ``"pmbp-fast"`` keeps 0.2): the variational refinement
         does the sub-pixel part, so the finest radii bought nothing (Middlebury 0.184 px at
         0.05 and 0.2, 0.1835 at 0.3 with 15 refinement iterations) and cost run time (on
         refined levels 0.3 drops the 0.25 px radius: 6 random candidates per pixel, not 9).
@@ -222,7 +223,7 @@ class PMBPParams:
         unsmoothed images quantised to 8 bit; 0 = off. With ``finest_level`` > 0 it runs at
         the solved level and again at full resolution after upsampling (as DIS refines on
         every level). Middlebury 0.315 → 0.231 px without the fill, 0.261 → 0.184 with it.
-        Default 15 (10 before decision A28, ``"pmbp-fast"`` keeps 10): with r_min 0.3
+        Default 15 (10 before decision A23′, ``"pmbp-fast"`` keeps 10): with r_min 0.3
         Middlebury 0.1835 px at 15, 0.1831 at 20.
     variational_refinement_sor_iterations : int
         Inner SOR iterations per fixed-point iteration (10).
@@ -249,7 +250,7 @@ class PMBPParams:
     # checkerboard schedule); the "lines" schedule then gave Middlebury 0.37, ball 0.10 / 0.46.
     # Decision A23 (2026-11-23, same benchmark): FB check + fill and variational refinement
     # on, λ 0.05 → 0.01, r_min 0.05 → 0.2 px: Middlebury 0.373 → 0.184, ball 0.03 / 0.20.
-    # Decision A28 (2026-12-01, issue 13): r_min 0.2 → 0.3 px, refinement 10 → 15 iterations
+    # Decision A23′ (2026-12-01, issue 13): r_min 0.2 → 0.3 px, refinement 10 → 15 iterations
     # (pmbp only): Middlebury 0.1838 → 0.1835, ball 2 % 0.030 → 0.025, ~6 % less CPU.
     num_particles: int = param(3, ge=1, le=_MAX_PARTICLES)
     patch_radius: int = param(2, ge=0, le=15)
@@ -317,7 +318,7 @@ class PMBPFastParams(PMBPParams):
     finest_level: int = 1
     num_iter: int = 2
     coarse_num_iter: int | None = 2
-    min_search_radius: float = 0.2  # the A23 values: decision A28 changed them for pmbp only
+    min_search_radius: float = 0.2  # the A23 values: decision A23′ changed them for pmbp only
     variational_refinement_iterations: int = 10
 
 
