@@ -519,12 +519,39 @@ def _sweep_lines_kernel(
 # set-up and read-out
 
 
+@njit
+def _exp_tables(guide, inv):
+    """(ok, e_pos, e_neg): e_pos = exp((Ī − min Ī)·inv), e_neg = 1 / e_pos per pixel (float64),
+    so that exp(−|Ī(p) − Ī(q)|·inv) = e_neg[p]·e_pos[q] if Ī(q) <= Ī(p), else e_pos[p]·e_neg[q]
+    -- two exp per pixel instead of one per pair. ``ok`` is False (tables not filled) when the
+    intensity range would overflow them; callers then evaluate exp directly."""
+    h, w = guide.shape
+    g_lo = np.inf
+    g_hi = -np.inf
+    for r in range(h):
+        for c in range(w):
+            g_lo = min(g_lo, guide[r, c])
+            g_hi = max(g_hi, guide[r, c])
+    ok = h * w > 0 and (g_hi - g_lo) * inv < 300.0
+    e_pos = np.ones((h, w), dtype=np.float64)
+    e_neg = np.ones((h, w), dtype=np.float64)
+    if ok:
+        for r in range(h):
+            for c in range(w):
+                t = (guide[r, c] - g_lo) * inv
+                e_pos[r, c] = math.exp(t)
+                e_neg[r, c] = math.exp(-t)
+    return ok, e_pos, e_neg
+
+
 @njit_parallel
 def _asw_kernel(guide, rho, gamma, roi, out):
-    """out[p, j] = exp(−|Ī(p) − Ī(q_j)| / γ) for the (2ρ+1)² patch offsets q_j; 0 off-image."""
+    """out[p, j] = exp(−|Ī(p) − Ī(q_j)| / γ) for the (2ρ+1)² patch offsets q_j; 0 off-image
+    (products of :func:`_exp_tables`, not one exp per weight)."""
     h, w = guide.shape
     side = 2 * rho + 1
     inv = 1.0 / gamma
+    tables, e_pos, e_neg = _exp_tables(guide, inv)
     for r in prange(roi[0], roi[1]):
         for c in range(roi[2], roi[3]):
             g = guide[r, c]
@@ -535,8 +562,12 @@ def _asw_kernel(guide, rho, gamma, roi, out):
                     j = (dy + rho) * side + dx + rho
                     if qr < 0 or qr >= h or qc < 0 or qc >= w:
                         out[r, c, j] = 0.0
-                    else:
+                    elif not tables:
                         out[r, c, j] = math.exp(-abs(g - guide[qr, qc]) * inv)
+                    elif guide[qr, qc] <= g:
+                        out[r, c, j] = e_neg[r, c] * e_pos[qr, qc]
+                    else:
+                        out[r, c, j] = e_pos[r, c] * e_neg[qr, qc]
 
 
 @njit_parallel
@@ -628,6 +659,60 @@ def _best_label_kernel(lab, dis, roi, out):
 # post-step: edge-aware fill of forward-backward inconsistent pixels
 
 
+@njit(inline="always")
+def _partition_below(vals, wts, lo, hi, pivot, strict):
+    """Move the elements of ``[lo, hi]`` below ``pivot`` (``strict``: < pivot, else <= pivot)
+    to the front; returns (first index not moved, their total weight). Branch-free body (the
+    comparisons are data-dependent, so branches would mispredict half the time)."""
+    st = lo
+    acc = 0.0
+    for i in range(lo, hi + 1):
+        v = vals[i]
+        wv = wts[i]
+        take = (v < pivot) if strict else (v <= pivot)
+        vals[i] = vals[st]
+        wts[i] = wts[st]
+        vals[st] = v
+        wts[st] = wv
+        st += take
+        acc += wv * take
+    return st, acc
+
+
+@njit(inline="always")
+def _weighted_median(vals, wts, m, target):
+    """Value of the first element, in ascending value order, at which the cumulative weight of
+    ``vals[:m]`` reaches ``target`` (the weighted median for ``target`` = half the total).
+
+    Weighted quickselect (median-of-three pivot; one pass for < pivot, one for == pivot),
+    expected O(m) instead of a sort; ``vals`` and ``wts`` are permuted in place. Requires
+    0 < target <= Σ wts[:m].
+    """
+    lo = 0
+    hi = m - 1
+    cum = 0.0  # weight of the elements already known to lie below [lo, hi]
+    while lo < hi:
+        a = vals[lo]
+        b = vals[(lo + hi) >> 1]
+        c = vals[hi]
+        if a > b:
+            a, b = b, a
+        if b > c:
+            b = c
+        pivot = max(a, b)  # median of the three, one of the values in [lo, hi]
+        st, w_lt = _partition_below(vals, wts, lo, hi, pivot, True)
+        if cum + w_lt >= target:
+            hi = st - 1
+            continue
+        cum += w_lt
+        st, w_eq = _partition_below(vals, wts, st, hi, pivot, False)
+        if cum + w_eq >= target:
+            return pivot
+        cum += w_eq
+        lo = st
+    return vals[lo]
+
+
 @njit_parallel
 def _fill_inconsistent_kernel(flow, valid, guide, radius, inv_sigma_i, inv_2sigma_s2, out):
     """Replace every pixel with ``valid[p] == False`` by the weighted median of the consistent
@@ -637,13 +722,25 @@ def _fill_inconsistent_kernel(flow, valid, guide, radius, inv_sigma_i, inv_2sigm
     ``flow`` / ``out`` (H, W, 2) float32 (``out`` pre-filled with ``flow``); ``valid`` (H, W)
     bool; ``guide`` (H, W) float32 intensity. Reads only ``flow`` (never ``out``), so the result
     does not depend on the thread schedule. A pixel with no consistent pixel in its window keeps
-    its value.
+    its value. The median is found by weighted quickselect (:func:`_weighted_median`) instead
+    of two sorts, and the weights are products of :func:`_exp_tables` entries and a table of
+    the spatial factor instead of one exp each (issue 13: 1.75 → 0.40 CPU s for the two fills
+    of a real 640x480 pair with 18 % of its pixels inconsistent).
     """
     h, w = valid.shape
     side = 2 * radius + 1
+    spatial = np.empty(side * side, dtype=np.float64)
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            spatial[(dy + radius) * side + dx + radius] = math.exp(
+                -(dx * dx + dy * dy) * inv_2sigma_s2
+            )
+    tables, e_pos, e_neg = _exp_tables(guide, inv_sigma_i)
     for r in prange(h):
-        vals = np.empty((2, side * side), dtype=np.float32)
-        wts = np.empty(side * side, dtype=np.float64)
+        vals0 = np.empty(side * side, dtype=np.float32)
+        vals1 = np.empty(side * side, dtype=np.float32)
+        wts0 = np.empty(side * side, dtype=np.float64)
+        wts1 = np.empty(side * side, dtype=np.float64)
         for c in range(w):
             if valid[r, c]:
                 continue
@@ -654,25 +751,26 @@ def _fill_inconsistent_kernel(flow, valid, guide, radius, inv_sigma_i, inv_2sigm
                 qr = r + dy
                 if qr < 0 or qr >= h:
                     continue
+                base = (dy + radius) * side + radius
                 for dx in range(-radius, radius + 1):
                     qc = c + dx
                     if qc < 0 or qc >= w or not valid[qr, qc]:
                         continue
-                    wt = math.exp(
-                        -abs(g - guide[qr, qc]) * inv_sigma_i - (dx * dx + dy * dy) * inv_2sigma_s2
-                    )
-                    vals[0, m] = flow[qr, qc, 0]
-                    vals[1, m] = flow[qr, qc, 1]
-                    wts[m] = wt
+                    gq = guide[qr, qc]
+                    if not tables:
+                        wt = math.exp(-abs(g - gq) * inv_sigma_i)
+                    elif gq <= g:
+                        wt = e_neg[r, c] * e_pos[qr, qc]
+                    else:
+                        wt = e_pos[r, c] * e_neg[qr, qc]
+                    wt *= spatial[base + dx]
+                    vals0[m] = flow[qr, qc, 0]
+                    vals1[m] = flow[qr, qc, 1]
+                    wts0[m] = wt
+                    wts1[m] = wt
                     total += wt
                     m += 1
             if m == 0 or total <= 0.0:
                 continue
-            for ch in range(2):
-                order = np.argsort(vals[ch, :m], kind="mergesort")
-                acc = 0.0
-                for i in order:
-                    acc += wts[i]
-                    if acc >= 0.5 * total:
-                        out[r, c, ch] = vals[ch, i]
-                        break
+            out[r, c, 0] = _weighted_median(vals0, wts0, m, 0.5 * total)
+            out[r, c, 1] = _weighted_median(vals1, wts1, m, 0.5 * total)

@@ -52,7 +52,8 @@ available), all measured with ``benchmarks/bench_pmbp.py``:
   (``cv2.VariationalRefinement``, the Brox et al. energy that DIS and EpicFlow / CPM-Flow
   apply to their matches) for the sub-pixel part (``variational_refinement_iterations``). The
   refinement also regularises, so the MRF smoothness is lowered to λ = 0.01 and the random
-  search stops at r_min = 0.2 px. Middlebury mean EPE 0.373 → 0.184 px (pmbp) and 0.418 →
+  search stops at r_min = 0.2 px (for pmbp 0.3 px with 15 refinement iterations since
+  decision A23′). Middlebury mean EPE 0.373 → 0.184 px (pmbp) and 0.418 →
   0.197 px (pmbp-fast), against DIS-medium 0.254 and Dual TV-L1 0.210; the 600x600 solve costs
   1.5x the CPU time (two PMBP solves instead of one, r_min 0.2 instead of 0.05). Both
   post-steps are off with ``consistency_check=False, variational_refinement_iterations=0``,
@@ -157,9 +158,11 @@ class PMBPParams:
         First random-search radius (px) on levels seeded from a coarser level (our choice: the
         upsampled coarse flow is already within about a pixel).
     min_search_radius : float
-        r_min (px): radii r0, r0/2, ... are drawn while r >= r_min. Default 0.2 (0.05 before
-        decision A23): the variational refinement does the sub-pixel part, so the finest
-        radii bought nothing (Middlebury 0.184 px either way) and cost 30 % of the run time.
+        r_min (px): radii r0, r0/2, ... are drawn while r >= r_min. Default 0.3 (0.05 before
+        decision A23, 0.2 before A23′; ``"pmbp-fast"`` keeps 0.2): the variational refinement
+        does the sub-pixel part, so the finest radii bought nothing (Middlebury 0.184 px at
+        0.05 and 0.2, 0.1835 at 0.3 with 15 refinement iterations) and cost run time (on
+        refined levels 0.3 drops the 0.25 px radius: 6 random candidates per pixel, not 9).
     pyramid_levels : int
         Number of pyramid levels (1 = no pyramid, the literal METHOD §2.3); levels whose
         shorter side would be below 32 px are dropped.
@@ -220,6 +223,8 @@ class PMBPParams:
         unsmoothed images quantised to 8 bit; 0 = off. With ``finest_level`` > 0 it runs at
         the solved level and again at full resolution after upsampling (as DIS refines on
         every level). Middlebury 0.315 → 0.231 px without the fill, 0.261 → 0.184 with it.
+        Default 15 (10 before decision A23′, ``"pmbp-fast"`` keeps 10): with r_min 0.3
+        Middlebury 0.1835 px at 15, 0.1831 at 20.
     variational_refinement_sor_iterations : int
         Inner SOR iterations per fixed-point iteration (10).
     variational_refinement_alpha : float
@@ -245,6 +250,8 @@ class PMBPParams:
     # checkerboard schedule); the "lines" schedule then gave Middlebury 0.37, ball 0.10 / 0.46.
     # Decision A23 (2026-11-23, same benchmark): FB check + fill and variational refinement
     # on, λ 0.05 → 0.01, r_min 0.05 → 0.2 px: Middlebury 0.373 → 0.184, ball 0.03 / 0.20.
+    # Decision A23′ (2026-12-01, issue 13): r_min 0.2 → 0.3 px, refinement 10 → 15 iterations
+    # (pmbp only): Middlebury 0.1838 → 0.1835, ball 2 % 0.030 → 0.025, ~6 % less CPU.
     num_particles: int = param(3, ge=1, le=_MAX_PARTICLES)
     patch_radius: int = param(2, ge=0, le=15)
     gradient_weight: float = param(0.9, ge=0, le=1)
@@ -259,7 +266,7 @@ class PMBPParams:
     coarse_num_iter: int | None = param(2, ge=0)
     search_radius0: float | None = param(None, gt=0)
     refine_radius: float = param(1.0, gt=0)
-    min_search_radius: float = param(0.2, gt=0)
+    min_search_radius: float = param(0.3, gt=0)
     pyramid_levels: int = param(3, ge=1, le=8)
     finest_level: int = param(0, ge=0)
     schedule: Schedule = "lines"
@@ -273,7 +280,7 @@ class PMBPParams:
     fill_radius: int = param(10, ge=1, le=64)
     fill_sigma_intensity: float = param(0.05, gt=0)
     fill_sigma_space: float = param(5.0, gt=0)
-    variational_refinement_iterations: int = param(10, ge=0)
+    variational_refinement_iterations: int = param(15, ge=0)
     variational_refinement_sor_iterations: int = param(10, ge=1)
     variational_refinement_alpha: float = param(20.0, ge=0)
     variational_refinement_gamma: float = param(10.0, ge=0)
@@ -311,6 +318,8 @@ class PMBPFastParams(PMBPParams):
     finest_level: int = 1
     num_iter: int = 2
     coarse_num_iter: int | None = 2
+    min_search_radius: float = 0.2  # the A23 values: decision A23′ changed them for pmbp only
+    variational_refinement_iterations: int = 10
 
 
 #: Parameters of ``"pmbp-fast"``.
