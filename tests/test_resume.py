@@ -118,6 +118,19 @@ def _check_partial(partial: Path, frames_done: int) -> None:
         open_frames(partial)
 
 
+def _frames_done_after_signal(out: Path, kill_at: int) -> int:
+    """Frames on disk after a signal sent from the writer once frame ``kill_at`` was written.
+
+    Frames are written behind the fusion: the handler runs in the fusion thread at its next
+    Python step, and until then the writer thread goes on with the queued frames (at most the
+    queue's 2 plus the one being handed over); after it, the queued writes are dropped. How
+    many land in between is timing (seen: 0-2), so the test bounds it; that only complete
+    frames are left and the resume is exact is checked by the callers."""
+    done = json.loads((partial_path(out) / MANIFEST_NAME).read_text())["frames_done"]
+    assert kill_at + 1 <= done <= kill_at + 4, done
+    return done
+
+
 def test_killed_runs_resume_to_the_uninterrupted_result(recording, reference, tmp_path):
     """SIGKILL at three random frames (one of them halfway through writing a frame)."""
     out = tmp_path / "out"
@@ -151,11 +164,7 @@ def test_ctrl_c_exits_130_and_leaves_only_complete_frames(recording, reference, 
     assert res.returncode == 130, res.stderr[-2000:]
     assert "interrupted" in res.stderr
     assert "Traceback" not in res.stderr
-    # frames are written behind the fusion: the write that was under way when Ctrl-C came
-    # (frame 13, if already queued) completes; the queued ones after it are dropped
-    done = json.loads((partial_path(out) / MANIFEST_NAME).read_text())["frames_done"]
-    assert done in (13, 14)
-    _check_partial(partial_path(out), done)
+    _check_partial(partial_path(out), _frames_done_after_signal(out, 12))
     # a second run without --resume refuses to clobber the unfinished one
     assert main(args) == 2
     assert main([*args, "--resume"]) == 0
@@ -237,6 +246,6 @@ def test_sigterm_stops_as_cleanly_as_ctrl_c(recording, reference, tmp_path):
     args = ["run", str(recording), "-o", str(out), *RUN_ARGS]
     res = _child(5, "after", "SIGTERM", args)
     assert res.returncode == 130, res.stderr[-2000:]
-    _check_partial(partial_path(out), 6)
+    _check_partial(partial_path(out), _frames_done_after_signal(out, 5))
     assert main([*args, "--resume"]) == 0
     assert _contents(out) == _contents(reference)
