@@ -73,6 +73,72 @@ def _smallest_eigvec_kernel(a00, a01, a02, a11, a12, a22):
     return nx * s, ny * s, nz * s, lam
 
 
+@njit
+def _pixel_roughness_kernel(points, t, i, j, radius, min_count):
+    """``(N |(p_i - c) . n|, sqrt(n^T S n / N))`` (mm) of pixel ``(t, i, j)``; NaN, NaN where
+    the centre is invalid or fewer than ``min_count`` window points are valid."""
+    # float() promotes the float32 samples to float64 (identically with and without JIT)
+    h, w = points.shape[1], points.shape[2]
+    px = float(points[t, i, j, 0])
+    py = float(points[t, i, j, 1])
+    pz = float(points[t, i, j, 2])
+    if math.isnan(px) or math.isnan(py) or math.isnan(pz):
+        return np.nan, np.nan
+    # first pass: centroid relative to the centre point (better conditioning)
+    cnt = 0
+    sx = 0.0
+    sy = 0.0
+    sz = 0.0
+    for di in range(max(0, i - radius), min(h, i + radius + 1)):
+        for dj in range(max(0, j - radius), min(w, j + radius + 1)):
+            qx = float(points[t, di, dj, 0])
+            qy = float(points[t, di, dj, 1])
+            qz = float(points[t, di, dj, 2])
+            if math.isnan(qx) or math.isnan(qy) or math.isnan(qz):
+                continue
+            cnt += 1
+            sx += qx - px
+            sy += qy - py
+            sz += qz - pz
+    if cnt < min_count:
+        return np.nan, np.nan
+    mx = sx / cnt
+    my = sy / cnt
+    mz = sz / cnt
+    a00 = 0.0
+    a01 = 0.0
+    a02 = 0.0
+    a11 = 0.0
+    a12 = 0.0
+    a22 = 0.0
+    for di in range(max(0, i - radius), min(h, i + radius + 1)):
+        for dj in range(max(0, j - radius), min(w, j + radius + 1)):
+            qx = float(points[t, di, dj, 0])
+            qy = float(points[t, di, dj, 1])
+            qz = float(points[t, di, dj, 2])
+            if math.isnan(qx) or math.isnan(qy) or math.isnan(qz):
+                continue
+            dx = qx - px - mx
+            dy = qy - py - my
+            dz = qz - pz - mz
+            a00 += dx * dx
+            a01 += dx * dy
+            a02 += dx * dz
+            a11 += dy * dy
+            a12 += dy * dz
+            a22 += dz * dz
+    nx, ny, nz, _ = _smallest_eigvec_kernel(a00, a01, a02, a11, a12, a22)
+    # centre minus centroid is (-mx, -my, -mz)
+    dist = -(mx * nx + my * ny + mz * nz)
+    quad = (
+        a00 * nx * nx
+        + a11 * ny * ny
+        + a22 * nz * nz
+        + 2.0 * (a01 * nx * ny + a02 * nx * nz + a12 * ny * nz)
+    )
+    return cnt * abs(dist), math.sqrt(max(quad, 0.0) / cnt)
+
+
 @njit_parallel
 def _roughness_kernel(points, radius, min_count, out_sum, out_rms):
     """Per-pixel roughness Pi (Eq. 7) and RMS plane residual on point maps.
@@ -88,163 +154,29 @@ def _roughness_kernel(points, radius, min_count, out_sum, out_rms):
     out_sum, out_rms : (T, H, W) float32
         Filled with ``N |(p_i - c) . n|`` and ``sqrt(n^T S n / N)`` (mm); NaN where undefined.
     """
-    # float() promotes the float32 samples to float64 (identically with and without JIT)
     num_t, h, w = points.shape[0], points.shape[1], points.shape[2]
     for tr in prange(num_t * h):
         t = tr // h
         i = tr % h
         for j in range(w):
-            px = float(points[t, i, j, 0])
-            py = float(points[t, i, j, 1])
-            pz = float(points[t, i, j, 2])
-            if math.isnan(px) or math.isnan(py) or math.isnan(pz):
-                out_sum[t, i, j] = np.nan
-                out_rms[t, i, j] = np.nan
-                continue
-            # first pass: centroid relative to the centre point (better conditioning)
-            cnt = 0
-            sx = 0.0
-            sy = 0.0
-            sz = 0.0
-            for di in range(max(0, i - radius), min(h, i + radius + 1)):
-                for dj in range(max(0, j - radius), min(w, j + radius + 1)):
-                    qx = float(points[t, di, dj, 0])
-                    qy = float(points[t, di, dj, 1])
-                    qz = float(points[t, di, dj, 2])
-                    if math.isnan(qx) or math.isnan(qy) or math.isnan(qz):
-                        continue
-                    cnt += 1
-                    sx += qx - px
-                    sy += qy - py
-                    sz += qz - pz
-            if cnt < min_count:
-                out_sum[t, i, j] = np.nan
-                out_rms[t, i, j] = np.nan
-                continue
-            mx = sx / cnt
-            my = sy / cnt
-            mz = sz / cnt
-            a00 = 0.0
-            a01 = 0.0
-            a02 = 0.0
-            a11 = 0.0
-            a12 = 0.0
-            a22 = 0.0
-            for di in range(max(0, i - radius), min(h, i + radius + 1)):
-                for dj in range(max(0, j - radius), min(w, j + radius + 1)):
-                    qx = float(points[t, di, dj, 0])
-                    qy = float(points[t, di, dj, 1])
-                    qz = float(points[t, di, dj, 2])
-                    if math.isnan(qx) or math.isnan(qy) or math.isnan(qz):
-                        continue
-                    dx = qx - px - mx
-                    dy = qy - py - my
-                    dz = qz - pz - mz
-                    a00 += dx * dx
-                    a01 += dx * dy
-                    a02 += dx * dz
-                    a11 += dy * dy
-                    a12 += dy * dz
-                    a22 += dz * dz
-            nx, ny, nz, _ = _smallest_eigvec_kernel(a00, a01, a02, a11, a12, a22)
-            # centre minus centroid is (-mx, -my, -mz)
-            dist = -(mx * nx + my * ny + mz * nz)
-            out_sum[t, i, j] = cnt * abs(dist)
-            quad = (
-                a00 * nx * nx
-                + a11 * ny * ny
-                + a22 * nz * nz
-                + 2.0 * (a01 * nx * ny + a02 * nx * nz + a12 * ny * nz)
+            out_sum[t, i, j], out_rms[t, i, j] = _pixel_roughness_kernel(
+                points, t, i, j, radius, min_count
             )
-            out_rms[t, i, j] = math.sqrt(max(quad, 0.0) / cnt)
 
 
 @njit_parallel
 def _roughness_masked_kernel(points, mask, radius, min_count, out_sum, out_rms):
-    """:func:`_roughness_kernel` on the ``mask`` pixels only (NaN elsewhere).
-
-    The same code line for line (so the same values bit for bit where ``mask`` is set), with
-    one test in front: the summary of ``fuse4d run`` scores only its ROI's pixels.
-
-    Parameters
-    ----------
-    points : (T, H, W, 3) float32
-        Point maps in mm, NaN = invalid.
-    radius : int
-        Window half-size (window n = 2 radius + 1); pixels outside the image count as invalid.
-    min_count : int
-        Minimum number of valid window points (the centre must be valid too).
-    mask : (T, H, W) bool
-        Pixels to evaluate.
-    out_sum, out_rms : (T, H, W) float32
-        Filled with ``N |(p_i - c) . n|`` and ``sqrt(n^T S n / N)`` (mm); NaN where undefined.
-    """
-    # float() promotes the float32 samples to float64 (identically with and without JIT)
+    """:func:`_roughness_kernel` on the ``mask`` (T, H, W) bool pixels only (NaN elsewhere):
+    the summary of ``fuse4d run`` scores only its ROI's pixels."""
     num_t, h, w = points.shape[0], points.shape[1], points.shape[2]
     for tr in prange(num_t * h):
         t = tr // h
         i = tr % h
         for j in range(w):
-            px = float(points[t, i, j, 0])
-            py = float(points[t, i, j, 1])
-            pz = float(points[t, i, j, 2])
-            if not mask[t, i, j] or math.isnan(px) or math.isnan(py) or math.isnan(pz):
+            if mask[t, i, j]:
+                out_sum[t, i, j], out_rms[t, i, j] = _pixel_roughness_kernel(
+                    points, t, i, j, radius, min_count
+                )
+            else:
                 out_sum[t, i, j] = np.nan
                 out_rms[t, i, j] = np.nan
-                continue
-            # first pass: centroid relative to the centre point (better conditioning)
-            cnt = 0
-            sx = 0.0
-            sy = 0.0
-            sz = 0.0
-            for di in range(max(0, i - radius), min(h, i + radius + 1)):
-                for dj in range(max(0, j - radius), min(w, j + radius + 1)):
-                    qx = float(points[t, di, dj, 0])
-                    qy = float(points[t, di, dj, 1])
-                    qz = float(points[t, di, dj, 2])
-                    if math.isnan(qx) or math.isnan(qy) or math.isnan(qz):
-                        continue
-                    cnt += 1
-                    sx += qx - px
-                    sy += qy - py
-                    sz += qz - pz
-            if cnt < min_count:
-                out_sum[t, i, j] = np.nan
-                out_rms[t, i, j] = np.nan
-                continue
-            mx = sx / cnt
-            my = sy / cnt
-            mz = sz / cnt
-            a00 = 0.0
-            a01 = 0.0
-            a02 = 0.0
-            a11 = 0.0
-            a12 = 0.0
-            a22 = 0.0
-            for di in range(max(0, i - radius), min(h, i + radius + 1)):
-                for dj in range(max(0, j - radius), min(w, j + radius + 1)):
-                    qx = float(points[t, di, dj, 0])
-                    qy = float(points[t, di, dj, 1])
-                    qz = float(points[t, di, dj, 2])
-                    if math.isnan(qx) or math.isnan(qy) or math.isnan(qz):
-                        continue
-                    dx = qx - px - mx
-                    dy = qy - py - my
-                    dz = qz - pz - mz
-                    a00 += dx * dx
-                    a01 += dx * dy
-                    a02 += dx * dz
-                    a11 += dy * dy
-                    a12 += dy * dz
-                    a22 += dz * dz
-            nx, ny, nz, _ = _smallest_eigvec_kernel(a00, a01, a02, a11, a12, a22)
-            # centre minus centroid is (-mx, -my, -mz)
-            dist = -(mx * nx + my * ny + mz * nz)
-            out_sum[t, i, j] = cnt * abs(dist)
-            quad = (
-                a00 * nx * nx
-                + a11 * ny * ny
-                + a22 * nz * nz
-                + 2.0 * (a01 * nx * ny + a02 * nx * nz + a12 * ny * nz)
-            )
-            out_rms[t, i, j] = math.sqrt(max(quad, 0.0) / cnt)
