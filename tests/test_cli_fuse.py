@@ -159,8 +159,10 @@ def test_bench_causal_times_the_causal_engine_stage_by_stage(monkeypatch, capsys
         "fusion",
         "fill",
     }
-    assert result["stage_ms"]["tracking"] > 0 and result["ms_per_frame"] > 0
-    assert seen and all(s == (True, 2, 0) for s in seen)  # warm-up and timed run alike
+    assert result["stage_ms"]["tracking"] > 0
+    assert result["ms_per_frame"] > 0
+    assert seen
+    assert all(s == (True, 2, 0) for s in seen)
     assert main(["bench", "--small", "--frames", "6", "--window", "3", "--json"]) == 0
     (centred,) = json.loads(capsys.readouterr().out)
     assert centred["causal"] is False
@@ -276,6 +278,7 @@ def test_bench_input_causal_runs_the_causal_streaming_path(tmp_path, monkeypatch
     args = ["bench", "--input", str(src), "--frames", "4", "--window", "3", "--causal"]
     assert main([*args, "--no-summary", "--json"]) == 0
     (result,) = json.loads(capsys.readouterr().out)
-    assert result["causal"] is True and result["frames"] == 4
+    assert result["causal"] is True
+    assert result["frames"] == 4
     assert {"flow", "tracking", "fill", "read", "write", "io_wait"} <= set(result["stage_ms"])
     assert seen == [True, True]  # warm-up and timed run

@@ -377,9 +377,7 @@ def bench_command(
     ] = False,
     causal: Annotated[
         bool,
-        typer.Option(
-            "--causal", help="Time the causal engine (no look-ahead, as `fuse4d live`)."
-        ),
+        typer.Option("--causal", help="Time the causal engine (no look-ahead, as `fuse4d live`)."),
     ] = False,
 ) -> None:
     """Time each pipeline stage (ms/frame) and report peak memory, on the synthetic ball.
