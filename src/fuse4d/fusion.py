@@ -230,6 +230,7 @@ class FusionEngine:
         self.overlap_flow = bool(overlap_flow)
         self._flow_worker: Any = None
         self._pending_flow: Any = None
+        self._flow_state: Any = None
 
     def __enter__(self) -> Self:
         return self
@@ -301,10 +302,19 @@ class FusionEngine:
         return out
 
     def _drop_pending_flow(self) -> None:
-        """Wait for and discard a flow the worker is computing (a push that failed)."""
+        """A push failed: wait for the flow the worker is computing, discard it and put the
+        tracker's warm-start state back, so that a retried push computes what a serial
+        engine would."""
         pending, self._pending_flow = self._pending_flow, None
-        if pending is not None:
-            pending.exception()  # waits; the push's own error is the one raised
+        if pending is None:
+            return
+        pending.exception()  # waits; the push's own error is the one raised
+        if self._flow_state is None:
+            self._flow_estimator = None  # built (and primed) again by the next pair
+        else:
+            self._flow_estimator._last_image1, self._flow_estimator._last_forward = (
+                self._flow_state
+            )
 
     def _prepare(self, index, slot, d, inten, points, needs_pair, pair_flow) -> None:
         """The per-frame part of :meth:`push`: noise model, references, bilateral, pair."""
@@ -387,6 +397,8 @@ class FusionEngine:
             from concurrent.futures import ThreadPoolExecutor
 
             self._flow_worker = ThreadPoolExecutor(1, thread_name_prefix="fuse4d-flow")
+        est = self._flow_estimator  # its warm-start state, restored if the push fails
+        self._flow_state = None if est is None else (est._last_image1, est._last_forward)
         self._pending_flow = self._flow_worker.submit(self._flow_pair, index, intensity)
 
     def _flow_pair(
