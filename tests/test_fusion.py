@@ -944,3 +944,35 @@ def test_overlap_flow_failed_push_is_retried_as_by_the_serial_engine(rng):
                 assert eng._pending_flow is None
             got.append(eng.push(d, i)[0].points)
     np.testing.assert_array_equal(np.stack(got), np.stack(want))
+
+
+def test_shortcuts_without_fused_pixels_change_nothing(rng):
+    """issue 13: the first frame of a causal window has no fused pixel (every valid pixel is
+    an Eq. 6 hole); the Eq. 6 fill and the A29 base smoothing are skipped there, with the
+    values the full computations give."""
+    from fuse4d.fusion import _smooth_base
+
+    depth = _plane_depth(1)[0] + rng.normal(0, 0.3, (H, W)).astype(np.float32)
+    depth[5:9, 5:9] = np.nan
+    points = depth_to_points(depth, K)
+    hole = np.isfinite(depth)  # every valid pixel is a hole: F is empty
+    raw = points + np.float32(0.5)
+    kernel_points, kernel_hole = points.copy(), hole.copy()
+    kernel_filled = np.zeros((H, W), np.bool_)
+    _fill_holes_kernel(kernel_points, raw, kernel_hole, 2, 0.5, 10, 3, 5.0, kernel_filled)
+    got_points, got_hole = points.copy(), hole.copy()
+    filled = _fill_holes(
+        got_points, raw, got_hole, radius=2, sigma=1.0, passes=10, min_neighbours=3, gate=5.0
+    )
+    np.testing.assert_array_equal(filled, kernel_filled)
+    np.testing.assert_array_equal(got_points, kernel_points)
+    np.testing.assert_array_equal(got_hole, kernel_hole)
+    base = rng.normal(0, 0.1, (H, W, 3)).astype(np.float32)
+    out = points.copy()
+    _smooth_base(out, base, depth, hole, sigma=2.0, max_step=10.0, quad=1e-6, limit_quad=0.5)
+    np.testing.assert_array_equal(out, points)
+    partial = hole.copy()
+    partial[20:30, 20:30] = False  # some fused pixels: the smoothing runs and changes them
+    out = points.copy()
+    _smooth_base(out, base, depth, partial, sigma=2.0, max_step=10.0, quad=1e-6, limit_quad=0.5)
+    assert not np.array_equal(out, points)

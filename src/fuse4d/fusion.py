@@ -668,6 +668,10 @@ def _smooth_base(
     if math.isinf(limit_quad):
         return  # every fine-scale part kept: no change
     d = np.where(hole, np.float32(np.nan), depth).astype(np.float32)
+    if np.isnan(d).all():
+        # no fused pixel (e.g. the first frame of a causal window): S is NaN everywhere and
+        # nothing changes (issue 13)
+        return
     z = np.nan_to_num(depth)
     bound = np.float32(limit_quad) * z * z
     for c in range(3):
