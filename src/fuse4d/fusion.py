@@ -231,6 +231,8 @@ class FusionEngine:
         self._flow_worker: Any = None
         self._pending_flow: Any = None
         self._flow_state: Any = None
+        # (index, P^index) of the last pushed frame, reused by its emit (causal mode)
+        self._last_points: tuple[int, NDArray[np.float32]] | None = None
 
     def __enter__(self) -> Self:
         return self
@@ -312,9 +314,7 @@ class FusionEngine:
         if self._flow_state is None:
             self._flow_estimator = None  # built (and primed) again by the next pair
         else:
-            self._flow_estimator._last_image1, self._flow_estimator._last_forward = (
-                self._flow_state
-            )
+            self._flow_estimator._last_image1, self._flow_estimator._last_forward = self._flow_state
 
     def _prepare(self, index, slot, d, inten, points, needs_pair, pair_flow) -> None:
         """The per-frame part of :meth:`push`: noise model, references, bilateral, pair."""
@@ -323,7 +323,9 @@ class FusionEngine:
         t0 = time.perf_counter()
         if points is None:
             pts = depth_to_points(d, self.intrinsics)
+            self._last_points = (index, pts)  # = depth_to_points(self._depth[slot]), kept
         else:
+            self._last_points = None
             pts = as_float32(points, name="points")
             check_shape(pts, (h, w, 3), name=f"points (frame {index})")
             d = np.ascontiguousarray(pts[..., 2])
@@ -420,6 +422,14 @@ class FusionEngine:
                 self._flow_estimator.prime(self._intensity[prev], self._initial_flow)
         current = self._intensity[index % self.ring] if intensity is None else intensity
         return self._flow_estimator(self._intensity[prev], current)
+
+    def _raw_points(self, t: int) -> NDArray[np.float32]:
+        """P^t: frame t's back-projected raw depth (the last pushed frame's from
+        :meth:`_prepare`, as in causal mode, instead of projecting it again)."""
+        last = self._last_points
+        if last is not None and last[0] == t:
+            return last[1]
+        return depth_to_points(self._depth[t % self.ring], self.intrinsics)
 
     def _frame_sigma_distance(self, z_med: float, quad: float) -> float:
         """delta_d (mm) of a frame with median depth ``z_med`` (mm) and noise coefficient
@@ -526,7 +536,7 @@ class FusionEngine:
         if p.fill_holes and hole.any():
             filled = _fill_holes(
                 points,
-                depth_to_points(self._depth[t % self.ring], self.intrinsics),
+                self._raw_points(t),
                 hole,
                 radius=p.fill_radius,
                 sigma=p.sigma_fill,
