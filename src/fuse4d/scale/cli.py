@@ -17,6 +17,7 @@ from ..config import FlowConfig, FusionParams
 from .cluster import open_compute
 from .graph import fuse
 from .inputs import open_lazy
+from .streamed import recording_tasks, source_of
 from .zarr_out import ZarrOutput
 
 __all__ = ["DaskRunSummary", "output_paths", "run_dask"]
@@ -142,18 +143,9 @@ def run_dask(
     tasks: list[Any] = []
     for src, dst in zip(inputs, targets, strict=True):
         rec = open_lazy(src, frames_per_task=chunk_frames, **(reader_options or {}))
-        result = fuse(
-            rec.depth,
-            rec.intensity,
-            rec.intrinsics,
-            fusion=fusion,
-            flow=flow,
-            chunk_frames=chunk_frames,
-            warm_start=warm_start,
-        )
         out = ZarrOutput(
             dst,
-            shape=tuple(result.depth.shape),
+            shape=(rec.num_frames, rec.intrinsics.height, rec.intrinsics.width),
             chunk_frames=chunk_frames,
             intrinsics=rec.intrinsics,
             metadata={
@@ -166,13 +158,36 @@ def run_dask(
             save_flows=save_flows,
         )
         skipped = len(out.done_chunks())
-        tasks.extend(out.tasks(result))
+        if fusion.iterations == 1:  # bounded memory: frames and flows travel through files
+            source = source_of(rec.path, rec.format, rec.num_frames, **(reader_options or {}))
+            tasks.extend(
+                recording_tasks(
+                    source,
+                    out,
+                    rec.intrinsics,
+                    fusion=fusion,
+                    flow=flow,
+                    chunk_frames=chunk_frames,
+                    warm_start=warm_start,
+                )
+            )
+        else:  # fusion iterations chain whole passes: the in-memory graph
+            result = fuse(
+                rec.depth,
+                rec.intensity,
+                rec.intrinsics,
+                fusion=fusion,
+                flow=flow,
+                chunk_frames=chunk_frames,
+                warm_start=warm_start,
+            )
+            tasks.extend(out.tasks(result))
         summary = DaskRunSummary(
             input=src,
             output=dst,
             frames=rec.num_frames,
             shape=(rec.intrinsics.height, rec.intrinsics.width),
-            chunks=result.num_chunks,
+            chunks=len(out.bounds),
             skipped=skipped,
         )
         jobs.append((out, summary))
