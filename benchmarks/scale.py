@@ -169,6 +169,35 @@ def _with_cluster(workers: int, job: Any) -> tuple[Any, list[float], float]:
     return result, rss, sum(after[k] - before[k] for k in after)
 
 
+def _alternating(rec: Path, folder: Path, args: argparse.Namespace) -> dict[str, Any]:
+    """Streaming and dask runs alternated on one 1-worker cluster: min wall and worker CPU of
+    each side, and the overhead of the minima."""
+    from fuse4d.scale.cluster import local_cluster
+
+    sides: dict[str, list[tuple[float, float]]] = {"stream": [], "dask": []}
+    with local_cluster(1) as client:
+        client.wait_for_workers(1)
+        client.run(_warm_up)
+        for _ in range(args.repeats):
+            for side, runs in sides.items():
+                before = client.run(_cpu_seconds)
+                if side == "stream":
+                    wall = client.submit(_stream_task, str(rec), args.window, pure=False).result()
+                else:
+                    out = folder / "alt.zarr"
+                    wall = _dask_run(client, rec, out, args.chunk_frames, args.window, args.graph)
+                after = client.run(_cpu_seconds)
+                runs.append((wall, sum(after[k] - before[k] for k in after)))
+    (sw, sc), (dw, dc) = (tuple(min(v) for v in zip(*sides[k], strict=True)) for k in sides)
+    return {
+        "alternating_runs": {
+            k: [[round(w, 2), round(c, 2)] for w, c in v] for k, v in sides.items()
+        },
+        "alternating_overhead_wall": dw / sw - 1.0,
+        "alternating_overhead_cpu": dc / sc - 1.0,
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=96, help="recording length (frames)")
@@ -190,6 +219,13 @@ def main(argv: list[str] | None = None) -> int:
         help="the length check runs a recording this many times longer (default 2)",
     )
     parser.add_argument("--no-length-check", action="store_true", help="skip the longer run")
+    parser.add_argument(
+        "--repeats",
+        type=int,
+        default=1,
+        help="also alternate streaming / dask-1-worker runs this many times on one 1-worker "
+        "cluster and report the overhead of the minima (robust to a drifting load)",
+    )
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     counts = [int(v) for v in args.workers.split(",")]
@@ -224,6 +260,8 @@ def main(argv: list[str] | None = None) -> int:
             report[f"dask_{n}_s"] = seconds
             report[f"dask_{n}_cpu_s"] = cpu
             report[f"dask_{n}_rss_mib"] = rss
+        if args.repeats > 1:
+            report.update(_alternating(rec, folder, args))
         if not args.no_length_check:
             longer = folder / "long.npz"
             factor = args.length_factor
@@ -254,6 +292,8 @@ def main(argv: list[str] | None = None) -> int:
     for key, value in report.items():
         if isinstance(value, float):
             value = f"{value:.3f}"
+        elif isinstance(value, dict):
+            value = json.dumps(value)
         elif isinstance(value, list | tuple):
             value = ", ".join(f"{v:.2f}" if isinstance(v, float) else str(v) for v in value)
         print(f"{key:32s} {value}")

@@ -111,3 +111,28 @@ def test_scratch_flows_are_dropped_and_resume_recomputes_only_what_is_missing(
     assert sorted(calls) == [3, 4]  # pair chunks 0-2 (read by chunks 0-1) were kept
     assert not list(scratch.glob("pair-*.npy"))  # every pair file dropped once read
     _check(out.finalize(), ref)
+
+
+@pytest.mark.parametrize("lookahead", [1, 2, None])
+def test_bounded_lookahead_keeps_few_scratch_files(ball, tmp_path, monkeypatch, lookahead):
+    path = tmp_path / "rec.npz"
+    save_sequence(ball, path)
+    k = ball.intrinsics
+    out = ZarrOutput(tmp_path / "o.zarr", shape=ball.depth.shape, chunk_frames=2,
+                     intrinsics=k, metadata={})  # fmt: skip
+    source = streamed.source_of(path, "npz", ball.num_frames)
+    scratch = streamed.flow_scratch(out.staging)
+    most = []
+    real = streamed._fuse_task
+    monkeypatch.setattr(
+        streamed, "_fuse_task",
+        lambda *a: most.append(len(list(scratch.glob("pair-*.npy")))) or real(*a),
+    )  # fmt: skip
+    tasks = streamed.recording_tasks(source, out, k, fusion=FusionParams(), flow=preset("fast").flow,
+                                     chunk_frames=2, lookahead=lookahead)  # fmt: skip
+    dask.compute(*tasks, scheduler="sync")
+    _check(out.finalize(), fuse_sequence(ball.depth, ball.intensity, k))
+    if lookahead is None:
+        assert max(most) == ball.num_frames - 1  # dask solves the whole flow chain first
+    else:  # pairs of the chunks being read, and lookahead chunks ahead of them
+        assert max(most) <= 2 * (lookahead + 4), most

@@ -8,6 +8,7 @@ the scheduler in one computation, so many recordings share one cluster.
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -77,6 +78,17 @@ def output_paths(inputs: list[Path], output: Path) -> list[Path]:
     return paths
 
 
+def _worker_threads(scheduler: str, workers: int | None) -> int:
+    """Threads that run tasks: ``workers`` (or the CPU count) locally, the cluster's total for
+    a scheduler address (flow look-ahead of :func:`~fuse4d.scale.streamed.recording_tasks`)."""
+    if scheduler.startswith(("tcp://", "tls://", "ucx://", "inproc://")):
+        from distributed import Client
+
+        with Client(scheduler) as client:
+            return max(1, sum(client.nthreads().values()))
+    return max(1, workers or os.cpu_count() or 1)
+
+
 def _source(path: Path) -> dict[str, Any]:
     st = path.stat()
     return {"path": str(path.resolve()), "size": st.st_size, "mtime_ns": st.st_mtime_ns}
@@ -141,6 +153,7 @@ def run_dask(
     }
     jobs: list[tuple[ZarrOutput, DaskRunSummary]] = []
     tasks: list[Any] = []
+    lookahead = 2 + _worker_threads(scheduler, workers)
     for src, dst in zip(inputs, targets, strict=True):
         rec = open_lazy(src, frames_per_task=chunk_frames, **(reader_options or {}))
         out = ZarrOutput(
@@ -169,6 +182,7 @@ def run_dask(
                     flow=flow,
                     chunk_frames=chunk_frames,
                     warm_start=warm_start,
+                    lookahead=lookahead,
                 )
             )
         else:  # fusion iterations chain whole passes: the in-memory graph

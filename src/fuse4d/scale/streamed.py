@@ -119,6 +119,7 @@ def _flow_task(
     seed: NDArray[np.float32] | None,
     config: FlowConfig,
     chained: bool,
+    *after: Any,
 ) -> tuple[NDArray[np.float32] | None, int]:
     """Pairs ``[a, b)`` of chunk k, chained like :func:`fuse4d.scale.graph._flow_block`, to
     the scratch files (and the output's flow arrays at ``staging``); returns the seed of chunk
@@ -225,6 +226,7 @@ def recording_tasks(
     flow: FlowConfig,
     chunk_frames: int,
     warm_start: bool = True,
+    lookahead: int | None = None,
 ) -> list[Any]:
     """The delayed tasks that fuse ``source`` into ``out`` (the unfinished chunks only).
 
@@ -243,6 +245,11 @@ def recording_tasks(
         Frames per fusion task and pairs per flow task.
     warm_start : bool
         Chain warm starts across pairs (the in-memory default).
+    lookahead : int, optional
+        Each flow task waits for the ``lookahead``-th newest fusion task that does not need
+        it, so the flow stage runs at most that many chunks ahead of the fusion (dask's ordering would otherwise solve the whole
+        flow chain first, and the scratch files would grow with the recording). Use the
+        number of worker threads + 2 (fewer starves the workers); None: unbounded.
 
     Returns
     -------
@@ -251,6 +258,8 @@ def recording_tasks(
     """
     if fusion.iterations != 1:
         raise ValueError("recording_tasks fuses one iteration; use fuse() + write_zarr")
+    if lookahead is not None and lookahead < 1:
+        raise ValueError(f"lookahead must be >= 1, got {lookahead}")
     total = source.frames
     bounds = chunk_bounds(total, chunk_frames)
     missing = sorted(set(range(len(bounds))) - out.done_chunks())
@@ -288,27 +297,54 @@ def recording_tasks(
     staging = str(out.staging)
     flow_staging = staging if out.save_flows else None
     tokens: dict[int, Any] = {}
+    fused: dict[int, Any] = {}
+    drops: dict[int, Any] = {}
     seed: Any = None
+    k_next = 0  # fusion tasks are built as soon as their flow tasks exist
+    droppable = sorted(need | compute)
+
+    def build(upto: int) -> None:
+        """The fusion tasks that read pair chunks <= ``upto`` only, then the drop tasks whose
+        readers all exist."""
+        nonlocal k_next
+        while k_next < len(missing) and max(flow_chunks(missing[k_next]), default=-1) <= upto:
+            k = missing[k_next]
+            after = [tokens[j] for j in flow_chunks(k) if j in tokens]
+            fused[k] = dask.delayed(_fuse_task, pure=False)(
+                source, str(scratch), staging, k, window(k), intrinsics, fusion, *after
+            )
+            k_next += 1
+        while droppable and all(k in fused for k in consumers[droppable[0]]):
+            j = droppable.pop(0)
+            if j > upto and j in compute:
+                droppable.insert(0, j)  # its flow task does not exist yet
+                break
+            after = [fused[k] for k in consumers[j]] + ([tokens[j]] if j in tokens else [])
+            drops[j] = dask.delayed(_drop_task, pure=False)(str(scratch), j, pairs[j], *after)
+
     for j in sorted(compute):
         if chained and j > 0 and (j - 1) not in compute:
             seed = dask.delayed(_load_seed, pure=False)(str(scratch), j - 1)
         elif not chained or j == 0:
             seed = None
+        build(j - 1)
+        # bounded look-ahead: pair chunk j waits for the lookahead-th newest fusion task that
+        # does not read it, and for the deletion of the pairs that fusion was the last to read
+        # (dask would run the cheap deletions last)
+        wait = []
+        built = sorted(fused)
+        if lookahead is not None and len(built) >= lookahead:
+            k = built[-lookahead]
+            wait.append(fused[k])
+            done = [i for i in drops if max(consumers[i], default=-1) <= k]
+            if done:
+                wait.append(drops[max(done)])
         task = dask.delayed(_flow_task, nout=2, pure=False)(
-            source, str(scratch), flow_staging, j, pairs[j], seed, flow, chained
+            source, str(scratch), flow_staging, j, pairs[j], seed, flow, chained, *wait
         )
         seed, tokens[j] = task[0], task[1]
-    results = []
-    fused: dict[int, Any] = {}
-    for k in missing:
-        after = [tokens[j] for j in flow_chunks(k) if j in tokens]
-        fused[k] = dask.delayed(_fuse_task, pure=False)(
-            source, str(scratch), staging, k, window(k), intrinsics, fusion, *after
-        )
-        results.append(fused[k])
-    for j in sorted(need | compute):  # drop each pair chunk once its readers are done
-        after = [fused[k] for k in consumers[j]] + ([tokens[j]] if j in tokens else [])
-        results.append(dask.delayed(_drop_task, pure=False)(str(scratch), j, pairs[j], *after))
+    build(len(pairs))
+    results = [fused[k] for k in missing] + [drops[j] for j in sorted(drops)]
     for j in set(range(len(pairs))) - need - compute:  # left by an interrupted run, unread
         if _flow_marker(str(scratch), j).exists():
             _drop_task(str(scratch), j, pairs[j])
