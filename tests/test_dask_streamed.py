@@ -136,3 +136,14 @@ def test_bounded_lookahead_keeps_few_scratch_files(ball, tmp_path, monkeypatch, 
         assert max(most) == ball.num_frames - 1  # dask solves the whole flow chain first
     else:  # pairs of the chunks being read, and lookahead chunks ahead of them
         assert max(most) <= 2 * (lookahead + 4), most
+
+
+@pytest.mark.slow
+def test_streamed_through_a_local_cluster_with_two_worker_processes(ball, tmp_path):
+    pytest.importorskip("distributed")
+    from fuse4d.scale.cluster import local_cluster
+
+    with local_cluster(2) as client:
+        summary = _run(ball, tmp_path, "lc", chunk_frames=4,
+                       scheduler=client.scheduler.address)  # fmt: skip
+    _check(summary.output, fuse_sequence(ball.depth, ball.intensity, ball.intrinsics))
