@@ -40,11 +40,22 @@ from typing import Any
 import numpy as np
 
 
-def _make_recording(path: Path, frames: int, full: bool) -> None:
+def _make_recording(path: Path, frames: int, full: bool, size: int | None = None) -> None:
+    """The falling ball (600x600 with ``full``, else 150x150), optionally its central
+    ``size`` x ``size`` px (cheaper runs with the same motion)."""
+    from fuse4d import Intrinsics
     from fuse4d.io import save_sequence
+    from fuse4d.sequence import Sequence
     from fuse4d.synthetic import make_falling_ball
 
     seq = make_falling_ball(small=not full, num_frames=frames, rng=0)
+    h, w = seq.depth.shape[1:]
+    if size is not None and size < min(h, w):
+        r, c = (h - size) // 2, (w - size) // 2
+        k = seq.intrinsics
+        cam = Intrinsics(k.fx, k.fy, k.cx - c, k.cy - r, size, size)
+        box = (slice(None), slice(r, r + size), slice(c, c + size))
+        seq = Sequence(seq.depth[box].copy(), seq.intensity[box].copy(), cam)
     save_sequence(seq, path)
 
 
@@ -102,18 +113,35 @@ def _stream_task(path: str, window: int) -> float:
     return time.perf_counter() - start
 
 
-def _dask_run(client: Any, path: Path, out: Path, chunk: int, window: int) -> float:
+def _dask_run(
+    client: Any, path: Path, out: Path, chunk: int, window: int, graph: str = "streamed"
+) -> float:
+    """``fuse4d run --engine dask`` on the client's cluster; returns seconds.
+
+    ``graph="streamed"`` is what the CLI runs (:func:`fuse4d.scale.cli.run_dask`: frames and
+    flows through files); ``"memory"`` is ``fuse4d.dask.fuse`` + ``write_zarr`` (blocks in
+    worker memory)."""
     import fuse4d.dask as fd
     from fuse4d import FusionParams
+    from fuse4d.config import preset
+    from fuse4d.scale.cli import run_dask
 
+    fusion = FusionParams(num_frames=window)
+    if graph == "streamed":
+        start = time.perf_counter()
+        run_dask(
+            [path],
+            out,
+            fusion=fusion,
+            flow=preset("fast").flow,
+            chunk_frames=chunk,
+            scheduler=client.scheduler.address,
+            overwrite=True,
+            progress=False,
+        )
+        return time.perf_counter() - start
     rec = fd.open_lazy(path, frames_per_task=chunk)
-    res = fd.fuse(
-        rec.depth,
-        rec.intensity,
-        rec.intrinsics,
-        fusion=FusionParams(num_frames=window),
-        chunk_frames=chunk,
-    )
+    res = fd.fuse(rec.depth, rec.intensity, rec.intrinsics, fusion=fusion, chunk_frames=chunk)
     start = time.perf_counter()
     fd.write_zarr(
         res,
@@ -141,10 +169,46 @@ def _with_cluster(workers: int, job: Any) -> tuple[Any, list[float], float]:
     return result, rss, sum(after[k] - before[k] for k in after)
 
 
+def _alternating(rec: Path, folder: Path, args: argparse.Namespace) -> dict[str, Any]:
+    """Streaming and dask runs alternated on one 1-worker cluster: min wall and worker CPU of
+    each side, and the overhead of the minima."""
+    from fuse4d.scale.cluster import local_cluster
+
+    sides: dict[str, list[tuple[float, float]]] = {"stream": [], "dask": []}
+    with local_cluster(1) as client:
+        client.wait_for_workers(1)
+        client.run(_warm_up)
+        for _ in range(args.repeats):
+            for side, runs in sides.items():
+                before = client.run(_cpu_seconds)
+                if side == "stream":
+                    wall = client.submit(_stream_task, str(rec), args.window, pure=False).result()
+                else:
+                    out = folder / "alt.zarr"
+                    wall = _dask_run(client, rec, out, args.chunk_frames, args.window, args.graph)
+                after = client.run(_cpu_seconds)
+                runs.append((wall, sum(after[k] - before[k] for k in after)))
+    (sw, sc), (dw, dc) = (tuple(min(v) for v in zip(*sides[k], strict=True)) for k in sides)
+    return {
+        "alternating_runs": {
+            k: [[round(w, 2), round(c, 2)] for w, c in v] for k, v in sides.items()
+        },
+        "alternating_overhead_wall": dw / sw - 1.0,
+        "alternating_overhead_cpu": dc / sc - 1.0,
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=96, help="recording length (frames)")
     parser.add_argument("--full", action="store_true", help="600x600 instead of 150x150")
+    parser.add_argument("--size", type=int, help="crop the frames to SIZE x SIZE px (centre)")
+    parser.add_argument(
+        "--graph",
+        choices=("streamed", "memory"),
+        default="streamed",
+        help="dask graph: streamed (fuse4d run --engine dask) or memory (fuse + write_zarr)",
+    )
     parser.add_argument("--workers", default="1,2", help="worker counts, comma-separated")
     parser.add_argument("--chunk-frames", type=int, default=32)
     parser.add_argument("--window", type=int, default=9, help="frames fused per output")
@@ -155,11 +219,21 @@ def main(argv: list[str] | None = None) -> int:
         help="the length check runs a recording this many times longer (default 2)",
     )
     parser.add_argument("--no-length-check", action="store_true", help="skip the longer run")
+    parser.add_argument(
+        "--repeats",
+        type=int,
+        default=1,
+        help="also alternate streaming / dask-1-worker runs this many times on one 1-worker "
+        "cluster and report the overhead of the minima (robust to a drifting load)",
+    )
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     counts = [int(v) for v in args.workers.split(",")]
     report: dict[str, Any] = {
-        "size": "600x600" if args.full else "150x150",
+        "size": f"{args.size}x{args.size}"
+        if args.size
+        else ("600x600" if args.full else "150x150"),
+        "graph": args.graph,
         "frames": args.frames,
         "chunk_frames": args.chunk_frames,
         "window": args.window,
@@ -169,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="fuse4d-scale-") as tmp:
         folder = Path(tmp)
         rec = folder / "rec.npz"
-        _make_recording(rec, args.frames, args.full)
+        _make_recording(rec, args.frames, args.full, args.size)
         seconds, rss, cpu = _with_cluster(
             1, lambda c: c.submit(_stream_task, str(rec), args.window, pure=False).result()
         )
@@ -179,19 +253,25 @@ def main(argv: list[str] | None = None) -> int:
         for n in counts:
             seconds, rss, cpu = _with_cluster(
                 n,
-                lambda c: _dask_run(c, rec, folder / "out.zarr", args.chunk_frames, args.window),
+                lambda c: _dask_run(
+                    c, rec, folder / "out.zarr", args.chunk_frames, args.window, args.graph
+                ),
             )
             report[f"dask_{n}_s"] = seconds
             report[f"dask_{n}_cpu_s"] = cpu
             report[f"dask_{n}_rss_mib"] = rss
+        if args.repeats > 1:
+            report.update(_alternating(rec, folder, args))
         if not args.no_length_check:
             longer = folder / "long.npz"
             factor = args.length_factor
-            _make_recording(longer, factor * args.frames, args.full)
+            _make_recording(longer, factor * args.frames, args.full, args.size)
             n = max(counts)
             seconds, rss, cpu = _with_cluster(
                 n,
-                lambda c: _dask_run(c, longer, folder / "o2.zarr", args.chunk_frames, args.window),
+                lambda c: _dask_run(
+                    c, longer, folder / "o2.zarr", args.chunk_frames, args.window, args.graph
+                ),
             )
             report["long_frames"] = factor * args.frames
             report[f"dask_{n}_long_s"] = seconds
@@ -212,6 +292,8 @@ def main(argv: list[str] | None = None) -> int:
     for key, value in report.items():
         if isinstance(value, float):
             value = f"{value:.3f}"
+        elif isinstance(value, dict):
+            value = json.dumps(value)
         elif isinstance(value, list | tuple):
             value = ", ".join(f"{v:.2f}" if isinstance(v, float) else str(v) for v in value)
         print(f"{key:32s} {value}")

@@ -8,6 +8,7 @@ the scheduler in one computation, so many recordings share one cluster.
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,6 +18,7 @@ from ..config import FlowConfig, FusionParams
 from .cluster import open_compute
 from .graph import fuse
 from .inputs import open_lazy
+from .streamed import recording_tasks, source_of
 from .zarr_out import ZarrOutput
 
 __all__ = ["DaskRunSummary", "output_paths", "run_dask"]
@@ -74,6 +76,17 @@ def output_paths(inputs: list[Path], output: Path) -> list[Path]:
     if len(set(paths)) != len(paths):
         raise ValueError("inputs with the same name would write the same store; rename them")
     return paths
+
+
+def _worker_threads(scheduler: str, workers: int | None) -> int:
+    """Threads that run tasks: ``workers`` (or the CPU count) locally, the cluster's total for
+    a scheduler address (flow look-ahead of :func:`~fuse4d.scale.streamed.recording_tasks`)."""
+    if scheduler.startswith(("tcp://", "tls://", "ucx://", "inproc://")):
+        from distributed import Client
+
+        with Client(scheduler) as client:
+            return max(1, sum(client.nthreads().values()))
+    return max(1, workers or os.cpu_count() or 1)
 
 
 def _source(path: Path) -> dict[str, Any]:
@@ -140,20 +153,12 @@ def run_dask(
     }
     jobs: list[tuple[ZarrOutput, DaskRunSummary]] = []
     tasks: list[Any] = []
+    lookahead = 2 + _worker_threads(scheduler, workers)
     for src, dst in zip(inputs, targets, strict=True):
         rec = open_lazy(src, frames_per_task=chunk_frames, **(reader_options or {}))
-        result = fuse(
-            rec.depth,
-            rec.intensity,
-            rec.intrinsics,
-            fusion=fusion,
-            flow=flow,
-            chunk_frames=chunk_frames,
-            warm_start=warm_start,
-        )
         out = ZarrOutput(
             dst,
-            shape=tuple(result.depth.shape),
+            shape=(rec.num_frames, rec.intrinsics.height, rec.intrinsics.width),
             chunk_frames=chunk_frames,
             intrinsics=rec.intrinsics,
             metadata={
@@ -166,13 +171,37 @@ def run_dask(
             save_flows=save_flows,
         )
         skipped = len(out.done_chunks())
-        tasks.extend(out.tasks(result))
+        if fusion.iterations == 1:  # bounded memory: frames and flows travel through files
+            source = source_of(rec.path, rec.format, rec.num_frames, **(reader_options or {}))
+            tasks.extend(
+                recording_tasks(
+                    source,
+                    out,
+                    rec.intrinsics,
+                    fusion=fusion,
+                    flow=flow,
+                    chunk_frames=chunk_frames,
+                    warm_start=warm_start,
+                    lookahead=lookahead,
+                )
+            )
+        else:  # fusion iterations chain whole passes: the in-memory graph
+            result = fuse(
+                rec.depth,
+                rec.intensity,
+                rec.intrinsics,
+                fusion=fusion,
+                flow=flow,
+                chunk_frames=chunk_frames,
+                warm_start=warm_start,
+            )
+            tasks.extend(out.tasks(result))
         summary = DaskRunSummary(
             input=src,
             output=dst,
             frames=rec.num_frames,
             shape=(rec.intrinsics.height, rec.intrinsics.width),
-            chunks=result.num_chunks,
+            chunks=len(out.bounds),
             skipped=skipped,
         )
         jobs.append((out, summary))

@@ -46,6 +46,7 @@ _ARRAYS = {
     "filled": (np.bool_, False, ""),
 }
 _MARKERS = ".fuse4d-done"
+_SCRATCH = ".fuse4d-flows"
 
 
 def _codec() -> Any:
@@ -280,6 +281,8 @@ class ZarrOutput:
         root = zarr.open_group(str(self.staging), mode="r+")
         root.attrs["fuse4d"] = {**json.loads(json.dumps(self.metadata)), "complete": True}
         shutil.rmtree(self.staging / _MARKERS)
+        if (self.staging / _SCRATCH).is_dir():  # pair flows of fuse4d.scale.streamed
+            shutil.rmtree(self.staging / _SCRATCH)
         if self.path.exists():  # overwrite: replace only now that the new output is complete
             old = self.path.with_name(f".{self.path.name}.old-{os.getpid()}")
             self.path.rename(old)

@@ -1,0 +1,359 @@
+"""Bounded-memory dask graph for recordings on disk (what ``fuse4d run --engine dask`` runs).
+
+The graph of :func:`fuse4d.scale.graph.fuse` passes frames and flows between tasks as
+in-memory blocks: a worker holds its running task's ``c + h`` input frames and pair flows
+(24 bytes/px/frame) plus the blocks its neighbours' tasks still need — ≈ 1.5 GB per worker at
+600 x 600 with c = 32, more on a cluster where blocks are copied between workers. Here the
+tasks pass only tokens and the frames travel through files:
+
+- **flow task k** reads its ``c + 1`` intensity frames one at a time from the recording,
+  solves the pairs of chunk k (warm-started from chunk k-1's last forward flow, the only array
+  passed between tasks, 8 bytes/px) and writes each pair to a scratch file in the output's
+  staging folder (``OUT.zarr.partial/.fuse4d-flows/``; with ``save_flows`` also the output's
+  ``flow_forward``/``flow_backward`` shard);
+- **fusion task k** (after flow tasks k-1, k, k+1) reads its frames with the halo one at a time
+  from the recording and its pairs from the scratch files, runs the streaming engine, and
+  writes its zarr shard and done marker;
+- **drop task k** deletes chunk k's pair files once fusion tasks k-1, k, k+1 are done (only
+  the last forward flow stays, to seed a resumed run), so the scratch space is a few chunks,
+  not the recording.
+
+A worker holds one engine (≈ 0.2 GB at 600 x 600), one chunk of outputs (6 bytes/px/frame)
+and a few frames: flat in the recording's length. The bits are those of the in-memory graph
+(same reader, same flow calls in the same order, same engine per chunk).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import dask
+import numpy as np
+import zarr
+from numpy.typing import NDArray
+
+from ..camera import Intrinsics
+from ..config import FlowConfig, FusionParams
+from ..flow import FlowCache, estimate_flow_pair, get_flow_method
+from ..fusion import FusionEngine
+from .graph import _intensity_frame, chunk_bounds
+from .inputs import read_frames
+from .zarr_out import ZarrOutput, write_chunk
+
+__all__ = ["RecordingSource", "flow_scratch", "recording_tasks", "source_of"]
+
+_FLOWS = ".fuse4d-flows"
+
+
+@dataclass(frozen=True)
+class RecordingSource:
+    """A recording on disk as the tasks open it (each worker keeps one reader per source).
+
+    Attributes
+    ----------
+    path : str
+        Absolute path of the ``.npz`` file or folder.
+    format : str
+        Layout name for :func:`fuse4d.io.open_frames`.
+    stamp : int
+        The input's mtime (ns): a rewritten input gets new task keys.
+    options : tuple of (str, value)
+        Keyword arguments of :func:`fuse4d.io.open_frames`.
+    frames : int
+        T.
+    """
+
+    path: str
+    format: str
+    stamp: int
+    options: tuple[tuple[str, Any], ...]
+    frames: int
+
+    def frame(self, index: int) -> NDArray[np.float32]:
+        """``(2, H, W)`` float32 depth (mm, NaN = invalid) and intensity of frame ``index``,
+        the values :func:`fuse4d.scale.inputs.read_frames` gives the in-memory graph."""
+        return read_frames(self.path, self.format, index, index + 1, self.stamp, self.options)[0]
+
+
+def flow_scratch(staging: Path) -> Path:
+    """The scratch folder of the pair flows inside an output's staging folder."""
+    return Path(staging) / _FLOWS
+
+
+def _pair_file(scratch: str, j: int) -> Path:
+    return Path(scratch) / f"pair-{j:07d}.npy"
+
+
+def _seed_file(scratch: str, k: int) -> Path:
+    return Path(scratch) / f"seed-{k:06d}.npy"
+
+
+def _flow_marker(scratch: str, k: int) -> Path:
+    """Present while chunk k's pair files are complete."""
+    return Path(scratch) / f"flows-{k:06d}"
+
+
+def _save(path: Path, array: NDArray[Any]) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    with tmp.open("wb") as f:
+        np.save(f, array, allow_pickle=False)
+    tmp.replace(path)
+
+
+def _touch(path: Path, info: dict[str, Any]) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(info))
+    tmp.replace(path)
+
+
+# ------------------------------------------------------------------------------------ tasks
+def _flow_task(
+    source: RecordingSource,
+    scratch: str,
+    staging: str | None,
+    k: int,
+    bounds: tuple[int, int],
+    seed: NDArray[np.float32] | None,
+    config: FlowConfig,
+    chained: bool,
+    *after: Any,
+) -> tuple[NDArray[np.float32] | None, int]:
+    """Pairs ``[a, b)`` of chunk k, chained like :func:`fuse4d.scale.graph._flow_block`, to
+    the scratch files (and the output's flow arrays at ``staging``); returns the seed of chunk
+    k + 1 (None without warm starts) and a token."""
+    a, b = bounds
+    method = get_flow_method(config.method)
+    params = config.build_params()
+    cache = None if config.cache_dir is None else FlowCache(config.cache_dir)
+    init = seed if chained else None
+    keep: list[tuple[NDArray[np.float32], NDArray[np.float32]]] = []
+    previous = _intensity_frame(source.frame(a)[1])
+    forward = None
+    for j in range(a, b):
+        current = _intensity_frame(source.frame(j + 1)[1])
+        forward, backward = estimate_flow_pair(
+            previous,
+            current,
+            method=method,
+            params=params,
+            init_forward=init,
+            roi=config.roi,
+            cache=cache,
+        )
+        forward = np.asarray(forward, np.float32)
+        backward = np.asarray(backward, np.float32)
+        _save(_pair_file(scratch, j), np.stack([forward, backward]))
+        if staging is not None:
+            keep.append((forward, backward))
+        if chained:
+            init = forward
+        previous = current
+    if staging is not None and keep:  # the output's shard of these pairs, written at once
+        root = zarr.open_group(staging, mode="r+")
+        root["flow_forward"][a:b] = np.stack([f for f, _ in keep])  # type: ignore[index]
+        root["flow_backward"][a:b] = np.stack([g for _, g in keep])  # type: ignore[index]
+    assert forward is not None
+    last = np.array(forward)
+    _save(_seed_file(scratch, k), last)
+    _touch(_flow_marker(scratch, k), {"start": a, "stop": b})
+    return (last if chained else None), k
+
+
+def _load_seed(scratch: str, k: int) -> NDArray[np.float32]:
+    """Chunk k's last forward flow, saved by an earlier (interrupted) run."""
+    return np.load(_seed_file(scratch, k), allow_pickle=False)
+
+
+def _fuse_task(
+    source: RecordingSource,
+    scratch: str,
+    staging: str,
+    k: int,
+    frames: tuple[int, int, int, int],
+    intrinsics: Intrinsics,
+    params: FusionParams,
+    *after: Any,
+) -> int:
+    """Output frames ``[s, e)`` from the frames ``[lo, hi)``, exactly as
+    :func:`fuse4d.scale.graph._fuse_block`, written as chunk k; returns k."""
+    s, e, lo, hi = frames
+    h, w = intrinsics.height, intrinsics.width
+    depth = np.empty((e - s, h, w), np.float32)
+    support = np.empty((e - s, h, w), np.uint8)
+    filled = np.empty((e - s, h, w), np.bool_)
+    engine = FusionEngine(intrinsics, fusion=params, warm_start=False)
+    a, b = s - lo, e - lo
+    if a > 0 and isinstance(getattr(engine, "_emitted", None), int):
+        engine._emitted = a  # halo frames are sources only (see graph._fuse_block)
+
+    def take(out: list[Any]) -> None:
+        for fr in out:
+            if a <= fr.index < b:
+                depth[fr.index - a] = fr.points[..., 2]
+                support[fr.index - a] = fr.support
+                filled[fr.index - a] = fr.filled
+
+    for t in range(lo, hi):
+        frame = source.frame(t)
+        pair = None
+        if t > lo:
+            both = np.load(_pair_file(scratch, t - 1), allow_pickle=False)
+            pair = (both[0], both[1])
+        take(engine.push(frame[0], frame[1], pair_flow=pair))
+    if hi == source.frames:
+        take(engine.flush())
+    return write_chunk(staging, k, s, depth, support, filled)
+
+
+def _drop_task(scratch: str, k: int, bounds: tuple[int, int], *after: Any) -> int:
+    """Delete chunk k's pair files (its consumers are done); its seed stays."""
+    _flow_marker(scratch, k).unlink(missing_ok=True)  # first: no marker = must recompute
+    for j in range(*bounds):
+        _pair_file(scratch, j).unlink(missing_ok=True)
+    return k
+
+
+# ------------------------------------------------------------------------------------ graph
+def recording_tasks(
+    source: RecordingSource,
+    out: ZarrOutput,
+    intrinsics: Intrinsics,
+    *,
+    fusion: FusionParams,
+    flow: FlowConfig,
+    chunk_frames: int,
+    warm_start: bool = True,
+    lookahead: int | None = None,
+) -> list[Any]:
+    """The delayed tasks that fuse ``source`` into ``out`` (the unfinished chunks only).
+
+    Parameters
+    ----------
+    source : RecordingSource
+    out : ZarrOutput
+        Created with the same ``chunk_frames``; its staging folder holds the scratch flows.
+    intrinsics : Intrinsics
+        Pinhole camera (px).
+    fusion : FusionParams
+        ``iterations`` must be 1 (more iterations need the in-memory graph).
+    flow : FlowConfig
+        Tracker and its parameters.
+    chunk_frames : int
+        Frames per fusion task and pairs per flow task.
+    warm_start : bool
+        Chain warm starts across pairs (the in-memory default).
+    lookahead : int, optional
+        Each flow task waits for the ``lookahead``-th newest fusion task that does not need
+        it, so the flow stage runs at most that many chunks ahead of the fusion (dask's ordering would otherwise solve the whole
+        flow chain first, and the scratch files would grow with the recording). Use the
+        number of worker threads + 2 (fewer starves the workers); None: unbounded.
+
+    Returns
+    -------
+    list of Delayed
+        Compute them together (one call); the output is then ready for ``out.finalize()``.
+    """
+    if fusion.iterations != 1:
+        raise ValueError("recording_tasks fuses one iteration; use fuse() + write_zarr")
+    if lookahead is not None and lookahead < 1:
+        raise ValueError(f"lookahead must be >= 1, got {lookahead}")
+    total = source.frames
+    bounds = chunk_bounds(total, chunk_frames)
+    missing = sorted(set(range(len(bounds))) - out.done_chunks())
+    if not missing:
+        return []
+    scratch = flow_scratch(out.staging)
+    scratch.mkdir(exist_ok=True)
+    pairs = chunk_bounds(max(total - 1, 0), chunk_frames)
+    past, future = fusion.past_frames, fusion.future_frames
+
+    def window(k: int) -> tuple[int, int, int, int]:
+        s, e = bounds[k]
+        return s, e, max(0, s - past), min(total, e + future)
+
+    def flow_chunks(k: int) -> list[int]:
+        """The pair chunks fusion chunk k reads (pairs [lo, hi - 1))."""
+        _, _, lo, hi = window(k)
+        return [j for j, (a, b) in enumerate(pairs) if a < hi - 1 and b > lo]
+
+    consumers: dict[int, list[int]] = {j: [] for j in range(len(pairs))}
+    for k in missing:
+        for j in flow_chunks(k):
+            consumers[j].append(k)
+    need = {j for j, ks in consumers.items() if ks}
+    if out.save_flows:  # every shard of the output's flow arrays
+        need |= {j for j in range(len(pairs)) if not _seed_file(str(scratch), j).exists()}
+    chained = warm_start and get_flow_method(flow.method).supports_init
+    compute = {j for j in need if not _flow_marker(str(scratch), j).exists()}
+    if chained:  # a recomputed chunk starts from its predecessor's seed: saved or recomputed
+        for j in sorted(compute, reverse=True):
+            i = j - 1
+            while i >= 0 and i not in compute and not _seed_file(str(scratch), i).exists():
+                compute.add(i)
+                i -= 1
+    staging = str(out.staging)
+    flow_staging = staging if out.save_flows else None
+    tokens: dict[int, Any] = {}
+    fused: dict[int, Any] = {}
+    drops: dict[int, Any] = {}
+    seed: Any = None
+    k_next = 0  # fusion tasks are built as soon as their flow tasks exist
+    droppable = sorted(need | compute)
+
+    def build(upto: int) -> None:
+        """The fusion tasks that read pair chunks <= ``upto`` only, then the drop tasks whose
+        readers all exist."""
+        nonlocal k_next
+        while k_next < len(missing) and max(flow_chunks(missing[k_next]), default=-1) <= upto:
+            k = missing[k_next]
+            after = [tokens[j] for j in flow_chunks(k) if j in tokens]
+            fused[k] = dask.delayed(_fuse_task, pure=False)(
+                source, str(scratch), staging, k, window(k), intrinsics, fusion, *after
+            )
+            k_next += 1
+        while droppable and all(k in fused for k in consumers[droppable[0]]):
+            j = droppable.pop(0)
+            if j > upto and j in compute:
+                droppable.insert(0, j)  # its flow task does not exist yet
+                break
+            after = [fused[k] for k in consumers[j]] + ([tokens[j]] if j in tokens else [])
+            drops[j] = dask.delayed(_drop_task, pure=False)(str(scratch), j, pairs[j], *after)
+
+    for j in sorted(compute):
+        if chained and j > 0 and (j - 1) not in compute:
+            seed = dask.delayed(_load_seed, pure=False)(str(scratch), j - 1)
+        elif not chained or j == 0:
+            seed = None
+        build(j - 1)
+        # bounded look-ahead: pair chunk j waits for the lookahead-th newest fusion task that
+        # does not read it, and for the deletion of the pairs that fusion was the last to read
+        # (dask would run the cheap deletions last)
+        wait = []
+        built = sorted(fused)
+        if lookahead is not None and len(built) >= lookahead:
+            k = built[-lookahead]
+            wait.append(fused[k])
+            done = [i for i in drops if max(consumers[i], default=-1) <= k]
+            if done:
+                wait.append(drops[max(done)])
+        task = dask.delayed(_flow_task, nout=2, pure=False)(
+            source, str(scratch), flow_staging, j, pairs[j], seed, flow, chained, *wait
+        )
+        seed, tokens[j] = task[0], task[1]
+    build(len(pairs))
+    results = [fused[k] for k in missing] + [drops[j] for j in sorted(drops)]
+    for j in set(range(len(pairs))) - need - compute:  # left by an interrupted run, unread
+        if _flow_marker(str(scratch), j).exists():
+            _drop_task(str(scratch), j, pairs[j])
+    return results
+
+
+def source_of(path: str | Path, fmt: str, frames: int, **reader_options: Any) -> RecordingSource:
+    """The :class:`RecordingSource` of a recording opened by :func:`fuse4d.scale.open_lazy`."""
+    src = Path(path).resolve()
+    return RecordingSource(
+        str(src), fmt, src.stat().st_mtime_ns, tuple(sorted(reader_options.items())), frames
+    )

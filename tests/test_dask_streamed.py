@@ -1,0 +1,149 @@
+"""The bounded-memory graph behind ``fuse4d run --engine dask`` (fuse4d.scale.streamed):
+same bits as the in-memory path, scratch flows dropped, resumable."""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("dask.array")
+pytest.importorskip("zarr")
+
+import dask
+import zarr
+
+from fuse4d import FusionParams, fuse_sequence
+from fuse4d.config import preset
+from fuse4d.flow import estimate_sequence_flow
+from fuse4d.io import save_sequence
+from fuse4d.scale import streamed
+from fuse4d.scale.cli import run_dask
+from fuse4d.scale.zarr_out import ZarrOutput
+from fuse4d.sequence import Sequence
+from test_dask import _crop, _same, make_falling_ball
+
+
+@pytest.fixture(scope="module")
+def ball() -> Sequence:
+    return _crop(make_falling_ball(small=True, num_frames=20), 20)
+
+
+def _check(store_path, ref) -> None:
+    store = zarr.open_group(str(store_path), mode="r")
+    assert _same(store["depth"][:], ref.depth)
+    assert _same(store["support"][:], ref.support)
+    assert _same(store["filled"][:], ref.filled)
+
+
+def _run(seq, tmp_path, name, **kwargs):
+    path = tmp_path / f"{name}.npz"
+    save_sequence(seq, path)
+    fast = preset("fast")
+    kwargs.setdefault("fusion", FusionParams())
+    (summary,) = run_dask([path], tmp_path / f"{name}.zarr", flow=fast.flow, progress=False,
+                          **kwargs)  # fmt: skip
+    return summary
+
+
+@pytest.mark.parametrize(
+    ("chunk_frames", "fusion"),
+    [
+        (3, FusionParams()),  # chunk < halo, uneven last chunk
+        (7, FusionParams()),
+        (32, FusionParams()),  # one chunk
+        (4, FusionParams(num_frames=5, causal=True)),
+    ],
+)
+def test_streamed_equals_in_memory(ball, tmp_path, chunk_frames, fusion):
+    summary = _run(ball, tmp_path, "r", chunk_frames=chunk_frames, fusion=fusion)
+    _check(
+        summary.output, fuse_sequence(ball.depth, ball.intensity, ball.intrinsics, fusion=fusion)
+    )
+    assert not (summary.output / ".fuse4d-flows").exists()
+
+
+def test_streamed_fewer_frames_than_window_and_one_frame(ball, tmp_path):
+    for t in (3, 1):
+        seq = Sequence(ball.depth[:t], ball.intensity[:t], ball.intrinsics)
+        summary = _run(seq, tmp_path, f"t{t}", chunk_frames=2)
+        _check(summary.output, fuse_sequence(seq.depth, seq.intensity, seq.intrinsics))
+
+
+def test_streamed_without_warm_start_and_saved_flows(ball, tmp_path):
+    summary = _run(ball, tmp_path, "cold", chunk_frames=6, warm_start=False, save_flows=True)
+    flows = estimate_sequence_flow(ball.intensity, warm_start=False)
+    ref = fuse_sequence(ball.depth, ball.intensity, ball.intrinsics, flow=flows)
+    _check(summary.output, ref)
+    root = zarr.open_group(str(summary.output), mode="r")
+    assert _same(root["flow_forward"][:], flows.forward)
+    assert _same(root["flow_backward"][:], flows.backward)
+
+
+def test_scratch_flows_are_dropped_and_resume_recomputes_only_what_is_missing(
+    ball, tmp_path, monkeypatch
+):
+    path = tmp_path / "rec.npz"
+    save_sequence(ball, path)
+    ref = fuse_sequence(ball.depth, ball.intensity, ball.intrinsics)
+    k = ball.intrinsics
+    fast = preset("fast")
+
+    def output(resume=False):
+        return ZarrOutput(tmp_path / "o.zarr", shape=ball.depth.shape, chunk_frames=4,
+                          intrinsics=k, metadata={}, resume=resume)  # fmt: skip
+
+    source = streamed.source_of(path, "npz", ball.num_frames)
+    out = output()
+    tasks = streamed.recording_tasks(source, out, k, fusion=FusionParams(), flow=fast.flow,
+                                     chunk_frames=4)  # fmt: skip
+    fuse_tasks = [t for t in tasks if "_fuse_task" in str(t.key)]
+    assert len(fuse_tasks) == 5
+    dask.compute(*fuse_tasks[:2], scheduler="sync")  # interrupted after two chunks
+    scratch = streamed.flow_scratch(out.staging)
+    assert len(list(scratch.glob("pair-*.npy"))) > 0
+    calls = []
+    real = streamed._flow_task
+    monkeypatch.setattr(streamed, "_flow_task", lambda *a: calls.append(a[3]) or real(*a))
+    out = output(resume=True)
+    assert out.done_chunks() == {0, 1}
+    rest = streamed.recording_tasks(source, out, k, fusion=FusionParams(), flow=fast.flow,
+                                    chunk_frames=4)  # fmt: skip
+    dask.compute(*rest, scheduler="sync")
+    assert sorted(calls) == [3, 4]  # pair chunks 0-2 (read by chunks 0-1) were kept
+    assert not list(scratch.glob("pair-*.npy"))  # every pair file dropped once read
+    _check(out.finalize(), ref)
+
+
+@pytest.mark.parametrize("lookahead", [1, 2, None])
+def test_bounded_lookahead_keeps_few_scratch_files(ball, tmp_path, monkeypatch, lookahead):
+    path = tmp_path / "rec.npz"
+    save_sequence(ball, path)
+    k = ball.intrinsics
+    out = ZarrOutput(tmp_path / "o.zarr", shape=ball.depth.shape, chunk_frames=2,
+                     intrinsics=k, metadata={})  # fmt: skip
+    source = streamed.source_of(path, "npz", ball.num_frames)
+    scratch = streamed.flow_scratch(out.staging)
+    most = []
+    real = streamed._fuse_task
+    monkeypatch.setattr(
+        streamed, "_fuse_task",
+        lambda *a: most.append(len(list(scratch.glob("pair-*.npy")))) or real(*a),
+    )  # fmt: skip
+    tasks = streamed.recording_tasks(source, out, k, fusion=FusionParams(), flow=preset("fast").flow,
+                                     chunk_frames=2, lookahead=lookahead)  # fmt: skip
+    dask.compute(*tasks, scheduler="sync")
+    _check(out.finalize(), fuse_sequence(ball.depth, ball.intensity, k))
+    if lookahead is None:
+        assert max(most) == ball.num_frames - 1  # dask solves the whole flow chain first
+    else:  # pairs of the chunks being read, and lookahead chunks ahead of them
+        assert max(most) <= 2 * (lookahead + 4), most
+
+
+@pytest.mark.slow
+def test_streamed_through_a_local_cluster_with_two_worker_processes(ball, tmp_path):
+    pytest.importorskip("distributed")
+    from fuse4d.scale.cluster import local_cluster
+
+    with local_cluster(2) as client:
+        summary = _run(ball, tmp_path, "lc", chunk_frames=4,
+                       scheduler=client.scheduler.address)  # fmt: skip
+    _check(summary.output, fuse_sequence(ball.depth, ball.intensity, ball.intrinsics))
