@@ -15,7 +15,7 @@ from fuse4d._kernels.fusion import (
     _segment_box_rows_kernel,
 )
 from fuse4d.bilateral import bilateral_filter_points
-from fuse4d.config import FusionParams
+from fuse4d.config import LITERAL_PAPER, FusionParams
 from fuse4d.flow import SequenceFlow
 from fuse4d.fusion import FusionEngine, fuse_sequence, fuse_stream
 from fuse4d.holes import SOURCE_NONE, SOURCE_TIME, _fill_holes, fill_holes
@@ -409,16 +409,7 @@ def test_project_to_rays_puts_points_on_their_pixel_ray():
 
 
 # ----------------------------------------------------------------------------- switches vs oracle
-LITERAL = {
-    "motion_depth": "raw",
-    "bilateral": "points",
-    "output": "points",
-    "temporal_gate": math.inf,
-    "base": "frame",
-    "distance_noise_scale": 0.0,
-    "fill_from_time": False,
-    "fill_max_hole_px": 0,
-}
+LITERAL = dict(LITERAL_PAPER)
 SWITCHES = {
     "default": {},
     "quantize-per-step": {"quantize": "per_step"},

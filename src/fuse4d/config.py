@@ -19,14 +19,16 @@ from __future__ import annotations
 import dataclasses
 import math
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from os import PathLike
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any, Literal
 
 from ._params import coerce_fields, param, validate
 
-__all__ = ["PRESETS", "FlowConfig", "FusionParams", "load_config", "preset"]
+__all__ = ["LITERAL_PAPER", "PRESETS", "FlowConfig", "FusionParams", "load_config", "preset"]
 
 MotionDepth = Literal["smoothed", "raw"]
 Quantize = Literal["final", "per_step"]
@@ -35,14 +37,31 @@ Output = Literal["ray", "points"]
 BilateralMode = Literal["residual", "points"]
 
 
+#: The literal paper (METHOD A3 "raw" ablation): ``FusionParams(**LITERAL_PAPER)`` switches off
+#: every fuse4d decision that changes Eq. 3-6 — motion from raw depth (A3), the plain weighted
+#: mean of 3D points in the bilateral (A18) and as output (A17), no temporal gate (A19), frame
+#: t's own point as base (A21), the fixed δ_d (A25) and no sensor-hole fill from time or of far
+#: holes (A26/A27). Per-step rounding (``quantize="per_step"``, A6) is a separate switch.
+LITERAL_PAPER: Mapping[str, Any] = MappingProxyType(
+    {
+        "motion_depth": "raw",
+        "bilateral": "points",
+        "output": "points",
+        "temporal_gate": math.inf,
+        "base": "frame",
+        "distance_noise_scale": 0.0,
+        "fill_from_time": False,
+        "fill_max_hole_px": 0,
+    }
+)
+
+
 @dataclass(frozen=True)
 class FusionParams:
     """Knobs of the spatio-temporal fusion (paper Eq. 4–6; METHOD.md §5.3 defaults).
 
     fuse4d's own decisions (docs/method_notes.md, A17–A27) are defaults; the literal paper
-    (METHOD A3 "raw" ablation) is ``FusionParams(motion_depth="raw", bilateral="points",
-    output="points", temporal_gate=math.inf, base="frame", distance_noise_scale=0,
-    fill_from_time=False, fill_max_hole_px=0)``.
+    (METHOD A3 "raw" ablation) is ``FusionParams(**LITERAL_PAPER)``, see :data:`LITERAL_PAPER`.
 
     Parameters
     ----------

@@ -46,7 +46,8 @@ class Profile:
         evaluated; each uses only its own window (``ed_params["size"]``, default 4: 9 frames);
         0 = ED is not run.
     e3_iterations : tuple of int
-        Iteration counts of the E3 sweep (baselines and Ours).
+        Iteration counts of the E3 sweep. Each filter runs those in its own BASELINES sweep
+        list (1-5; ST-MF 1-3), Ours those up to 3 (EVALUATION §4 E3). Default: 1-5.
     e3_max_sizes : int or None
         At most this many sizes per baseline in E3 (spread over its sweep list); None = all.
     e4_frames : tuple of int
@@ -66,7 +67,7 @@ class Profile:
     flow_method: str = "pmbp"
     shape_frames: int | None = None
     ed_frames: int = 50
-    e3_iterations: tuple[int, ...] = (1, 2, 3)
+    e3_iterations: tuple[int, ...] = (1, 2, 3, 4, 5)
     e3_max_sizes: int | None = None
     e4_frames: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 7, 8, 9)
     e6_sigma_i: tuple[float, ...] = (0.02, 0.10)
