@@ -135,6 +135,44 @@ def test_bench_small_reports_every_stage(capsys):
     assert result["peak_rss_mb"] > 0
 
 
+def test_bench_causal_times_the_causal_engine_stage_by_stage(monkeypatch, capsys):
+    from fuse4d.experiments import speed
+
+    seen = []
+
+    class Spy(speed.FusionEngine):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            seen.append((self.params.causal, self.past, self.future))
+
+    monkeypatch.setattr(speed, "FusionEngine", Spy)
+    args = ["bench", "--small", "--frames", "6", "--window", "3", "--causal", "--json"]
+    assert main(args) == 0
+    (result,) = json.loads(capsys.readouterr().out)
+    assert result["causal"] is True
+    assert result["window"] == 3
+    assert set(result["stage_ms"]) == {
+        "flow",
+        "bilateral",
+        "motion_reference",
+        "tracking",
+        "fusion",
+        "fill",
+    }
+    assert result["stage_ms"]["tracking"] > 0
+    assert result["ms_per_frame"] > 0
+    assert seen
+    assert all(s == (True, 2, 0) for s in seen)
+    assert main(["bench", "--small", "--frames", "6", "--window", "3", "--json"]) == 0
+    (centred,) = json.loads(capsys.readouterr().out)
+    assert centred["causal"] is False
+    assert seen[-1] == (False, 1, 1)
+
+
+def test_bench_causal_refuses_quality():
+    assert main(["bench", "--small", "--causal", "--quality"]) != 0
+
+
 def test_demo_small_writes_figure_and_table(tmp_path, capsys):
     assert main(["demo", "--small", "--frames", "6", "--out", str(tmp_path / "demo")]) == 0
     out = capsys.readouterr().out
@@ -223,3 +261,24 @@ def test_bench_input_times_a_recording_with_io_stages(tmp_path, capsys):
     assert {"flow", "fill", "read", "write", "summary", "io_wait"} <= set(result["stage_ms"])
     assert result["stage_ms"]["read"] > 0
     assert result["us_per_pixel"] > 0
+
+
+def test_bench_input_causal_runs_the_causal_streaming_path(tmp_path, monkeypatch, capsys):
+    import fuse4d.run as run_module
+
+    seen = []
+    real = run_module._fuse_streaming
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["params"].causal)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(run_module, "_fuse_streaming", spy)
+    src = _ball_folder(tmp_path, frames=6)
+    args = ["bench", "--input", str(src), "--frames", "4", "--window", "3", "--causal"]
+    assert main([*args, "--no-summary", "--json"]) == 0
+    (result,) = json.loads(capsys.readouterr().out)
+    assert result["causal"] is True
+    assert result["frames"] == 4
+    assert {"flow", "tracking", "fill", "read", "write", "io_wait"} <= set(result["stage_ms"])
+    assert seen == [True, True]  # warm-up and timed run

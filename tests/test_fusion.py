@@ -962,3 +962,89 @@ def test_base_smoothing_off_is_the_a21_line():
         depth, inten, k, fusion=SWITCH_BASE.replace(base_fine_limit=math.inf), flow=flows
     )
     np.testing.assert_array_equal(off.points, inf.points)
+
+
+def _moving_texture(n, shift=1.0):
+    base = _texture(H, W + int(n * shift) + 2)
+    return np.stack(
+        [np.ascontiguousarray(base[:, int(t * shift) : int(t * shift) + W]) for t in range(n)]
+    )
+
+
+@pytest.mark.parametrize(
+    "params", [FusionParams(num_frames=5), FusionParams(num_frames=3, causal=True)]
+)
+def test_overlap_flow_equals_the_serial_engine_bit_for_bit(rng, params):
+    """issue 13: the flow computed in a worker thread while push filters the frame."""
+    import threading
+
+    n = 9
+    depth = _plane_depth(n) + rng.normal(0, 0.3, (n, H, W)).astype(np.float32)
+    depth[3, 5:9, 5:9] = np.nan
+    inten = _moving_texture(n)
+    serial = FusionEngine(K, fusion=params, flow="dis")
+    want = [f for d, i in zip(depth, inten, strict=True) for f in serial.push(d, i)]
+    want += serial.flush()
+    timings: dict[str, float] = {}
+    with FusionEngine(K, fusion=params, flow="dis", overlap_flow=True, timings=timings) as eng:
+        got = [f for d, i in zip(depth, inten, strict=True) for f in eng.push(d, i)]
+        got += eng.flush()
+        assert any(t.name.startswith("fuse4d-flow") for t in threading.enumerate())
+        assert eng._flow_estimator.warm_starts == n - 2  # warm starts as in the serial engine
+    assert not any(t.name.startswith("fuse4d-flow") for t in threading.enumerate())
+    eng.close()  # idempotent
+    assert timings["flow"] >= 0.0
+    assert [f.index for f in got] == [f.index for f in want]
+    for a, b in zip(got, want, strict=True):
+        for field in ("points", "support", "filled", "unfilled", "source", "confidence"):
+            np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+
+
+def test_overlap_flow_failed_push_is_retried_as_by_the_serial_engine(rng):
+    n = 5
+    depth = _plane_depth(n) + rng.normal(0, 0.3, (n, H, W)).astype(np.float32)
+    inten = _moving_texture(n)
+    params = FusionParams(num_frames=3, causal=True)
+    serial = FusionEngine(K, fusion=params, flow="dis")
+    want = [serial.push(d, i)[0].points for d, i in zip(depth, inten, strict=True)]
+    with FusionEngine(K, fusion=params, flow="dis", overlap_flow=True) as eng:
+        got = []
+        for t, (d, i) in enumerate(zip(depth, inten, strict=True)):
+            if t in (1, 3):  # a push that fails after the worker started the pair's flow
+                with pytest.raises(ShapeError):
+                    eng.push(d, i, points=np.zeros((H, W, 2), np.float32))
+                assert eng._pending_flow is None
+            got.append(eng.push(d, i)[0].points)
+    np.testing.assert_array_equal(np.stack(got), np.stack(want))
+
+
+def test_shortcuts_without_fused_pixels_change_nothing(rng):
+    """issue 13: the first frame of a causal window has no fused pixel (every valid pixel is
+    an Eq. 6 hole); the Eq. 6 fill and the A29 base smoothing are skipped there, with the
+    values the full computations give."""
+    from fuse4d.fusion import _smooth_base
+
+    depth = _plane_depth(1)[0] + rng.normal(0, 0.3, (H, W)).astype(np.float32)
+    depth[5:9, 5:9] = np.nan
+    points = depth_to_points(depth, K)
+    hole = np.isfinite(depth)  # every valid pixel is a hole: F is empty
+    raw = points + np.float32(0.5)
+    kernel_points, kernel_hole = points.copy(), hole.copy()
+    kernel_filled = np.zeros((H, W), np.bool_)
+    _fill_holes_kernel(kernel_points, raw, kernel_hole, 2, 0.5, 10, 3, 5.0, kernel_filled)
+    got_points, got_hole = points.copy(), hole.copy()
+    filled = _fill_holes(
+        got_points, raw, got_hole, radius=2, sigma=1.0, passes=10, min_neighbours=3, gate=5.0
+    )
+    np.testing.assert_array_equal(filled, kernel_filled)
+    np.testing.assert_array_equal(got_points, kernel_points)
+    np.testing.assert_array_equal(got_hole, kernel_hole)
+    base = rng.normal(0, 0.1, (H, W, 3)).astype(np.float32)
+    out = points.copy()
+    _smooth_base(out, base, depth, hole, sigma=2.0, max_step=10.0, quad=1e-6, limit_quad=0.5)
+    np.testing.assert_array_equal(out, points)
+    partial = hole.copy()
+    partial[20:30, 20:30] = False  # some fused pixels: the smoothing runs and changes them
+    out = points.copy()
+    _smooth_base(out, base, depth, partial, sigma=2.0, max_step=10.0, quad=1e-6, limit_quad=0.5)
+    assert not np.array_equal(out, points)

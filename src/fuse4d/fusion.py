@@ -14,7 +14,7 @@ import math
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -151,6 +151,12 @@ class FusionEngine:
         Resuming a stream: the forward flow of the pair just before the first pushed frame
         (see :meth:`forward_flow`), the warm start of the first pair, so that the frames
         emitted equal those of one uninterrupted run bit for bit.
+    overlap_flow : bool
+        Compute each pair's flow in a worker thread while :meth:`push` computes the new
+        frame's motion reference and bilateral filter (OpenCV and the numba kernels release
+        the GIL), instead of after them. The same flows and output bit for bit; the ``flow``
+        timing is then only the wait for the worker. For latency-bound use (``fuse4d live``);
+        call :meth:`close` (or use the engine as a context manager) to stop the worker.
     """
 
     def __init__(
@@ -164,6 +170,7 @@ class FusionEngine:
         on_pair: Callable[[_PairOutput], None] | None = None,
         timings: dict[str, float] | None = None,
         initial_flow: np.ndarray | None = None,
+        overlap_flow: bool = False,
     ) -> None:
         self.intrinsics = intrinsics
         self._initial_flow = (
@@ -226,6 +233,25 @@ class FusionEngine:
         self._pushed = 0  # frames received
         self._emitted = 0  # frames emitted
         self._closed = False
+        # overlap_flow: one worker thread, created on the first pair
+        self.overlap_flow = bool(overlap_flow)
+        self._flow_worker: Any = None
+        self._pending_flow: Any = None
+        self._flow_state: Any = None
+        # (index, P^index) of the last pushed frame, reused by its emit (causal mode)
+        self._last_points: tuple[int, NDArray[np.float32]] | None = None
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Stop the flow worker thread of ``overlap_flow`` (nothing else; idempotent)."""
+        worker, self._flow_worker = self._flow_worker, None
+        if worker is not None:
+            worker.shutdown(wait=True)
 
     # ------------------------------------------------------------------ public
     @property
@@ -270,11 +296,43 @@ class FusionEngine:
             else check_unit_intensity(inten, name=f"intensity (frame {index})")
         )
         slot = index % self.ring
+        needs_pair = index > 0 and (self.past + self.future > 0 or pair_flow is not None)
+        if needs_pair and pair_flow is None and self.overlap_flow and self.precomputed is None:
+            self._start_flow(index, inten)
+        try:
+            self._prepare(index, slot, d, inten, points, needs_pair, pair_flow)
+        except BaseException:
+            self._drop_pending_flow()
+            raise
+        self._pushed += 1
+        out = []
+        while self._emitted + self.future < self._pushed:
+            out.append(self._emit(self._emitted))
+        return out
+
+    def _drop_pending_flow(self) -> None:
+        """A push failed: wait for the flow the worker is computing, discard it and put the
+        tracker's warm-start state back, so that a retried push computes what a serial
+        engine would."""
+        pending, self._pending_flow = self._pending_flow, None
+        if pending is None:
+            return
+        pending.exception()  # waits; the push's own error is the one raised
+        if self._flow_state is None:
+            self._flow_estimator = None  # built (and primed) again by the next pair
+        else:
+            self._flow_estimator._last_image1, self._flow_estimator._last_forward = self._flow_state
+
+    def _prepare(self, index, slot, d, inten, points, needs_pair, pair_flow) -> None:
+        """The per-frame part of :meth:`push`: noise model, references, bilateral, pair."""
+        h, w = self.intrinsics.height, self.intrinsics.width
         p = self.params
         t0 = time.perf_counter()
         if points is None:
             pts = depth_to_points(d, self.intrinsics)
+            self._last_points = (index, pts)  # = depth_to_points(self._depth[slot]), kept
         else:
+            self._last_points = None
             pts = as_float32(points, name="points")
             check_shape(pts, (h, w, 3), name=f"points (frame {index})")
             d = np.ascontiguousarray(pts[..., 2])
@@ -310,13 +368,8 @@ class FusionEngine:
         self._intensity[slot] = inten
         # a window of one frame uses no pair: no flows, no tracks (issue 13); flows that are
         # passed in are still stored (and reported through ``on_pair``)
-        if index > 0 and (self.past + self.future > 0 or pair_flow is not None):
+        if needs_pair:
             self._add_pair(index, pair_flow)
-        self._pushed += 1
-        out = []
-        while self._emitted + self.future < self._pushed:
-            out.append(self._emit(self._emitted))
-        return out
 
     def forward_flow(self, index: int) -> NDArray[np.float32]:
         """Forward flow of the pair (``index`` - 1, ``index``) while it is in the ring buffer
@@ -345,8 +398,23 @@ class FusionEngine:
         # keep the lateral position of given points (fusion iterations)
         return points * np.where(np.isfinite(depth), smooth_depth / depth, np.nan)[..., None]
 
-    def _flow_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]:
-        """Flows of the pair (index-1, index): precomputed, or from the tracker."""
+    def _start_flow(self, index: int, intensity: NDArray[np.float32]) -> None:
+        """Submit the flow of the pair (index-1, index) to the worker (``overlap_flow``); the
+        previous frame's intensity stays in its ring slot until :meth:`_add_pair` collects it,
+        ``intensity`` (frame index) is not written to by :meth:`push`."""
+        if self._flow_worker is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._flow_worker = ThreadPoolExecutor(1, thread_name_prefix="fuse4d-flow")
+        est = self._flow_estimator  # its warm-start state, restored if the push fails
+        self._flow_state = None if est is None else (est._last_image1, est._last_forward)
+        self._pending_flow = self._flow_worker.submit(self._flow_pair, index, intensity)
+
+    def _flow_pair(
+        self, index: int, intensity: NDArray[np.float32] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Flows of the pair (index-1, index): precomputed, or from the tracker (frame index's
+        intensity from its ring slot unless given)."""
         if self.precomputed is not None:
             if index - 1 >= self.precomputed.num_pairs:
                 raise ValueError(
@@ -359,7 +427,16 @@ class FusionEngine:
             self._flow_estimator = self.flow_config.estimator(warm_start=self.warm_start)
             if self._initial_flow is not None and index == 1:  # resuming: the pair before
                 self._flow_estimator.prime(self._intensity[prev], self._initial_flow)
-        return self._flow_estimator(self._intensity[prev], self._intensity[index % self.ring])
+        current = self._intensity[index % self.ring] if intensity is None else intensity
+        return self._flow_estimator(self._intensity[prev], current)
+
+    def _raw_points(self, t: int) -> NDArray[np.float32]:
+        """P^t: frame t's back-projected raw depth (the last pushed frame's from
+        :meth:`_prepare`, as in causal mode, instead of projecting it again)."""
+        last = self._last_points
+        if last is not None and last[0] == t:
+            return last[1]
+        return depth_to_points(self._depth[t % self.ring], self.intrinsics)
 
     def _frame_sigma_distance(self, z_med: float, quad: float) -> float:
         """delta_d (mm) of a frame with median depth ``z_med`` (mm) and noise coefficient
@@ -373,7 +450,13 @@ class FusionEngine:
         slot = index % self.ring
         prev = (index - 1) % self.ring
         t0 = time.perf_counter()
-        fwd, bwd = self._flow_pair(index) if pair_flow is None else pair_flow
+        if pair_flow is not None:
+            fwd, bwd = pair_flow
+        elif self._pending_flow is not None:  # overlap_flow: computed during the prep
+            pending, self._pending_flow = self._pending_flow, None
+            fwd, bwd = pending.result()
+        else:
+            fwd, bwd = self._flow_pair(index)
         fwd = as_float32(fwd, name="forward flow")
         bwd = as_float32(bwd, name="backward flow")
         for name, f in (("forward flow", fwd), ("backward flow", bwd)):
@@ -460,7 +543,7 @@ class FusionEngine:
         if p.fill_holes and hole.any():
             filled = _fill_holes(
                 points,
-                depth_to_points(self._depth[t % self.ring], self.intrinsics),
+                self._raw_points(t),
                 hole,
                 radius=p.fill_radius,
                 sigma=p.sigma_fill,
@@ -604,6 +687,10 @@ def _smooth_base(
         return  # every fine-scale part kept: no change
     h, w = depth.shape
     seg = np.where(hole, np.float32(np.nan), depth).astype(np.float32)
+    if np.isnan(seg).all():
+        # no fused pixel (e.g. the first frame of a causal window): S is NaN everywhere and
+        # nothing changes (issue 13)
+        return
     radius = _box_radius(sigma)
     step, q = float(max_step), float(quad)
     # the three channels stacked as 3H rows (3W after the transpose), so that each pair of

@@ -307,6 +307,10 @@ def _fill_holes(
     Returns the (H, W) bool mask of the pixels filled.
     """
     filled = np.zeros(hole.shape, np.bool_)
+    if not (~hole & ~np.isnan(points[..., 2])).any():
+        # F is empty (e.g. the first frame of a causal window: no pixel has temporal
+        # support): no hole has a neighbour to extrapolate from, nothing is filled (issue 13)
+        return filled
     _fill_holes_kernel(
         points,
         raw_points,

@@ -444,6 +444,7 @@ def run_live(
     block: bool = False,
     extra_delay_s: float = 0.0,
     warmup: bool = True,
+    overlap_flow: bool = True,
 ) -> LiveStats:
     """Fuse a live source causally, with a bounded queue that drops the oldest frame.
 
@@ -476,6 +477,10 @@ def run_live(
     warmup : bool
         Before capturing, fuse two synthetic frames on a throw-away engine so that the numba
         kernels and the tracker are loaded (otherwise the first frames wait for them).
+    overlap_flow : bool
+        Compute each frame's flow in a worker thread while the engine filters the frame
+        (:class:`~fuse4d.FusionEngine` ``overlap_flow``): a shorter fusion step, the same
+        output bit for bit.
 
     Returns
     -------
@@ -516,10 +521,10 @@ def run_live(
             queue.close()
 
     def new_engine() -> FusionEngine:
-        return FusionEngine(source.intrinsics, fusion=params, flow=flow)
+        return FusionEngine(source.intrinsics, fusion=params, flow=flow, overlap_flow=overlap_flow)
 
     if warmup:
-        _warm_up(source.intrinsics, params, flow)
+        _warm_up(source.intrinsics, params, flow, overlap_flow)
     thread = threading.Thread(target=capture, name="fuse4d-live-capture", daemon=True)
     engine = new_engine()
     last_index: int | None = None
@@ -534,6 +539,7 @@ def run_live(
             if last_index is not None and frame.index != last_index + 1:
                 stats.gaps += 1
                 if on_gap == "restart":
+                    engine.close()
                     engine = new_engine()
                     stats.restarts += 1
                     history = 0
@@ -561,6 +567,7 @@ def run_live(
     finally:
         stop.set()
         queue.close()
+        engine.close()
         while queue.get(timeout=0) is not None:  # let a blocked capture thread finish
             pass
         thread.join(timeout=10.0)
@@ -587,19 +594,24 @@ def run_live(
     return stats
 
 
-def _warm_up(intrinsics: Intrinsics, params: FusionParams, flow: FlowConfig | str | None) -> None:
+def _warm_up(
+    intrinsics: Intrinsics,
+    params: FusionParams,
+    flow: FlowConfig | str | None,
+    overlap_flow: bool = False,
+) -> None:
     """Fuse three synthetic frames (a noisy plane with a step, sensor holes and a moving
     texture) so that every kernel, hole filling included, is compiled or loaded."""
     h, w = intrinsics.height, intrinsics.width
     rng = np.random.default_rng(0)
     texture = rng.uniform(0.2, 0.8, (h, w + 3)).astype(np.float32)
-    engine = FusionEngine(intrinsics, fusion=params, flow=flow)
-    for t in range(3):
-        depth = (1000.0 + rng.normal(0.0, 1.0, (h, w))).astype(np.float32)
-        depth[:, w // 2 :] += 300.0  # a depth edge
-        depth[rng.random((h, w)) < 0.01] = np.nan  # scattered holes
-        depth[h // 4 : h // 4 + max(h // 8, 1), w // 4 : w // 4 + max(w // 8, 1)] = np.nan
-        engine.push(depth, np.ascontiguousarray(texture[:, t : t + w]))
+    with FusionEngine(intrinsics, fusion=params, flow=flow, overlap_flow=overlap_flow) as engine:
+        for t in range(3):
+            depth = (1000.0 + rng.normal(0.0, 1.0, (h, w))).astype(np.float32)
+            depth[:, w // 2 :] += 300.0  # a depth edge
+            depth[rng.random((h, w)) < 0.01] = np.nan  # scattered holes
+            depth[h // 4 : h // 4 + max(h // 8, 1), w // 4 : w // 4 + max(w // 8, 1)] = np.nan
+            engine.push(depth, np.ascontiguousarray(texture[:, t : t + w]))
 
 
 def display_available() -> bool:

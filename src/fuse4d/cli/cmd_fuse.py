@@ -375,11 +375,17 @@ def bench_command(
     no_summary: Annotated[
         bool, typer.Option("--no-summary", help="With --input: skip the quality summary.")
     ] = False,
+    causal: Annotated[
+        bool,
+        typer.Option("--causal", help="Time the causal engine (no look-ahead, as `fuse4d live`)."),
+    ] = False,
 ) -> None:
     """Time each pipeline stage (ms/frame) and report peak memory, on the synthetic ball.
 
     With --input REC: a real recording end to end through the streaming path of `fuse4d run`
     (read, write and summary are stages; reading and writing overlap the fusion).
+    With --causal: the causal engine (each frame fused with the --window - 1 previous ones,
+    as `fuse4d run --causal` and `fuse4d live`), stage by stage alike.
     With --quality: RMSE/roughness/bad pixels/shape of raw, the depth self-guided filter, a
     9-frame mean and fuse4d against ground truth on the 50-frame 600x600 ball.
     """
@@ -390,6 +396,8 @@ def bench_command(
     for name in names:
         if name not in PRESETS:
             fail(f"unknown preset {name!r}; choose fast, paper or all")
+    if quality and causal:
+        fail("--quality scores the centred engine; drop --causal")
     if quality:
         _quality(names, small, intensity_noise, as_json)
         return
@@ -399,12 +407,19 @@ def bench_command(
         if recording is not None:
             results.append(
                 benchmark_recording(
-                    recording, name, num_frames=num_frames, window=window, summary=not no_summary
+                    recording,
+                    name,
+                    num_frames=num_frames,
+                    window=window,
+                    summary=not no_summary,
+                    causal=causal,
                 )
             )
         else:
             results.append(
-                benchmark_pipeline(name, small=small, num_frames=num_frames, window=window)
+                benchmark_pipeline(
+                    name, small=small, num_frames=num_frames, window=window, causal=causal
+                )
             )
     if as_json:
         print(json.dumps([r.to_dict() for r in results], indent=2))
@@ -412,7 +427,8 @@ def bench_command(
     for r in results:
         table = Table(
             title=f"preset {r.preset} ({r.flow_method}), {r.size[0]}x{r.size[1]}, "
-            f"{r.window}-frame window, {r.frames} frames" + (f", {r.input}" if r.input else "")
+            f"{r.window}-frame {'causal ' if r.causal else ''}window, {r.frames} frames"
+            + (f", {r.input}" if r.input else "")
         )
         table.add_column("stage")
         table.add_column("ms/frame", justify="right")

@@ -104,6 +104,14 @@ def live_command(
         float,
         typer.Option("--simulate-delay-ms", help="Extra ms per fusion step (test overload)."),
     ] = 0.0,
+    overlap_flow: Annotated[
+        bool,
+        typer.Option(
+            "--overlap-flow/--no-overlap-flow",
+            help="Compute each frame's flow in a worker thread while the frame is filtered "
+            "(same output).",
+        ),
+    ] = True,
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing output.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
     depth_topic: DepthTopicOpt = None,
@@ -198,6 +206,7 @@ def live_command(
             stop=stop,
             block=not realtime,
             extra_delay_s=delay_ms / 1000.0,
+            overlap_flow=overlap_flow,
         )
     summary = {
         "input": "camera" if input_path is None else str(input_path),
@@ -208,6 +217,7 @@ def live_command(
         "source_fps": source.fps,
         "queue": queue_size,
         "on_gap": on_gap,
+        "overlap_flow": overlap_flow,
         **stats.to_dict(),
     }
     if as_json:

@@ -4,7 +4,9 @@ Measures, on the synthetic falling ball, the wall time per output frame of each 
 bilateral, motion reference, tracking, fusion, fill) in the streaming engine, after a warm-up
 run that compiles the numba kernels, and the peak resident memory of the process; or
 (:func:`benchmark_recording`, ``fuse4d bench --input``) a real recording end to end through
-``fuse4d run``'s streaming path, reading, writing and the summary included as stages.
+``fuse4d run``'s streaming path, reading, writing and the summary included as stages. Both
+time the centred engine or, with ``causal=True`` (``fuse4d bench --causal``), the causal one
+(every frame fused with its n - 1 predecessors, as ``fuse4d live``), stage by stage alike.
 """
 
 from __future__ import annotations
@@ -37,6 +39,8 @@ class BenchResult:
         Frames timed (after the warm-up).
     window : int
         Frames fused per output frame.
+    causal : bool
+        The causal engine (no look-ahead) instead of the centred one.
     ms_per_frame : float
         Wall time per output frame, end to end (flows included; I/O included only for a
         recording).
@@ -60,6 +64,7 @@ class BenchResult:
     warmup_s: float = 0.0
     peak_rss_mb: float = 0.0
     input: str = ""
+    causal: bool = False
 
     @property
     def us_per_pixel(self) -> float:
@@ -74,6 +79,7 @@ class BenchResult:
             "size": list(self.size),
             "frames": self.frames,
             "window": self.window,
+            "causal": self.causal,
             "ms_per_frame": self.ms_per_frame,
             "stage_ms": self.stage_ms,
             "warmup_s": self.warmup_s,
@@ -94,6 +100,7 @@ def benchmark_pipeline(
     small: bool = False,
     num_frames: int = 18,
     window: int = 9,
+    causal: bool = False,
 ) -> BenchResult:
     """Time the streaming engine on the synthetic ball.
 
@@ -106,9 +113,12 @@ def benchmark_pipeline(
         Frames pushed through the engine in the timed run (>= window for steady state).
     window : int
         ``num_frames`` of the fusion (frames fused per output).
+    causal : bool
+        Time the causal engine (``FusionParams(causal=True)``: each frame fused with the
+        ``window - 1`` previous ones, emitted as soon as it is pushed).
     """
     chosen = get_preset(preset)
-    fusion = chosen.fusion.replace(num_frames=window)
+    fusion = chosen.fusion.replace(num_frames=window, causal=causal)
     seq = make_falling_ball(small=small, num_frames=num_frames)
     frames = list(zip(seq.depth, seq.intensity, strict=True))
 
@@ -140,6 +150,7 @@ def benchmark_pipeline(
         stage_ms={k: 1000.0 * v / n for k, v in timings.items()},
         warmup_s=warmup,
         peak_rss_mb=_peak_rss_mb(),
+        causal=causal,
     )
 
 
@@ -151,6 +162,7 @@ def benchmark_recording(
     window: int = 9,
     summary: bool = True,
     reader_options: dict[str, Any] | None = None,
+    causal: bool = False,
 ) -> BenchResult:
     """Time ``fuse4d run`` on a recording, end to end, stage by stage (I/O included).
 
@@ -171,12 +183,14 @@ def benchmark_recording(
         Include the before/after quality tally (``fuse4d run``'s default) as a stage.
     reader_options : dict, optional
         Passed to :func:`~fuse4d.io.open_frames`.
+    causal : bool
+        Time the causal engine (``fuse4d run --causal``) instead of the centred one.
     """
     from ..io import detect_format
     from ..run import _fuse_streaming
 
     chosen = get_preset(preset)
-    fusion = chosen.fusion.replace(num_frames=window)
+    fusion = chosen.fusion.replace(num_frames=window, causal=causal)
     src = Path(path)
     fmt = detect_format(src)
     if fmt == "npz":
@@ -210,4 +224,5 @@ def benchmark_recording(
         warmup_s=warmup,
         peak_rss_mb=_peak_rss_mb(),
         input=str(src),
+        causal=causal,
     )

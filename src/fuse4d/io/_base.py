@@ -30,6 +30,8 @@ __all__ = [
     "FrameSelection",
     "IntrinsicsLike",
     "ProgressCallback",
+    "SequentialReader",
+    "check_frame_shapes",
     "inside",
     "read_camera_json",
     "resolve_frames",
@@ -195,6 +197,54 @@ class FrameReader(ABC):
             raise InputFileError(self.path, str(exc)) from None
 
 
+class SequentialReader(FrameReader):
+    """A reader of a container that decodes forward (a video or a message log; abstract base).
+
+    Seeking such a container is expensive, so reading frame ``k + 1`` right after frame ``k``
+    resumes one decoding pass (:meth:`_stream`) instead of seeking again; any other index
+    restarts the pass at that frame. Subclasses implement ``_stream(k0, stop)``, a generator
+    of frames ``k0 .. stop - 1`` in one pass, set :attr:`_missing_frame` (why a frame can be
+    absent, for the error) and call :meth:`_close_stream` from their ``close``.
+    """
+
+    #: What the error says when the pass ends before frame ``k`` (e.g. "DEPTH frame missing").
+    _missing_frame: ClassVar[str] = "frame missing"
+
+    @abstractmethod
+    def _stream(self, k0: int, stop: int | None = None) -> Iterator[Frame]:
+        """Decode frames ``k0, k0 + 1, ..., stop - 1`` (``stop`` None: to the end) in one pass."""
+
+    def read_frame(self, index: int) -> Frame:
+        k = self._index(index)
+        gen: Iterator[Frame] | None = getattr(self, "_pass", None)
+        if gen is None or k != getattr(self, "_pass_next", -1):
+            self._close_stream()
+            gen = self._pass = self._stream(k)
+        self._pass_next = k + 1
+        try:
+            return next(gen)
+        except StopIteration:
+            self._pass = None
+            raise InputFileError(self.path, self._missing_frame_text(), frame=k) from None
+
+    def iter_frames(self, frames: FrameSelection = None) -> Iterator[Frame]:
+        sel = resolve_frames(frames, len(self))
+        yield from self._stream(sel.start, sel.stop)
+
+    def __iter__(self) -> Iterator[Frame]:
+        return self.iter_frames(None)
+
+    def _missing_frame_text(self) -> str:
+        """The error text for a frame the pass did not reach (override to add context)."""
+        return self._missing_frame
+
+    def _close_stream(self) -> None:
+        """Stop the open decoding pass of :meth:`read_frame`, if any."""
+        gen, self._pass = getattr(self, "_pass", None), None
+        if gen is not None:
+            gen.close()
+
+
 def _with_mask(gt: GroundTruth, mask: NDArray[np.bool_]) -> GroundTruth:
     return replace(gt, mask=mask)  # keeps every other field (scene, extra)
 
@@ -253,6 +303,20 @@ def _parse_frame_string(text: str) -> slice:
     except ValueError:
         pass
     raise ParameterError(f"frames must look like 'A:B', 'A:', ':B' or 'K', got {text!r}")
+
+
+def check_frame_shapes(index: int, shape: tuple[int, int], **arrays: ArrayLike | None) -> None:
+    """Raise ``ValueError`` unless every given array (None = absent) has ``shape`` ``(H, W)``.
+
+    Used by the writers before they append frame ``index``; the message names the array, the
+    frame and both shapes.
+    """
+    for name, arr in arrays.items():
+        if arr is not None and np.shape(arr) != shape:
+            raise ValueError(
+                f"{name} of frame {index} has shape {np.shape(arr)}, expected {shape} "
+                "(the intrinsics' height x width)"
+            )
 
 
 def inside(root: Path, name: Any, listed_in: Path, entry: int | None = None) -> Path:

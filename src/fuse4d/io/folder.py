@@ -36,6 +36,7 @@ from ._base import (
     IntrinsicsLike,
     ProgressCallback,
     _check_size,
+    check_frame_shapes,
     depth_unit,
     read_camera_json,
     resolve_intrinsics,
@@ -336,12 +337,7 @@ class FrameFolderWriter:
         if self._tmp is None:
             raise RuntimeError("FrameFolderWriter is not open; use it in a `with` block")
         shape = self.intrinsics.shape
-        for name, arr in (("depth", depth), ("intensity", intensity), ("mask", mask)):
-            if arr is not None and np.shape(arr) != shape:
-                raise ValueError(
-                    f"{name} of frame {self.num_written} has shape {np.shape(arr)}, expected "
-                    f"{shape} (the intrinsics' height x width)"
-                )
+        check_frame_shapes(self.num_written, shape, depth=depth, intensity=intensity, mask=mask)
         if self._has_mask is None:
             self._has_mask = mask is not None
             if self._has_mask:

@@ -27,10 +27,8 @@ from ..camera import Intrinsics
 from ..errors import InputFileError
 from ._base import (
     Frame,
-    FrameReader,
-    FrameSelection,
     IntrinsicsLike,
-    resolve_frames,
+    SequentialReader,
     resolve_intrinsics,
 )
 from ._extras import require
@@ -95,7 +93,7 @@ def k4a_depth_camera(
     )
 
 
-class MkvReader(FrameReader):
+class MkvReader(SequentialReader):
     """Frame reader for Azure Kinect / Orbbec ``.mkv`` and fuse4d FFV1 ``.mkv`` depth video.
 
     Parameters
@@ -116,6 +114,7 @@ class MkvReader(FrameReader):
     """
 
     format = "mkv"
+    _missing_frame = "DEPTH frame missing"
 
     def __init__(
         self,
@@ -128,8 +127,6 @@ class MkvReader(FrameReader):
         self.path = Path(path)
         self._av = require("av", what="reading .mkv depth video")
         self._container: Any = None
-        self._gen: Iterator[Frame] | None = None
-        self._next = -1
         self._maps: tuple[np.ndarray, np.ndarray] | None = None
         self._white: float | None = None
         notes: list[str] = []
@@ -299,26 +296,6 @@ class MkvReader(FrameReader):
     def __len__(self) -> int:
         return int(self._d_pts.size)
 
-    def read_frame(self, index: int) -> Frame:
-        k = self._index(index)
-        if self._gen is None or k != self._next:
-            if self._gen is not None:
-                self._gen.close()
-            self._gen = self._stream(k)
-        self._next = k + 1
-        try:
-            return next(self._gen)
-        except StopIteration:
-            self._gen = None
-            raise InputFileError(self.path, "DEPTH frame missing", frame=k) from None
-
-    def iter_frames(self, frames: FrameSelection = None) -> Iterator[Frame]:
-        sel = resolve_frames(frames, len(self))
-        yield from self._stream(sel.start, sel.stop)
-
-    def __iter__(self) -> Iterator[Frame]:
-        return self.iter_frames(None)
-
     def _stream(self, k0: int, stop: int | None = None) -> Iterator[Frame]:
         stop = len(self) if stop is None else stop
         want_d = {int(p): k for k, p in enumerate(self._d_pts[k0:stop], start=k0)}
@@ -401,9 +378,7 @@ class MkvReader(FrameReader):
         return out
 
     def close(self) -> None:
-        gen, self._gen = self._gen, None
-        if gen is not None:
-            gen.close()
+        self._close_stream()
         container, self._container = self._container, None
         if container is not None:
             container.close()

@@ -29,10 +29,8 @@ from ..errors import InputFileError
 from ._align import align_to_depth
 from ._base import (
     Frame,
-    FrameReader,
-    FrameSelection,
     IntrinsicsLike,
-    resolve_frames,
+    SequentialReader,
     resolve_intrinsics,
 )
 from ._extras import require
@@ -127,7 +125,7 @@ class _Stream:
         }
 
 
-class RosbagReader(FrameReader):
+class RosbagReader(SequentialReader):
     """Frame reader for ROS 1/ROS 2/MCAP bags and RealSense ``.bag``/``.db3`` recordings.
 
     Parameters
@@ -174,9 +172,7 @@ class RosbagReader(FrameReader):
             )
         self._reader: Any = None
         self._tmpdir: tempfile.TemporaryDirectory[str] | None = None
-        self._stream_gen: Iterator[Frame] | None = None
         self._errors: tuple[type[BaseException], ...] = (OSError,)
-        self._next_index = -1
         self._notes: list[str] = []
         self._quirk = False
         self._white: float | None = None
@@ -649,27 +645,8 @@ class RosbagReader(FrameReader):
     def __len__(self) -> int:
         return int(self._d_ord.size)
 
-    def read_frame(self, index: int) -> Frame:
-        k = self._index(index)
-        if self._stream_gen is None or k != self._next_index:
-            if self._stream_gen is not None:
-                self._stream_gen.close()
-            self._stream_gen = self._stream(k)
-        self._next_index = k + 1
-        try:
-            return next(self._stream_gen)
-        except StopIteration:
-            self._stream_gen = None
-            raise InputFileError(
-                self.path, f"depth topic {self._depth.topic}: message missing", frame=k
-            ) from None
-
-    def iter_frames(self, frames: FrameSelection = None) -> Iterator[Frame]:
-        sel = resolve_frames(frames, len(self))
-        yield from self._stream(sel.start, sel.stop)
-
-    def __iter__(self) -> Iterator[Frame]:
-        return self.iter_frames(None)
+    def _missing_frame_text(self) -> str:
+        return f"depth topic {self._depth.topic}: message missing"
 
     def _stream(self, k0: int, stop: int | None = None) -> Iterator[Frame]:
         """Decode frames ``k0, k0+1, ...`` in one pass over the bag."""
@@ -778,9 +755,7 @@ class RosbagReader(FrameReader):
         return out
 
     def close(self) -> None:
-        gen, self._stream_gen = self._stream_gen, None
-        if gen is not None:
-            gen.close()
+        self._close_stream()
         reader, self._reader = self._reader, None
         if reader is not None:
             with contextlib.suppress(*self._errors):  # already closed or never opened

@@ -28,6 +28,7 @@ import numpy as np
 from ..camera import Intrinsics
 from ..sequence import Sequence
 from ._atomic import StagedWriter, atomic_file, check_output
+from ._base import check_frame_shapes
 from ._extras import require
 from ._images import QuantizationReport, depth_to_units, intensity_to_uint
 
@@ -121,12 +122,7 @@ class DepthVideoWriter(StagedWriter):
         if self._streams is None:
             raise RuntimeError("DepthVideoWriter is not open; use it in a `with` block")
         shape = self.intrinsics.shape
-        for name, arr in (("depth", depth), ("intensity", intensity)):
-            if np.shape(arr) != shape:
-                raise ValueError(
-                    f"{name} of frame {self.num_written} has shape {np.shape(arr)}, expected "
-                    f"{shape} (the intrinsics' height x width)"
-                )
+        check_frame_shapes(self.num_written, shape, depth=depth, intensity=intensity)
         if timestamp is not None and self.num_written == 0:
             self._t0 = float(timestamp)
             self._container.metadata["FUSE4D_T0"] = repr(self._t0)

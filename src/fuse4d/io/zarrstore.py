@@ -27,7 +27,7 @@ from ..camera import Intrinsics
 from ..errors import InputFileError
 from ..sequence import Sequence
 from ._atomic import StagedWriter, atomic_dir, check_output
-from ._base import Frame, FrameReader, IntrinsicsLike, resolve_intrinsics
+from ._base import Frame, FrameReader, IntrinsicsLike, check_frame_shapes, resolve_intrinsics
 from ._extras import require
 
 __all__ = ["ZarrReader", "ZarrWriter", "is_zarr_store", "write_zarr"]
@@ -116,11 +116,7 @@ class ZarrWriter(StagedWriter):
         shape = self.intrinsics.shape
         d = np.asarray(depth, dtype=np.float32)
         i = np.asarray(intensity, dtype=np.float32)
-        for name, arr in (("depth", d), ("intensity", i)):
-            if arr.shape != shape:
-                raise ValueError(
-                    f"{name} of frame {self.num_written} has shape {arr.shape}, expected {shape}"
-                )
+        check_frame_shapes(self.num_written, shape, depth=d, intensity=i)
         d = np.where(np.isfinite(d) & (d > 0), d, np.float32(np.nan))
         self._arrays["depth"].append(d[None], axis=0)
         self._arrays["intensity"].append(np.clip(i, 0.0, 1.0)[None], axis=0)

@@ -9,12 +9,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ._common import METHODS, Context, tidy
+from ._ball_sweep import ball_rows, sweep_units
+from ._common import METHODS, Context
 from ._config import Profile
 from ._plots import figure, label, method_style
 from ._runner import Unit
-from ._scenes import ball, flow_for, run_method
-from ._scoring import score_frames
 from ._summary import group_stats, markdown_table
 
 NAME = "E1"
@@ -24,36 +23,12 @@ SIGMA_I = 0.02
 
 def unit(profile: Profile, cache_dir: Path, method: str, sigma_d: float, seed: int) -> list[dict]:
     """Rows of one (method, σ_d, seed)."""
-    seq = ball(profile, seed, sigma_d, SIGMA_I)
-    flow = flow_for(seq, profile.flow_method, cache_dir) if method == "ours" else None
-    out = run_method(method, seq, flow=flow)
-    scored = score_frames(out.points, seq)
-    return tidy(
-        NAME,
-        "ball",
-        method,
-        seed,
-        scored,
-        seq.num_frames,
-        sigma_d=sigma_d,
-        sigma_i=SIGMA_I,
-        seconds_per_frame=out.seconds / seq.num_frames,
-    )
+    return ball_rows(NAME, profile, cache_dir, method, seed, sigma_d=sigma_d, sigma_i=SIGMA_I)
 
 
 def units(ctx: Context) -> list[Unit]:
     """One unit per (seed, σ_d, method); Ours first per seed so its flow is cached early."""
-    p = ctx.profile
-    return [
-        Unit(
-            f"{m}_sd{sd:.2f}_s{seed}",
-            unit,
-            {"profile": p, "cache_dir": ctx.cache_dir, "method": m, "sigma_d": sd, "seed": seed},
-        )
-        for seed in p.seeds
-        for sd in p.sigma_d_levels
-        for m in sorted(METHODS, key=lambda m: m != "ours")
-    ]
+    return sweep_units(ctx, unit, "sigma_d", "sd", ctx.profile.sigma_d_levels)
 
 
 def summarize(ctx: Context, rows: list[dict]) -> dict[str, Any]:

@@ -10,12 +10,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ._common import METHODS, Context, tidy
+from ._ball_sweep import ball_rows, sweep_units
+from ._common import METHODS, Context
 from ._config import Profile
 from ._plots import figure, label, method_style
 from ._runner import Unit
-from ._scenes import ball, flow_for, ours_params, run_method
-from ._scoring import flow_epe_frames, score_frames, support_frames
+from ._scenes import ours_params
 from ._summary import group_stats, markdown_table
 
 NAME = "E2"
@@ -25,42 +25,14 @@ SIGMA_D = 0.2
 
 def unit(profile: Profile, cache_dir: Path, method: str, sigma_i: float, seed: int) -> list[dict]:
     """Rows of one (method, σ_I, seed); Ours' rows carry ``flow_epe`` and ``full_support``."""
-    seq = ball(profile, seed, SIGMA_D, sigma_i)
-    flow = flow_for(seq, profile.flow_method, cache_dir) if method == "ours" else None
-    out = run_method(method, seq, flow=flow)
-    scored = score_frames(out.points, seq)
-    if out.result is not None:
-        epe = flow_epe_frames(out.result.flow_forward, seq)
-        full = support_frames(out.result.support, seq, out.result.params.num_frames)
-        for s, e, f in zip(scored, epe, full, strict=True):
-            s["flow_epe"] = e
-            s["full_support"] = f
-    return tidy(
-        NAME,
-        "ball",
-        method,
-        seed,
-        scored,
-        seq.num_frames,
-        sigma_d=SIGMA_D,
-        sigma_i=sigma_i,
-        seconds_per_frame=out.seconds / seq.num_frames,
+    return ball_rows(
+        NAME, profile, cache_dir, method, seed, sigma_d=SIGMA_D, sigma_i=sigma_i, flow_stats=True
     )
 
 
 def units(ctx: Context) -> list[Unit]:
     """One unit per (seed, σ_I, method)."""
-    p = ctx.profile
-    return [
-        Unit(
-            f"{m}_si{si:.2f}_s{seed}",
-            unit,
-            {"profile": p, "cache_dir": ctx.cache_dir, "method": m, "sigma_i": si, "seed": seed},
-        )
-        for seed in p.seeds
-        for si in p.sigma_i_levels
-        for m in sorted(METHODS, key=lambda m: m != "ours")
-    ]
+    return sweep_units(ctx, unit, "sigma_i", "si", ctx.profile.sigma_i_levels)
 
 
 def parameters(ctx: Context) -> dict[str, Any]:
