@@ -78,12 +78,13 @@ def test_every_writer_refuses_a_frame_of_the_wrong_shape_and_leaves_nothing(tmp_
         from fuse4d.io.zarrstore import ZarrWriter
 
         writer = ZarrWriter(tmp_path / "out.zarr", k)
-    with (
-        pytest.raises(
-            ValueError, match=r"intensity of frame 1 has shape \(3, 3\), expected \(24, 32\)"
-        ),
-        writer as w,
-    ):
-        w.write(np.full(k.shape, 500.0, np.float32), np.zeros(k.shape, np.float32))
-        w.write(np.full(k.shape, 500.0, np.float32), np.zeros((3, 3), np.float32))
+    bad = r"intensity of frame 1 has shape \(3, 3\), expected \(24, 32\)"
+
+    def write_two_frames() -> None:
+        with writer as w:
+            w.write(np.full(k.shape, 500.0, np.float32), np.zeros(k.shape, np.float32))
+            w.write(np.full(k.shape, 500.0, np.float32), np.zeros((3, 3), np.float32))
+
+    with pytest.raises(ValueError, match=bad):
+        write_two_frames()
     assert list(tmp_path.iterdir()) == []

@@ -80,7 +80,14 @@ class FusionParams:
         frame's depth-quantisation coefficient (A22) and z_med its median depth (mm), so that the
         3D-distance kernel stays wider than the sensor's noise at any range (Kinect-class depth
         at 1.6 m: q z^2 ~ 4 mm, far beyond a fixed 2 mm). 0 = the literal fixed delta_d. Has no
-        effect on continuous depth (q z^2 ~ 0.1 mm on the synthetic ball).
+        effect on continuous depth (q z^2 ~ 0.1 mm on the synthetic ball: 4 q z^2 < 2 mm).
+        Default 4 (A30; was 1.5): on quantised depth the error left after temporal fusion is
+        the static part (quantisation staircase and the sensor's fixed pattern, the same in
+        every frame), which only the spatial kernel averages; 1.5 q z^2 still cut neighbours
+        one or two levels away. Kinect-model range scenes (640x480, 10 frames, RMSE vs GT):
+        ball 12.38 -> 11.73 mm, body 13.54 -> 13.09, room 13.70 -> 13.26 (scale 3: ball 11.82,
+        6: 11.67, 8: 11.65: saturated); uva person roughness 3.277 -> 3.264 mm, background
+        flicker 1.445 -> 1.223 mm, one frame 3.412 -> 3.401.
     sigma_intensity : float
         delta_g ([0, 1] intensity units) of the intensity kernel g(I_i, I_n).
     sigma_temporal : float
@@ -191,7 +198,7 @@ class FusionParams:
     num_frames: int = param(9, ge=1, le=256)
     spatial_radius: int = param(3, ge=0)
     sigma_distance: float = param(2.0, gt=0)
-    distance_noise_scale: float = param(1.5, ge=0)
+    distance_noise_scale: float = param(4.0, ge=0)
     sigma_intensity: float = param(0.1, gt=0)
     sigma_temporal: float = param(3.0, gt=0)
     fb_threshold: float = param(2.0, gt=0)

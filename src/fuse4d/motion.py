@@ -111,7 +111,7 @@ def _segment_smooth(
     of A29 are smoothed with it too.
     """
     d = np.ascontiguousarray(depth, dtype=np.float32)
-    radius = max(1, round((np.sqrt(6.0 * sigma**2 + 1.0) - 1.0) / 2.0))
+    radius = _box_radius(sigma)
     step = float(max_step)
     a = np.ascontiguousarray(values, dtype=np.float32).copy()
     b = np.empty_like(d)
@@ -125,6 +125,12 @@ def _segment_smooth(
         _segment_box_rows_kernel(at, dt, radius, step, float(noise_quad), bt)
         at, bt = bt, at
     return np.ascontiguousarray(at.T)
+
+
+def _box_radius(sigma: float) -> int:
+    """Box radius r (px) of the two-pass triangle with the variance of a Gaussian of ``sigma``
+    px: (2r+1)^2 = 6 sigma^2 + 1, at least 1."""
+    return max(1, round((np.sqrt(6.0 * sigma**2 + 1.0) - 1.0) / 2.0))
 
 
 def estimate_noise_quad(depth: ArrayLike) -> float:

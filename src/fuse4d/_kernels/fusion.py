@@ -24,7 +24,7 @@ from ._common import (
     _round_half_up,
     _step_limit,
 )
-from ._numba import njit, njit_parallel, prange
+from ._numba import FASTMATH, njit, njit_parallel, prange
 
 
 @njit(inline="always")
@@ -736,3 +736,101 @@ def _segment_box_rows_kernel(values, depth, radius, max_step, quad, out):
                     else:
                         out[v, k] = mean_val
                 u = b
+
+
+@njit(inline="always")
+def _nan_to_num32(x):
+    """``np.nan_to_num`` of one float32: NaN -> 0, +-inf -> +-float32 max."""
+    if np.isnan(x):
+        return np.float32(0.0)
+    if np.isinf(x):
+        return np.float32(3.4028234663852886e38) if x > 0 else np.float32(-3.4028234663852886e38)
+    return x
+
+
+@njit_parallel(fastmath=set(FASTMATH) - {"contract"})
+def _apply_smooth_base_kernel(points, base, seg, smooth_t, limit_quad):
+    """A29's correction of ``points`` (H, W, 3) float32 mm, in place.
+
+    Where the smoothed offset S = ``smooth_t[c, u, v]`` ((3, W, H) float32, transposed: the
+    column passes' output) is finite, coordinate c of pixel (v, u) with its own offset
+    o = ``nan_to_num(base[v, u, c])`` gets ``+= S + clip(o - S, -b, b) - o``, b =
+    ``limit_quad`` z^2, z = ``seg[v, u]`` (frame t's depth, finite where S is). float32 and
+    compiled without FMA contraction, so it rounds exactly like the NumPy expression it
+    replaced (a contracted ``S + b`` differed by one ulp at clipped pixels). Blocks of 16 rows
+    (S gathered into a row-major tile first: the transposed reads are runs of 16 values).
+    """
+    h = points.shape[0]
+    w = points.shape[1]
+    lq = np.float32(limit_quad)
+    n_blocks = (h + 15) // 16
+    for bi in prange(n_blocks):
+        v0 = bi * 16
+        v1 = min(h, v0 + 16)
+        tile = np.empty((v1 - v0, w, 3), dtype=np.float32)  # S of the block, row-major
+        for u in range(w):
+            for c in range(3):
+                for v in range(v0, v1):
+                    tile[v - v0, u, c] = smooth_t[c, u, v]
+        for v in range(v0, v1):
+            for u in range(w):
+                z = seg[v, u]
+                if np.isnan(z):
+                    continue  # S is NaN too
+                bound = lq * z * z
+                for c in range(3):
+                    smooth = tile[v - v0, u, c]
+                    if not np.isfinite(smooth):
+                        continue
+                    own = _nan_to_num32(base[v, u, c])
+                    fine = own - smooth
+                    if fine < -bound:
+                        fine = -bound
+                    if fine > bound:
+                        fine = bound
+                    points[v, u, c] += smooth + fine - own
+
+
+@njit_parallel
+def _planes_kernel(base, seg, rows, cols, planes):
+    """The inputs of A29's stacked box passes, in one parallel sweep.
+
+    ``base`` (H, W, 3) float32 -> ``planes`` (3H, W): channel c's ``nan_to_num`` in rows
+    cH..cH+H-1; ``seg`` (H, W) -> ``rows`` (3H, W): three copies, and ``cols`` (3W, H): three
+    copies of its transpose (16x16 tiles).
+    """
+    h, w = seg.shape
+    n_blocks = (h + 15) // 16
+    for bi in prange(n_blocks):
+        v0 = bi * 16
+        v1 = min(h, v0 + 16)
+        for v in range(v0, v1):
+            for u in range(w):
+                z = seg[v, u]
+                rows[v, u] = z
+                rows[h + v, u] = z
+                rows[2 * h + v, u] = z
+                for c in range(3):
+                    planes[c * h + v, u] = _nan_to_num32(base[v, u, c])
+        for u in range(w):
+            for v in range(v0, v1):
+                z = seg[v, u]
+                cols[u, v] = z
+                cols[w + u, v] = z
+                cols[2 * w + u, v] = z
+
+
+@njit_parallel
+def _transpose_planes_kernel(planes, out):
+    """(3H, W) row passes' output -> (3W, H): each channel's (H, W) plane transposed (16-row
+    tiles), the layout of the column passes."""
+    h3, w = planes.shape
+    h = h3 // 3
+    n_blocks = (w + 15) // 16
+    for bi in prange(n_blocks):
+        u0 = bi * 16
+        u1 = min(w, u0 + 16)
+        for c in range(3):
+            for v in range(h):
+                for u in range(u0, u1):
+                    out[c * w + u, v] = planes[c * h + v, u]
