@@ -28,6 +28,8 @@ _CHILD = """
 import os, signal, sys
 from fuse4d.io import resume
 kill_at, where, sig = int(sys.argv[1]), sys.argv[2], getattr(signal, sys.argv[3])
+# as in a terminal: a parent started in the background (``cmd &``) hands down SIGINT ignored
+signal.signal(signal.SIGINT, signal.default_int_handler)
 write, png = resume.ResumableFolderWriter.write, resume.ResumableFolderWriter._png
 
 def write_then_kill(self, *args, **kwargs):
@@ -160,11 +162,11 @@ def test_killed_runs_resume_to_the_uninterrupted_result(recording, reference, tm
 def test_ctrl_c_exits_130_and_leaves_only_complete_frames(recording, reference, tmp_path):
     out = tmp_path / "out"
     args = ["run", str(recording), "-o", str(out), *RUN_ARGS]
-    res = _child(5, "after", "SIGINT", args)
+    res = _child(12, "after", "SIGINT", args)
     assert res.returncode == 130, res.stderr[-2000:]
     assert "interrupted" in res.stderr
     assert "Traceback" not in res.stderr
-    _check_partial(partial_path(out), _frames_done_after_signal(out, 5))
+    _check_partial(partial_path(out), _frames_done_after_signal(out, 12))
     # a second run without --resume refuses to clobber the unfinished one
     assert main(args) == 2
     assert main([*args, "--resume"]) == 0
