@@ -180,7 +180,8 @@ def test_npz_streaming_memmaps_uncompressed_and_matches_compressed(tmp_path, sma
 @pytest.mark.skipif(not Path("/proc/self/statm").exists(), reason="needs Linux /proc")
 def test_npz_streaming_resident_memory_does_not_grow_with_frames_read(tmp_path):
     """Frames read through the memory map are released again: reading a 100 MB recording
-    frame by frame leaves the reader's resident set flat (it used to grow by the whole file)."""
+    frame by frame leaves the reader's resident set flat (it used to grow by the whole file,
+    and then by the pages that Linux's fault-around maps before each frame: ≈ 10 MiB here)."""
     t, h, w = 200, 256, 256
     depth = np.full((t, h, w), 1000.0, np.float32)
     intensity = np.full((t, h, w), 0.5, np.float32)
@@ -197,7 +198,7 @@ def test_npz_streaming_resident_memory_does_not_grow_with_frames_read(tmp_path):
         for frame in reader:
             assert frame.depth[0, 0] == 1000.0
         grown = resident_mib() - before
-    assert grown < 20.0, f"resident set grew by {grown:.0f} MiB reading 100 MiB of frames"
+    assert grown < 3.0, f"resident set grew by {grown:.0f} MiB reading 100 MiB of frames"
 
 
 def test_npz_extra_key_reserved(tmp_path, small_sequence):

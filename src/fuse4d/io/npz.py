@@ -48,6 +48,9 @@ RESERVED_NPZ_KEYS = frozenset(
      "flow_gt"}
 )  # fmt: skip
 _REQUIRED = ("depth", "intensity", "intrinsics")
+#: Bytes released before each memory-mapped frame besides its own pages: more than the pages
+#: a fault maps around the faulting one (Linux fault-around: 64 KiB by default).
+_FAULT_AROUND_MARGIN = 1 << 20
 
 
 class NpzReader(FrameReader):
@@ -222,6 +225,10 @@ class NpzReader(FrameReader):
         The pages stay in the OS page cache; without this, every frame read through the map
         stays counted in the reader's RSS, which then grows with the recording's length
         (a 1200-frame 600 x 600 recording maps 3.5 GB) although each frame is copied out once.
+        The range starts ``_FAULT_AROUND_MARGIN`` bytes before the frame: a page fault maps
+        the pages around it too (Linux "fault-around", 64 KiB by default), and those lying
+        before the frame would otherwise stay mapped after their own frame was released
+        (≈ 55 KiB per frame kept at 300 x 300: +55 MB of RSS over 1200 frames).
         """
         arr = self._cache.get(key)
         handle = getattr(arr, "_mmap", None)
@@ -229,7 +236,7 @@ class NpzReader(FrameReader):
             return
         frame_bytes = arr[0].nbytes
         start = arr.offset % mmap.ALLOCATIONGRANULARITY + k * frame_bytes
-        page = start - start % mmap.PAGESIZE
+        page = max(0, start - start % mmap.PAGESIZE - _FAULT_AROUND_MARGIN)
         try:
             handle.madvise(mmap.MADV_DONTNEED, page, start + frame_bytes - page)
         except (AttributeError, OSError, ValueError):  # not Linux, or a closed map
