@@ -46,6 +46,10 @@ from .zarr_out import ZarrOutput, write_chunk
 __all__ = ["RecordingSource", "flow_scratch", "recording_tasks", "source_of"]
 
 _FLOWS = ".fuse4d-flows"
+#: dask priority of the flow tasks (default 0): a worker that can start a flow or a fusion
+#: starts the flow, which is on the critical path (each chunk's fusion waits for the flows of
+#: its neighbours, and the chain of warm-started flows is sequential).
+_FLOW_PRIORITY = 10
 
 
 @dataclass(frozen=True)
@@ -120,10 +124,15 @@ def _flow_task(
     config: FlowConfig,
     chained: bool,
     *after: Any,
-) -> tuple[NDArray[np.float32] | None, int]:
+) -> NDArray[np.float32] | None:
     """Pairs ``[a, b)`` of chunk k, chained like :func:`fuse4d.scale.graph._flow_block`, to
     the scratch files (and the output's flow arrays at ``staging``); returns the seed of chunk
-    k + 1 (None without warm starts) and a token."""
+    k + 1 (None without warm starts).
+
+    The result is also the token the fusion and drop tasks of chunk k wait for: one output,
+    not ``nout=2``, because dask runs each ``getitem`` of a tuple result as a task of its own
+    on the worker that holds the tuple, queued behind that worker's running fusion (≈ 10 s at
+    600 x 600), while the other worker idles waiting for it."""
     a, b = bounds
     method = get_flow_method(config.method)
     params = config.build_params()
@@ -159,7 +168,7 @@ def _flow_task(
     last = np.array(forward)
     _save(_seed_file(scratch, k), last)
     _touch(_flow_marker(scratch, k), {"start": a, "stop": b})
-    return (last if chained else None), k
+    return last if chained else None
 
 
 def _load_seed(scratch: str, k: int) -> NDArray[np.float32]:
@@ -339,10 +348,11 @@ def recording_tasks(
             done = [i for i in drops if max(consumers[i], default=-1) <= k]
             if done:
                 wait.append(drops[max(done)])
-        task = dask.delayed(_flow_task, nout=2, pure=False)(
-            source, str(scratch), flow_staging, j, pairs[j], seed, flow, chained, *wait
-        )
-        seed, tokens[j] = task[0], task[1]
+        with dask.annotate(priority=_FLOW_PRIORITY):
+            task = dask.delayed(_flow_task, pure=False)(
+                source, str(scratch), flow_staging, j, pairs[j], seed, flow, chained, *wait
+            )
+        seed = tokens[j] = task
     build(len(pairs))
     results = [fused[k] for k in missing] + [drops[j] for j in sorted(drops)]
     for j in set(range(len(pairs))) - need - compute:  # left by an interrupted run, unread
