@@ -163,12 +163,15 @@ def _box_line3(src, dst, starts, ends, m, radius, s_val, s_kv):
         for c in range(3):
             s_val[c, 0] = 0.0
             s_kv[c, 0] = 0.0
-        for k in range(a, b):
-            j = k - a
+        # s_kv is read only within 2 radius + 1 of the segment's ends (the cut windows)
+        size = b - a
+        keep_head = min(size, 2 * radius + 1)
+        keep_tail = max(keep_head, size - 2 * radius - 2)
+        for j in range(size):
             fj = np.float64(j)
-            x0 = np.float64(src[0, k])
-            x1 = np.float64(src[1, k])
-            x2 = np.float64(src[2, k])
+            x0 = np.float64(src[0, a + j])
+            x1 = np.float64(src[1, a + j])
+            x2 = np.float64(src[2, a + j])
             sv0 = sv0 + x0
             sv1 = sv1 + x1
             sv2 = sv2 + x2
@@ -178,8 +181,9 @@ def _box_line3(src, dst, starts, ends, m, radius, s_val, s_kv):
             s_val[0, j + 1] = sv0
             s_val[1, j + 1] = sv1
             s_val[2, j + 1] = sv2
-            s_kv[0, j + 1] = kv0
-            s_kv[1, j + 1] = kv1
-            s_kv[2, j + 1] = kv2
+            if j < keep_head or j >= keep_tail:
+                s_kv[0, j + 1] = kv0
+                s_kv[1, j + 1] = kv1
+                s_kv[2, j + 1] = kv2
         for c in range(3):
             _segment_out(s_val[c], s_kv[c], dst[c], a, b, radius, inv_full)

@@ -30,14 +30,15 @@ __all__ = ["_smooth_base_cols_kernel", "_smooth_base_rows_kernel"]
 BLOCK = 16
 
 
+#: largest finite float32
+_F32_MAX = np.float32(3.4028234663852886e38)
+
+
 @njit(inline="always")
 def _nan_to_num32(x):
-    """``np.nan_to_num`` of one float32: NaN -> 0, +-inf -> +-float32 max."""
-    if np.isnan(x):
-        return np.float32(0.0)
-    if np.isinf(x):
-        return np.float32(3.4028234663852886e38) if x > 0 else np.float32(-3.4028234663852886e38)
-    return x
+    """``np.nan_to_num`` of one float32: NaN -> 0, +-inf -> +-float32 max (branch-free)."""
+    y = np.float32(0.0) if np.isnan(x) else x
+    return min(max(y, -_F32_MAX), _F32_MAX)
 
 
 @njit_parallel(fastmath=set(SEGMENT_FASTMATH))
