@@ -101,18 +101,20 @@ def _truncated(s_val, s_kv, j, last, radius, n_vector):
 
 
 @njit(inline="always")
-def _segment_out(s_val, s_kv, dst, a, b, radius, inv_full):
+def _segment_out(s_val, s_kv, dst, a, b, radius, inv_full, interior=True):
     """Write the box pass of the segment [a, b) to ``dst`` from its prefix sums: the full
-    windows (the plain mean, a branch-free loop) and the ones cut by the segment's ends."""
+    windows (the plain mean, a branch-free loop; skipped when not ``interior``) and the ones
+    cut by the segment's ends."""
     size = b - a
     last = size - 1
     n_vector = size - size % _VECTOR
     head = min(radius, size)
     for j in range(head):
         dst[a + j] = _truncated(s_val, s_kv, j, last, radius, n_vector)
-    for j in range(radius, size - radius):
-        # full symmetric window: the line fit reduces to the mean
-        dst[a + j] = (s_val[j + radius + 1] - s_val[j - radius]) * inv_full
+    if interior:
+        for j in range(radius, size - radius):
+            # full symmetric window: the line fit reduces to the mean
+            dst[a + j] = (s_val[j + radius + 1] - s_val[j - radius]) * inv_full
     for j in range(max(size - radius, head), size):
         dst[a + j] = _truncated(s_val, s_kv, j, last, radius, n_vector)
 
@@ -167,6 +169,9 @@ def _box_line3(src, dst, starts, ends, m, radius, s_val, s_kv):
         size = b - a
         keep_head = min(size, 2 * radius + 1)
         keep_tail = max(keep_head, size - 2 * radius - 2)
+        # the full window of pixel p = j - radius ends at j: its mean is written as soon as
+        # s_val[j + 1] is known (the same operands as in _segment_out, one pass fewer)
+        width = 2 * radius
         for j in range(size):
             fj = np.float64(j)
             x0 = np.float64(src[0, a + j])
@@ -185,5 +190,10 @@ def _box_line3(src, dst, starts, ends, m, radius, s_val, s_kv):
                 s_kv[0, j + 1] = kv0
                 s_kv[1, j + 1] = kv1
                 s_kv[2, j + 1] = kv2
+            if j >= width:
+                p = a + j - radius
+                dst[0, p] = (sv0 - s_val[0, j - width]) * inv_full
+                dst[1, p] = (sv1 - s_val[1, j - width]) * inv_full
+                dst[2, p] = (sv2 - s_val[2, j - width]) * inv_full
         for c in range(3):
-            _segment_out(s_val[c], s_kv[c], dst[c], a, b, radius, inv_full)
+            _segment_out(s_val[c], s_kv[c], dst[c], a, b, radius, inv_full, False)
