@@ -665,7 +665,7 @@ def _smooth_base(
 
     ``base`` (H, W, 3) mm is the offset the trajectory fit added to P~^t (the fusion kernel's
     ``base_out``). Its edge-limited spatial mean S (:func:`fuse4d.motion._segment_smooth`'s
-    values, the three channels stacked into one call per box pass),
+    values, bit for bit, in two sweeps of ``_kernels/smooth_base.py``),
     ``sigma`` px, over frame t's depth-continuous segments without the ``hole`` pixels, step
     limit ``max(max_step, 2.5 quad z^2)``) is kept, and of the rest (offset - S) only what
     lies within +-``limit_quad`` z^2 mm (a fraction of the quantisation part q z^2 of the A22

@@ -5,16 +5,17 @@ The edge-limited smoothing of the three offset channels, the values of three
 columns, each limited to frame t's depth-continuous segments) bit for bit, in two sweeps:
 
 * :func:`_smooth_base_rows_kernel`: per row, the segments are found once and the three
-  channels each get both row passes in line buffers; the output and frame t's depth go out
-  transposed (the column sweep's layout).
+  channels get both row passes together (:func:`._segments._box_line3`, line buffers); the
+  output, frame t's segments and A29's clip bound go out transposed (the column sweep's
+  layout).
 * :func:`_smooth_base_cols_kernel`: per column likewise, then A29's clipped update of the
   points.
 
-A box pass is :func:`._segments._box_line`, the very code of
-``_kernels.fusion._segment_box_rows_kernel`` (rounding written out in the source, compiled
-with :data:`._segments.SEGMENT_FASTMATH`), so the values are identical; only the segment
-search, the loops and the transposes are shared. Without FMA contraction the update rounds
-like the NumPy expression of the reference.
+The box pass is that of ``_kernels.fusion._segment_box_rows_kernel`` (``_kernels/_segments.py``:
+rounding written out in the source, compiled with ``SEGMENT_FASTMATH``), so the values are
+identical; only the segment search, the loops and the transposes are shared. Without FMA
+contraction the update rounds like the NumPy expression of the reference (the bound
+``limit_quad z^2`` is two float32 products, as there).
 """
 
 from __future__ import annotations
