@@ -109,6 +109,27 @@ def test_segment_box_kernel_matches_oracle(rng, quad):
     assert (np.abs(expected - cut)[:, 17:23].max() > 1.0) == (quad > 0)
 
 
+def test_segment_box_pass_rounds_as_before():
+    """The box pass's rounding is written out (``_kernels/_segments.py``) as the original
+    kernel's compiled code did it: a cut window in the first L - L % 8 pixels of a segment of
+    L >= 8 takes one reciprocal of n for both means, elsewhere two divisions (here the same
+    window, pixel 0, rounds to -0.5799999237 in segments of 16 and 13 but -0.5799999833 in
+    one of 5). Pinned values, so that the fused output cannot move by an ulp."""
+    x = [-1.65, 2.68, 0.59, 1.51, -4.51, 2.85, -4.71, 0.57, 4.08, 5.64, 1.53, 2.64, -1.82, -1.44]
+    x = np.array([*x, 3.51, 0.0], np.float32)
+    pinned = {
+        16: [-0.5799999237060547, 0.4130000174045563, 0.5830000042915344, 1.409999966621399],
+        13: [-0.5799999237060547, 0.4130000174045563, 0.9340000152587891, -0.8916666507720947],
+        5: [-0.5799999833106995, 0.4130000174045563, -0.9650000929832458, -3.3533334732055664],
+    }
+    for n, want in pinned.items():
+        out = np.empty((1, n), np.float32)
+        _segment_box_rows_kernel(
+            x[None, :n].copy(), np.full((1, n), 1e3, np.float32), 2, 10.0, 0.0, out
+        )
+        np.testing.assert_array_equal(out[0, [0, 1, n - 2, n - 1]], np.float32(want))
+
+
 def test_motion_reference_never_crosses_edges():
     d = np.full((20, 30), 500.0, np.float32)
     d[:, 15:] = 800.0
@@ -942,6 +963,79 @@ def test_smooth_base_is_bit_identical_to_three_segment_smooths():
     _smooth_base(got, base, depth, hole, **kw)
     assert np.mean(got != points) > 0.5  # it did change most points
     np.testing.assert_array_equal(got, expected)
+
+
+def _kinect_like(rng, h=41, w=67):
+    """Quantised far depth (2-4 m, 1 mm steps) with holes, a depth edge and short segments;
+    base offsets with NaN and inf."""
+    depth = np.round(2500.0 + 900.0 * (np.arange(w)[None, :] > 40) + rng.normal(0, 6, (h, w)))
+    depth = depth.astype(np.float32)
+    depth[rng.random((h, w)) < 0.08] = np.nan
+    depth[:, 20:23][rng.random((h, 3)) < 0.5] += 40.0  # 1-3 px segments at a step
+    hole = rng.random((h, w)) < 0.04
+    base = rng.normal(0, 2.0, (h, w, 3)).astype(np.float32)
+    base[rng.random((h, w, 3)) < 0.05] = np.nan
+    base[3, 4, 1] = np.inf
+    return depth, hole, base
+
+
+@pytest.mark.parametrize("sigma", [2.0, 3.5])
+def test_smooth_base_row_sweep_is_two_box_passes_per_channel(rng, sigma):
+    """A29's row sweep (segments found once per row, three channels at once, both passes)
+    gives, bit for bit, two ``_segment_box_rows_kernel`` passes of each channel, transposed,
+    and frame t's segments and clip bound transposed."""
+    from fuse4d._kernels.smooth_base import _smooth_base_rows_kernel
+    from fuse4d.motion import _box_radius
+
+    depth, hole, base = _kinect_like(rng)
+    h, w = depth.shape
+    quad, radius = 1.7e-6, _box_radius(sigma)
+    rows_t = np.full((w, 3, h), np.nan, np.float32)
+    seg_t = np.empty((w, h), np.float32)
+    bound_t = np.empty((w, h), np.float32)
+    _smooth_base_rows_kernel(
+        base, depth, hole, radius, 10.0, quad, 0.075 * quad, rows_t, seg_t, bound_t
+    )
+    seg = np.where(hole, np.float32(np.nan), depth)
+    np.testing.assert_array_equal(seg_t, seg.T)
+    np.testing.assert_array_equal(bound_t, np.float32(0.075 * quad) * seg.T * seg.T)
+    ok = np.isfinite(seg)
+    for c in range(3):
+        a = np.nan_to_num(base[..., c])
+        b = np.empty_like(a)
+        _segment_box_rows_kernel(a, seg, radius, 10.0, quad, b)
+        _segment_box_rows_kernel(b, seg, radius, 10.0, quad, a)
+        np.testing.assert_array_equal(rows_t[:, c, :].T[ok], a[ok])
+
+
+@pytest.mark.parametrize("sigma", [1.0, 2.0, 3.5])
+def test_smooth_base_matches_three_segment_smooths_on_kinect_like_depth(rng, sigma):
+    """As above on quantised far depth with short segments and an inf offset; a frame whose
+    every pixel is a hole is left unchanged."""
+    from fuse4d.fusion import _smooth_base
+    from fuse4d.motion import _segment_smooth
+
+    depth, hole, base = _kinect_like(rng)
+    quad = 1.7e-6
+    points = rng.normal(0, 1000.0, (*depth.shape, 3)).astype(np.float32)
+    for lq in (0.075 * quad, 10.0 * quad):
+        kw = {"sigma": sigma, "max_step": 10.0, "quad": quad, "limit_quad": lq}
+        expected = points.copy()
+        d = np.where(hole, np.float32(np.nan), depth)
+        z = np.nan_to_num(depth)
+        bound = np.float32(lq) * z * z
+        for c in range(3):
+            own = np.nan_to_num(base[..., c])
+            smooth = _segment_smooth(own, d, sigma=sigma, max_step=10.0, noise_quad=quad)
+            ok = np.isfinite(smooth)
+            fine = np.clip(own - smooth, -bound, bound)
+            expected[..., c][ok] += (smooth + fine - own)[ok]
+        got = points.copy()
+        _smooth_base(got, base, depth, hole, **kw)
+        np.testing.assert_array_equal(got, expected)
+    got = points.copy()
+    _smooth_base(got, base, depth, np.ones_like(hole), **kw)
+    np.testing.assert_array_equal(got, points)
 
 
 def test_base_smoothing_off_is_the_a21_line():

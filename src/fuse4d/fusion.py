@@ -19,14 +19,8 @@ from typing import Any, Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._kernels.fusion import (
-    _apply_smooth_base_kernel,
-    _fuse_kernel,
-    _planes_kernel,
-    _project_to_rays_kernel,
-    _segment_box_rows_kernel,
-    _transpose_planes_kernel,
-)
+from ._kernels.fusion import _fuse_kernel, _project_to_rays_kernel
+from ._kernels.smooth_base import _smooth_base_cols_kernel, _smooth_base_rows_kernel
 from ._validation import as_float32, check_shape
 from .bilateral import bilateral_filter_points
 from .camera import Intrinsics, depth_to_points
@@ -671,7 +665,7 @@ def _smooth_base(
 
     ``base`` (H, W, 3) mm is the offset the trajectory fit added to P~^t (the fusion kernel's
     ``base_out``). Its edge-limited spatial mean S (:func:`fuse4d.motion._segment_smooth`'s
-    values, the three channels stacked into one call per box pass),
+    values, bit for bit, in two sweeps of ``_kernels/smooth_base.py``),
     ``sigma`` px, over frame t's depth-continuous segments without the ``hole`` pixels, step
     limit ``max(max_step, 2.5 quad z^2)``) is kept, and of the rest (offset - S) only what
     lies within +-``limit_quad`` z^2 mm (a fraction of the quantisation part q z^2 of the A22
@@ -686,31 +680,28 @@ def _smooth_base(
     if math.isinf(limit_quad):
         return  # every fine-scale part kept: no change
     h, w = depth.shape
-    seg = np.where(hole, np.float32(np.nan), depth).astype(np.float32)
-    if np.isnan(seg).all():
-        # no fused pixel (e.g. the first frame of a causal window): S is NaN everywhere and
-        # nothing changes (issue 13)
-        return
     radius = _box_radius(sigma)
     step, q = float(max_step), float(quad)
-    # the three channels stacked as 3H rows (3W after the transpose), so that each pair of
-    # box passes is one call of the very kernel _segment_smooth uses: the same values, bit
-    # for bit, as three _segment_smooth calls, without their per-channel copies
-    a = np.empty((3 * h, w), np.float32)
-    rows = np.empty((3 * h, w), np.float32)
-    cols = np.empty((3 * w, h), np.float32)
-    _planes_kernel(np.ascontiguousarray(base, dtype=np.float32), seg, rows, cols, a)
-    b = np.empty_like(a)
-    for _ in range(2):
-        _segment_box_rows_kernel(a, rows, radius, step, q, b)
-        a, b = b, a
-    at = np.empty((3 * w, h), np.float32)
-    _transpose_planes_kernel(a, at)
-    bt = np.empty_like(at)
-    for _ in range(2):
-        _segment_box_rows_kernel(at, cols, radius, step, q, bt)
-        at, bt = bt, at
-    _apply_smooth_base_kernel(points, base, seg, at.reshape(3, w, h), float(limit_quad))
+    # two sweeps, each finding a line's segments once for the three channels and both box
+    # passes: the values, bit for bit, of three _segment_smooth calls (a frame without any
+    # fused pixel, e.g. the first of a causal window, has no segment: nothing changes)
+    rows_t = np.empty((w, 3, h), np.float32)
+    seg_t = np.empty((w, h), np.float32)
+    bound_t = np.empty((w, h), np.float32)
+    base32 = np.ascontiguousarray(base, dtype=np.float32)
+    _smooth_base_rows_kernel(
+        base32,
+        np.ascontiguousarray(depth, dtype=np.float32),
+        np.ascontiguousarray(hole, dtype=np.bool_),
+        radius,
+        step,
+        q,
+        float(limit_quad),
+        rows_t,
+        seg_t,
+        bound_t,
+    )
+    _smooth_base_cols_kernel(rows_t, seg_t, bound_t, base32, radius, step, q, points)
 
 
 @dataclass

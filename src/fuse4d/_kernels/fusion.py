@@ -24,7 +24,8 @@ from ._common import (
     _round_half_up,
     _step_limit,
 )
-from ._numba import FASTMATH, njit, njit_parallel, prange
+from ._numba import njit, njit_parallel, prange
+from ._segments import SEGMENT_FASTMATH, _box_line, _line_segments
 
 
 @njit(inline="always")
@@ -677,7 +678,7 @@ def _project_to_rays_kernel(points, ref, fx, fy, cx, cy, max_step, quad, out):
 
 
 # --------------------------------------------------------------------------- segment-limited smoothing
-@njit_parallel
+@njit_parallel(fastmath=set(SEGMENT_FASTMATH))
 def _segment_box_rows_kernel(values, depth, radius, max_step, quad, out):
     """One local-linear box pass along rows, limited to depth-continuous segments.
 
@@ -686,151 +687,19 @@ def _segment_box_rows_kernel(values, depth, radius, max_step, quad, out):
     values never mix across depth discontinuities or holes. Within the window a straight line
     is fitted (least squares over the column index) and evaluated at the pixel: on a symmetric
     window this is the plain box mean; on a truncated one (image border, depth edge) it has no
-    slope bias. O(1) per pixel (prefix sums). values, depth, out: (H, W) float32; out is NaN
-    where depth is NaN.
+    slope bias. O(1) per pixel (prefix sums; :func:`._segments._box_line`). values, depth,
+    out: (H, W) float32; out is NaN where depth is NaN.
     """
     h, w = depth.shape
     n_chunks = min(h, ROW_CHUNKS)
     for ci in prange(n_chunks):  # scratch allocated once per chunk, not per row
         s_val = np.empty(w + 1, dtype=np.float64)
         s_kv = np.empty(w + 1, dtype=np.float64)
+        starts = np.empty(w, dtype=np.int64)
+        ends = np.empty(w, dtype=np.int64)
         for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
-            u = 0
-            while u < w:
+            for u in range(w):
                 if np.isnan(depth[v, u]):
                     out[v, u] = np.nan
-                    u += 1
-                    continue
-                a = u
-                b = u + 1
-                while (
-                    b < w
-                    and not np.isnan(depth[v, b])
-                    and abs(depth[v, b] - depth[v, b - 1])
-                    < _step_limit(depth[v, b - 1], max_step, quad)
-                ):
-                    b += 1
-                s_val[0] = 0.0
-                s_kv[0] = 0.0
-                for k in range(a, b):
-                    j = k - a
-                    s_val[j + 1] = s_val[j] + values[v, k]
-                    s_kv[j + 1] = s_kv[j] + j * values[v, k]
-                inv_full = 1.0 / (2 * radius + 1)
-                for k in range(a, b):
-                    j = k - a
-                    if j - radius >= 0 and j + radius <= b - 1 - a:
-                        # full symmetric window: the line fit reduces to the mean
-                        out[v, k] = (s_val[j + radius + 1] - s_val[j - radius]) * inv_full
-                        continue
-                    lo = max(j - radius, 0)
-                    hi = min(j + radius, b - 1 - a)
-                    n = hi - lo + 1
-                    mean_val = (s_val[hi + 1] - s_val[lo]) / n
-                    # column indices lo..hi: mean and variance in closed form
-                    mean_j = 0.5 * (lo + hi)
-                    var_j = (n * n - 1) / 12.0
-                    if var_j > 0.0:
-                        cov = (s_kv[hi + 1] - s_kv[lo]) / n - mean_j * mean_val
-                        out[v, k] = mean_val + cov / var_j * (j - mean_j)
-                    else:
-                        out[v, k] = mean_val
-                u = b
-
-
-@njit(inline="always")
-def _nan_to_num32(x):
-    """``np.nan_to_num`` of one float32: NaN -> 0, +-inf -> +-float32 max."""
-    if np.isnan(x):
-        return np.float32(0.0)
-    if np.isinf(x):
-        return np.float32(3.4028234663852886e38) if x > 0 else np.float32(-3.4028234663852886e38)
-    return x
-
-
-@njit_parallel(fastmath=set(FASTMATH) - {"contract"})
-def _apply_smooth_base_kernel(points, base, seg, smooth_t, limit_quad):
-    """A29's correction of ``points`` (H, W, 3) float32 mm, in place.
-
-    Where the smoothed offset S = ``smooth_t[c, u, v]`` ((3, W, H) float32, transposed: the
-    column passes' output) is finite, coordinate c of pixel (v, u) with its own offset
-    o = ``nan_to_num(base[v, u, c])`` gets ``+= S + clip(o - S, -b, b) - o``, b =
-    ``limit_quad`` z^2, z = ``seg[v, u]`` (frame t's depth, finite where S is). float32 and
-    compiled without FMA contraction, so it rounds exactly like the NumPy expression it
-    replaced (a contracted ``S + b`` differed by one ulp at clipped pixels). Blocks of 16 rows
-    (S gathered into a row-major tile first: the transposed reads are runs of 16 values).
-    """
-    h = points.shape[0]
-    w = points.shape[1]
-    lq = np.float32(limit_quad)
-    n_blocks = (h + 15) // 16
-    for bi in prange(n_blocks):
-        v0 = bi * 16
-        v1 = min(h, v0 + 16)
-        tile = np.empty((v1 - v0, w, 3), dtype=np.float32)  # S of the block, row-major
-        for u in range(w):
-            for c in range(3):
-                for v in range(v0, v1):
-                    tile[v - v0, u, c] = smooth_t[c, u, v]
-        for v in range(v0, v1):
-            for u in range(w):
-                z = seg[v, u]
-                if np.isnan(z):
-                    continue  # S is NaN too
-                bound = lq * z * z
-                for c in range(3):
-                    smooth = tile[v - v0, u, c]
-                    if not np.isfinite(smooth):
-                        continue
-                    own = _nan_to_num32(base[v, u, c])
-                    fine = own - smooth
-                    if fine < -bound:
-                        fine = -bound
-                    if fine > bound:
-                        fine = bound
-                    points[v, u, c] += smooth + fine - own
-
-
-@njit_parallel
-def _planes_kernel(base, seg, rows, cols, planes):
-    """The inputs of A29's stacked box passes, in one parallel sweep.
-
-    ``base`` (H, W, 3) float32 -> ``planes`` (3H, W): channel c's ``nan_to_num`` in rows
-    cH..cH+H-1; ``seg`` (H, W) -> ``rows`` (3H, W): three copies, and ``cols`` (3W, H): three
-    copies of its transpose (16x16 tiles).
-    """
-    h, w = seg.shape
-    n_blocks = (h + 15) // 16
-    for bi in prange(n_blocks):
-        v0 = bi * 16
-        v1 = min(h, v0 + 16)
-        for v in range(v0, v1):
-            for u in range(w):
-                z = seg[v, u]
-                rows[v, u] = z
-                rows[h + v, u] = z
-                rows[2 * h + v, u] = z
-                for c in range(3):
-                    planes[c * h + v, u] = _nan_to_num32(base[v, u, c])
-        for u in range(w):
-            for v in range(v0, v1):
-                z = seg[v, u]
-                cols[u, v] = z
-                cols[w + u, v] = z
-                cols[2 * w + u, v] = z
-
-
-@njit_parallel
-def _transpose_planes_kernel(planes, out):
-    """(3H, W) row passes' output -> (3W, H): each channel's (H, W) plane transposed (16-row
-    tiles), the layout of the column passes."""
-    h3, w = planes.shape
-    h = h3 // 3
-    n_blocks = (w + 15) // 16
-    for bi in prange(n_blocks):
-        u0 = bi * 16
-        u1 = min(w, u0 + 16)
-        for c in range(3):
-            for v in range(h):
-                for u in range(u0, u1):
-                    out[c * w + u, v] = planes[c * h + v, u]
+            m = _line_segments(depth[v], max_step, quad, starts, ends)
+            _box_line(values[v], out[v], starts, ends, m, radius, s_val, s_kv)
