@@ -1,0 +1,100 @@
+"""The writers' one-pass conversions (issue 13) equal the numpy code they replace, bit for bit."""
+
+from __future__ import annotations
+
+import warnings
+
+import cv2
+import numpy as np
+import pytest
+
+from fuse4d.io import read_depth_png
+from fuse4d.io._images import QuantizationReport, depth_to_units, intensity_to_uint
+from fuse4d.io.folder import intensity_image
+
+
+def _units_numpy(depth, unit_mm, report):
+    d = np.asarray(depth, dtype=np.float64)
+    valid = np.isfinite(d) & (d > 0)
+    d = np.where(valid, d, np.nan)
+    stored = np.round(d / unit_mm)
+    if report is not None:
+        report.add(d, stored)
+    out = np.zeros(d.shape, dtype=np.uint16)
+    out[valid] = np.clip(stored[valid], 1, 65535).astype(np.uint16)
+    return out
+
+
+def _intensity_numpy(intensity):
+    i8 = intensity_to_uint(intensity, 8)
+    exact = np.allclose(i8 / 255.0, np.nan_to_num(intensity), rtol=0, atol=1e-6)
+    return i8 if exact else intensity_to_uint(intensity, 16)
+
+
+def _depth(dtype, rng):
+    d = (rng.random((24, 32)) * 3000).astype(dtype)
+    d[rng.random(d.shape) < 0.2] = np.nan
+    d[0, :6] = [0.0, -3.0, np.inf, 1e9, 0.2, -np.inf]
+    d[1, :4] = [0.5, 1.5, 2.5, 65535.5]
+    return d
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("unit_mm", [1.0, 0.25, 0.1, 3.0])
+@pytest.mark.parametrize("kind", ["noisy", "on_grid", "empty"])
+def test_depth_to_units_matches_numpy(dtype, unit_mm, kind):
+    rng = np.random.default_rng(1)
+    d = _depth(dtype, rng)
+    if kind == "on_grid":
+        d = np.round(d / unit_mm) * unit_mm
+    elif kind == "empty":
+        d = np.full((5, 7), np.nan, dtype)
+    ref, new = QuantizationReport(unit_mm), QuantizationReport(unit_mm)
+    for _ in range(2):  # the report accumulates over frames
+        expected = _units_numpy(d, unit_mm, ref)
+        got = depth_to_units(d, unit_mm, new)
+        assert got.dtype == np.uint16
+        np.testing.assert_array_equal(got, expected)
+    assert vars(new) == vars(ref)
+    np.testing.assert_array_equal(depth_to_units(d, unit_mm), expected)  # no report
+
+
+def test_depth_to_units_other_inputs_use_numpy():
+    d = np.array([[0, 5, 70000], [3, -1, 2]], dtype=np.int64)
+    np.testing.assert_array_equal(depth_to_units(d, 1.0), _units_numpy(d, 1.0, None))
+    d3 = np.ones((2, 2, 2), np.float32)
+    np.testing.assert_array_equal(depth_to_units(d3, 1.0), _units_numpy(d3, 1.0, None))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_intensity_image_matches_numpy(dtype):
+    rng = np.random.default_rng(2)
+    eight = rng.integers(0, 256, (20, 30)) / 255.0
+    cases = [
+        rng.random((20, 30)),  # 16 bits needed
+        eight,  # exactly 8-bit
+        eight + 2e-6,  # just past the tolerance
+        eight + 5e-7,  # within it
+        np.array([[np.nan, 1.2, -0.1], [0.5, 2 / 255, 1.0]]),  # NaN, clipped values
+        np.array([[np.inf, 0.5], [0.25, -np.inf]]),  # infinities: the numpy path
+    ]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # inf * 65535 in the numpy path
+        for case in cases:
+            case = case.astype(dtype)
+            expected = _intensity_numpy(case)
+            got = intensity_image(case, None)
+            assert got.dtype == expected.dtype
+            np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize("unit_mm", [1.0, 0.5])
+def test_read_depth_png_holes(tmp_path, unit_mm):
+    image = np.array([[0, 1, 2905], [65535, 0, 7]], np.uint16)
+    path = tmp_path / "d.png"
+    cv2.imwrite(str(path), image)
+    depth = read_depth_png(path, unit_mm=unit_mm)
+    expected = image.astype(np.float32) * np.float32(unit_mm)
+    expected[image == 0] = np.nan
+    assert depth.dtype == np.float32
+    np.testing.assert_array_equal(depth, expected)
