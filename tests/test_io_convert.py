@@ -98,3 +98,27 @@ def test_read_depth_png_holes(tmp_path, unit_mm):
     expected[image == 0] = np.nan
     assert depth.dtype == np.float32
     np.testing.assert_array_equal(depth, expected)
+
+
+def test_source_confidence_kernel_matches_numpy():
+    from fuse4d._kernels.holes import _source_confidence_kernel
+    from fuse4d.holes import SOURCE_FUSED, SOURCE_MEASURED, SOURCE_NONE
+
+    assert (SOURCE_NONE, SOURCE_MEASURED, SOURCE_FUSED) == (0, 1, 2)  # hard-coded there
+    rng = np.random.default_rng(3)
+    depth = rng.random((17, 23)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.3] = np.nan
+    support = rng.integers(0, 9, depth.shape).astype(np.uint8)
+    for n in (9.0, 7.0, 1.0):
+        measured = ~np.isnan(depth)
+        source = np.where(measured, SOURCE_MEASURED, SOURCE_NONE).astype(np.uint8)
+        source[measured & (support > 0)] = SOURCE_FUSED
+        confidence = np.where(measured, (1.0 + support) / n, 0.0).astype(np.float32)
+        got = (np.empty_like(source), np.empty_like(confidence), np.empty(depth.shape, bool))
+        assert _source_confidence_kernel(depth, support, n, *got)
+        np.testing.assert_array_equal(got[0], source)
+        np.testing.assert_array_equal(got[1], confidence)
+        np.testing.assert_array_equal(got[2], ~measured)
+    full = np.ones((3, 4), np.float32)
+    bufs = (np.empty((3, 4), np.uint8), np.empty((3, 4), np.float32), np.empty((3, 4), bool))
+    assert not _source_confidence_kernel(full, np.zeros((3, 4), np.uint8), 9.0, *bufs)
