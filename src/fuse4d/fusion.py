@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._kernels.fusion import _fuse_kernel, _project_to_rays_kernel
+from ._kernels.holes import _source_confidence_kernel
 from ._kernels.smooth_base import _smooth_base_cols_kernel, _smooth_base_rows_kernel
 from ._validation import as_float32, check_shape
 from .bilateral import bilateral_filter_points
@@ -30,7 +31,6 @@ from .flow import SequenceFlow, as_sequence_flow
 from .holes import (
     SOURCE_FUSED,
     SOURCE_MEASURED,
-    SOURCE_NONE,
     SOURCE_SPACE,
     SOURCE_TIME,
     _fill_from_time,
@@ -586,12 +586,12 @@ class FusionEngine:
         p = self.params
         n = float(p.num_frames)
         slot = t % self.ring
-        measured = ~np.isnan(self._depth[slot])
-        source = np.where(measured, SOURCE_MEASURED, SOURCE_NONE).astype(np.uint8)
-        source[measured & (support > 0)] = SOURCE_FUSED
-        confidence = np.where(measured, (1.0 + support) / n, 0.0).astype(np.float32)
-        holes = ~measured
-        if not holes.any():
+        # SOURCE_NONE / SOURCE_MEASURED / SOURCE_FUSED and (1 + support) / n in one pass
+        shape = support.shape
+        source = np.empty(shape, np.uint8)
+        confidence = np.empty(shape, np.float32)
+        holes = np.empty(shape, np.bool_)
+        if not _source_confidence_kernel(self._depth[slot], support, n, source, confidence, holes):
             return source, confidence
         _, quad, _ = self._noise[slot]
         if p.fill_from_time and last > first:

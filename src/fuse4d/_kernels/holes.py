@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from ._common import ROW_CHUNKS, _round_half_up, _step_limit
-from ._numba import njit_parallel, prange
+from ._numba import njit, njit_parallel, prange
 from .fusion import _track_step
 
 
@@ -201,3 +201,30 @@ def _spatial_fill_kernel(
                     out_depth[v, u] = acc_near / w_near
                 else:
                     out_depth[v, u] = np.nan
+
+
+@njit(fastmath=False)
+def _source_confidence_kernel(depth, support, n, source, confidence, holes):
+    """Per-pixel source codes and confidence before the sensor-hole fills, in one pass.
+
+    ``source`` (H, W) uint8: 2 (fused) where ``depth`` is valid and ``support`` > 0, 1
+    (measured) where valid, 0 where NaN; ``confidence`` (H, W) float32: (1 + support) / n
+    where valid (computed in float64, then rounded), else 0; ``holes`` (H, W) bool: NaN depth.
+    Returns whether any hole exists. The same values as the numpy expressions it replaces in
+    :meth:`fuse4d.FusionEngine._fill_sensor_holes` (issue 13: 6 ms per 640x480 frame there).
+    """
+    h, w = depth.shape
+    any_hole = False
+    for v in range(h):
+        for u in range(w):
+            if np.isnan(depth[v, u]):
+                source[v, u] = 0
+                confidence[v, u] = 0.0
+                holes[v, u] = True
+                any_hole = True
+            else:
+                s = support[v, u]
+                source[v, u] = 2 if s > 0 else 1
+                confidence[v, u] = np.float32((1.0 + np.float64(s)) / n)
+                holes[v, u] = False
+    return any_hole

@@ -1,0 +1,124 @@
+"""The writers' one-pass conversions (issue 13) equal the numpy code they replace, bit for bit."""
+
+from __future__ import annotations
+
+import warnings
+
+import cv2
+import numpy as np
+import pytest
+
+from fuse4d.io import read_depth_png
+from fuse4d.io._images import QuantizationReport, depth_to_units, intensity_to_uint
+from fuse4d.io.folder import intensity_image
+
+
+def _units_numpy(depth, unit_mm, report):
+    d = np.asarray(depth, dtype=np.float64)
+    valid = np.isfinite(d) & (d > 0)
+    d = np.where(valid, d, np.nan)
+    stored = np.round(d / unit_mm)
+    if report is not None:
+        report.add(d, stored)
+    out = np.zeros(d.shape, dtype=np.uint16)
+    out[valid] = np.clip(stored[valid], 1, 65535).astype(np.uint16)
+    return out
+
+
+def _intensity_numpy(intensity):
+    i8 = intensity_to_uint(intensity, 8)
+    exact = np.allclose(i8 / 255.0, np.nan_to_num(intensity), rtol=0, atol=1e-6)
+    return i8 if exact else intensity_to_uint(intensity, 16)
+
+
+def _depth(dtype, rng):
+    d = (rng.random((24, 32)) * 3000).astype(dtype)
+    d[rng.random(d.shape) < 0.2] = np.nan
+    d[0, :6] = [0.0, -3.0, np.inf, 1e9, 0.2, -np.inf]
+    d[1, :4] = [0.5, 1.5, 2.5, 65535.5]
+    return d
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("unit_mm", [1.0, 0.25, 0.1, 3.0])
+@pytest.mark.parametrize("kind", ["noisy", "on_grid", "empty"])
+def test_depth_to_units_matches_numpy(dtype, unit_mm, kind):
+    rng = np.random.default_rng(1)
+    d = _depth(dtype, rng)
+    if kind == "on_grid":
+        d = np.round(d / unit_mm) * unit_mm
+    elif kind == "empty":
+        d = np.full((5, 7), np.nan, dtype)
+    ref, new = QuantizationReport(unit_mm), QuantizationReport(unit_mm)
+    for _ in range(2):  # the report accumulates over frames
+        expected = _units_numpy(d, unit_mm, ref)
+        got = depth_to_units(d, unit_mm, new)
+        assert got.dtype == np.uint16
+        np.testing.assert_array_equal(got, expected)
+    assert vars(new) == vars(ref)
+    np.testing.assert_array_equal(depth_to_units(d, unit_mm), expected)  # no report
+
+
+def test_depth_to_units_other_inputs_use_numpy():
+    d = np.array([[0, 5, 70000], [3, -1, 2]], dtype=np.int64)
+    np.testing.assert_array_equal(depth_to_units(d, 1.0), _units_numpy(d, 1.0, None))
+    d3 = np.ones((2, 2, 2), np.float32)
+    np.testing.assert_array_equal(depth_to_units(d3, 1.0), _units_numpy(d3, 1.0, None))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_intensity_image_matches_numpy(dtype):
+    rng = np.random.default_rng(2)
+    eight = rng.integers(0, 256, (20, 30)) / 255.0
+    cases = [
+        rng.random((20, 30)),  # 16 bits needed
+        eight,  # exactly 8-bit
+        eight + 2e-6,  # just past the tolerance
+        eight + 5e-7,  # within it
+        np.array([[np.nan, 1.2, -0.1], [0.5, 2 / 255, 1.0]]),  # NaN, clipped values
+        np.array([[np.inf, 0.5], [0.25, -np.inf]]),  # infinities: the numpy path
+    ]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # inf * 65535 in the numpy path
+        for case in cases:
+            case = case.astype(dtype)
+            expected = _intensity_numpy(case)
+            got = intensity_image(case, None)
+            assert got.dtype == expected.dtype
+            np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize("unit_mm", [1.0, 0.5])
+def test_read_depth_png_holes(tmp_path, unit_mm):
+    image = np.array([[0, 1, 2905], [65535, 0, 7]], np.uint16)
+    path = tmp_path / "d.png"
+    cv2.imwrite(str(path), image)
+    depth = read_depth_png(path, unit_mm=unit_mm)
+    expected = image.astype(np.float32) * np.float32(unit_mm)
+    expected[image == 0] = np.nan
+    assert depth.dtype == np.float32
+    np.testing.assert_array_equal(depth, expected)
+
+
+def test_source_confidence_kernel_matches_numpy():
+    from fuse4d._kernels.holes import _source_confidence_kernel
+    from fuse4d.holes import SOURCE_FUSED, SOURCE_MEASURED, SOURCE_NONE
+
+    assert (SOURCE_NONE, SOURCE_MEASURED, SOURCE_FUSED) == (0, 1, 2)  # hard-coded there
+    rng = np.random.default_rng(3)
+    depth = rng.random((17, 23)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.3] = np.nan
+    support = rng.integers(0, 9, depth.shape).astype(np.uint8)
+    for n in (9.0, 7.0, 1.0):
+        measured = ~np.isnan(depth)
+        source = np.where(measured, SOURCE_MEASURED, SOURCE_NONE).astype(np.uint8)
+        source[measured & (support > 0)] = SOURCE_FUSED
+        confidence = np.where(measured, (1.0 + support) / n, 0.0).astype(np.float32)
+        got = (np.empty_like(source), np.empty_like(confidence), np.empty(depth.shape, bool))
+        assert _source_confidence_kernel(depth, support, n, *got)
+        np.testing.assert_array_equal(got[0], source)
+        np.testing.assert_array_equal(got[1], confidence)
+        np.testing.assert_array_equal(got[2], ~measured)
+    full = np.ones((3, 4), np.float32)
+    bufs = (np.empty((3, 4), np.uint8), np.empty((3, 4), np.float32), np.empty((3, 4), bool))
+    assert not _source_confidence_kernel(full, np.zeros((3, 4), np.uint8), 9.0, *bufs)
