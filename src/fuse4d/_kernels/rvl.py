@@ -13,6 +13,32 @@ from ._numba import njit
 __all__ = ["decode", "encode"]
 
 
+@njit(inline="always")
+def _read_varint(words, pos, word, nibbles):  # pragma: no cover - numba
+    """Next variable-length value: 3-bit nibbles, low first, bit 3 = more follow.
+
+    ``word`` holds the ``nibbles`` nibbles of ``words[pos - 1]`` not read yet (most
+    significant first). Returns ``(value, pos, word, nibbles)``; pos -1 when ``words``
+    ends first.
+    """
+    value = 0
+    shift = 0
+    while True:
+        if nibbles == 0:
+            if pos >= words.size:
+                return 0, -1, word, nibbles
+            word = words[pos]
+            pos += 1
+            nibbles = 8
+        nibble = (word >> np.uint32(28)) & np.uint32(0xF)
+        value |= int(nibble & np.uint32(7)) << shift
+        word = (word << np.uint32(4)) & np.uint32(0xFFFFFFFF)
+        nibbles -= 1
+        shift += 3
+        if (nibble & np.uint32(8)) == 0:
+            return value, pos, word, nibbles
+
+
 @njit
 def decode(words: np.ndarray, out: np.ndarray) -> int:  # pragma: no cover - numba
     n = out.size
@@ -23,22 +49,9 @@ def decode(words: np.ndarray, out: np.ndarray) -> int:  # pragma: no cover - num
     previous = 0
     while k < n:
         for phase in range(2):  # 0: zeros, 1: nonzeros
-            value = 0
-            shift = 0
-            while True:
-                if nibbles == 0:
-                    if pos >= words.size:
-                        return -1
-                    word = words[pos]
-                    pos += 1
-                    nibbles = 8
-                nibble = (word >> np.uint32(28)) & np.uint32(0xF)
-                value |= int(nibble & np.uint32(7)) << shift
-                word = (word << np.uint32(4)) & np.uint32(0xFFFFFFFF)
-                nibbles -= 1
-                shift += 3
-                if (nibble & np.uint32(8)) == 0:
-                    break
+            value, pos, word, nibbles = _read_varint(words, pos, word, nibbles)
+            if pos < 0:
+                return -1
             if k + value > n:
                 return -2
             if phase == 0:
@@ -47,22 +60,9 @@ def decode(words: np.ndarray, out: np.ndarray) -> int:  # pragma: no cover - num
                     k += 1
             else:
                 for _ in range(value):
-                    positive = 0
-                    shift = 0
-                    while True:
-                        if nibbles == 0:
-                            if pos >= words.size:
-                                return -1
-                            word = words[pos]
-                            pos += 1
-                            nibbles = 8
-                        nibble = (word >> np.uint32(28)) & np.uint32(0xF)
-                        positive |= int(nibble & np.uint32(7)) << shift
-                        word = (word << np.uint32(4)) & np.uint32(0xFFFFFFFF)
-                        nibbles -= 1
-                        shift += 3
-                        if (nibble & np.uint32(8)) == 0:
-                            break
+                    positive, pos, word, nibbles = _read_varint(words, pos, word, nibbles)
+                    if pos < 0:
+                        return -1
                     delta = (positive >> 1) ^ -(positive & 1)
                     current = (previous + delta) & 0xFFFF
                     out[k] = current
