@@ -120,6 +120,19 @@ def test_presets():
         preset("slow")
 
 
+def test_reader_options_keeps_only_given_options_in_one_order():
+    from fuse4d.cli._recording_opts import reader_options
+
+    assert reader_options() == {}
+    got = reader_options(None, "/ir", None, True, depth_unit_mm=0.5, intrinsics="1,1,0,0")
+    assert list(got.items()) == [
+        ("intensity_topic", "/ir"),
+        ("undistort", False),
+        ("depth_unit_mm", 0.5),
+        ("intrinsics", "1,1,0,0"),
+    ]
+
+
 BENCH_STAGES = {"flow", "bilateral", "motion_reference", "tracking", "fusion", "fill"}
 
 

@@ -58,12 +58,18 @@ def reader_options(
     intensity_topic: str | None = None,
     intensity: str | None = None,
     no_undistort: bool = False,
+    *,
+    depth_unit_mm: float | None = None,
+    intrinsics: str | None = None,
 ) -> dict[str, Any]:
-    """Keyword arguments for :func:`fuse4d.io.open_frames` from the options that were given."""
+    """Keyword arguments for :func:`fuse4d.io.open_frames` from the options that were given
+    (``depth_unit_mm`` in mm per stored unit and the ``intrinsics`` override last)."""
     out: dict[str, Any] = {
         "depth_topic": depth_topic,
         "intensity_topic": intensity_topic,
         "intensity": intensity,
         "undistort": False if no_undistort else None,
+        "depth_unit_mm": depth_unit_mm,
+        "intrinsics": intrinsics,
     }
     return {k: v for k, v in out.items() if v is not None}

@@ -191,11 +191,10 @@ def run_command(
     """
     from ..run import fuse_file
 
-    options = reader_options(depth_topic, intensity_topic, intensity, no_undistort)
-    if depth_unit_mm is not None:
-        options["depth_unit_mm"] = depth_unit_mm
-    if intrinsics is not None:
-        options["intrinsics"] = intrinsics
+    options = reader_options(
+        depth_topic, intensity_topic, intensity, no_undistort,
+        depth_unit_mm=depth_unit_mm, intrinsics=intrinsics,
+    )  # fmt: skip
 
     fusion, flow = _resolve(
         preset_name,

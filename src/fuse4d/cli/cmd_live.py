@@ -141,11 +141,10 @@ def live_command(
         source: Any = RealSenseSource(width=width, height=height, fps=int(fps or 30), serial=serial)
         realtime = True
     else:
-        options = reader_options(depth_topic, intensity_topic, intensity, no_undistort)
-        if depth_unit_mm is not None:
-            options["depth_unit_mm"] = depth_unit_mm
-        if intrinsics is not None:
-            options["intrinsics"] = intrinsics
+        options = reader_options(
+            depth_topic, intensity_topic, intensity, no_undistort,
+            depth_unit_mm=depth_unit_mm, intrinsics=intrinsics,
+        )  # fmt: skip
         realtime = realtime or fps is not None
         source = RecordingSource(input_path, realtime=realtime, fps=fps, **options)
     sinks: list[Any] = []
