@@ -120,17 +120,32 @@ def test_presets():
         preset("slow")
 
 
-def test_bench_small_reports_every_stage(capsys):
-    assert main(["bench", "--small", "--frames", "6", "--window", "3", "--json"]) == 0
+def test_reader_options_keeps_only_given_options_in_one_order():
+    from fuse4d.cli._recording_opts import reader_options
+
+    assert reader_options() == {}
+    got = reader_options(None, "/ir", None, True, depth_unit_mm=0.5, intrinsics="1,1,0,0")
+    assert list(got.items()) == [
+        ("intensity_topic", "/ir"),
+        ("undistort", False),
+        ("depth_unit_mm", 0.5),
+        ("intrinsics", "1,1,0,0"),
+    ]
+
+
+BENCH_STAGES = {"flow", "bilateral", "motion_reference", "tracking", "fusion", "fill"}
+
+
+def _bench_small(capsys, *extra: str) -> dict:
+    """The one JSON result of ``fuse4d bench --small`` on 6 frames with a 3-frame window."""
+    assert main(["bench", "--small", "--frames", "6", "--window", "3", *extra, "--json"]) == 0
     (result,) = json.loads(capsys.readouterr().out)
-    assert set(result["stage_ms"]) == {
-        "flow",
-        "bilateral",
-        "motion_reference",
-        "tracking",
-        "fusion",
-        "fill",
-    }
+    return result
+
+
+def test_bench_small_reports_every_stage(capsys):
+    result = _bench_small(capsys)
+    assert set(result["stage_ms"]) == BENCH_STAGES
     assert result["ms_per_frame"] > 0
     assert result["peak_rss_mb"] > 0
 
@@ -146,25 +161,15 @@ def test_bench_causal_times_the_causal_engine_stage_by_stage(monkeypatch, capsys
             seen.append((self.params.causal, self.past, self.future))
 
     monkeypatch.setattr(speed, "FusionEngine", Spy)
-    args = ["bench", "--small", "--frames", "6", "--window", "3", "--causal", "--json"]
-    assert main(args) == 0
-    (result,) = json.loads(capsys.readouterr().out)
+    result = _bench_small(capsys, "--causal")
     assert result["causal"] is True
     assert result["window"] == 3
-    assert set(result["stage_ms"]) == {
-        "flow",
-        "bilateral",
-        "motion_reference",
-        "tracking",
-        "fusion",
-        "fill",
-    }
+    assert set(result["stage_ms"]) == BENCH_STAGES
     assert result["stage_ms"]["tracking"] > 0
     assert result["ms_per_frame"] > 0
     assert seen
     assert all(s == (True, 2, 0) for s in seen)
-    assert main(["bench", "--small", "--frames", "6", "--window", "3", "--json"]) == 0
-    (centred,) = json.loads(capsys.readouterr().out)
+    centred = _bench_small(capsys)
     assert centred["causal"] is False
     assert seen[-1] == (False, 1, 1)
 

@@ -22,7 +22,7 @@ import zarr
 import fuse4d.dask as fd
 from fuse4d import FusionEngine, FusionParams, Intrinsics, fuse_sequence, fuse_stream
 from fuse4d.cli import main
-from fuse4d.flow import estimate_sequence_flow
+from fuse4d.flow import estimate_sequence_flow, get_flow_method
 from fuse4d.io import open_frames, save_sequence, write_frame_folder
 from fuse4d.scale import graph
 from fuse4d.scale._deps import require_scale_extra
@@ -122,6 +122,25 @@ def test_without_warm_start_equals_cold_in_memory_and_streaming(ball):
     )  # fmt: skip
     _assert_equal(res, ref)
     assert not res.flows.warm_start
+
+
+@pytest.mark.parametrize("warm_start", [True, False])
+def test_flow_chain_equals_sequence_flow_split_anywhere(ball, warm_start):
+    """graph._flow_chain (shared by the in-memory and the streamed graph) gives the bits of
+    estimate_sequence_flow, also when split into two chains seeded with the last forward."""
+    ref = estimate_sequence_flow(ball.intensity[:8], warm_start=warm_start)
+    method = get_flow_method("dis")
+
+    def chain(frames, seed):
+        return list(graph._flow_chain(frames, method, None, seed, warm_start, None, None))
+
+    whole = chain(iter(ball.intensity[:8]), None)  # any iterable: read lazily, in order
+    head = chain(list(ball.intensity[:4]), None)
+    tail = chain(list(ball.intensity[3:8]), head[-1][0])
+    for pairs in (whole, head + tail):
+        assert len(pairs) == 7
+        assert _same(np.stack([f for f, _ in pairs]), ref.forward)
+        assert _same(np.stack([g for _, g in pairs]), ref.backward)
 
 
 def test_every_pair_flow_and_chunk_is_computed_once(ball, monkeypatch, tmp_path):

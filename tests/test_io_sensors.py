@@ -352,6 +352,19 @@ def test_rvl_round_trip(rng):
         decode_rvl(encode_rvl(img)[:100], 40, 30)
 
 
+def test_rvl_decode_runs_and_errors(rng):
+    """The decoder's phases: zero runs, empty nonzero runs, a run ending at the last pixel;
+    a stream for a larger image is corrupt for a smaller one."""
+    img = np.zeros((4, 6), np.uint16)
+    img[0, 5] = img[1, 0] = 7  # a nonzero run across a row end
+    img[3, 3:] = [1, 65535, 2]  # wraps around 16 bits, ends at the last pixel
+    assert np.array_equal(decode_rvl(encode_rvl(img), 6, 4), img)
+    full = rng.integers(1, 65536, (3, 5), dtype=np.uint16)  # no zero at all
+    assert np.array_equal(decode_rvl(encode_rvl(full), 5, 3), full)
+    with pytest.raises(ValueError, match="corrupt"):
+        decode_rvl(encode_rvl(full), 4, 3)
+
+
 # ----------------------------------------------------------------- writers
 @pytest.fixture
 def float_sequence(rng) -> Sequence:

@@ -7,7 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fuse4d._kernels._common import _round_half_up, _step_limit
+from fuse4d._kernels._common import (
+    _bilinear2,
+    _bilinear2_plane,
+    _bilinear_stencil,
+    _round_half_up,
+    _step_limit,
+)
 from fuse4d._kernels._numba import njit
 from fuse4d._kernels.fusion import _track_kernel, _track_step
 from fuse4d.motion import _track_window
@@ -97,3 +103,25 @@ def test_track_window_reuses_buffers(rng):
     _s, r3, c3, ok3 = _track_window(fwd, bwd, depth, 4, 0, 8, **kw, out=bufs)
     for a, b in ((rows, r3), (cols, c3), (ok, ok3)):
         np.testing.assert_array_equal(a, b)
+
+
+def test_bilinear_stencil_clamps_and_both_samplers_agree(rng):
+    """_bilinear2 (ring slot) and _bilinear2_plane share _bilinear_stencil: same bits, equal
+    to the bilinear formula inside, clamped at the last row/column, exact on 1-px grids."""
+    ring = rng.standard_normal((2, 5, 7, 2)).astype(np.float32)
+    for x, y in ((0.0, 0.0), (2.25, 1.5), (6.0, 4.0), (5.999, 3.2)):
+        x0, y0, x1, y1, w00, w01, w10, w11 = _bilinear_stencil(5, 7, x, y)
+        assert 0 <= x0 <= 5
+        assert 0 <= y0 <= 3
+        assert (x1, y1) == (x0 + 1, y0 + 1)
+        assert np.isclose(w00 + w01 + w10 + w11, 1.0)
+        f = ring[1].astype(np.float64)
+        fx, fy = x - x0, y - y0
+        ref = (
+            (1 - fx) * (1 - fy) * f[y0, x0] + fx * (1 - fy) * f[y0, x1]
+            + (1 - fx) * fy * f[y1, x0] + fx * fy * f[y1, x1]
+        )  # fmt: skip
+        a = _bilinear2(ring, 1, x, y)
+        assert a == _bilinear2_plane(ring[1], x, y)
+        np.testing.assert_allclose(a, ref, rtol=1e-6, atol=1e-6)
+    assert _bilinear_stencil(1, 1, 0.0, 0.0) == (0, 0, 0, 0, 1.0, 0.0, 0.0, 0.0)

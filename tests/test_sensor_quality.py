@@ -64,16 +64,15 @@ def test_summary_says_smoother_exactly_when_error_vs_truth_drops(kinect_ball):
     assert _summary_verdict(seq.depth, fused.depth, seq.intrinsics)[0]  # fused is better
 
 
-@pytest.mark.realdata
-@pytest.mark.slow
-def test_summary_verdict_agrees_with_person_roughness_on_real_kinect(shared_data):
-    """uva_cv2_person_turning: the summary's verdict = roughness on the fixed person mask."""
+def _person_crop(shared_data, frames: str):
+    """uva_cv2_person_turning's frames ``frames`` cropped to the person (mask bounding box over
+    all frames + 16 px): ``(depth mm, intensity, Intrinsics, person mask)``; skips if absent."""
     from fuse4d import load_sequence
 
     path = shared_data / "uva_cv2_person_turning"
     if not path.is_dir():
         pytest.skip(f"{path} not found")
-    seq = load_sequence(path, frames="0:9")
+    seq = load_sequence(path, frames=frames)
     person = seq.ground_truth.mask
     rows, cols = np.nonzero(person.any(axis=0))
     r0, r1 = max(rows.min() - 16, 0), min(rows.max() + 17, seq.shape[0])
@@ -82,9 +81,16 @@ def test_summary_verdict_agrees_with_person_roughness_on_real_kinect(shared_data
     k = Intrinsics(k0.fx, k0.fy, k0.cx - c0, k0.cy - r0, int(c1 - c0), int(r1 - r0))
     crop = np.s_[:, r0:r1, c0:c1]
     raw = np.ascontiguousarray(seq.depth[crop])
-    fused = fuse_sequence(raw, np.ascontiguousarray(seq.intensity[crop]), k).depth
+    return raw, np.ascontiguousarray(seq.intensity[crop]), k, person[crop]
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_summary_verdict_agrees_with_person_roughness_on_real_kinect(shared_data):
+    """uva_cv2_person_turning: the summary's verdict = roughness on the fixed person mask."""
+    raw, inten, k, mask = _person_crop(shared_data, "0:9")
+    fused = fuse_sequence(raw, inten, k).depth
     smoother, res = _summary_verdict(raw, fused, k)
-    mask = person[crop]
     rough_raw = roughness(depth_to_points(raw, k))
     rough_out = roughness(depth_to_points(fused, k))
     scored = mask & np.isfinite(rough_raw) & np.isfinite(rough_out)
@@ -97,26 +103,12 @@ def test_nine_frames_smoother_than_one_on_the_real_person(shared_data):
     """Issue 10: on uva_cv2_person_turning, fusing 9 frames is smoother on the person than
     fusing 1 (Eq. 7 on the same pixels: person mask, raw-valid, Eq. 7 finite in raw and both
     outputs; frames with the full 9-frame window). Before A29 the line base was rougher."""
-    from fuse4d import load_sequence
     from fuse4d.flow import estimate_sequence_flow
 
-    path = shared_data / "uva_cv2_person_turning"
-    if not path.is_dir():
-        pytest.skip(f"{path} not found")
-    seq = load_sequence(path, frames="10:22")
-    person = seq.ground_truth.mask
-    rows, cols = np.nonzero(person.any(axis=0))
-    r0, r1 = max(rows.min() - 16, 0), min(rows.max() + 17, seq.shape[0])
-    c0, c1 = max(cols.min() - 16, 0), min(cols.max() + 17, seq.shape[1])
-    k0 = seq.intrinsics
-    k = Intrinsics(k0.fx, k0.fy, k0.cx - c0, k0.cy - r0, int(c1 - c0), int(r1 - r0))
-    crop = np.s_[:, r0:r1, c0:c1]
-    raw = np.ascontiguousarray(seq.depth[crop])
-    inten = np.ascontiguousarray(seq.intensity[crop])
+    raw, inten, k, mask = _person_crop(shared_data, frames="10:22")
     flow = estimate_sequence_flow(inten, method="dis")
     one = fuse_sequence(raw, inten, k, fusion=FusionParams(num_frames=1)).depth
     nine = fuse_sequence(raw, inten, k, flow=flow).depth
-    mask = person[crop]
     frames = slice(4, 8)
     r_raw = roughness(depth_to_points(raw[frames], k))
     r_one = roughness(depth_to_points(np.where(np.isfinite(raw), one, np.nan)[frames], k))

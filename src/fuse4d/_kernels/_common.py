@@ -2,6 +2,7 @@
 
 * :data:`ROW_CHUNKS`: parallel loops run over this many row chunks.
 * :func:`_exp_neg_fast`: the bilateral weight function exp(-x) ~ (1 - x/1024)^1024.
+* :func:`_bilinear_stencil`: the clamped 2x2 stencil (indices, weights) of a bilinear sample.
 * :func:`_bilinear2`: bilinear sample of a two-component (flow) field, stencil clamped.
 * :func:`_bilinear2_plane`: the same on one (H, W, 2) field (a ring slot taken once per loop).
 * :func:`_round_half_up`: METHOD §4.1 rounding floor(x + 0.5).
@@ -23,6 +24,7 @@ __all__ = [
     "ROW_CHUNKS",
     "_bilinear2",
     "_bilinear2_plane",
+    "_bilinear_stencil",
     "_difference",
     "_exp_neg_fast",
     "_round_half_up",
@@ -49,14 +51,10 @@ def _exp_neg_fast(x):
 
 
 @njit(inline="always")
-def _bilinear2(ring, slot, x, y):
-    """Bilinear sample of both components of ``ring[slot]`` (H, W, 2) at (x = column, y = row).
-
-    The 2x2 stencil is clamped at the last row/column (METHOD §4.1); callers ensure
-    0 <= x <= W-1 and 0 <= y <= H-1.
-    """
-    h = ring.shape[1]
-    w = ring.shape[2]
+def _bilinear_stencil(h, w, x, y):
+    """The 2x2 stencil of a bilinear sample at (x = column, y = row) px of an H x W grid:
+    ``(x0, y0, x1, y1, w00, w01, w10, w11)``, clamped at the last row/column (METHOD §4.1);
+    ``wRC`` weighs the sample at row ``yR``, column ``xC``."""
     x0 = min(max(int(math.floor(x)), 0), max(w - 2, 0))
     y0 = min(max(int(math.floor(y)), 0), max(h - 2, 0))
     x1 = min(x0 + 1, w - 1)
@@ -67,6 +65,17 @@ def _bilinear2(ring, slot, x, y):
     w01 = fx * (1.0 - fy)
     w10 = (1.0 - fx) * fy
     w11 = fx * fy
+    return x0, y0, x1, y1, w00, w01, w10, w11
+
+
+@njit(inline="always")
+def _bilinear2(ring, slot, x, y):
+    """Bilinear sample of both components of ``ring[slot]`` (H, W, 2) at (x = column, y = row).
+
+    The 2x2 stencil is clamped at the last row/column (METHOD §4.1); callers ensure
+    0 <= x <= W-1 and 0 <= y <= H-1.
+    """
+    x0, y0, x1, y1, w00, w01, w10, w11 = _bilinear_stencil(ring.shape[1], ring.shape[2], x, y)
     a = (
         w00 * ring[slot, y0, x0, 0]
         + w01 * ring[slot, y0, x1, 0]
@@ -86,18 +95,7 @@ def _bilinear2(ring, slot, x, y):
 def _bilinear2_plane(field, x, y):
     """:func:`_bilinear2` on one (H, W, 2) field (``ring[slot]``): the same arithmetic, so
     the same bits; the slot's offset is taken once per loop instead of once per sample."""
-    h = field.shape[0]
-    w = field.shape[1]
-    x0 = min(max(int(math.floor(x)), 0), max(w - 2, 0))
-    y0 = min(max(int(math.floor(y)), 0), max(h - 2, 0))
-    x1 = min(x0 + 1, w - 1)
-    y1 = min(y0 + 1, h - 1)
-    fx = x - x0 if w > 1 else 0.0
-    fy = y - y0 if h > 1 else 0.0
-    w00 = (1.0 - fx) * (1.0 - fy)
-    w01 = fx * (1.0 - fy)
-    w10 = (1.0 - fx) * fy
-    w11 = fx * fy
+    x0, y0, x1, y1, w00, w01, w10, w11 = _bilinear_stencil(field.shape[0], field.shape[1], x, y)
     a = (
         w00 * field[y0, x0, 0]
         + w01 * field[y0, x1, 0]

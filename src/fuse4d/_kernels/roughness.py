@@ -73,16 +73,25 @@ def _smallest_eigvec_kernel(a00, a01, a02, a11, a12, a22):
     return nx * s, ny * s, nz * s, lam
 
 
+@njit(inline="always")
+def _window_point(points, t, i, j):
+    """``(x, y, z, valid)`` of pixel ``(t, i, j)``: mm as float64, valid = no NaN coordinate.
+
+    float() promotes the float32 samples to float64 (identically with and without JIT).
+    """
+    x = float(points[t, i, j, 0])
+    y = float(points[t, i, j, 1])
+    z = float(points[t, i, j, 2])
+    return x, y, z, not (math.isnan(x) or math.isnan(y) or math.isnan(z))
+
+
 @njit
 def _pixel_roughness_kernel(points, t, i, j, radius, min_count):
     """``(N |(p_i - c) . n|, sqrt(n^T S n / N))`` (mm) of pixel ``(t, i, j)``; NaN, NaN where
     the centre is invalid or fewer than ``min_count`` window points are valid."""
-    # float() promotes the float32 samples to float64 (identically with and without JIT)
     h, w = points.shape[1], points.shape[2]
-    px = float(points[t, i, j, 0])
-    py = float(points[t, i, j, 1])
-    pz = float(points[t, i, j, 2])
-    if math.isnan(px) or math.isnan(py) or math.isnan(pz):
+    px, py, pz, valid = _window_point(points, t, i, j)
+    if not valid:
         return np.nan, np.nan
     # first pass: centroid relative to the centre point (better conditioning)
     cnt = 0
@@ -91,10 +100,8 @@ def _pixel_roughness_kernel(points, t, i, j, radius, min_count):
     sz = 0.0
     for di in range(max(0, i - radius), min(h, i + radius + 1)):
         for dj in range(max(0, j - radius), min(w, j + radius + 1)):
-            qx = float(points[t, di, dj, 0])
-            qy = float(points[t, di, dj, 1])
-            qz = float(points[t, di, dj, 2])
-            if math.isnan(qx) or math.isnan(qy) or math.isnan(qz):
+            qx, qy, qz, valid = _window_point(points, t, di, dj)
+            if not valid:
                 continue
             cnt += 1
             sx += qx - px
@@ -113,10 +120,8 @@ def _pixel_roughness_kernel(points, t, i, j, radius, min_count):
     a22 = 0.0
     for di in range(max(0, i - radius), min(h, i + radius + 1)):
         for dj in range(max(0, j - radius), min(w, j + radius + 1)):
-            qx = float(points[t, di, dj, 0])
-            qy = float(points[t, di, dj, 1])
-            qz = float(points[t, di, dj, 2])
-            if math.isnan(qx) or math.isnan(qy) or math.isnan(qz):
+            qx, qy, qz, valid = _window_point(points, t, di, dj)
+            if not valid:
                 continue
             dx = qx - px - mx
             dy = qy - py - my

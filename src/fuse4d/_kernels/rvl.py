@@ -15,61 +15,58 @@ __all__ = ["decode", "encode"]
 
 @njit
 def decode(words: np.ndarray, out: np.ndarray) -> int:  # pragma: no cover - numba
+    """Decode ``words`` into ``out`` (uint16 pixels): 0, -1 if ``words`` ends first, -2 if a
+    run passes the end of ``out``.
+
+    The stream is a sequence of variable-length values (3-bit nibbles, low first, bit 3 = more
+    follow): a zero-run length, a nonzero-run length, then that many zigzag deltas of the
+    nonzero pixels, repeated. One loop reads them all, ``phase`` says what the next one is.
+    """
     n = out.size
     pos = 0  # next word
     word = np.uint32(0)
     nibbles = 0
     k = 0
     previous = 0
+    phase = 0  # 0: zero-run length next, 1: nonzero-run length next, 2: a nonzero pixel next
+    remaining = 0  # nonzero pixels left in the run (phase 2)
     while k < n:
-        for phase in range(2):  # 0: zeros, 1: nonzeros
-            value = 0
-            shift = 0
-            while True:
-                if nibbles == 0:
-                    if pos >= words.size:
-                        return -1
-                    word = words[pos]
-                    pos += 1
-                    nibbles = 8
-                nibble = (word >> np.uint32(28)) & np.uint32(0xF)
-                value |= int(nibble & np.uint32(7)) << shift
-                word = (word << np.uint32(4)) & np.uint32(0xFFFFFFFF)
-                nibbles -= 1
-                shift += 3
-                if (nibble & np.uint32(8)) == 0:
-                    break
+        value = 0
+        shift = 0
+        while True:
+            if nibbles == 0:
+                if pos >= words.size:
+                    return -1
+                word = words[pos]
+                pos += 1
+                nibbles = 8
+            nibble = (word >> np.uint32(28)) & np.uint32(0xF)
+            value |= int(nibble & np.uint32(7)) << shift
+            word = (word << np.uint32(4)) & np.uint32(0xFFFFFFFF)
+            nibbles -= 1
+            shift += 3
+            if (nibble & np.uint32(8)) == 0:
+                break
+        if phase == 2:
+            delta = (value >> 1) ^ -(value & 1)
+            current = (previous + delta) & 0xFFFF
+            out[k] = current
+            previous = current
+            k += 1
+            remaining -= 1
+            if remaining == 0:
+                phase = 0
+        else:
             if k + value > n:
                 return -2
             if phase == 0:
                 for _ in range(value):
                     out[k] = 0
                     k += 1
+                phase = 1
             else:
-                for _ in range(value):
-                    positive = 0
-                    shift = 0
-                    while True:
-                        if nibbles == 0:
-                            if pos >= words.size:
-                                return -1
-                            word = words[pos]
-                            pos += 1
-                            nibbles = 8
-                        nibble = (word >> np.uint32(28)) & np.uint32(0xF)
-                        positive |= int(nibble & np.uint32(7)) << shift
-                        word = (word << np.uint32(4)) & np.uint32(0xFFFFFFFF)
-                        nibbles -= 1
-                        shift += 3
-                        if (nibble & np.uint32(8)) == 0:
-                            break
-                    delta = (positive >> 1) ^ -(positive & 1)
-                    current = (previous + delta) & 0xFFFF
-                    out[k] = current
-                    previous = current
-                    k += 1
-            if k >= n:
-                break
+                remaining = value
+                phase = 2 if value > 0 else 0
     return 0
 
 

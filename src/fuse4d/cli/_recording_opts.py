@@ -1,7 +1,8 @@
 """Command-line options shared by the commands that read camera recordings (info, run, export-ply).
 
 ROS bags and RealSense files: ``--depth-topic``, ``--intensity-topic``, ``--intensity``;
-Azure Kinect ``.mkv``: ``--no-undistort``. :func:`reader_options` turns the given ones into
+Azure Kinect ``.mkv``: ``--no-undistort``; ``run`` and ``live`` also share ``--depth-unit-mm`` and
+``--intrinsics``. :func:`reader_options` turns the given ones into
 keyword arguments of :func:`fuse4d.io.open_frames` (options left unset are not passed, so
 other layouts are unaffected).
 """
@@ -13,7 +14,9 @@ from typing import Annotated, Any
 import typer
 
 __all__ = [
+    "CameraOverrideOpt",
     "DepthTopicOpt",
+    "DepthUnitOpt",
     "IntensityOpt",
     "IntensityTopicOpt",
     "NoUndistortOpt",
@@ -41,18 +44,32 @@ NoUndistortOpt = Annotated[
     typer.Option("--no-undistort", help="Azure Kinect .mkv: keep the lens distortion."),
 ]
 
+DepthUnitOpt = Annotated[
+    float | None,
+    typer.Option("--depth-unit-mm", "--depth-unit", help="Millimetres per stored depth unit."),
+]
+CameraOverrideOpt = Annotated[
+    str | None, typer.Option("--intrinsics", help="Camera override: 'fx,fy,cx,cy' or file.")
+]
+
 
 def reader_options(
     depth_topic: str | None = None,
     intensity_topic: str | None = None,
     intensity: str | None = None,
     no_undistort: bool = False,
+    *,
+    depth_unit_mm: float | None = None,
+    intrinsics: str | None = None,
 ) -> dict[str, Any]:
-    """Keyword arguments for :func:`fuse4d.io.open_frames` from the options that were given."""
+    """Keyword arguments for :func:`fuse4d.io.open_frames` from the options that were given
+    (``depth_unit_mm`` in mm per stored unit and the ``intrinsics`` override last)."""
     out: dict[str, Any] = {
         "depth_topic": depth_topic,
         "intensity_topic": intensity_topic,
         "intensity": intensity,
         "undistort": False if no_undistort else None,
+        "depth_unit_mm": depth_unit_mm,
+        "intrinsics": intrinsics,
     }
     return {k: v for k, v in out.items() if v is not None}

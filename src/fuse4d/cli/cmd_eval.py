@@ -15,7 +15,11 @@ from rich.table import Table
 from ._app import app, err_console, fail, out_console, progress_bar, progress_callback
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     import numpy as np
+
+    from ..sequence import Sequence
 
 __all__ = ["metrics_command", "synth_command"]
 
@@ -41,6 +45,21 @@ class SensorName(StrEnum):
 #: scenes of each family
 _PAPER_SCENES = ("ball", "plane", "sheet")
 _RANGE_SCENES = ("ball", "body", "room")
+
+
+def _render_and_write(
+    what: str, make: Callable[..., Sequence], scene: str, output: Path, force: bool, **options: Any
+) -> Sequence:
+    """``make(scene, **options)`` written to ``output`` (.npz), with status lines; options that
+    are None are left out (the scene maker's defaults apply). Returns the sequence."""
+    from ..io import write_npz
+
+    given = {k: v for k, v in options.items() if v is not None}
+    with err_console.status(f"rendering {what}"):
+        seq = make(scene, **given)
+    with err_console.status(f"writing {output}"):
+        write_npz(seq, output, overwrite=force)
+    return seq
 
 
 @app.command("synth")
@@ -84,7 +103,6 @@ def synth_command(
     at 1-5 m through that sensor model (disparity quantisation, correlated noise, shadow
     holes, flying pixels; see docs/sensors.md); --depth-noise does not apply there.
     """
-    from ..io import write_npz
 
     if output.exists() and not force:
         fail(f"{output}: output exists; pass --force to replace it")
@@ -100,15 +118,11 @@ def synth_command(
             )
         if depth_noise is not None:
             fail("--depth-noise applies to the paper scenes; the sensor model sets the noise")
-        range_kwargs: dict[str, Any] = {"sensor": sensor.value, "small": small, "rng": seed}
-        if intensity_noise is not None:
-            range_kwargs["intensity_noise"] = intensity_noise
-        if frames is not None:
-            range_kwargs["num_frames"] = frames
-        with err_console.status(f"rendering the {scene.value} range scene ({sensor.value})"):
-            seq = make_range_scene(scene.value, **range_kwargs)
-        with err_console.status(f"writing {output}"):
-            write_npz(seq, output, overwrite=force)
+        what = f"the {scene.value} range scene ({sensor.value})"
+        seq = _render_and_write(
+            what, make_range_scene, scene.value, output, force, sensor=sensor.value,
+            small=small, rng=seed, intensity_noise=intensity_noise, num_frames=frames,
+        )  # fmt: skip
         t, (h, w) = seq.num_frames, seq.shape
         import numpy as np
 
@@ -125,17 +139,10 @@ def synth_command(
             f"scene {scene.value!r} is a range scene: give --sensor kinect|d435|tof "
             f"(paper scenes: {', '.join(_PAPER_SCENES)})"
         )
-    kwargs: dict[str, Any] = {"small": small, "rng": seed}
-    if depth_noise is not None:
-        kwargs["depth_noise"] = depth_noise
-    if intensity_noise is not None:
-        kwargs["intensity_noise"] = intensity_noise
-    if frames is not None:
-        kwargs["num_frames"] = frames
-    with err_console.status(f"rendering the {scene.value} scene"):
-        seq = make_scene(scene.value, **kwargs)
-    with err_console.status(f"writing {output}"):
-        write_npz(seq, output, overwrite=force)
+    seq = _render_and_write(
+        f"the {scene.value} scene", make_scene, scene.value, output, force, small=small,
+        rng=seed, depth_noise=depth_noise, intensity_noise=intensity_noise, num_frames=frames,
+    )  # fmt: skip
     t, (h, w) = seq.num_frames, seq.shape
     extra = seq.ground_truth.extra if seq.ground_truth else {}
     err_console.print(

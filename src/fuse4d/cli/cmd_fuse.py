@@ -20,18 +20,16 @@ from ._app import (
     progress_callback,
     user_values,
 )
+from ._fusion_opts import FlowMethodOpt, FlowParamOpt, PresetOpt, SetOpt
 from ._recording_opts import (
+    CameraOverrideOpt,
     DepthTopicOpt,
+    DepthUnitOpt,
     IntensityOpt,
     IntensityTopicOpt,
     NoUndistortOpt,
     reader_options,
 )
-
-PresetOpt = Annotated[
-    str, typer.Option("--preset", help="Parameter preset: fast (DIS flow) or paper (PMBP).")
-]
-
 
 #: What the columns of the ``demo`` and ``bench --quality`` tables mean.
 QUALITY_CAPTION = (
@@ -115,19 +113,9 @@ def run_command(
     causal: Annotated[
         bool, typer.Option("--causal", help="Online mode: no look-ahead (live cameras).")
     ] = False,
-    sets: Annotated[
-        list[str] | None,
-        typer.Option("--set", help="Fusion parameter KEY=VALUE (repeatable).", show_default=False),
-    ] = None,
-    flow_method: Annotated[
-        str | None, typer.Option("--flow", help="Flow method (overrides the preset).")
-    ] = None,
-    flow_params: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--flow-param", help="Flow parameter KEY=VALUE (repeatable).", show_default=False
-        ),
-    ] = None,
+    sets: SetOpt = None,
+    flow_method: FlowMethodOpt = None,
+    flow_params: FlowParamOpt = None,
     flow_cache: Annotated[
         Path | None,
         typer.Option(
@@ -167,13 +155,8 @@ def run_command(
     intensity_topic: IntensityTopicOpt = None,
     intensity: IntensityOpt = None,
     no_undistort: NoUndistortOpt = False,
-    depth_unit_mm: Annotated[
-        float | None,
-        typer.Option("--depth-unit-mm", "--depth-unit", help="Millimetres per stored depth unit."),
-    ] = None,
-    intrinsics: Annotated[
-        str | None, typer.Option("--intrinsics", help="Camera override: 'fx,fy,cx,cy' or file.")
-    ] = None,
+    depth_unit_mm: DepthUnitOpt = None,
+    intrinsics: CameraOverrideOpt = None,
     report: Annotated[
         Path | None,
         typer.Option("--report", help="Also write an HTML report folder (see fuse4d report)."),
@@ -208,11 +191,10 @@ def run_command(
     """
     from ..run import fuse_file
 
-    options = reader_options(depth_topic, intensity_topic, intensity, no_undistort)
-    if depth_unit_mm is not None:
-        options["depth_unit_mm"] = depth_unit_mm
-    if intrinsics is not None:
-        options["intrinsics"] = intrinsics
+    options = reader_options(
+        depth_topic, intensity_topic, intensity, no_undistort,
+        depth_unit_mm=depth_unit_mm, intrinsics=intrinsics,
+    )  # fmt: skip
 
     fusion, flow = _resolve(
         preset_name,

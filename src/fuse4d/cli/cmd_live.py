@@ -12,8 +12,11 @@ import typer
 from rich.table import Table
 
 from ._app import app, eprint, fail, out_console
+from ._fusion_opts import FlowMethodOpt, FlowParamOpt, PresetOpt, SetOpt
 from ._recording_opts import (
+    CameraOverrideOpt,
     DepthTopicOpt,
+    DepthUnitOpt,
     IntensityOpt,
     IntensityTopicOpt,
     NoUndistortOpt,
@@ -55,28 +58,16 @@ def live_command(
             "--fps", help="Playback rate (frames/s; implies --realtime), or the camera's rate."
         ),
     ] = None,
-    preset_name: Annotated[
-        str, typer.Option("--preset", help="Parameter preset: fast (DIS flow) or paper (PMBP).")
-    ] = "fast",
+    preset_name: PresetOpt = "fast",
     window: Annotated[
         int | None, typer.Option("--window", help="Frames fused per output frame (causal).")
     ] = None,
     config: Annotated[
         Path | None, typer.Option("--config", help="TOML file with fusion and flow tables.")
     ] = None,
-    sets: Annotated[
-        list[str] | None,
-        typer.Option("--set", help="Fusion parameter KEY=VALUE (repeatable).", show_default=False),
-    ] = None,
-    flow_method: Annotated[
-        str | None, typer.Option("--flow", help="Flow method (overrides the preset).")
-    ] = None,
-    flow_params: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--flow-param", help="Flow parameter KEY=VALUE (repeatable).", show_default=False
-        ),
-    ] = None,
+    sets: SetOpt = None,
+    flow_method: FlowMethodOpt = None,
+    flow_params: FlowParamOpt = None,
     queue_size: Annotated[
         int,
         typer.Option("--queue", help="Frames waiting for the fusion at most (oldest dropped)."),
@@ -118,13 +109,8 @@ def live_command(
     intensity_topic: IntensityTopicOpt = None,
     intensity: IntensityOpt = None,
     no_undistort: NoUndistortOpt = False,
-    depth_unit_mm: Annotated[
-        float | None,
-        typer.Option("--depth-unit-mm", "--depth-unit", help="Millimetres per stored depth unit."),
-    ] = None,
-    intrinsics: Annotated[
-        str | None, typer.Option("--intrinsics", help="Camera override: 'fx,fy,cx,cy' or file.")
-    ] = None,
+    depth_unit_mm: DepthUnitOpt = None,
+    intrinsics: CameraOverrideOpt = None,
 ) -> None:
     """Fuse a camera or a recording live (causal engine, bounded queue); report fps and latency.
 
@@ -155,11 +141,10 @@ def live_command(
         source: Any = RealSenseSource(width=width, height=height, fps=int(fps or 30), serial=serial)
         realtime = True
     else:
-        options = reader_options(depth_topic, intensity_topic, intensity, no_undistort)
-        if depth_unit_mm is not None:
-            options["depth_unit_mm"] = depth_unit_mm
-        if intrinsics is not None:
-            options["intrinsics"] = intrinsics
+        options = reader_options(
+            depth_topic, intensity_topic, intensity, no_undistort,
+            depth_unit_mm=depth_unit_mm, intrinsics=intrinsics,
+        )  # fmt: skip
         realtime = realtime or fps is not None
         source = RecordingSource(input_path, realtime=realtime, fps=fps, **options)
     sinks: list[Any] = []

@@ -27,7 +27,7 @@ input dask arrays, which works for any halo/chunk ratio and for inputs of differ
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -40,7 +40,14 @@ from .._validation import as_float32
 from ..camera import Intrinsics
 from ..config import FlowConfig, FusionParams, preset
 from ..errors import ShapeError
-from ..flow import FlowCache, SequenceFlow, estimate_flow_pair, get_flow_method
+from ..flow import (
+    FlowCache,
+    FlowMethod,
+    Roi,
+    SequenceFlow,
+    estimate_flow_pair,
+    get_flow_method,
+)
 from ..fusion import FusionEngine
 from ..sequence import normalize_intensity
 
@@ -185,6 +192,59 @@ def _flow_config(flow: FlowConfig | str | None) -> FlowConfig:
 
 
 # ------------------------------------------------------------------------------------ stage 1
+def _flow_chain(
+    frames: Iterable[NDArray[Any]],
+    method: FlowMethod,
+    params: Any,
+    seed: NDArray[np.float32] | None,
+    chained: bool,
+    roi: Roi | None,
+    cache: FlowCache | None,
+) -> Iterator[tuple[NDArray[np.float32], NDArray[np.float32]]]:
+    """Forward and backward flow (px, float32 ``(H, W, 2)``) of each consecutive pair of
+    ``frames`` (n+1 intensity frames -> n pairs, read lazily in order), chained like
+    :class:`fuse4d.flow.SequenceFlowEstimator`.
+
+    Parameters
+    ----------
+    frames : iterable of (H, W) arrays
+        Intensity frames as :meth:`fuse4d.FusionEngine.push` takes them ([0, 1] floats or
+        integers divided by their dtype maximum).
+    method, params, roi, cache
+        As in :func:`fuse4d.flow.estimate_flow_pair`.
+    seed : (H, W, 2) float32 array, optional
+        Warm start of the first pair's forward solve (the previous pair's forward flow, px).
+    chained : bool
+        Warm-start each forward solve from ``seed`` and then from the previous pair's forward
+        flow (the caller checks ``method.supports_init``); False: no warm starts at all.
+
+    Yields
+    ------
+    forward, backward : (H, W, 2) float32 arrays
+        Flow of pair j, px, as :func:`fuse4d.flow.estimate_flow_pair` returns it.
+    """
+    it = iter(frames)
+    init = seed if chained else None
+    previous = _intensity_frame(np.asarray(next(it)))
+    for frame in it:
+        current = _intensity_frame(np.asarray(frame))
+        forward, backward = estimate_flow_pair(
+            previous,
+            current,
+            method=method,
+            params=params,
+            init_forward=init,
+            roi=roi,
+            cache=cache,
+        )
+        forward = np.asarray(forward, np.float32)
+        backward = np.asarray(backward, np.float32)
+        yield forward, backward
+        if chained:
+            init = forward
+        previous = current
+
+
 def _flow_block(
     blocks: list[NDArray[Any]],
     seed: NDArray[np.float32] | None,
@@ -197,27 +257,15 @@ def _flow_block(
     method = get_flow_method(config.method)
     params = config.build_params()
     cache = None if config.cache_dir is None else FlowCache(config.cache_dir)
-    use_init = warm_start and method.supports_init
     n = len(intensity) - 1
     h, w = intensity[0].shape
     forward = np.empty((n, h, w, 2), np.float32)
     backward = np.empty((n, h, w, 2), np.float32)
-    init = seed if use_init else None
-    previous = _intensity_frame(np.asarray(intensity[0]))
-    for j in range(n):
-        current = _intensity_frame(np.asarray(intensity[j + 1]))
-        forward[j], backward[j] = estimate_flow_pair(
-            previous,
-            current,
-            method=method,
-            params=params,
-            init_forward=init,
-            roi=config.roi,
-            cache=cache,
-        )
-        if use_init:
-            init = forward[j]
-        previous = current
+    chain = _flow_chain(
+        intensity, method, params, seed, warm_start and method.supports_init, config.roi, cache
+    )
+    for j, (f, g) in enumerate(chain):
+        forward[j], backward[j] = f, g
     return forward, backward
 
 

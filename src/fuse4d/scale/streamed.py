@@ -37,9 +37,9 @@ from numpy.typing import NDArray
 
 from ..camera import Intrinsics
 from ..config import FlowConfig, FusionParams
-from ..flow import FlowCache, estimate_flow_pair, get_flow_method
+from ..flow import FlowCache, get_flow_method
 from ..fusion import FusionEngine
-from .graph import _intensity_frame, chunk_bounds
+from .graph import _flow_chain, chunk_bounds
 from .inputs import read_frames
 from .zarr_out import ZarrOutput, write_chunk
 
@@ -137,29 +137,15 @@ def _flow_task(
     method = get_flow_method(config.method)
     params = config.build_params()
     cache = None if config.cache_dir is None else FlowCache(config.cache_dir)
-    init = seed if chained else None
     keep: list[tuple[NDArray[np.float32], NDArray[np.float32]]] = []
-    previous = _intensity_frame(source.frame(a)[1])
     forward = None
-    for j in range(a, b):
-        current = _intensity_frame(source.frame(j + 1)[1])
-        forward, backward = estimate_flow_pair(
-            previous,
-            current,
-            method=method,
-            params=params,
-            init_forward=init,
-            roi=config.roi,
-            cache=cache,
-        )
-        forward = np.asarray(forward, np.float32)
-        backward = np.asarray(backward, np.float32)
+    frames = (source.frame(t)[1] for t in range(a, b + 1))
+    for j, (forward, backward) in enumerate(
+        _flow_chain(frames, method, params, seed, chained, config.roi, cache), start=a
+    ):
         _save(_pair_file(scratch, j), np.stack([forward, backward]))
         if staging is not None:
             keep.append((forward, backward))
-        if chained:
-            init = forward
-        previous = current
     if staging is not None and keep:  # the output's shard of these pairs, written at once
         root = zarr.open_group(staging, mode="r+")
         root["flow_forward"][a:b] = np.stack([f for f, _ in keep])  # type: ignore[index]

@@ -195,7 +195,7 @@ def summarize(ctx: Context, rows: list[dict]) -> dict[str, Any]:
     md += "\nVariants:\n\n" + "".join(f"- `{k}`: {v[2]}\n" for k, v in VARIANTS.items())
     md += "\n![E6](E6_ablations.png)\n"
     (d / "E6.md").write_text(md)
-    with figure(d / "E6_ablations.png", ncols=2, size=(14.0, 6.0)) as (_, ax):
+    with figure(d / "E6_ablations.png", ncols=2, size=(14.0, 6.0)) as (fig, ax):
         colors = ["#1f77b4", "#d62728"]
         for j, (what, xl) in enumerate(
             (("roughness", "mean roughness Π (mm)"), ("c_3d", "mean shape correctness C_3D (%)"))
@@ -226,7 +226,6 @@ def summarize(ctx: Context, rows: list[dict]) -> dict[str, Any]:
             )
             a.invert_yaxis()
             a.set_xlabel(xl)
-            a.legend()
             if what == "c_3d":
                 a.xaxis.set_major_formatter(FormatStrFormatter("%.4f"))
                 a.tick_params(axis="x", labelrotation=30)
@@ -236,6 +235,10 @@ def summarize(ctx: Context, rows: list[dict]) -> dict[str, Any]:
                         min(finite) - 0.02 * (max(finite) - min(finite) + 1e-3),
                         max(finite) + 0.02 * (max(finite) - min(finite) + 1e-3),
                     )
+        # one legend for both panels, outside the axes: inside, it covered the long bars
+        # (raw-input) in the C_3D panel, whose axis is zoomed to the bars' ends
+        handles, labels = ax[0, 0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside lower center", ncols=max(1, len(levels)))
         ax[0, 0].set_title(f"{TITLE}: roughness (lower is smoother)")
         ax[0, 1].set_title("shape correctness (higher is better; axis zoomed)")
     return {f"{v}@{si}": s.mean for (v, si), s in st["roughness"].items()}
