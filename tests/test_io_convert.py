@@ -10,19 +10,8 @@ import pytest
 
 from fuse4d.io import read_depth_png
 from fuse4d.io._images import QuantizationReport, depth_to_units, intensity_to_uint
+from fuse4d.io._images import _depth_to_units_numpy as _units_numpy
 from fuse4d.io.folder import intensity_image
-
-
-def _units_numpy(depth, unit_mm, report):
-    d = np.asarray(depth, dtype=np.float64)
-    valid = np.isfinite(d) & (d > 0)
-    d = np.where(valid, d, np.nan)
-    stored = np.round(d / unit_mm)
-    if report is not None:
-        report.add(d, stored)
-    out = np.zeros(d.shape, dtype=np.uint16)
-    out[valid] = np.clip(stored[valid], 1, 65535).astype(np.uint16)
-    return out
 
 
 def _intensity_numpy(intensity):

@@ -316,6 +316,14 @@ def depth_to_units(
 
             report.add_counts(*counts, invalid_as_nan)
         return out
+    return _depth_to_units_numpy(arr, unit_mm, report)
+
+
+def _depth_to_units_numpy(
+    depth: np.ndarray, unit_mm: float, report: QuantizationReport | None = None
+) -> NDArray[np.uint16]:
+    """:func:`depth_to_units` in numpy: the path for other dtypes and shapes, and the
+    reference the one-pass kernel is tested against."""
     d = np.asarray(depth, dtype=np.float64)
     valid = np.isfinite(d) & (d > 0)
     d = np.where(valid, d, np.nan)
