@@ -3,6 +3,9 @@ same bits as the in-memory path, scratch flows dropped, resumable."""
 
 from __future__ import annotations
 
+import os
+import warnings
+
 import pytest
 
 pytest.importorskip("dask.array")
@@ -141,9 +144,35 @@ def test_bounded_lookahead_keeps_few_scratch_files(ball, tmp_path, monkeypatch, 
 @pytest.mark.slow
 def test_streamed_through_a_local_cluster_with_two_worker_processes(ball, tmp_path):
     pytest.importorskip("distributed")
-    from fuse4d.scale.cluster import local_cluster
+    from fuse4d.scale.cluster import local_cluster, slow_allocator_workers
 
-    with local_cluster(2) as client:
+    with local_cluster(2) as client, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert slow_allocator_workers(client) == []  # glibc's adaptive mmap threshold
         summary = _run(ball, tmp_path, "lc", chunk_frames=4,
                        scheduler=client.scheduler.address)  # fmt: skip
+    assert not [w for w in caught if "MALLOC_TRIM_THRESHOLD_" in str(w.message)]
     _check(summary.output, fuse_sequence(ball.depth, ball.intensity, ball.intrinsics))
+
+
+@pytest.mark.slow
+def test_workers_with_distributed_allocator_settings_get_a_warning():
+    """A stock LocalCluster's workers run with MALLOC_TRIM_THRESHOLD_ (distributed's
+    default, ~1.4x slower fusion): open_compute on its address says how to start them."""
+    pytest.importorskip("distributed")
+    from distributed import LocalCluster
+
+    from fuse4d.scale.cluster import _restore_environ, open_compute
+
+    saved = dict(os.environ)  # the nanny leaves its pre-spawn environment in os.environ
+    try:
+        cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                               dashboard_address=":0")  # fmt: skip
+        with (
+            cluster,
+            pytest.warns(RuntimeWarning, match="1 of 1 dask workers run with MALLOC_TRIM"),
+            open_compute(cluster.scheduler_address, progress=False) as compute,
+        ):
+            assert compute() == ()
+    finally:
+        _restore_environ(saved)

@@ -177,6 +177,20 @@ def test_npz_streaming_memmaps_uncompressed_and_matches_compressed(tmp_path, sma
     assert packed.stat().st_size < plain.stat().st_size
 
 
+def test_read_intensity_equals_the_frames_intensity(tmp_path, small_sequence):
+    """The npz reader's depth-free read (the dask flow stage) and the base class's default."""
+    from fuse4d.io import open_frames
+
+    write_npz(small_sequence, tmp_path / "a.npz")
+    save_sequence(small_sequence, tmp_path / "folder", format="folder", depth_unit_mm=0.01)
+    for path in (tmp_path / "a.npz", tmp_path / "folder"):
+        with open_frames(path) as reader:
+            for k in (0, 3, -1):
+                alone = reader.read_intensity(k)
+                assert alone.dtype == np.float32
+                np.testing.assert_array_equal(alone, reader.read_frame(k).intensity)
+
+
 @pytest.mark.skipif(not Path("/proc/self/statm").exists(), reason="needs Linux /proc")
 def test_npz_streaming_resident_memory_does_not_grow_with_frames_read(tmp_path):
     """Frames read through the memory map are released again: reading a 100 MB recording

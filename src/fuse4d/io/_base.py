@@ -113,6 +113,12 @@ class FrameReader(ABC):
     def read_frame(self, index: int) -> Frame:
         """Read frame ``index`` (0-based; negative counts from the end)."""
 
+    def read_intensity(self, index: int) -> NDArray[np.float32]:
+        """The intensity of frame ``index`` alone ((H, W) float32 in [0, 1]), equal to
+        ``read_frame(index).intensity``; layouts that store it apart override this to skip
+        reading and checking the depth (the flow stage of the dask engine reads only this)."""
+        return self.read_frame(index).intensity
+
     @property
     def num_frames(self) -> int:
         """Number of frames T."""

@@ -257,16 +257,8 @@ class NpzReader(FrameReader):
         k = self._index(index)
         depth = np.array(self._array("depth")[k], dtype=np.float32)
         depth[~(np.isfinite(depth) & (depth > 0))] = np.nan
-        intensity = _intensity_frame(self._array("intensity")[k])
         self._release("depth", k)
-        self._release("intensity", k)
-        if not (np.isfinite(intensity).all() and intensity.min() >= 0 and intensity.max() <= 1):
-            raise InputFileError(
-                self.path,
-                "key 'intensity' must hold finite values in [0, 1] (NaN, inf or values outside "
-                "found; rescale with fuse4d.normalize_intensity)",
-                frame=k,
-            )
+        intensity = self._checked_intensity(k)
         mask = None
         if "mask_gt" in self._members:
             raw_mask = self._array("mask_gt")
@@ -278,6 +270,22 @@ class NpzReader(FrameReader):
             self._release("mask_gt", k)
         ts = None if self.timestamps is None else float(self.timestamps[k])
         return Frame(k, depth, intensity, ts, mask)
+
+    def read_intensity(self, index: int) -> NDArray[np.float32]:
+        """Frame ``index``'s intensity, (H, W) float32 in [0, 1], without reading its depth."""
+        return self._checked_intensity(self._index(index))
+
+    def _checked_intensity(self, k: int) -> NDArray[np.float32]:
+        intensity = _intensity_frame(self._array("intensity")[k])
+        self._release("intensity", k)
+        if not (np.isfinite(intensity).all() and intensity.min() >= 0 and intensity.max() <= 1):
+            raise InputFileError(
+                self.path,
+                "key 'intensity' must hold finite values in [0, 1] (NaN, inf or values outside "
+                "found; rescale with fuse4d.normalize_intensity)",
+                frame=k,
+            )
+        return intensity
 
     def read_sequence(
         self, frames: FrameSelection = None, *, progress: ProgressCallback | None = None

@@ -10,7 +10,9 @@
 
 Worker processes are started with one thread each for numba, OpenMP and OpenCV
 (``NUMBA_NUM_THREADS=1`` before the interpreter starts), so that parallelism comes from dask
-and ``--workers N`` uses N cores.
+and ``--workers N`` uses N cores, and with glibc's default allocator settings (not
+distributed's ``MALLOC_TRIM_THRESHOLD_``, see :data:`ALLOCATOR_ENV`). Workers of a cluster
+given by address are checked for that setting, with a warning that says how to start them.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import contextlib
 import importlib.util
 import os
 import sys
+import warnings
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -26,7 +29,13 @@ import dask
 
 from ._deps import require_scale_extra
 
-__all__ = ["SINGLE_THREAD_ENV", "local_cluster", "open_compute"]
+__all__ = [
+    "ALLOCATOR_ENV",
+    "SINGLE_THREAD_ENV",
+    "local_cluster",
+    "open_compute",
+    "slow_allocator_workers",
+]
 
 #: Environment of worker processes: one thread per library (dask provides the parallelism).
 SINGLE_THREAD_ENV = {
@@ -36,6 +45,45 @@ SINGLE_THREAD_ENV = {
     "OPENBLAS_NUM_THREADS": "1",
     "OPENCV_FOR_THREADS_NUM": "1",
 }
+
+#: Environment overrides for glibc's allocator in worker processes (None = leave unset).
+#: distributed's nanny sets ``MALLOC_TRIM_THRESHOLD_=65536`` by default, to hand freed memory
+#: back to the OS; setting it at all also switches off glibc's adaptive mmap threshold, so
+#: every array above 128 KiB is a fresh ``mmap`` whose pages fault in on first touch — the
+#: engine's per-frame (H, W, 3) temporaries then cost ~2.8 M page faults per 96 frames at
+#: 600 x 600 and make the same fusion ~1.4x slower in a worker than in a plain process.
+ALLOCATOR_ENV: dict[str, str | None] = {"MALLOC_TRIM_THRESHOLD_": None}
+
+_ALLOCATOR_HINT = (
+    "{n} of {total} dask workers run with MALLOC_TRIM_THRESHOLD_ set (distributed's default), "
+    "which makes fuse4d's tasks ~1.4x slower (every large array is a fresh mmap); start the "
+    "workers with DASK_DISTRIBUTED__NANNY__PRE_SPAWN_ENVIRON__MALLOC_TRIM_THRESHOLD_=None in "
+    "their environment (see docs/scaling.md, 'Worker environment')"
+)
+
+
+def _trim_threshold() -> str | None:
+    """This process's ``MALLOC_TRIM_THRESHOLD_`` (run on each worker)."""
+    return os.environ.get("MALLOC_TRIM_THRESHOLD_")
+
+
+def slow_allocator_workers(client: Any) -> list[str]:
+    """Addresses of the client's workers that run with ``MALLOC_TRIM_THRESHOLD_`` set.
+
+    Such workers (distributed's nanny sets it unless told not to, see :data:`ALLOCATOR_ENV`)
+    fault in every large temporary array page by page.
+
+    Parameters
+    ----------
+    client : distributed.Client
+
+    Returns
+    -------
+    list of str
+        Sorted worker addresses; empty when every worker uses glibc's adaptive default.
+    """
+    found = client.run(_trim_threshold)
+    return sorted(address for address, value in found.items() if value is not None)
 
 
 @contextlib.contextmanager
@@ -50,6 +98,7 @@ def local_cluster(workers: int, **kwargs: Any) -> Iterator[Any]:
 
     spawn_env = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
     spawn_env.update(SINGLE_THREAD_ENV)
+    spawn_env.update(ALLOCATOR_ENV)
     options = {"n_workers": workers, "threads_per_worker": 1, "processes": True}
     options.update(kwargs)
     options.setdefault("dashboard_address", ":0")  # no clash with a running dashboard
@@ -116,6 +165,12 @@ def open_compute(
         from distributed import Client
 
         with Client(scheduler) as client:
+            slow = slow_allocator_workers(client)
+            if slow:
+                total = len(client.scheduler_info()["workers"])
+                warnings.warn(
+                    _ALLOCATOR_HINT.format(n=len(slow), total=total), RuntimeWarning, stacklevel=3
+                )
             yield _compute_with(client, progress)
         return
     if scheduler == "processes" and importlib.util.find_spec("distributed") is not None:

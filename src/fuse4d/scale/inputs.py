@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from ..camera import Intrinsics
 from ..io import detect_format, open_frames
 
-__all__ = ["LazyRecording", "open_lazy", "read_frames"]
+__all__ = ["LazyRecording", "open_lazy", "read_frame", "read_frames", "read_intensity"]
 
 _READERS: dict[tuple[str, str], Any] = {}
 _LOCK = threading.Lock()
@@ -49,12 +49,33 @@ def read_frames(
     NaN = invalid) and intensity ([0, 1]), exactly as the streaming reader yields them.
     ``stamp`` (the file's mtime) only keys the task; ``options`` are the keyword arguments of
     :func:`fuse4d.io.open_frames` as ``(name, value)`` pairs."""
-    out = []
-    for index in range(start, stop):
-        with _LOCK:
-            frame = _reader(path, fmt, options).read_frame(index)
-        out.append(np.stack([frame.depth, frame.intensity]).astype(np.float32, copy=False))
-    return np.stack(out)
+    with _LOCK:
+        shape = _reader(path, fmt, options).shape
+    out = np.empty((stop - start, 2, *shape), np.float32)
+    for j, index in enumerate(range(start, stop)):
+        out[j, 0], out[j, 1] = read_frame(path, fmt, index, options)
+    return out
+
+
+def read_frame(
+    path: str, fmt: str, index: int, options: _Options = ()
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Depth (mm, NaN = invalid) and intensity ([0, 1]) of frame ``index``, each (H, W)
+    float32: the values of :func:`read_frames`, without stacking them."""
+    with _LOCK:
+        frame = _reader(path, fmt, options).read_frame(index)
+    return (
+        np.asarray(frame.depth).astype(np.float32, copy=False),
+        np.asarray(frame.intensity).astype(np.float32, copy=False),
+    )
+
+
+def read_intensity(path: str, fmt: str, index: int, options: _Options = ()) -> NDArray[np.float32]:
+    """Intensity of frame ``index`` ((H, W) float32, [0, 1]), as :func:`read_frame` gives it,
+    without reading the depth where the layout stores them apart."""
+    with _LOCK:
+        intensity = _reader(path, fmt, options).read_intensity(index)
+    return np.asarray(intensity).astype(np.float32, copy=False)
 
 
 @dataclass(frozen=True)

@@ -40,7 +40,7 @@ from ..config import FlowConfig, FusionParams
 from ..flow import FlowCache, get_flow_method
 from ..fusion import FusionEngine
 from .graph import _flow_chain, chunk_bounds
-from .inputs import read_frames
+from .inputs import read_frame, read_intensity
 from .zarr_out import ZarrOutput, write_chunk
 
 __all__ = ["RecordingSource", "flow_scratch", "recording_tasks", "source_of"]
@@ -76,10 +76,14 @@ class RecordingSource:
     options: tuple[tuple[str, Any], ...]
     frames: int
 
-    def frame(self, index: int) -> NDArray[np.float32]:
-        """``(2, H, W)`` float32 depth (mm, NaN = invalid) and intensity of frame ``index``,
-        the values :func:`fuse4d.scale.inputs.read_frames` gives the in-memory graph."""
-        return read_frames(self.path, self.format, index, index + 1, self.stamp, self.options)[0]
+    def frame(self, index: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        """(H, W) float32 depth (mm, NaN = invalid) and intensity of frame ``index``, the
+        values :func:`fuse4d.scale.inputs.read_frames` gives the in-memory graph."""
+        return read_frame(self.path, self.format, index, self.options)
+
+    def intensity(self, index: int) -> NDArray[np.float32]:
+        """(H, W) float32 intensity of frame ``index`` (the flow tasks read nothing else)."""
+        return read_intensity(self.path, self.format, index, self.options)
 
 
 def flow_scratch(staging: Path) -> Path:
@@ -139,7 +143,7 @@ def _flow_task(
     cache = None if config.cache_dir is None else FlowCache(config.cache_dir)
     keep: list[tuple[NDArray[np.float32], NDArray[np.float32]]] = []
     forward = None
-    frames = (source.frame(t)[1] for t in range(a, b + 1))
+    frames = (source.intensity(t) for t in range(a, b + 1))
     for j, (forward, backward) in enumerate(
         _flow_chain(frames, method, params, seed, chained, config.roi, cache), start=a
     ):
@@ -192,12 +196,12 @@ def _fuse_task(
                 filled[fr.index - a] = fr.filled
 
     for t in range(lo, hi):
-        frame = source.frame(t)
+        depth_t, intensity_t = source.frame(t)
         pair = None
         if t > lo:
             both = np.load(_pair_file(scratch, t - 1), allow_pickle=False)
             pair = (both[0], both[1])
-        take(engine.push(frame[0], frame[1], pair_flow=pair))
+        take(engine.push(depth_t, intensity_t, pair_flow=pair))
     if hi == source.frames:
         take(engine.flush())
     return write_chunk(staging, k, s, depth, support, filled)
