@@ -156,23 +156,27 @@ def test_streamed_through_a_local_cluster_with_two_worker_processes(ball, tmp_pa
 
 
 @pytest.mark.slow
-def test_workers_with_distributed_allocator_settings_get_a_warning():
+def test_workers_with_distributed_allocator_settings_get_a_warning(ball):
     """A stock LocalCluster's workers run with MALLOC_TRIM_THRESHOLD_ (distributed's
-    default, ~1.4x slower fusion): open_compute on its address says how to start them."""
+    default, ~1.4x slower fusion): open_compute on its address and fuse4d.dask.fuse with its
+    client say how to start them."""
     pytest.importorskip("distributed")
-    from distributed import LocalCluster
+    from distributed import Client, LocalCluster
 
+    import fuse4d.dask as fd
     from fuse4d.scale.cluster import _restore_environ, open_compute
 
     saved = dict(os.environ)  # the nanny leaves its pre-spawn environment in os.environ
     try:
         cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
                                dashboard_address=":0")  # fmt: skip
-        with (
-            cluster,
-            pytest.warns(RuntimeWarning, match="1 of 1 dask workers run with MALLOC_TRIM"),
-            open_compute(cluster.scheduler_address, progress=False) as compute,
-        ):
-            assert compute() == ()
+        with cluster:
+            with (
+                pytest.warns(RuntimeWarning, match="1 of 1 dask workers run with MALLOC_TRIM"),
+                open_compute(cluster.scheduler_address, progress=False) as compute,
+            ):
+                assert compute() == ()
+            with Client(cluster) as client, pytest.warns(RuntimeWarning, match="MALLOC_TRIM"):
+                fd.fuse(ball.depth, ball.intensity, ball.intrinsics, client=client)
     finally:
         _restore_environ(saved)

@@ -35,6 +35,7 @@ __all__ = [
     "local_cluster",
     "open_compute",
     "slow_allocator_workers",
+    "warn_if_slow_allocator",
 ]
 
 #: Environment of worker processes: one thread per library (dask provides the parallelism).
@@ -56,9 +57,9 @@ ALLOCATOR_ENV: dict[str, str | None] = {"MALLOC_TRIM_THRESHOLD_": None}
 
 _ALLOCATOR_HINT = (
     "{n} of {total} dask workers run with MALLOC_TRIM_THRESHOLD_ set (distributed's default), "
-    "which makes fuse4d's tasks ~1.4x slower (every large array is a fresh mmap); start the "
-    "workers with DASK_DISTRIBUTED__NANNY__PRE_SPAWN_ENVIRON__MALLOC_TRIM_THRESHOLD_=None in "
-    "their environment (see docs/scaling.md, 'Worker environment')"
+    "which makes fuse4d's tasks ~1.4x slower (every large array is a fresh mmap); start them "
+    "with the dask config distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_ = null "
+    "(a YAML file in ~/.config/dask; see docs/scaling.md, 'Worker environment')"
 )
 
 
@@ -84,6 +85,17 @@ def slow_allocator_workers(client: Any) -> list[str]:
     """
     found = client.run(_trim_threshold)
     return sorted(address for address, value in found.items() if value is not None)
+
+
+def warn_if_slow_allocator(client: Any) -> None:
+    """Warn (``RuntimeWarning``) when some of the client's workers run with
+    ``MALLOC_TRIM_THRESHOLD_`` set, saying how to start them instead."""
+    slow = slow_allocator_workers(client)
+    if slow:
+        total = len(client.scheduler_info()["workers"])
+        warnings.warn(
+            _ALLOCATOR_HINT.format(n=len(slow), total=total), RuntimeWarning, stacklevel=3
+        )
 
 
 @contextlib.contextmanager
@@ -165,12 +177,7 @@ def open_compute(
         from distributed import Client
 
         with Client(scheduler) as client:
-            slow = slow_allocator_workers(client)
-            if slow:
-                total = len(client.scheduler_info()["workers"])
-                warnings.warn(
-                    _ALLOCATOR_HINT.format(n=len(slow), total=total), RuntimeWarning, stacklevel=3
-                )
+            warn_if_slow_allocator(client)
             yield _compute_with(client, progress)
         return
     if scheduler == "processes" and importlib.util.find_spec("distributed") is not None:

@@ -449,8 +449,10 @@ def fuse(
         ``warm_start=False`` (see the module docstring).
     client : dask.distributed.Client, optional
         The caller's client. Numpy inputs are then scattered to its workers once instead of
-        travelling inside the task graph. None: nothing is sent anywhere; compute with any
-        scheduler (the threaded one by default, or the active client).
+        travelling inside the task graph, and its workers are checked for distributed's
+        ``MALLOC_TRIM_THRESHOLD_`` (a warning: see :data:`fuse4d.scale.cluster.ALLOCATOR_ENV`).
+        None: nothing is sent anywhere; compute with any scheduler (the threaded one by
+        default, or the active client).
 
     Returns
     -------
@@ -468,6 +470,10 @@ def fuse(
         raise ValueError(f"chunk_frames must be >= 1, got {chunk_frames}")
     if params.num_frames > 256:
         raise ValueError("num_frames must be <= 256 (support is stored as uint8)")
+    if client is not None:
+        from .cluster import warn_if_slow_allocator
+
+        warn_if_slow_allocator(client)
     keep: list[Any] = []
     d = as_dask_video(_scattered(depth, client, chunk_frames, keep), "depth", ndim=3)
     inten = as_dask_video(_scattered(intensity, client, chunk_frames, keep), "intensity", ndim=3)
