@@ -276,6 +276,7 @@ class NpzReader(FrameReader):
         return self._checked_intensity(self._index(index))
 
     def _checked_intensity(self, k: int) -> NDArray[np.float32]:
+        """Frame ``k``'s intensity as float32, released from the map, checked to lie in [0, 1]."""
         intensity = _intensity_frame(self._array("intensity")[k])
         self._release("intensity", k)
         if not (np.isfinite(intensity).all() and intensity.min() >= 0 and intensity.max() <= 1):

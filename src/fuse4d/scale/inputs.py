@@ -64,10 +64,7 @@ def read_frame(
     float32: the values of :func:`read_frames`, without stacking them."""
     with _LOCK:
         frame = _reader(path, fmt, options).read_frame(index)
-    return (
-        np.asarray(frame.depth).astype(np.float32, copy=False),
-        np.asarray(frame.intensity).astype(np.float32, copy=False),
-    )
+    return _float32(frame.depth), _float32(frame.intensity)
 
 
 def read_intensity(path: str, fmt: str, index: int, options: _Options = ()) -> NDArray[np.float32]:
@@ -75,7 +72,12 @@ def read_intensity(path: str, fmt: str, index: int, options: _Options = ()) -> N
     without reading the depth where the layout stores them apart."""
     with _LOCK:
         intensity = _reader(path, fmt, options).read_intensity(index)
-    return np.asarray(intensity).astype(np.float32, copy=False)
+    return _float32(intensity)
+
+
+def _float32(a: Any) -> NDArray[np.float32]:
+    """``a`` as float32 (no copy when it already is)."""
+    return np.asarray(a).astype(np.float32, copy=False)
 
 
 @dataclass(frozen=True)
