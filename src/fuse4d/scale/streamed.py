@@ -124,23 +124,26 @@ def _flow_task(
     staging: str | None,
     k: int,
     bounds: tuple[int, int],
-    seed: NDArray[np.float32] | None,
+    seed_chunk: int | None,
     config: FlowConfig,
     chained: bool,
     *after: Any,
-) -> NDArray[np.float32] | None:
+) -> int:
     """Pairs ``[a, b)`` of chunk k, chained like :func:`fuse4d.scale.graph._flow_block`, to
-    the scratch files (and the output's flow arrays at ``staging``); returns the seed of chunk
-    k + 1 (None without warm starts).
+    the scratch files (and the output's flow arrays at ``staging``), warm-started from the seed
+    file of chunk ``seed_chunk`` (None: cold start); saves chunk k's seed and returns k.
 
-    The result is also the token the fusion and drop tasks of chunk k wait for: one output,
-    not ``nout=2``, because dask runs each ``getitem`` of a tuple result as a task of its own
-    on the worker that holds the tuple, queued behind that worker's running fusion (≈ 10 s at
-    600 x 600), while the other worker idles waiting for it."""
+    Only this token travels between tasks, not the seed (8 bytes/px): dask places a task
+    where most of its inputs' bytes are, so a 2.9 MB seed (600 x 600) made the scheduler queue
+    the next fusion behind the running task of the worker that held it, while the other
+    worker idled until work stealing moved it (0.7-1.4 s per occurrence, measured on a
+    2-worker LocalCluster). One output, not ``nout=2``, for the same reason: dask runs each
+    ``getitem`` of a tuple result as a task of its own on the worker that holds the tuple."""
     a, b = bounds
     method = get_flow_method(config.method)
     params = config.build_params()
     cache = None if config.cache_dir is None else FlowCache(config.cache_dir)
+    seed = None if seed_chunk is None else _load_seed(scratch, seed_chunk)
     keep: list[tuple[NDArray[np.float32], NDArray[np.float32]]] = []
     forward = None
     frames = (source.intensity(t) for t in range(a, b + 1))
@@ -155,14 +158,14 @@ def _flow_task(
         root["flow_forward"][a:b] = np.stack([f for f, _ in keep])  # type: ignore[index]
         root["flow_backward"][a:b] = np.stack([g for _, g in keep])  # type: ignore[index]
     assert forward is not None
-    last = np.array(forward)
-    _save(_seed_file(scratch, k), last)
+    _save(_seed_file(scratch, k), np.ascontiguousarray(forward))
     _touch(_flow_marker(scratch, k), {"start": a, "stop": b})
-    return last if chained else None
+    return k
 
 
 def _load_seed(scratch: str, k: int) -> NDArray[np.float32]:
-    """Chunk k's last forward flow, saved by an earlier (interrupted) run."""
+    """Chunk k's last forward flow (saved by its flow task, in this run or an interrupted
+    one)."""
     return np.load(_seed_file(scratch, k), allow_pickle=False)
 
 
@@ -298,7 +301,6 @@ def recording_tasks(
     tokens: dict[int, Any] = {}
     fused: dict[int, Any] = {}
     drops: dict[int, Any] = {}
-    seed: Any = None
     k_next = 0  # fusion tasks are built as soon as their flow tasks exist
     droppable = sorted(need | compute)
 
@@ -322,10 +324,8 @@ def recording_tasks(
             drops[j] = dask.delayed(_drop_task, pure=False)(str(scratch), j, pairs[j], *after)
 
     for j in sorted(compute):
-        if chained and j > 0 and (j - 1) not in compute:
-            seed = dask.delayed(_load_seed, pure=False)(str(scratch), j - 1)
-        elif not chained or j == 0:
-            seed = None
+        seed_chunk = j - 1 if chained and j > 0 else None  # saved earlier or by tokens[j - 1]
+        previous = [tokens[j - 1]] if seed_chunk is not None and j - 1 in tokens else []
         build(j - 1)
         # bounded look-ahead: pair chunk j waits for the lookahead-th newest fusion task that
         # does not read it, and for the deletion of the pairs that fusion was the last to read
@@ -340,9 +340,18 @@ def recording_tasks(
                 wait.append(drops[max(done)])
         with dask.annotate(priority=_FLOW_PRIORITY):
             task = dask.delayed(_flow_task, pure=False)(
-                source, str(scratch), flow_staging, j, pairs[j], seed, flow, chained, *wait
+                source,
+                str(scratch),
+                flow_staging,
+                j,
+                pairs[j],
+                seed_chunk,
+                flow,
+                chained,
+                *previous,
+                *wait,
             )
-        seed = tokens[j] = task
+        tokens[j] = task
     build(len(pairs))
     results = [fused[k] for k in missing] + [drops[j] for j in sorted(drops)]
     for j in set(range(len(pairs))) - need - compute:  # left by an interrupted run, unread
