@@ -53,85 +53,209 @@ def _temporal_fill_kernel(
     least-squares line through them evaluated at t (their weighted mean when they do not
     determine a line); ``out_count`` gets the number of samples (0 = not filled, point NaN).
     ``frame_slot[T - first]`` is the ring slot of frame T (see :mod:`._kernels.fusion`).
+
+    Step-major, like the tracking kernel: the target pixels of a row are gathered and advance
+    one step at a time, so their independent chains overlap in the CPU (one chain is a series
+    of dependent flow gathers, latency-bound). Each pixel sees the same arithmetic in the same
+    order as :func:`_temporal_fill_reference` (the per-pixel loop), so the output is
+    bit-identical to it (tested).
     """
     h = depth_ring.shape[1]
     w = depth_ring.shape[2]
     n_chunks = min(h, ROW_CHUNKS)
-    for ci in prange(n_chunks):
+    for ci in prange(n_chunks):  # scratch allocated once per chunk, not per row
+        cols = np.empty(w, np.int64)
+        xs = np.empty(w, np.float64)
+        ys = np.empty(w, np.float64)
+        prev = np.empty(w, np.float64)  # float64 like the reference's scalar
+        alive = np.empty(w, np.bool_)
+        acc = np.empty((9, w), np.float64)  # s0, s1, s2, ax, ay, az, bx, by, bz
+        count = np.empty(w, np.int64)
         for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
+            m = 0
             for u in range(w):
                 out_count[v, u] = 0
-                if not target[v, u]:
-                    continue
-                s0 = 0.0
-                s1 = 0.0
-                s2 = 0.0
-                # weighted sums of the samples' x, y, z and of tau times them (no per-pixel
-                # allocation inside the parallel loop)
-                ax = 0.0
-                ay = 0.0
-                az = 0.0
-                bx = 0.0
-                by = 0.0
-                bz = 0.0
-                count = 0
-                for direction in (1, -1):
-                    x = float(u)
-                    y = float(v)
-                    prev = np.nan
-                    n_steps = last - t if direction == 1 else t - first
-                    for step in range(1, n_steps + 1):
-                        T = t + direction * step
-                        slot = frame_slot[T - first]
-                        flow_slot = slot if direction == 1 else frame_slot[T + 1 - first]
-                        step_ring = fwd_ring if direction == 1 else bwd_ring
-                        check_ring = bwd_ring if direction == 1 else fwd_ring
+                if target[v, u]:
+                    cols[m] = u
+                    m += 1
+            if m == 0:
+                continue
+            for j in range(m):
+                count[j] = 0
+                for q in range(9):
+                    acc[q, j] = 0.0
+            for direction in (1, -1):
+                for j in range(m):
+                    xs[j] = float(cols[j])
+                    ys[j] = float(v)
+                    prev[j] = np.nan
+                    alive[j] = True
+                n_steps = last - t if direction == 1 else t - first
+                for step in range(1, n_steps + 1):
+                    T = t + direction * step
+                    slot = frame_slot[T - first]
+                    flow_slot = slot if direction == 1 else frame_slot[T + 1 - first]
+                    step_ring = fwd_ring if direction == 1 else bwd_ring
+                    check_ring = bwd_ring if direction == 1 else fwd_ring
+                    wt = temporal_weight[abs(T - t)]
+                    tau = float(T - t)
+                    any_alive = False
+                    for j in range(m):
+                        if not alive[j]:
+                            continue
                         ok, nx, ny = _track_step(
-                            step_ring, check_ring, flow_slot, x, y, theta, False
+                            step_ring, check_ring, flow_slot, xs[j], ys[j], theta, False
                         )
                         if not ok:
-                            break
-                        x = nx
-                        y = ny
+                            alive[j] = False
+                            continue
+                        any_alive = True
+                        xs[j] = nx
+                        ys[j] = ny
                         r = _round_half_up(ny)
                         c = _round_half_up(nx)
                         d1 = depth_ring[slot, r, c]
                         if np.isnan(d1) or np.isnan(ref_ring[slot, r, c, 2]):
                             continue  # still no depth here: keep following the intensity
-                        if not np.isnan(prev) and not (
-                            abs(d1 - prev) < _step_limit(prev, max_step, quad)
+                        p0 = prev[j]
+                        if not np.isnan(p0) and not (
+                            abs(d1 - p0) < _step_limit(p0, max_step, quad)
                         ):
-                            break
-                        prev = d1
-                        wt = temporal_weight[abs(T - t)]
-                        tau = float(T - t)
-                        s0 += wt
-                        s1 += wt * tau
-                        s2 += wt * tau * tau
+                            alive[j] = False
+                            continue
+                        prev[j] = d1
                         px = ref_ring[slot, r, c, 0]
                         py = ref_ring[slot, r, c, 1]
                         pz = ref_ring[slot, r, c, 2]
-                        ax += wt * px
-                        ay += wt * py
-                        az += wt * pz
-                        bx += wt * tau * px
-                        by += wt * tau * py
-                        bz += wt * tau * pz
-                        count += 1
-                if count < min_samples or count == 0:
+                        acc[0, j] += wt
+                        acc[1, j] += wt * tau
+                        acc[2, j] += wt * tau * tau
+                        acc[3, j] += wt * px
+                        acc[4, j] += wt * py
+                        acc[5, j] += wt * pz
+                        acc[6, j] += wt * tau * px
+                        acc[7, j] += wt * tau * py
+                        acc[8, j] += wt * tau * pz
+                        count[j] += 1
+                    if not any_alive:
+                        break
+            for j in range(m):
+                u = cols[j]
+                n = count[j]
+                if n < min_samples or n == 0:
                     for q in range(3):
                         out_points[v, u, q] = np.nan
                     continue
-                out_count[v, u] = min(count, 255)
+                out_count[v, u] = min(n, 255)
+                s0 = acc[0, j]
+                s1 = acc[1, j]
+                s2 = acc[2, j]
                 det = s0 * s2 - s1 * s1
                 if det > 1e-9 * s0 * s0:  # line through the samples, evaluated at tau = 0
-                    out_points[v, u, 0] = (ax * s2 - bx * s1) / det
-                    out_points[v, u, 1] = (ay * s2 - by * s1) / det
-                    out_points[v, u, 2] = (az * s2 - bz * s1) / det
+                    out_points[v, u, 0] = (acc[3, j] * s2 - acc[6, j] * s1) / det
+                    out_points[v, u, 1] = (acc[4, j] * s2 - acc[7, j] * s1) / det
+                    out_points[v, u, 2] = (acc[5, j] * s2 - acc[8, j] * s1) / det
                 else:  # one frame only (or all at one tau): their mean
-                    out_points[v, u, 0] = ax / s0
-                    out_points[v, u, 1] = ay / s0
-                    out_points[v, u, 2] = az / s0
+                    out_points[v, u, 0] = acc[3, j] / s0
+                    out_points[v, u, 1] = acc[4, j] / s0
+                    out_points[v, u, 2] = acc[5, j] / s0
+
+
+@njit
+def _temporal_fill_reference(
+    fwd_ring,
+    bwd_ring,
+    depth_ring,
+    ref_ring,
+    frame_slot,
+    t,
+    first,
+    last,
+    theta,
+    max_step,
+    quad,
+    temporal_weight,
+    min_samples,
+    target,
+    out_points,
+    out_count,
+):
+    """:func:`_temporal_fill_kernel` pixel by pixel (each chain to its end before the next
+    pixel's): the oracle of the step-major kernel, same arguments and outputs."""
+    h = depth_ring.shape[1]
+    w = depth_ring.shape[2]
+    for v in range(h):
+        for u in range(w):
+            out_count[v, u] = 0
+            if not target[v, u]:
+                continue
+            s0 = 0.0
+            s1 = 0.0
+            s2 = 0.0
+            # weighted sums of the samples' x, y, z and of tau times them (no per-pixel
+            # allocation inside the parallel loop)
+            ax = 0.0
+            ay = 0.0
+            az = 0.0
+            bx = 0.0
+            by = 0.0
+            bz = 0.0
+            count = 0
+            for direction in (1, -1):
+                x = float(u)
+                y = float(v)
+                prev = np.nan
+                n_steps = last - t if direction == 1 else t - first
+                for step in range(1, n_steps + 1):
+                    T = t + direction * step
+                    slot = frame_slot[T - first]
+                    flow_slot = slot if direction == 1 else frame_slot[T + 1 - first]
+                    step_ring = fwd_ring if direction == 1 else bwd_ring
+                    check_ring = bwd_ring if direction == 1 else fwd_ring
+                    ok, nx, ny = _track_step(step_ring, check_ring, flow_slot, x, y, theta, False)
+                    if not ok:
+                        break
+                    x = nx
+                    y = ny
+                    r = _round_half_up(ny)
+                    c = _round_half_up(nx)
+                    d1 = depth_ring[slot, r, c]
+                    if np.isnan(d1) or np.isnan(ref_ring[slot, r, c, 2]):
+                        continue  # still no depth here: keep following the intensity
+                    if not np.isnan(prev) and not (
+                        abs(d1 - prev) < _step_limit(prev, max_step, quad)
+                    ):
+                        break
+                    prev = d1
+                    wt = temporal_weight[abs(T - t)]
+                    tau = float(T - t)
+                    s0 += wt
+                    s1 += wt * tau
+                    s2 += wt * tau * tau
+                    px = ref_ring[slot, r, c, 0]
+                    py = ref_ring[slot, r, c, 1]
+                    pz = ref_ring[slot, r, c, 2]
+                    ax += wt * px
+                    ay += wt * py
+                    az += wt * pz
+                    bx += wt * tau * px
+                    by += wt * tau * py
+                    bz += wt * tau * pz
+                    count += 1
+            if count < min_samples or count == 0:
+                for q in range(3):
+                    out_points[v, u, q] = np.nan
+                continue
+            out_count[v, u] = min(count, 255)
+            det = s0 * s2 - s1 * s1
+            if det > 1e-9 * s0 * s0:  # line through the samples, evaluated at tau = 0
+                out_points[v, u, 0] = (ax * s2 - bx * s1) / det
+                out_points[v, u, 1] = (ay * s2 - by * s1) / det
+                out_points[v, u, 2] = (az * s2 - bz * s1) / det
+            else:  # one frame only (or all at one tau): their mean
+                out_points[v, u, 0] = ax / s0
+                out_points[v, u, 1] = ay / s0
+                out_points[v, u, 2] = az / s0
 
 
 @njit_parallel
