@@ -178,13 +178,22 @@ def test_npz_streaming_memmaps_uncompressed_and_matches_compressed(tmp_path, sma
 
 
 def test_read_intensity_equals_the_frames_intensity(tmp_path, small_sequence):
-    """The npz reader's depth-free read (the dask flow stage) and the base class's default."""
-    from fuse4d.io import open_frames
+    """The depth-free reads (the dask flow stage) of npz, folder, zarr, TUM, cv2-xml and
+    frames-json."""
+    from fuse4d.io import FrameReader, open_frames
 
     write_npz(small_sequence, tmp_path / "a.npz")
     save_sequence(small_sequence, tmp_path / "folder", format="folder", depth_unit_mm=0.01)
-    for path in (tmp_path / "a.npz", tmp_path / "folder"):
-        with open_frames(path) as reader:
+    save_sequence(small_sequence, tmp_path / "b.zarr")
+    _write_tum(tmp_path / "tum", small_sequence)
+    _write_cv2_xml(tmp_path / "xml", small_sequence)
+    _write_frames_json(tmp_path / "json", small_sequence)
+    paths = ("a.npz", "folder", "b.zarr", "tum", "xml", "json")
+    for path in paths:
+        options = {"intrinsics": small_sequence.intrinsics} if path == "tum" else {}
+        with open_frames(tmp_path / path, **options) as reader:
+            # each layout has its own (the base class's default decodes the depth too)
+            assert type(reader).read_intensity is not FrameReader.read_intensity, path
             for k in (0, 3, -1):
                 alone = reader.read_intensity(k)
                 assert alone.dtype == np.float32

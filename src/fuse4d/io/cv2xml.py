@@ -20,6 +20,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from ..camera import Intrinsics
 from ..errors import InputFileError
@@ -211,3 +212,11 @@ class Cv2XmlReader(FrameReader):
             mask = read_mask_image(self._masks[k], frame=k)
             check_frame_shape(mask, self.shape, self._masks[k], k, against="the depth frame")
         return Frame(k, depth, intensity, None, mask)
+
+    def read_intensity(self, index: int) -> NDArray[np.float32]:
+        """Frame ``index``'s intensity alone (no depth PNG, no camera file: :meth:`read_frame`
+        checks those)."""
+        k = self._index(index)
+        intensity = read_intensity_image(self._colour[k], frame=k)
+        check_frame_shape(intensity, self.shape, self._colour[k], k, against="the depth frames")
+        return intensity

@@ -25,6 +25,7 @@ from types import TracebackType
 from typing import Self
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..camera import Intrinsics
 from ..errors import InputFileError, ParameterError
@@ -188,6 +189,13 @@ class FolderReader(FrameReader):
             check_frame_shape(mask, self.shape, self._mask[k], k, against="the depth frame")
         ts = None if self.timestamps is None else float(self.timestamps[k])
         return Frame(k, depth, intensity, ts, mask)
+
+    def read_intensity(self, index: int) -> NDArray[np.float32]:
+        """Frame ``index``'s intensity alone (the depth PNG is not decoded)."""
+        k = self._index(index)
+        intensity = read_intensity_image(self._intensity[k], frame=k)
+        check_frame_shape(intensity, self.shape, self._intensity[k], k, against="the depth frames")
+        return intensity
 
 
 def _refuse_unfinished_run(root: Path) -> None:

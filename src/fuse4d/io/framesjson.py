@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..camera import Intrinsics
 from ..errors import InputFileError
@@ -195,3 +196,11 @@ class FramesJsonReader(FrameReader):
         check_frame_shape(intensity, self.shape, colour_path, k, against="the depth frame")
         ts = None if self.timestamps is None else float(self.timestamps[k])
         return Frame(k, depth, intensity, ts, None)
+
+    def read_intensity(self, index: int) -> NDArray[np.float32]:
+        """Frame ``index``'s intensity alone (the depth PNG is not decoded)."""
+        k = self._index(index)
+        colour_path = self._files[k][1]
+        intensity = read_intensity_image(colour_path, frame=k)
+        check_frame_shape(intensity, self.shape, colour_path, k, against="the depth frames")
+        return intensity

@@ -21,6 +21,7 @@ from os import PathLike
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..camera import Intrinsics
 from ..errors import InputFileError, ParameterError
@@ -210,6 +211,14 @@ class TumReader(FrameReader):
         check_frame_shape(intensity, self.shape, rgb_path, k, against="the depth frame")
         ts = float(self.timestamps[k]) if self.timestamps is not None else None
         return Frame(k, depth, intensity, ts, None)
+
+    def read_intensity(self, index: int) -> NDArray[np.float32]:
+        """Frame ``index``'s intensity alone (the depth PNG is not decoded)."""
+        k = self._index(index)
+        rgb_path = self._files[k][1]
+        intensity = read_intensity_image(rgb_path, frame=k)
+        check_frame_shape(intensity, self.shape, rgb_path, k, against="the depth frames")
+        return intensity
 
 
 def read_tum(

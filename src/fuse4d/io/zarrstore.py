@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..camera import Intrinsics
 from ..errors import InputFileError
@@ -222,6 +223,14 @@ class ZarrReader(FrameReader):
             raise InputFileError(self.path, f"cannot read chunk ({exc})", frame=k) from None
         ts = None if self.timestamps is None else float(self.timestamps[k])
         return Frame(k, depth, inten, timestamp=ts)
+
+    def read_intensity(self, index: int) -> NDArray[np.float32]:
+        """Frame ``index``'s intensity alone (the depth chunk is not read)."""
+        k = self._index(index)
+        try:
+            return np.asarray(self._inten[k], dtype=np.float32)
+        except (OSError, ValueError, TypeError, LookupError) as exc:
+            raise InputFileError(self.path, f"cannot read chunk ({exc})", frame=k) from None
 
 
 def write_zarr(seq: Sequence, path: str | PathLike[str], *, overwrite: bool = False) -> Path:
