@@ -192,8 +192,7 @@ def _temporal_fill_reference(
             s0 = 0.0
             s1 = 0.0
             s2 = 0.0
-            # weighted sums of the samples' x, y, z and of tau times them (no per-pixel
-            # allocation inside the parallel loop)
+            # weighted sums of the samples' x, y, z and of tau times them
             ax = 0.0
             ay = 0.0
             az = 0.0

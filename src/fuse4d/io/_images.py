@@ -26,6 +26,7 @@ __all__ = [
     "depth_to_units",
     "encode_png",
     "intensity_to_uint",
+    "read_checked_intensity",
     "read_depth_png",
     "read_intensity_image",
     "read_mask_image",
@@ -366,6 +367,17 @@ def encode_png(image: np.ndarray, path: str | PathLike[str]) -> None:
     if not ok:  # pragma: no cover - OpenCV only fails on unsupported dtypes
         raise ValueError(f"{path}: OpenCV could not encode the image as PNG")
     Path(path).write_bytes(buf.tobytes())
+
+
+def read_checked_intensity(
+    path: str | PathLike[str], frame: int, shape: tuple[int, int]
+) -> NDArray[np.float32]:
+    """:func:`read_intensity_image` of frame ``frame`` at ``path``, checked to be ``shape``
+    (H, W) like the recording's depth frames: the depth-free read of the image-file readers'
+    ``read_intensity``."""
+    intensity = read_intensity_image(path, frame=frame)
+    check_frame_shape(intensity, shape, path, frame, against="the depth frames")
+    return intensity
 
 
 def check_frame_shape(

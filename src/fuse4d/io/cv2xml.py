@@ -28,6 +28,7 @@ from ._base import Frame, FrameReader, IntrinsicsLike, depth_unit, resolve_intri
 from ._images import (
     check_frame_shape,
     decode_image,
+    read_checked_intensity,
     read_depth_png,
     read_intensity_image,
     read_mask_image,
@@ -217,6 +218,4 @@ class Cv2XmlReader(FrameReader):
         """Frame ``index``'s intensity alone (no depth PNG, no camera file: :meth:`read_frame`
         checks those)."""
         k = self._index(index)
-        intensity = read_intensity_image(self._colour[k], frame=k)
-        check_frame_shape(intensity, self.shape, self._colour[k], k, against="the depth frames")
-        return intensity
+        return read_checked_intensity(self._colour[k], k, self.shape)

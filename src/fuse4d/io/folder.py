@@ -49,6 +49,7 @@ from ._images import (
     depth_to_units,
     encode_png,
     intensity_to_uint,
+    read_checked_intensity,
     read_depth_png,
     read_intensity_image,
     read_mask_image,
@@ -193,9 +194,7 @@ class FolderReader(FrameReader):
     def read_intensity(self, index: int) -> NDArray[np.float32]:
         """Frame ``index``'s intensity alone (the depth PNG is not decoded)."""
         k = self._index(index)
-        intensity = read_intensity_image(self._intensity[k], frame=k)
-        check_frame_shape(intensity, self.shape, self._intensity[k], k, against="the depth frames")
-        return intensity
+        return read_checked_intensity(self._intensity[k], k, self.shape)
 
 
 def _refuse_unfinished_run(root: Path) -> None:

@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from ..camera import Intrinsics
 from ..errors import InputFileError
 from ._base import Frame, FrameReader, IntrinsicsLike, depth_unit, inside, resolve_intrinsics
-from ._images import check_frame_shape, read_depth_png, read_intensity_image
+from ._images import check_frame_shape, read_checked_intensity, read_depth_png, read_intensity_image
 
 __all__ = ["FramesJsonReader"]
 
@@ -200,7 +200,4 @@ class FramesJsonReader(FrameReader):
     def read_intensity(self, index: int) -> NDArray[np.float32]:
         """Frame ``index``'s intensity alone (the depth PNG is not decoded)."""
         k = self._index(index)
-        colour_path = self._files[k][1]
-        intensity = read_intensity_image(colour_path, frame=k)
-        check_frame_shape(intensity, self.shape, colour_path, k, against="the depth frames")
-        return intensity
+        return read_checked_intensity(self._files[k][1], k, self.shape)

@@ -39,7 +39,13 @@ from ._base import (
     read_camera_json,
     resolve_intrinsics,
 )
-from ._images import check_frame_shape, decode_image, read_depth_png, read_intensity_image
+from ._images import (
+    check_frame_shape,
+    decode_image,
+    read_checked_intensity,
+    read_depth_png,
+    read_intensity_image,
+)
 
 __all__ = ["TUM_DEPTH_UNIT_MM", "TumReader", "associate_timestamps", "read_tum"]
 
@@ -215,10 +221,7 @@ class TumReader(FrameReader):
     def read_intensity(self, index: int) -> NDArray[np.float32]:
         """Frame ``index``'s intensity alone (the depth PNG is not decoded)."""
         k = self._index(index)
-        rgb_path = self._files[k][1]
-        intensity = read_intensity_image(rgb_path, frame=k)
-        check_frame_shape(intensity, self.shape, rgb_path, k, against="the depth frames")
-        return intensity
+        return read_checked_intensity(self._files[k][1], k, self.shape)
 
 
 def read_tum(
