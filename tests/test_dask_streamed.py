@@ -3,6 +3,7 @@ same bits as the in-memory path, scratch flows dropped, resumable."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import warnings
 
@@ -40,10 +41,9 @@ def _check(store_path, ref) -> None:
 def _run(seq, tmp_path, name, **kwargs):
     path = tmp_path / f"{name}.npz"
     save_sequence(seq, path)
-    fast = preset("fast")
     kwargs.setdefault("fusion", FusionParams())
-    (summary,) = run_dask([path], tmp_path / f"{name}.zarr", flow=fast.flow, progress=False,
-                          **kwargs)  # fmt: skip
+    kwargs.setdefault("flow", preset("fast").flow)
+    (summary,) = run_dask([path], tmp_path / f"{name}.zarr", progress=False, **kwargs)
     return summary
 
 
@@ -62,6 +62,27 @@ def test_streamed_equals_in_memory(ball, tmp_path, chunk_frames, fusion):
         summary.output, fuse_sequence(ball.depth, ball.intensity, ball.intrinsics, fusion=fusion)
     )
     assert not (summary.output / ".fuse4d-flows").exists()
+
+
+def test_chunks_are_evened_out_over_the_recording(ball, tmp_path):
+    summary = _run(ball, tmp_path, "even", chunk_frames=6)  # 20 frames: 4 x 5, not 6+6+6+2
+    assert (summary.chunks, summary.chunk_frames) == (4, 5)
+    assert zarr.open_group(str(summary.output), mode="r")["depth"].shards[0] == 5
+    _check(summary.output, fuse_sequence(ball.depth, ball.intensity, ball.intrinsics))
+
+
+def test_flow_cache_solves_both_directions_in_one_task(ball, tmp_path, monkeypatch):
+    """A flow cache keys the pair as a whole, so its chunks keep one flow task (the path of
+    the pair-function methods, PMBP); same bits as in memory, and a second run hits the
+    cache."""
+    calls = []
+    real = streamed._flow_task
+    monkeypatch.setattr(streamed, "_flow_task", lambda *a: calls.append(a[3]) or real(*a))
+    flow = dataclasses.replace(preset("fast").flow, cache_dir=str(tmp_path / "cache"))
+    summary = _run(ball, tmp_path, "cached", chunk_frames=7, flow=flow)
+    assert sorted(calls) == [0, 1, 2]
+    _check(summary.output, fuse_sequence(ball.depth, ball.intensity, ball.intrinsics))
+    assert any((tmp_path / "cache").rglob("*"))
 
 
 def test_streamed_fewer_frames_than_window_and_one_frame(ball, tmp_path):
@@ -102,17 +123,21 @@ def test_scratch_flows_are_dropped_and_resume_recomputes_only_what_is_missing(
     assert len(fuse_tasks) == 5
     dask.compute(*fuse_tasks[:2], scheduler="sync")  # interrupted after two chunks
     scratch = streamed.flow_scratch(out.staging)
-    assert len(list(scratch.glob("pair-*.npy"))) > 0
+    assert len(list(scratch.glob("forward-*.npy"))) > 0
     calls = []
-    real = streamed._flow_task
-    monkeypatch.setattr(streamed, "_flow_task", lambda *a: calls.append(a[3]) or real(*a))
+    for name in ("_forward_task", "_backward_task"):  # DIS: the directions split
+        real = getattr(streamed, name)
+        monkeypatch.setattr(
+            streamed, name, lambda *a, f=real, n=name: calls.append((n, a[3])) or f(*a)
+        )
     out = output(resume=True)
     assert out.done_chunks() == {0, 1}
     rest = streamed.recording_tasks(source, out, k, fusion=FusionParams(), flow=fast.flow,
                                     chunk_frames=4)  # fmt: skip
     dask.compute(*rest, scheduler="sync")
-    assert sorted(calls) == [3, 4]  # pair chunks 0-2 (read by chunks 0-1) were kept
-    assert not list(scratch.glob("pair-*.npy"))  # every pair file dropped once read
+    # pair chunks 0-2 (read by chunks 0-1) were kept
+    assert sorted(calls) == [(n, j) for n in ("_backward_task", "_forward_task") for j in (3, 4)]
+    assert not list(scratch.glob("*ward-*.npy"))  # every pair file dropped once read
     _check(out.finalize(), ref)
 
 
@@ -129,7 +154,7 @@ def test_bounded_lookahead_keeps_few_scratch_files(ball, tmp_path, monkeypatch, 
     real = streamed._fuse_task
     monkeypatch.setattr(
         streamed, "_fuse_task",
-        lambda *a: most.append(len(list(scratch.glob("pair-*.npy")))) or real(*a),
+        lambda *a: most.append(len(list(scratch.glob("forward-*.npy")))) or real(*a),
     )  # fmt: skip
     tasks = streamed.recording_tasks(source, out, k, fusion=FusionParams(), flow=preset("fast").flow,
                                      chunk_frames=2, lookahead=lookahead)  # fmt: skip
@@ -149,6 +174,10 @@ def test_streamed_through_a_local_cluster_with_two_worker_processes(ball, tmp_pa
     with local_cluster(2) as client, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         assert slow_allocator_workers(client) == []  # glibc's adaptive mmap threshold
+        stealing = client.run_on_scheduler(
+            lambda dask_scheduler: dask_scheduler.periodic_callbacks["stealing"].callback_time
+        )
+        assert stealing == 100  # ms: an idle worker takes a queued 0.3 s flow task early
         summary = _run(ball, tmp_path, "lc", chunk_frames=4,
                        scheduler=client.scheduler.address)  # fmt: skip
     assert not [w for w in caught if "MALLOC_TRIM_THRESHOLD_" in str(w.message)]

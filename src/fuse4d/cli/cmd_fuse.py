@@ -165,7 +165,11 @@ def run_command(
         str, typer.Option("--engine", help="stream (one process) or dask (zarr v3 output).")
     ] = "stream",
     chunk_frames: Annotated[
-        int, typer.Option("--chunk-frames", help="dask: frames per task and zarr shard.")
+        int,
+        typer.Option(
+            "--chunk-frames",
+            help="dask: most frames per task and zarr shard (evened out over the recording).",
+        ),
     ] = 32,
     scheduler: Annotated[
         str, typer.Option("--scheduler", help="dask: threads, processes or tcp://HOST:PORT.")

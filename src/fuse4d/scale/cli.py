@@ -16,7 +16,7 @@ from typing import Any
 
 from ..config import FlowConfig, FusionParams
 from .cluster import open_compute
-from .graph import fuse
+from .graph import even_chunk_frames, fuse
 from .inputs import open_lazy
 from .streamed import recording_tasks, source_of
 from .zarr_out import ZarrOutput
@@ -35,7 +35,10 @@ class DaskRunSummary:
     shape : (int, int)
         (H, W) px.
     chunks : int
-        Time chunks of ``chunk_frames`` frames.
+        Time chunks (tasks and zarr shards).
+    chunk_frames : int
+        Frames per chunk (the last may be shorter): ``run_dask``'s ``chunk_frames`` evened out
+        over the recording (:func:`fuse4d.scale.graph.even_chunk_frames`).
     skipped : int
         Chunks already written by an interrupted run (``--resume``).
     seconds : float
@@ -47,6 +50,7 @@ class DaskRunSummary:
     frames: int
     shape: tuple[int, int]
     chunks: int
+    chunk_frames: int
     skipped: int
     seconds: float = 0.0
 
@@ -121,7 +125,9 @@ def run_dask(
     fusion, flow
         Parameters (as for ``fuse4d run``).
     chunk_frames : int
-        Frames per task and per shard.
+        Most frames per task and per shard. Each recording is split into the fewest chunks of
+        at most this many frames, of one length as even as possible (300 frames by 32: ten of
+        30, not nine of 32 and one of 12, whose early finish would idle a worker).
     scheduler, workers
         See :func:`fuse4d.scale.cluster.open_compute`.
     resume : bool
@@ -156,10 +162,11 @@ def run_dask(
     lookahead = 2 + _worker_threads(scheduler, workers)
     for src, dst in zip(inputs, targets, strict=True):
         rec = open_lazy(src, frames_per_task=chunk_frames, **(reader_options or {}))
+        frames = even_chunk_frames(rec.num_frames, chunk_frames)
         out = ZarrOutput(
             dst,
             shape=(rec.num_frames, rec.intrinsics.height, rec.intrinsics.width),
-            chunk_frames=chunk_frames,
+            chunk_frames=frames,
             intrinsics=rec.intrinsics,
             metadata={
                 "params": fusion.to_dict(),
@@ -180,7 +187,7 @@ def run_dask(
                     rec.intrinsics,
                     fusion=fusion,
                     flow=flow,
-                    chunk_frames=chunk_frames,
+                    chunk_frames=frames,
                     warm_start=warm_start,
                     lookahead=lookahead,
                 )
@@ -192,7 +199,7 @@ def run_dask(
                 rec.intrinsics,
                 fusion=fusion,
                 flow=flow,
-                chunk_frames=chunk_frames,
+                chunk_frames=frames,
                 warm_start=warm_start,
             )
             tasks.extend(out.tasks(result))
@@ -202,6 +209,7 @@ def run_dask(
             frames=rec.num_frames,
             shape=(rec.intrinsics.height, rec.intrinsics.width),
             chunks=len(out.bounds),
+            chunk_frames=frames,
             skipped=skipped,
         )
         jobs.append((out, summary))
@@ -248,14 +256,14 @@ def print_dask_run(
         print(json.dumps([s.to_dict() for s in summaries], indent=2))
         return
     table = Table(title=f"fuse4d run --engine dask ({options.get('scheduler', 'threads')})")
-    for col in ("input", "output", "frames", "chunks (resumed)"):
+    for col in ("input", "output", "frames", "chunks x frames (resumed)"):
         table.add_column(col)
     for s in summaries:
         table.add_row(
             str(s.input),
             str(s.output),
             f"{s.frames} x {s.shape[0]}x{s.shape[1]}",
-            f"{s.chunks} ({s.skipped})",
+            f"{s.chunks} x {s.chunk_frames} ({s.skipped})",
         )
     out_console.print(table)
     seconds = summaries[0].seconds if summaries else 0.0

@@ -6,11 +6,15 @@ in-memory blocks: a worker holds its running task's ``c + h`` input frames and p
 600 x 600 with c = 32, more on a cluster where blocks are copied between workers. Here the
 tasks pass only tokens and the frames travel through files:
 
-- **flow task k** reads its ``c + 1`` intensity frames one at a time from the recording,
-  solves the pairs of chunk k (warm-started from chunk k-1's last forward flow, the only array
-  passed between tasks, 8 bytes/px) and writes each pair to a scratch file in the output's
-  staging folder (``OUT.zarr.partial/.fuse4d-flows/``; with ``save_flows`` also the output's
-  ``flow_forward``/``flow_backward`` shard);
+- **flow tasks of chunk k** read its ``c + 1`` intensity frames one at a time from the
+  recording, solve the pairs of chunk k (warm-started from chunk k-1's last forward flow, read
+  from the seed file that chunk k-1 saved) and write each flow to a scratch file in the
+  output's staging folder (``OUT.zarr.partial/.fuse4d-flows/``; with ``save_flows`` also the
+  output's ``flow_forward``/``flow_backward`` shard). Where the method solves each direction
+  on its own (no pair function, no flow cache: DIS, Farneback, ...) the chunk has two tasks:
+  the **forward task** (the warm-start chain: each chunk's waits for the previous chunk's) and
+  the **backward task**, which needs only its own chunk's forward flows (each backward solve
+  starts from ``-forward``, METHOD §2.3) and so runs on another worker beside the chain;
 - **fusion task k** (after flow tasks k-1, k, k+1) reads its frames with the halo one at a time
   from the recording and its pairs from the scratch files, runs the streaming engine, and
   writes its zarr shard and done marker;
@@ -37,9 +41,9 @@ from numpy.typing import NDArray
 
 from ..camera import Intrinsics
 from ..config import FlowConfig, FusionParams
-from ..flow import FlowCache, get_flow_method
+from ..flow import FlowCache, estimate_flow, get_flow_method
 from ..fusion import FusionEngine
-from .graph import _flow_chain, chunk_bounds
+from .graph import _flow_chain, _intensity_frame, chunk_bounds
 from .inputs import read_frame, read_intensity
 from .zarr_out import ZarrOutput, write_chunk
 
@@ -91,8 +95,9 @@ def flow_scratch(staging: Path) -> Path:
     return Path(staging) / _FLOWS
 
 
-def _pair_file(scratch: str, j: int) -> Path:
-    return Path(scratch) / f"pair-{j:07d}.npy"
+def _pair_files(scratch: str, j: int) -> tuple[Path, Path]:
+    """The scratch files of pair j's forward and backward flow."""
+    return Path(scratch) / f"forward-{j:07d}.npy", Path(scratch) / f"backward-{j:07d}.npy"
 
 
 def _seed_file(scratch: str, k: int) -> Path:
@@ -118,6 +123,19 @@ def _touch(path: Path, info: dict[str, Any]) -> None:
 
 
 # ------------------------------------------------------------------------------------ tasks
+def _splits(config: FlowConfig) -> bool:
+    """Whether the pairs' two directions can be solved by separate tasks with the same bits:
+    the method solves one direction at a time and no flow cache keys the pair as a whole."""
+    return get_flow_method(config.method).pair_function is None and config.cache_dir is None
+
+
+def _store_flows(staging: str | None, name: str, a: int, flows: list[NDArray[Any]]) -> None:
+    """The output's shard of these pairs' flows (``save_flows``), written at once."""
+    if staging is not None and flows:
+        root = zarr.open_group(staging, mode="r+")
+        root[name][a : a + len(flows)] = np.stack(flows)  # type: ignore[index]
+
+
 def _flow_task(
     source: RecordingSource,
     scratch: str,
@@ -129,9 +147,12 @@ def _flow_task(
     chained: bool,
     *after: Any,
 ) -> int:
-    """Pairs ``[a, b)`` of chunk k, chained like :func:`fuse4d.scale.graph._flow_block`, to
-    the scratch files (and the output's flow arrays at ``staging``), warm-started from the seed
-    file of chunk ``seed_chunk`` (None: cold start); saves chunk k's seed and returns k.
+    """Both directions of the pairs ``[a, b)`` of chunk k, chained like
+    :func:`fuse4d.scale.graph._flow_block`, to the scratch files (and the output's flow arrays
+    at ``staging``), warm-started from the seed file of chunk ``seed_chunk`` (None: cold
+    start); saves chunk k's seed and its marker and returns k. For methods whose two
+    directions need one call (or a flow cache); the others run :func:`_forward_task` and
+    :func:`_backward_task`.
 
     Only this token travels between tasks, not the seed (8 bytes/px): dask places a task
     where most of its inputs' bytes are, so a 2.9 MB seed (600 x 600) made the scheduler queue
@@ -150,15 +171,92 @@ def _flow_task(
     for j, (forward, backward) in enumerate(
         _flow_chain(frames, method, params, seed, chained, config.roi, cache), start=a
     ):
-        _save(_pair_file(scratch, j), np.stack([forward, backward]))
+        forward_file, backward_file = _pair_files(scratch, j)
+        _save(forward_file, forward)
+        _save(backward_file, backward)
         if staging is not None:
             keep.append((forward, backward))
-    if staging is not None and keep:  # the output's shard of these pairs, written at once
-        root = zarr.open_group(staging, mode="r+")
-        root["flow_forward"][a:b] = np.stack([f for f, _ in keep])  # type: ignore[index]
-        root["flow_backward"][a:b] = np.stack([g for _, g in keep])  # type: ignore[index]
+    _store_flows(staging, "flow_forward", a, [f for f, _ in keep])
+    _store_flows(staging, "flow_backward", a, [g for _, g in keep])
     assert forward is not None
     _save(_seed_file(scratch, k), np.ascontiguousarray(forward))
+    _touch(_flow_marker(scratch, k), {"start": a, "stop": b})
+    return k
+
+
+def _forward_task(
+    source: RecordingSource,
+    scratch: str,
+    staging: str | None,
+    k: int,
+    bounds: tuple[int, int],
+    seed_chunk: int | None,
+    config: FlowConfig,
+    chained: bool,
+    *after: Any,
+) -> int:
+    """The forward flows of the pairs ``[a, b)`` of chunk k: the solves of
+    :func:`_flow_task` without the backward ones, in the same order from the same seed;
+    saves chunk k's seed and returns k (the marker waits for :func:`_backward_task`)."""
+    a, b = bounds
+    method = get_flow_method(config.method)
+    params = config.build_params()
+    init = None if seed_chunk is None or not chained else _load_seed(scratch, seed_chunk)
+    keep: list[NDArray[np.float32]] = []
+    frames = (_intensity_frame(source.intensity(t)) for t in range(a, b + 1))
+    previous = next(frames)
+    forward = None
+    for j, current in enumerate(frames, start=a):
+        forward = estimate_flow(
+            previous, current, method=method, params=params, init=init, roi=config.roi
+        )
+        _save(_pair_files(scratch, j)[0], forward)
+        if staging is not None:
+            keep.append(forward)
+        if chained:
+            init = forward
+        previous = current
+    _store_flows(staging, "flow_forward", a, keep)
+    assert forward is not None
+    _save(_seed_file(scratch, k), np.ascontiguousarray(forward))
+    return k
+
+
+def _backward_task(
+    source: RecordingSource,
+    scratch: str,
+    staging: str | None,
+    k: int,
+    bounds: tuple[int, int],
+    config: FlowConfig,
+    *after: Any,
+) -> int:
+    """The backward flows of the pairs ``[a, b)`` of chunk k from their forward flows
+    (:func:`_forward_task`, saved): each solve as :func:`fuse4d.flow.estimate_flow_pair` runs
+    it, warm-started from ``-forward`` where the method takes a warm start. Writes chunk k's
+    marker and returns k."""
+    a, b = bounds
+    method = get_flow_method(config.method)
+    params = config.build_params()
+    keep: list[NDArray[np.float32]] = []
+    frames = (_intensity_frame(source.intensity(t)) for t in range(a, b + 1))
+    previous = next(frames)
+    for j, current in enumerate(frames, start=a):
+        forward_file, backward_file = _pair_files(scratch, j)
+        forward = np.load(forward_file, allow_pickle=False)
+        backward = estimate_flow(
+            current,
+            previous,
+            method=method,
+            params=params,
+            init=-forward if method.supports_init else None,
+            roi=config.roi,
+        )
+        _save(backward_file, backward)
+        if staging is not None:
+            keep.append(backward)
+        previous = current
+    _store_flows(staging, "flow_backward", a, keep)
     _touch(_flow_marker(scratch, k), {"start": a, "stop": b})
     return k
 
@@ -202,8 +300,11 @@ def _fuse_task(
         depth_t, intensity_t = source.frame(t)
         pair = None
         if t > lo:
-            both = np.load(_pair_file(scratch, t - 1), allow_pickle=False)
-            pair = (both[0], both[1])
+            forward_file, backward_file = _pair_files(scratch, t - 1)
+            pair = (
+                np.load(forward_file, allow_pickle=False),
+                np.load(backward_file, allow_pickle=False),
+            )
         take(engine.push(depth_t, intensity_t, pair_flow=pair))
     if hi == source.frames:
         take(engine.flush())
@@ -214,7 +315,8 @@ def _drop_task(scratch: str, k: int, bounds: tuple[int, int], *after: Any) -> in
     """Delete chunk k's pair files (its consumers are done); its seed stays."""
     _flow_marker(scratch, k).unlink(missing_ok=True)  # first: no marker = must recompute
     for j in range(*bounds):
-        _pair_file(scratch, j).unlink(missing_ok=True)
+        for path in _pair_files(scratch, j):
+            path.unlink(missing_ok=True)
     return k
 
 
@@ -298,7 +400,9 @@ def recording_tasks(
                 i -= 1
     staging = str(out.staging)
     flow_staging = staging if out.save_flows else None
-    tokens: dict[int, Any] = {}
+    split = _splits(flow)
+    chain: dict[int, Any] = {}  # the task that saves pair chunk j's seed
+    tokens: dict[int, Any] = {}  # the task after which pair chunk j is complete
     fused: dict[int, Any] = {}
     drops: dict[int, Any] = {}
     k_next = 0  # fusion tasks are built as soon as their flow tasks exist
@@ -324,8 +428,8 @@ def recording_tasks(
             drops[j] = dask.delayed(_drop_task, pure=False)(str(scratch), j, pairs[j], *after)
 
     for j in sorted(compute):
-        seed_chunk = j - 1 if chained and j > 0 else None  # saved earlier or by tokens[j - 1]
-        previous = [tokens[j - 1]] if seed_chunk is not None and j - 1 in tokens else []
+        seed_chunk = j - 1 if chained and j > 0 else None  # saved earlier or by chain[j - 1]
+        previous = [chain[j - 1]] if seed_chunk is not None and j - 1 in chain else []
         build(j - 1)
         # bounded look-ahead: pair chunk j waits for the lookahead-th newest fusion task that
         # does not read it, and for the deletion of the pairs that fusion was the last to read
@@ -338,20 +442,20 @@ def recording_tasks(
             done = [i for i in drops if max(consumers[i], default=-1) <= k]
             if done:
                 wait.append(drops[max(done)])
-        with dask.annotate(priority=_FLOW_PRIORITY):
-            task = dask.delayed(_flow_task, pure=False)(
-                source,
-                str(scratch),
-                flow_staging,
-                j,
-                pairs[j],
-                seed_chunk,
-                flow,
-                chained,
-                *previous,
-                *wait,
-            )
-        tokens[j] = task
+        args = (source, str(scratch), flow_staging, j, pairs[j])
+        if split:
+            with dask.annotate(priority=_FLOW_PRIORITY + 1):  # the chain first
+                chain[j] = dask.delayed(_forward_task, pure=False)(
+                    *args, seed_chunk, flow, chained, *previous, *wait
+                )
+            with dask.annotate(priority=_FLOW_PRIORITY):
+                tokens[j] = dask.delayed(_backward_task, pure=False)(*args, flow, chain[j])
+        else:
+            with dask.annotate(priority=_FLOW_PRIORITY):
+                tokens[j] = dask.delayed(_flow_task, pure=False)(
+                    *args, seed_chunk, flow, chained, *previous, *wait
+                )
+            chain[j] = tokens[j]
     build(len(pairs))
     results = [fused[k] for k in missing] + [drops[j] for j in sorted(drops)]
     for j in set(range(len(pairs))) - need - compute:  # left by an interrupted run, unread
