@@ -45,6 +45,7 @@ from ..flow import (
     FlowMethod,
     Roi,
     SequenceFlow,
+    estimate_flow,
     estimate_flow_pair,
     get_flow_method,
 )
@@ -225,7 +226,9 @@ def _flow_chain(
     chained: bool,
     roi: Roi | None,
     cache: FlowCache | None,
-) -> Iterator[tuple[NDArray[np.float32], NDArray[np.float32]]]:
+    *,
+    backward: bool = True,
+) -> Iterator[tuple[NDArray[np.float32], NDArray[np.float32] | None]]:
     """Forward and backward flow (px, float32 ``(H, W, 2)``) of each consecutive pair of
     ``frames`` (n+1 intensity frames -> n pairs, read lazily in order), chained like
     :class:`fuse4d.flow.SequenceFlowEstimator`.
@@ -242,6 +245,10 @@ def _flow_chain(
     chained : bool
         Warm-start each forward solve from ``seed`` and then from the previous pair's forward
         flow (the caller checks ``method.supports_init``); False: no warm starts at all.
+    backward : bool
+        False: the forward solves only, each as :func:`fuse4d.flow.estimate_flow_pair` runs
+        it (for methods without a pair function; ``cache`` must be None), and None for the
+        backward flow.
 
     Yields
     ------
@@ -253,18 +260,22 @@ def _flow_chain(
     previous = _intensity_frame(np.asarray(next(it)))
     for frame in it:
         current = _intensity_frame(np.asarray(frame))
-        forward, backward = estimate_flow_pair(
-            previous,
-            current,
-            method=method,
-            params=params,
-            init_forward=init,
-            roi=roi,
-            cache=cache,
-        )
-        forward = np.asarray(forward, np.float32)
-        backward = np.asarray(backward, np.float32)
-        yield forward, backward
+        if backward:
+            forward, back = estimate_flow_pair(
+                previous,
+                current,
+                method=method,
+                params=params,
+                init_forward=init,
+                roi=roi,
+                cache=cache,
+            )
+            yield np.asarray(forward, np.float32), np.asarray(back, np.float32)
+        else:
+            forward = estimate_flow(
+                previous, current, method=method, params=params, init=init, roi=roi
+            )
+            yield forward, None
         if chained:
             init = forward
         previous = current
@@ -290,6 +301,7 @@ def _flow_block(
         intensity, method, params, seed, warm_start and method.supports_init, config.roi, cache
     )
     for j, (f, g) in enumerate(chain):
+        assert g is not None
         forward[j], backward[j] = f, g
     return forward, backward
 

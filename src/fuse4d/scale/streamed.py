@@ -171,6 +171,7 @@ def _flow_task(
     for j, (forward, backward) in enumerate(
         _flow_chain(frames, method, params, seed, chained, config.roi, cache), start=a
     ):
+        assert backward is not None
         forward_file, backward_file = _pair_files(scratch, j)
         _save(forward_file, forward)
         _save(backward_file, backward)
@@ -201,21 +202,15 @@ def _forward_task(
     a, b = bounds
     method = get_flow_method(config.method)
     params = config.build_params()
-    init = None if seed_chunk is None or not chained else _load_seed(scratch, seed_chunk)
+    seed = None if seed_chunk is None else _load_seed(scratch, seed_chunk)
     keep: list[NDArray[np.float32]] = []
-    frames = (_intensity_frame(source.intensity(t)) for t in range(a, b + 1))
-    previous = next(frames)
     forward = None
-    for j, current in enumerate(frames, start=a):
-        forward = estimate_flow(
-            previous, current, method=method, params=params, init=init, roi=config.roi
-        )
+    frames = (source.intensity(t) for t in range(a, b + 1))
+    chain = _flow_chain(frames, method, params, seed, chained, config.roi, None, backward=False)
+    for j, (forward, _) in enumerate(chain, start=a):
         _save(_pair_files(scratch, j)[0], forward)
         if staging is not None:
             keep.append(forward)
-        if chained:
-            init = forward
-        previous = current
     _store_flows(staging, "flow_forward", a, keep)
     assert forward is not None
     _save(_seed_file(scratch, k), np.ascontiguousarray(forward))
