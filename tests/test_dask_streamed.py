@@ -71,6 +71,37 @@ def test_chunks_are_evened_out_over_the_recording(ball, tmp_path):
     _check(summary.output, fuse_sequence(ball.depth, ball.intensity, ball.intrinsics))
 
 
+@pytest.mark.parametrize(
+    "fusion", [FusionParams(), FusionParams(num_frames=5, causal=True)], ids=["9", "causal"]
+)
+def test_halo_frames_are_prepared_once(ball, tmp_path, monkeypatch, fusion):
+    """The frames two chunks both push: the second task takes the first's FrameState."""
+    from fuse4d.fusion import FusionEngine
+
+    derived = []
+    real = FusionEngine._derive
+    monkeypatch.setattr(
+        FusionEngine, "_derive", lambda self, *a: derived.append(1) or real(self, *a)
+    )
+    taken = []
+    take = streamed._MEMO.take
+
+    def counted(key):
+        state = take(key)
+        taken.append(state is not None)
+        return state
+
+    monkeypatch.setattr(streamed._MEMO, "take", counted)
+    summary = _run(ball, tmp_path, "halo", chunk_frames=10, fusion=fusion, workers=1)
+    assert sum(taken) == fusion.past_frames + fusion.future_frames  # 2 chunks, 1 boundary
+    assert len(derived) == ball.num_frames  # each frame's state computed once
+    assert not [k for k in streamed._MEMO._states if k[0].startswith(str(tmp_path))]  # all taken
+    assert not (summary.output / ".fuse4d-flows").exists()
+    _check(
+        summary.output, fuse_sequence(ball.depth, ball.intensity, ball.intrinsics, fusion=fusion)
+    )
+
+
 def test_flow_cache_solves_both_directions_in_one_task(ball, tmp_path, monkeypatch):
     """A flow cache keys the pair as a whole, so its chunks keep one flow task (the path of
     the pair-function methods, PMBP); same bits as in memory, and a second run hits the

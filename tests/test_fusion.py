@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -1125,3 +1126,55 @@ def test_shortcuts_without_fused_pixels_change_nothing(rng):
     out = points.copy()
     _smooth_base(out, base, depth, partial, sigma=2.0, max_step=10.0, quad=1e-6, limit_quad=0.5)
     assert not np.array_equal(out, points)
+
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        FusionParams(num_frames=5),
+        FusionParams(num_frames=3, causal=True),
+        FusionParams(num_frames=5, motion_sigma=1.5),  # a motion reference of its own
+        FusionParams(num_frames=5, motion_depth="raw"),
+    ],
+)
+def test_frame_states_from_another_engine_give_the_same_bits(rng, params):
+    """The dask graph's halo frames: FrameState computed by one engine, pushed into another."""
+    n = 8
+    depth = _plane_depth(n) + rng.normal(0, 0.3, (n, H, W)).astype(np.float32)
+    depth[3, 5:9, 5:9] = np.nan
+    inten = _moving_texture(n)
+    first = FusionEngine(K, fusion=params, flow="dis")
+    want, states = [], []
+    for d, i in zip(depth, inten, strict=True):
+        want += first.push(d, i)
+        states.append(first.frame_state(first._pushed - 1))
+    want += first.flush()
+    separate = params.motion_depth != "raw" and params.motion_sigma != params.reference_sigma
+    assert (states[0].reference is not None) == separate
+    timings: dict[str, float] = {}
+    second = FusionEngine(K, fusion=params, flow="dis", timings=timings)
+    got = []
+    for t, (d, i) in enumerate(zip(depth, inten, strict=True)):
+        got += second.push(d, i, state=states[t] if t % 2 else None)  # half given, half computed
+    got += second.flush()
+    assert [f.index for f in got] == [f.index for f in want]
+    for a, b in zip(got, want, strict=True):
+        for name in ("points", "support", "filled", "source", "confidence"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+
+
+def test_frame_state_errors(rng):
+    engine = FusionEngine(K, fusion=FusionParams(num_frames=3))
+    depth = _plane_depth(1)[0]
+    inten = _moving_texture(1)[0]
+    with pytest.raises(IndexError, match="frame 0"):
+        engine.frame_state(0)
+    engine.push(depth, inten)
+    state = engine.frame_state(0)
+    with pytest.raises(ValueError, match="points or a frame state"):
+        engine.push(depth, inten, points=np.zeros((H, W, 3), np.float32), state=state)
+    with pytest.raises(ShapeError, match=r"state\.bilateral"):
+        engine.push(depth, inten, state=dataclasses.replace(state, bilateral=state.bilateral[1:]))
+    other = FusionEngine(K, fusion=FusionParams(num_frames=3, motion_sigma=1.5))
+    with pytest.raises(ValueError, match="motion reference"):
+        other.push(depth, inten, state=state)

@@ -420,6 +420,7 @@ def test_zarr_round_trip(tmp_path, float_sequence):
     group = zarr.open_group(str(path), mode="r")
     assert group["depth"].metadata.dimension_names == ("t", "y", "x")
     assert group["depth"].chunks == (1, 24, 32)
+    assert [c.cname.value for c in group["depth"].compressors] == ["lz4"]  # as --engine dask
     assert group.attrs["depth_unit"] == "mm"
     assert group.attrs["intrinsics"]["fx"] == 50.0
 

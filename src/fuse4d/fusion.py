@@ -50,6 +50,7 @@ from .motion import (
 from .sequence import check_unit_intensity, normalize_intensity
 
 __all__ = [
+    "FrameState",
     "FusedFrame",
     "FusionEngine",
     "FusionResult",
@@ -102,6 +103,33 @@ class FusedFrame:
     def depth(self) -> NDArray[np.float32]:
         """Fused depth (Z of the fused points) in mm."""
         return self.points[..., 2]
+
+
+@dataclass(frozen=True)
+class FrameState:
+    """What :meth:`FusionEngine.push` derives from one frame alone (METHOD §7: computed once
+    per frame): handed to another engine with the same camera and parameters, it replaces
+    that work, with the same output bit for bit.
+
+    Attributes
+    ----------
+    smooth : (H, W, 3) ndarray
+        Local reference surface (A17, A18), back-projected, mm; NaN where the frame has no
+        depth.
+    reference : (H, W, 3) ndarray or None
+        Motion reference P~ (A3) where it differs from ``smooth`` (``motion_sigma`` !=
+        ``reference_sigma``); None where the engine uses ``smooth`` or the raw points.
+    bilateral : (H, W, 3) ndarray
+        Intensity-guided 3D bilateral B (Eq. 5's spatial term), mm.
+    noise : (3,) ndarray
+        Depth-noise model of the frame: sigma0 (mm), quad (1/mm) and the median depth (mm)
+        (A22).
+    """
+
+    smooth: NDArray[np.float32]
+    reference: NDArray[np.float32] | None
+    bilateral: NDArray[np.float32]
+    noise: NDArray[np.float64]
 
 
 @dataclass
@@ -260,6 +288,7 @@ class FusionEngine:
         *,
         points: ArrayLike | None = None,
         pair_flow: tuple[np.ndarray, np.ndarray] | None = None,
+        state: FrameState | None = None,
     ) -> list[FusedFrame]:
         """Add the next frame; return the frames completed by it (oldest first).
 
@@ -274,6 +303,11 @@ class FusionEngine:
         pair_flow : (forward, backward), optional
             Flows of the pair (previous frame, this frame), each (H, W, 2) px; computed with the
             engine's tracker when omitted.
+        state : FrameState, optional
+            This frame's :meth:`frame_state` from an engine with the same camera and
+            parameters (the frame pushed there with the same depth and intensity, no
+            ``points``): stored instead of computed. The dask graph passes the frames that
+            two neighbouring chunks both push (the halo) this way.
         """
         if self._closed:
             raise RuntimeError("engine was flushed; create a new FusionEngine for a new stream")
@@ -289,12 +323,16 @@ class FusionEngine:
             if inten.dtype.kind != "f"
             else check_unit_intensity(inten, name=f"intensity (frame {index})")
         )
+        if state is not None:
+            if points is not None:
+                raise ValueError("push takes points or a frame state, not both")
+            _check_state(state, (h, w), index, separate=self._separate_reference)
         slot = index % self.ring
         needs_pair = index > 0 and (self.past + self.future > 0 or pair_flow is not None)
         if needs_pair and pair_flow is None and self.overlap_flow and self.precomputed is None:
             self._start_flow(index, inten)
         try:
-            self._prepare(index, slot, d, inten, points, needs_pair, pair_flow)
+            self._prepare(index, slot, d, inten, points, needs_pair, pair_flow, state)
         except BaseException:
             self._drop_pending_flow()
             raise
@@ -317,8 +355,29 @@ class FusionEngine:
         else:
             self._flow_estimator._last_image1, self._flow_estimator._last_forward = self._flow_state
 
-    def _prepare(self, index, slot, d, inten, points, needs_pair, pair_flow) -> None:
+    def _prepare(self, index, slot, d, inten, points, needs_pair, pair_flow, state) -> None:
         """The per-frame part of :meth:`push`: noise model, references, bilateral, pair."""
+        if state is None:
+            d = self._derive(index, slot, d, inten, points)
+        else:
+            self._last_points = (index, depth_to_points(d, self.intrinsics))
+            self._smooth[slot] = state.smooth
+            if self.params.motion_depth == "raw":
+                self._reference[slot] = self._last_points[1]
+            elif state.reference is not None:
+                self._reference[slot] = state.reference
+            self._bilateral[slot] = state.bilateral
+            self._noise[slot] = state.noise
+        self._depth[slot] = d
+        self._intensity[slot] = inten
+        # a window of one frame uses no pair: no flows, no tracks (issue 13); flows that are
+        # passed in are still stored (and reported through ``on_pair``)
+        if needs_pair:
+            self._add_pair(index, pair_flow)
+
+    def _derive(self, index, slot, d, inten, points) -> NDArray[np.float32]:
+        """Frame ``index``'s :class:`FrameState`, computed into its ring slot; returns the
+        frame's depth (the z of ``points`` where given)."""
         h, w = self.intrinsics.height, self.intrinsics.width
         p = self.params
         t0 = time.perf_counter()
@@ -356,14 +415,27 @@ class FusionEngine:
         t2 = time.perf_counter()
         self.timings["motion_reference"] += t1 - t0
         self.timings["bilateral"] += t2 - t1
-        self._depth[slot] = d
         sigma0 = estimate_depth_noise(d, reference=self._smooth[slot][..., 2])
         self._noise[slot] = (sigma0, quad, z_med)
-        self._intensity[slot] = inten
-        # a window of one frame uses no pair: no flows, no tracks (issue 13); flows that are
-        # passed in are still stored (and reported through ``on_pair``)
-        if needs_pair:
-            self._add_pair(index, pair_flow)
+        return d
+
+    @property
+    def _separate_reference(self) -> bool:
+        """Whether the motion reference is a surface of its own (in :class:`FrameState`)."""
+        return self.params.motion_depth != "raw" and not self._shared_reference
+
+    def frame_state(self, index: int) -> FrameState:
+        """A copy of frame ``index``'s :class:`FrameState` while it is in the ring buffer
+        (pass it to :meth:`push` of another engine that pushes the same frame)."""
+        if not max(0, self._pushed - self.ring) <= index < self._pushed:
+            raise IndexError(f"frame {index} is not in the ring buffer")
+        slot = index % self.ring
+        return FrameState(
+            self._smooth[slot].copy(),
+            self._reference[slot].copy() if self._separate_reference else None,
+            self._bilateral[slot].copy(),
+            self._noise[slot].copy(),
+        )
 
     def forward_flow(self, index: int) -> NDArray[np.float32]:
         """Forward flow of the pair (``index`` - 1, ``index``) while it is in the ring buffer
@@ -648,6 +720,22 @@ class FusionEngine:
                 points[got] = self._rays[got] * depth[got][:, None]
                 source[got] = SOURCE_SPACE
         return source, confidence
+
+
+def _check_state(state: FrameState, shape: tuple[int, int], index: int, *, separate: bool) -> None:
+    """ShapeError / ValueError where ``state`` cannot be frame ``index``'s of this engine."""
+    h, w = shape
+    for name in ("smooth", "bilateral"):
+        check_shape(getattr(state, name), (h, w, 3), name=f"state.{name} (frame {index})")
+    if separate != (state.reference is not None):
+        raise ValueError(
+            f"frame {index}: the state's motion reference does not match the engine's "
+            "parameters (a state from an engine with other FusionParams?)"
+        )
+    if state.reference is not None:
+        check_shape(state.reference, (h, w, 3), name=f"state.reference (frame {index})")
+    if np.shape(state.noise) != (3,):
+        raise ShapeError(f"state.noise (frame {index})", (3,), np.shape(state.noise))
 
 
 def _smooth_base(

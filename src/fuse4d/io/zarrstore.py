@@ -5,7 +5,7 @@ Layout of ``NAME.zarr/`` (a zarr v3 group)
 ``depth``        (T, H, W) float32 mm, NaN = invalid; ``dimension_names = ("t", "y", "x")``
 ``intensity``    (T, H, W) float32 in [0, 1]; same dims
 ``timestamps``   (T,) float64 s (only when the frames have timestamps)
-chunks           ``(1, H, W)`` (one frame per chunk; zstd-compressed, zarr's default codec)
+chunks           ``(1, H, W)`` (one frame per chunk; Blosc LZ4 + byte shuffle, :func:`codec`)
 group attributes ``fuse4d_format = 1``, ``intrinsics = {fx, fy, cx, cy, width, height}`` (px),
                  ``depth_unit = "mm"``, ``fps``, ``source`` (free text)
 
@@ -31,9 +31,19 @@ from ._atomic import StagedWriter, atomic_dir, check_output
 from ._base import Frame, FrameReader, IntrinsicsLike, check_frame_shapes, resolve_intrinsics
 from ._extras import require
 
-__all__ = ["ZarrReader", "ZarrWriter", "is_zarr_store", "write_zarr"]
+__all__ = ["ZarrReader", "ZarrWriter", "codec", "is_zarr_store", "write_zarr"]
 
 _DIMS = ("t", "y", "x")
+
+
+def codec() -> Any:
+    """The compressor of fuse4d's zarr outputs (this module's and ``--engine dask``'s):
+    Blosc LZ4 with byte shuffle. At 600 x 600 it writes depth ~8x faster than zarr's default
+    zstd (8 vs 70 ms/frame on a fused frame, measured) and compresses it better (1.66x vs
+    1.44x); any zarr v3 reader decodes it."""
+    from zarr.codecs import BloscCodec
+
+    return BloscCodec(cname="lz4", clevel=5, shuffle="shuffle")
 
 
 def is_zarr_store(path: str | PathLike[str]) -> bool:
@@ -100,6 +110,7 @@ class ZarrWriter(StagedWriter):
                 chunks=(1, h, w),
                 dtype="float32",
                 fill_value=float("nan") if name == "depth" else 0.0,
+                compressors=codec(),
                 dimension_names=_DIMS,
             )
 
