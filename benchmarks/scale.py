@@ -19,7 +19,10 @@ What is timed (wall clock, after every worker has loaded the compiled kernels):
   a loaded machine, where wall times swing by tens of percent between identical runs;
 - peak RSS of every worker process (``VmHWM``, MiB, includes the ~0.3 GB of imported
   libraries), for the recording and for one ``--length-factor`` times as long (flat = independent of
-  length).
+  length);
+- the halo frame states handed from one fusion task to its neighbour's in the same worker
+  (``dask_N_halo_states_taken``; at most ``(chunks - 1) (past + future)``), i.e. how much of
+  the halo's per-frame work the run did not repeat.
 
 The machine's load average is printed with the results: on a shared machine the speed-up
 ratio is only meaningful if the load is below the core count.
@@ -153,10 +156,17 @@ def _dask_run(
     return time.perf_counter() - start
 
 
-def _with_cluster(workers: int, job: Any) -> tuple[Any, list[float], float]:
+def _states_taken() -> int:
+    """Halo frame states handed between tasks in this worker so far (``fuse4d.scale.streamed``)."""
+    from fuse4d.scale import streamed
+
+    return streamed._MEMO.taken
+
+
+def _with_cluster(workers: int, job: Any) -> tuple[Any, list[float], float, int]:
     """Run ``job(client)`` on a fresh LocalCluster; return its result, the workers' peak RSS
-    (MiB) and the CPU seconds the workers spent on it (robust to other load on the machine,
-    unlike wall time)."""
+    (MiB), the CPU seconds the workers spent on it (robust to other load on the machine,
+    unlike wall time) and the halo frame states its tasks handed over."""
     from fuse4d.scale.cluster import local_cluster
 
     with local_cluster(workers) as client:
@@ -166,7 +176,8 @@ def _with_cluster(workers: int, job: Any) -> tuple[Any, list[float], float]:
         result = job(client)
         after = client.run(_cpu_seconds)
         rss = sorted(client.run(_peak_rss_mib).values())
-    return result, rss, sum(after[k] - before[k] for k in after)
+        taken = sum(client.run(_states_taken).values())
+    return result, rss, sum(after[k] - before[k] for k in after), taken
 
 
 def _alternating(rec: Path, folder: Path, args: argparse.Namespace) -> dict[str, Any]:
@@ -244,14 +255,14 @@ def main(argv: list[str] | None = None) -> int:
         folder = Path(tmp)
         rec = folder / "rec.npz"
         _make_recording(rec, args.frames, args.full, args.size)
-        seconds, rss, cpu = _with_cluster(
+        seconds, rss, cpu, _ = _with_cluster(
             1, lambda c: c.submit(_stream_task, str(rec), args.window, pure=False).result()
         )
         report["stream_s"] = seconds
         report["stream_cpu_s"] = cpu
         report["stream_rss_mib"] = rss
         for n in counts:
-            seconds, rss, cpu = _with_cluster(
+            seconds, rss, cpu, taken = _with_cluster(
                 n,
                 lambda c: _dask_run(
                     c, rec, folder / "out.zarr", args.chunk_frames, args.window, args.graph
@@ -260,6 +271,7 @@ def main(argv: list[str] | None = None) -> int:
             report[f"dask_{n}_s"] = seconds
             report[f"dask_{n}_cpu_s"] = cpu
             report[f"dask_{n}_rss_mib"] = rss
+            report[f"dask_{n}_halo_states_taken"] = taken
         if args.repeats > 1:
             report.update(_alternating(rec, folder, args))
         if not args.no_length_check:
@@ -267,7 +279,7 @@ def main(argv: list[str] | None = None) -> int:
             factor = args.length_factor
             _make_recording(longer, factor * args.frames, args.full, args.size)
             n = max(counts)
-            seconds, rss, cpu = _with_cluster(
+            seconds, rss, cpu, _ = _with_cluster(
                 n,
                 lambda c: _dask_run(
                     c, longer, folder / "o2.zarr", args.chunk_frames, args.window, args.graph

@@ -137,6 +137,7 @@ class _StateMemo:
     def __init__(self) -> None:
         self._states: OrderedDict[tuple[str, str, int], FrameState] = OrderedDict()
         self._lock = threading.Lock()
+        self.taken = 0  # states handed over so far in this process (benchmarks/scale.py)
 
     def put(self, key: tuple[str, str, int], state: FrameState, limit: int) -> None:
         with self._lock:
@@ -148,7 +149,9 @@ class _StateMemo:
     def take(self, key: tuple[str, str, int]) -> FrameState | None:
         """The state kept under ``key`` (removed: each shared frame has one other reader)."""
         with self._lock:
-            return self._states.pop(key, None)
+            state = self._states.pop(key, None)
+            self.taken += state is not None
+            return state
 
 
 _MEMO = _StateMemo()
