@@ -95,6 +95,49 @@ def test_halo_frames_are_prepared_once(ball, tmp_path, monkeypatch, fusion):
     )
 
 
+def test_halo_states_cross_worker_processes_through_the_scratch_folder(ball, tmp_path, monkeypatch):
+    """share_states (several worker processes): a neighbour in another process, which does
+    not see this one's memory, loads the saved state instead of computing it."""
+    monkeypatch.setattr(streamed._MEMO, "take", lambda key: None)  # as in another process
+    loaded = []
+    load = streamed._load_state
+
+    def counted(*args):
+        state = load(*args)
+        loaded.append(state is not None)
+        return state
+
+    monkeypatch.setattr(streamed, "_load_state", counted)
+    path = tmp_path / "rec.npz"
+    save_sequence(ball, path)
+    k = ball.intrinsics
+    out = ZarrOutput(tmp_path / "o.zarr", shape=ball.depth.shape, chunk_frames=10,
+                     intrinsics=k, metadata={})  # fmt: skip
+    source = streamed.source_of(path, "npz", ball.num_frames)
+    tasks = streamed.recording_tasks(source, out, k, fusion=FusionParams(),
+                                     flow=preset("fast").flow, chunk_frames=10,
+                                     share_states=True)  # fmt: skip
+    dask.compute(*tasks, scheduler="sync")
+    assert sum(loaded) == 8  # the one boundary's past + future frames
+    assert not list(streamed.flow_scratch(out.staging).glob("state-*"))  # dropped once read
+    _check(out.finalize(), fuse_sequence(ball.depth, ball.intensity, k))
+
+
+def test_a_stale_saved_state_is_not_loaded(ball, tmp_path):
+    from fuse4d.fusion import FusionEngine
+
+    engine = FusionEngine(ball.intrinsics)
+    engine.push(ball.depth[0], ball.intensity[0])
+    path = tmp_path / "state-0000000.npy"
+    streamed._save_state(path, engine.frame_state(0), "key-a")
+    back = streamed._load_state(path, "key-a")
+    assert _same(back.bilateral, engine.frame_state(0).bilateral)
+    assert streamed._load_state(path, "key-b") is None  # other input or parameters
+    path.write_bytes(path.read_bytes()[:1000])  # truncated
+    assert streamed._load_state(path, "key-a") is None
+    assert streamed._load_state(tmp_path / "missing.npy", "key-a") is None
+
+
 def test_flow_cache_solves_both_directions_in_one_task(ball, tmp_path, monkeypatch):
     """A flow cache keys the pair as a whole, so its chunks keep one flow task (the path of
     the pair-function methods, PMBP); same bits as in memory, and a second run hits the
@@ -233,3 +276,11 @@ def test_workers_with_distributed_allocator_settings_get_a_warning(ball):
                 fd.fuse(ball.depth, ball.intensity, ball.intrinsics, client=client)
     finally:
         _restore_environ(saved)
+
+
+def test_worker_pool_of_the_local_schedulers():
+    from fuse4d.scale.cli import _worker_pool
+
+    assert _worker_pool("threads", 3) == (1, 3)  # one process: states shared in memory
+    assert _worker_pool("processes", 3) == (3, 3)  # states also through the scratch folder
+    assert _worker_pool("sync", 3) == (1, 1)

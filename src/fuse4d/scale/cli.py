@@ -82,15 +82,21 @@ def output_paths(inputs: list[Path], output: Path) -> list[Path]:
     return paths
 
 
-def _worker_threads(scheduler: str, workers: int | None) -> int:
-    """Threads that run tasks: ``workers`` (or the CPU count) locally, the cluster's total for
-    a scheduler address (flow look-ahead of :func:`~fuse4d.scale.streamed.recording_tasks`)."""
+def _worker_pool(scheduler: str, workers: int | None) -> tuple[int, int]:
+    """(processes, threads) that run tasks: one process of ``workers`` (or the CPU count)
+    threads for ``threads``/``sync``, that many single-threaded processes for ``processes``,
+    the cluster's workers and their threads for a scheduler address (flow look-ahead and the
+    halo states' hand-over of :func:`~fuse4d.scale.streamed.recording_tasks`)."""
     if scheduler.startswith(("tcp://", "tls://", "ucx://", "inproc://")):
         from distributed import Client
 
         with Client(scheduler) as client:
-            return max(1, sum(client.nthreads().values()))
-    return max(1, workers or os.cpu_count() or 1)
+            nthreads = client.nthreads()
+            return max(1, len(nthreads)), max(1, sum(nthreads.values()))
+    local = max(1, workers or os.cpu_count() or 1)
+    if scheduler == "sync":
+        return 1, 1
+    return (local if scheduler == "processes" else 1), local
 
 
 def _source(path: Path) -> dict[str, Any]:
@@ -159,7 +165,8 @@ def run_dask(
     }
     jobs: list[tuple[ZarrOutput, DaskRunSummary]] = []
     tasks: list[Any] = []
-    lookahead = 2 + _worker_threads(scheduler, workers)
+    processes, threads = _worker_pool(scheduler, workers)
+    lookahead = 2 + threads
     for src, dst in zip(inputs, targets, strict=True):
         rec = open_lazy(src, frames_per_task=chunk_frames, **(reader_options or {}))
         frames = even_chunk_frames(rec.num_frames, chunk_frames)
@@ -190,6 +197,7 @@ def run_dask(
                     chunk_frames=frames,
                     warm_start=warm_start,
                     lookahead=lookahead,
+                    share_states=processes > 1,
                 )
             )
         else:  # fusion iterations chain whole passes: the in-memory graph

@@ -19,16 +19,18 @@ tasks pass only tokens and the frames travel through files:
   from the recording and its pairs from the scratch files, runs the streaming engine, and
   writes its zarr shard and done marker. The frames that two neighbouring chunks both push
   (chunk k's last ``past`` frames and chunk k+1's first ``future``) have their per-frame work
-  (:class:`fuse4d.fusion.FrameState`: references, bilateral, noise model) done once where
-  both tasks run in one worker process: the first keeps their states in memory, the second
-  takes them instead of computing them (with one worker the chunks run in order, so that is
-  every boundary: ``past + future`` frames per chunk, the halo's redundant per-frame work);
-- **drop task k** deletes chunk k's pair files once fusion tasks k-1, k, k+1 are done (only
-  the last forward flow stays, to seed a resumed run), so the scratch space is a few chunks,
-  not the recording.
+  (:class:`fuse4d.fusion.FrameState`: references, bilateral, noise model) done once: the
+  first of the two tasks to push them keeps their states in its process's memory (and, with
+  several worker processes, saves them to the scratch folder), the second takes them instead
+  of computing them. With one worker the chunks run in order, so that is every boundary:
+  ``past + future`` frames per chunk, the halo's redundant per-frame work;
+- **drop task k** deletes chunk k's pair files and saved states once fusion tasks k-1, k, k+1
+  are done (only the last forward flow stays, to seed a resumed run), so the scratch space is
+  a few chunks, not the recording.
 
-A worker holds one engine (≈ 0.2 GB at 600 x 600), one chunk of outputs (6 bytes/px/frame)
-and a few frames: flat in the recording's length. The bits are those of the in-memory graph
+A worker holds one engine (≈ 0.2 GB at 600 x 600), one chunk of outputs (6 bytes/px/frame),
+a few frames and at most ``2 (past + future)`` handed-over frame states (24 bytes/px each):
+flat in the recording's length. The bits are those of the in-memory graph
 (same reader, same flow calls in the same order, same engine per chunk).
 """
 
@@ -36,6 +38,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -129,10 +132,11 @@ class _StateMemo:
 
     The task that puts states gives the limit: two chunk boundaries' worth, ``2 (past +
     future)`` (the oldest go first). A state is 24 bytes/px (8.6 MB at 600 x 600), so the
-    9-frame window keeps at most 16 states, 138 MB per worker. Memory, not scratch files:
-    at 600 x 600 computing a state takes ≈ 33 ms, copying it ≈ 2 ms, while writing it to the
-    scratch folder took 3-18 ms on the development machine (it varies with the page cache)
-    and reading it 1-7 ms."""
+    9-frame window keeps at most 16 states, 138 MB per worker. Memory first: at 600 x 600
+    computing a state takes ≈ 33 ms and copying it ≈ 2 ms, while writing it to the scratch
+    folder took 3-18 ms on the development machine (it varies with the page cache) and
+    reading it 1-7 ms; so the scratch files are only written where several worker processes
+    run the tasks (``share_states``)."""
 
     def __init__(self) -> None:
         self._states: OrderedDict[tuple[str, str, int], FrameState] = OrderedDict()
@@ -155,6 +159,40 @@ class _StateMemo:
 
 
 _MEMO = _StateMemo()
+
+
+def _state_file(scratch: str, t: int) -> Path:
+    """The scratch file of frame t's handed-over :class:`FrameState` (several processes)."""
+    return Path(scratch) / f"state-{t:07d}.npy"
+
+
+def _save_state(path: Path, state: FrameState, key: str) -> None:
+    """Save atomically: the key, then the arrays one after the other in one ``.npy`` stream
+    (no zip, no checksum). Two tasks may save the same frame at once, with the same bits."""
+    tmp = path.with_name(f"{path.name}.{os.getpid()}-{threading.get_ident()}.tmp")
+    with tmp.open("wb") as f:
+        np.save(f, np.asarray(key), allow_pickle=False)
+        np.save(f, np.asarray(state.reference is not None), allow_pickle=False)
+        for array in (state.noise, state.smooth, state.bilateral):
+            np.save(f, array, allow_pickle=False)
+        if state.reference is not None:
+            np.save(f, state.reference, allow_pickle=False)
+    tmp.replace(path)
+
+
+def _load_state(path: Path, key: str) -> FrameState | None:
+    """The state saved at ``path`` under ``key``; None where there is none (not saved yet,
+    deleted meanwhile, or from another input or other parameters)."""
+    try:
+        with path.open("rb") as f:
+            if str(np.load(f, allow_pickle=False)) != key:
+                return None
+            separate = bool(np.load(f, allow_pickle=False))
+            noise, smooth, bilateral = (np.load(f, allow_pickle=False) for _ in range(3))
+            reference = np.load(f, allow_pickle=False) if separate else None
+    except (OSError, ValueError, EOFError):
+        return None
+    return FrameState(smooth, reference, bilateral, noise)
 
 
 def _save(path: Path, array: NDArray[Any]) -> None:
@@ -318,6 +356,7 @@ def _fuse_task(
     frames: tuple[int, int, int, int],
     intrinsics: Intrinsics,
     params: FusionParams,
+    on_disk: bool,
     *after: Any,
 ) -> int:
     """Output frames ``[s, e)`` from the frames ``[lo, hi)``, exactly as
@@ -325,8 +364,9 @@ def _fuse_task(
 
     The frames shared with a neighbouring chunk (``[lo, s + future)`` with chunk k-1,
     ``[e - past, hi)`` with chunk k+1) take their :class:`FrameState` from the neighbour's
-    task where it ran in this process (:class:`_StateMemo`), and keep theirs where the
-    neighbour is still to run."""
+    task where it ran in this process (:class:`_StateMemo`) or, ``on_disk``, saved it to the
+    scratch folder; they keep theirs (and save them, ``on_disk``) where the neighbour is still
+    to run."""
     s, e, lo, hi = frames
     h, w = intrinsics.height, intrinsics.width
     depth = np.empty((e - s, h, w), np.float32)
@@ -336,7 +376,8 @@ def _fuse_task(
     a, b = s - lo, e - lo
     if a > 0 and isinstance(getattr(engine, "_emitted", None), int):
         engine._emitted = a  # halo frames are sources only (see graph._fuse_block)
-    key = (scratch, _state_key(source, intrinsics, params))
+    state_key = _state_key(source, intrinsics, params)
+    key = (scratch, state_key)
     limit = 2 * (params.past_frames + params.future_frames)
     left = range(lo, min(s + params.future_frames, e)) if s > 0 else range(0)
     right = range(max(e - params.past_frames, lo), hi) if e < source.frames else range(0)
@@ -359,21 +400,31 @@ def _fuse_task(
                 np.load(forward_file, allow_pickle=False),
                 np.load(backward_file, allow_pickle=False),
             )
-        state = _MEMO.take((*key, t)) if t in left or t in right else None
+        state = None
+        if t in left or t in right:
+            state = _MEMO.take((*key, t))
+            if state is None and on_disk:
+                state = _load_state(_state_file(scratch, t), state_key)
         take(engine.push(depth_t, intensity_t, pair_flow=pair, state=state))
         if state is None and ((save_left and t in left) or (save_right and t in right)):
-            _MEMO.put((*key, t), engine.frame_state(t - lo), limit)
+            kept = engine.frame_state(t - lo)
+            _MEMO.put((*key, t), kept, limit)
+            if on_disk and not _state_file(scratch, t).exists():
+                _save_state(_state_file(scratch, t), kept, state_key)
     if hi == source.frames:
         take(engine.flush())
     return write_chunk(staging, k, s, depth, support, filled)
 
 
 def _drop_task(scratch: str, k: int, bounds: tuple[int, int], *after: Any) -> int:
-    """Delete chunk k's pair files (its consumers are done); its seed stays."""
+    """Delete chunk k's pair files and its frames' saved states (their readers are done);
+    its seed stays."""
     _flow_marker(scratch, k).unlink(missing_ok=True)  # first: no marker = must recompute
     for j in range(*bounds):
         for path in _pair_files(scratch, j):
             path.unlink(missing_ok=True)
+    for t in range(bounds[0], bounds[1] + 1):  # the pairs' frames
+        _state_file(scratch, t).unlink(missing_ok=True)
     return k
 
 
@@ -388,6 +439,7 @@ def recording_tasks(
     chunk_frames: int,
     warm_start: bool = True,
     lookahead: int | None = None,
+    share_states: bool = False,
 ) -> list[Any]:
     """The delayed tasks that fuse ``source`` into ``out`` (the unfinished chunks only).
 
@@ -411,6 +463,10 @@ def recording_tasks(
         it, so the flow stage runs at most that many chunks ahead of the fusion (dask's ordering would otherwise solve the whole
         flow chain first, and the scratch files would grow with the recording). Use the
         number of worker threads + 2 (fewer starves the workers); None: unbounded.
+    share_states : bool
+        Hand the halo frames' states between neighbouring chunks through the scratch folder
+        too, not only within a worker process: for more than one worker process (one
+        process, however many threads, needs none: its tasks share the memory).
 
     Returns
     -------
@@ -473,7 +529,15 @@ def recording_tasks(
             k = missing[k_next]
             after = [tokens[j] for j in flow_chunks(k) if j in tokens]
             fused[k] = dask.delayed(_fuse_task, pure=False)(
-                source, str(scratch), staging, k, window(k), intrinsics, fusion, *after
+                source,
+                str(scratch),
+                staging,
+                k,
+                window(k),
+                intrinsics,
+                fusion,
+                share_states,
+                *after,
             )
             k_next += 1
         while droppable and all(k in fused for k in consumers[droppable[0]]):
