@@ -20,9 +20,10 @@ What is timed (wall clock, after every worker has loaded the compiled kernels):
 - peak RSS of every worker process (``VmHWM``, MiB, includes the ~0.3 GB of imported
   libraries), for the recording and for one ``--length-factor`` times as long (flat = independent of
   length);
-- the halo frame states handed from one fusion task to its neighbour's in the same worker
-  (``dask_N_halo_states_taken``; at most ``(chunks - 1) (past + future)``), i.e. how much of
-  the halo's per-frame work the run did not repeat.
+- the halo frame states handed from one fusion task to its neighbour's (in the same worker,
+  or through the scratch folder with several workers; ``dask_N_halo_states_taken``, at most
+  ``(chunks - 1) (past + future)``), i.e. how much of the halo's per-frame work the run did
+  not repeat.
 
 The machine's load average is printed with the results: on a shared machine the speed-up
 ratio is only meaningful if the load is below the core count.
@@ -157,10 +158,11 @@ def _dask_run(
 
 
 def _states_taken() -> int:
-    """Halo frame states handed between tasks in this worker so far (``fuse4d.scale.streamed``)."""
+    """Halo frame states handed to this worker's tasks so far, from its memory or from the
+    scratch folder (``fuse4d.scale.streamed``)."""
     from fuse4d.scale import streamed
 
-    return streamed._MEMO.taken
+    return streamed._MEMO.taken + streamed._MEMO.loaded
 
 
 def _with_cluster(workers: int, job: Any) -> tuple[Any, list[float], float, int]:

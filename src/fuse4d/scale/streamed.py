@@ -141,7 +141,10 @@ class _StateMemo:
     def __init__(self) -> None:
         self._states: OrderedDict[tuple[str, str, int], FrameState] = OrderedDict()
         self._lock = threading.Lock()
-        self.taken = 0  # states handed over so far in this process (benchmarks/scale.py)
+        # states handed over to this process's tasks so far, from memory and from the
+        # scratch folder (benchmarks/scale.py)
+        self.taken = 0
+        self.loaded = 0
 
     def put(self, key: tuple[str, str, int], state: FrameState, limit: int) -> None:
         with self._lock:
@@ -405,6 +408,7 @@ def _fuse_task(
             state = _MEMO.take((*key, t))
             if state is None and on_disk:
                 state = _load_state(_state_file(scratch, t), state_key)
+                _MEMO.loaded += state is not None
         take(engine.push(depth_t, intensity_t, pair_flow=pair, state=state))
         if state is None and ((save_left and t in left) or (save_right and t in right)):
             kept = engine.frame_state(t - lo)
