@@ -255,6 +255,25 @@ def test_cli_many_inputs_share_one_run(ball, tmp_path, capsys):
     assert "need --engine dask" in capsys.readouterr().err
 
 
+def test_cli_chunk_frames_default_is_run_dasks(ball, tmp_path, monkeypatch):
+    """`fuse4d run --engine dask` without --chunk-frames uses run_dask's default (the CLI
+    spells the number out so that --help does not import dask)."""
+    from fuse4d.scale import cli as scale_cli
+
+    seen = {}
+
+    def record(inputs, output, fusion, flow, opts, *args):
+        seen.update(opts)
+
+    monkeypatch.setattr(scale_cli, "print_dask_run", record)
+    save_sequence(ball, tmp_path / "a.npz")
+    assert (
+        main(["run", str(tmp_path / "a.npz"), "-o", str(tmp_path / "o.zarr"), "--engine", "dask"])
+        == 0
+    )
+    assert seen["chunk_frames"] == scale_cli.RUN_CHUNK_FRAMES == 16
+
+
 @pytest.mark.parametrize("frames_per_task", [1, 6])
 def test_lazy_frame_folder_equals_streaming_reader(ball, tmp_path, frames_per_task):
     folder = write_frame_folder(ball, tmp_path / "rec", depth_unit_mm=0.1)

@@ -170,7 +170,7 @@ def run_command(
             "--chunk-frames",
             help="dask: most frames per task and zarr shard (evened out over the recording).",
         ),
-    ] = 32,
+    ] = 16,  # fuse4d.scale.cli.RUN_CHUNK_FRAMES (not imported here: dask loads lazily)
     scheduler: Annotated[
         str, typer.Option("--scheduler", help="dask: threads, processes or tcp://HOST:PORT.")
     ] = "threads",
