@@ -170,7 +170,8 @@ def _settle(*old: Path) -> None:
     writes ≈ 2 GB (scratch pairs and states, the zarr store) at 600 x 600, 300 frames; the
     kernel flushes it 30 s later, i.e. during the next run, which took 6-9 % longer here
     (2-worker run after a 1-worker one: 61.9-62.2 s, +16 % worker CPU; the same first:
-    57.0 s)."""
+    57.0 s). Settled, two runs still gave 57.4 and 60.7 s: not the whole story
+    (docs/scaling.md, Benchmark)."""
     import shutil
 
     for path in old:
