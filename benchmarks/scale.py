@@ -38,9 +38,11 @@ ratio is only meaningful if the load is below the core count.
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import resource
+import shutil
 import sys
 import tempfile
 import time
@@ -137,7 +139,7 @@ def _dask_run(
     from fuse4d.scale.cli import run_dask
 
     fusion = FusionParams(num_frames=window)
-    _settle(out)
+    shutil.rmtree(out, ignore_errors=True)  # the earlier run's, written back by _settle
     if graph == "streamed":
         start = time.perf_counter()
         run_dask(
@@ -164,18 +166,14 @@ def _dask_run(
     return time.perf_counter() - start
 
 
-def _settle(*old: Path) -> None:
-    """Start a timed run from the same state as the others: delete the earlier run's output
-    (outside the timing) and write back what earlier runs left in the page cache. A dask run
+def _settle() -> None:
+    """Start a timed run from the same state as the others: write back what earlier runs left
+    in the page cache (their outputs are deleted by :func:`_dask_run`). A dask run
     writes ≈ 2 GB (scratch pairs and states, the zarr store) at 600 x 600, 300 frames; the
     kernel flushes it 30 s later, i.e. during the next run, which took 6-9 % longer here
     (2-worker run after a 1-worker one: 61.9-62.2 s, +16 % worker CPU; the same first:
     57.0 s). Settled, two runs still gave 57.4 and 60.7 s: not the whole story
     (docs/scaling.md, Benchmark)."""
-    import shutil
-
-    for path in old:
-        shutil.rmtree(path, ignore_errors=True)
     os.sync()
 
 
@@ -213,8 +211,6 @@ def _ceiling(rec: Path, workers: int, window: int) -> dict[str, Any]:
     overlaps its flow in a second thread, which has no idle core when both workers are busy,
     and the neighbours take their share), the yardstick for the dask speed-up of the same
     sitting."""
-    import shutil
-
     from fuse4d.scale.cluster import local_cluster
 
     copies = [rec]
@@ -318,10 +314,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     counts = [int(v) for v in args.workers.split(",")]
-    if args.chunk_frames is None:
-        from fuse4d.scale.cli import RUN_CHUNK_FRAMES
+    if args.chunk_frames is None:  # the graph's own default
+        import fuse4d.dask as fd
+        from fuse4d.scale.cli import run_dask
 
-        args.chunk_frames = RUN_CHUNK_FRAMES if args.graph == "streamed" else 32
+        default_of = run_dask if args.graph == "streamed" else fd.fuse
+        args.chunk_frames = inspect.signature(default_of).parameters["chunk_frames"].default
     report: dict[str, Any] = {
         "size": f"{args.size}x{args.size}"
         if args.size
