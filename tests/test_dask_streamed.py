@@ -245,6 +245,26 @@ def test_streamed_through_a_local_cluster_with_two_worker_processes(ball, tmp_pa
             lambda dask_scheduler: dask_scheduler.periodic_callbacks["stealing"].callback_time
         )
         assert stealing == 100  # ms: an idle worker takes a queued 0.3 s flow task early
+        # distributed's own background work is quiet (QUIET_CONFIG): no stack profiler, the
+        # event-loop tick and the monitors at 1-2 s, in the workers and the scheduler
+        periods = client.run(
+            lambda dask_worker: {
+                k: c.callback_time for k, c in dask_worker.periodic_callbacks.items()
+            }
+        )
+        for period in periods.values():
+            assert not {"profile", "profile-cycle"} & set(period), period
+            assert (period["tick"], period["memory_monitor"], period["monitor"]) == (
+                1000,
+                1000,
+                2000,
+            )
+        assert (
+            client.run_on_scheduler(
+                lambda dask_scheduler: dask_scheduler.periodic_callbacks["tick"].callback_time
+            )
+            == 1000
+        )
         summary = _run(ball, tmp_path, "lc", chunk_frames=4,
                        scheduler=client.scheduler.address)  # fmt: skip
     assert not [w for w in caught if "MALLOC_TRIM_THRESHOLD_" in str(w.message)]
