@@ -21,6 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._kernels.fusion import _fuse_kernel, _project_to_rays_kernel
 from ._kernels.holes import _source_confidence_kernel
+from ._kernels.noise import _finite_median32
 from ._kernels.smooth_base import _smooth_base_cols_kernel, _smooth_base_rows_kernel
 from ._validation import as_float32, check_shape
 from .bilateral import bilateral_filter_points
@@ -390,7 +391,9 @@ class FusionEngine:
             check_shape(pts, (h, w, 3), name=f"points (frame {index})")
             d = np.ascontiguousarray(pts[..., 2])
         quad = estimate_noise_quad(d)  # depth-noise model, part 1 (A22)
-        z_med = float(np.median(d[np.isfinite(d)])) if np.isfinite(d).any() else 0.0
+        z_med = _finite_median32(d)  # np.median of the valid depth, bit for bit (issue 13)
+        if math.isnan(z_med):
+            z_med = 0.0
         # local reference (A18) for the residual bilateral and the output normals (A17)
         self._smooth[slot] = self._smoothed_points(
             d, pts, points is not None, p.reference_sigma, quad

@@ -26,6 +26,7 @@ from ._kernels.fusion import (
     _segment_box_rows_kernel,
     _track_kernel,
 )
+from ._kernels.noise import _noise_quad_ratios
 from ._validation import as_float32, check_shape
 from .camera import Intrinsics, depth_to_points
 from .config import FusionParams
@@ -145,12 +146,10 @@ def estimate_noise_quad(depth: ArrayLike) -> float:
     """
     d = as_float32(depth, name="depth")
     check_shape(d, ("H", "W"), name="depth")
-    sub = d[::2].astype(np.float64)
-    second = np.abs(sub[:, :-2] - 2.0 * sub[:, 1:-1] + sub[:, 2:]).ravel()
-    z = sub[:, 1:-1].ravel()
-    with np.errstate(invalid="ignore"):
-        ok = np.isfinite(second) & (second > 0) & (second < 0.05 * z)
-    return float(np.median(second[ok] / z[ok] ** 2) / 1.65) if ok.any() else 0.0
+    h, w = d.shape
+    ratios = np.empty(((h + 1) // 2) * max(w - 2, 0), np.float64)
+    n = _noise_quad_ratios(d, ratios)  # one pass (issue 13), numpy's values and order
+    return float(np.median(ratios[:n]) / 1.65) if n else 0.0
 
 
 def estimate_depth_noise(depth: ArrayLike, *, reference: ArrayLike | None = None) -> float:

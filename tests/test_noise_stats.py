@@ -1,0 +1,63 @@
+"""The one-pass noise-model statistics (issue 13) equal the numpy expressions they replace,
+bit for bit: ``estimate_noise_quad``'s samples and the median depth of a frame."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fuse4d._kernels.noise import _finite_median32
+from fuse4d.motion import estimate_noise_quad
+
+
+def _numpy_noise_quad(depth: np.ndarray) -> float:
+    """estimate_noise_quad as numpy expressions (before issue 13)."""
+    sub = depth[::2].astype(np.float64)
+    second = np.abs(sub[:, :-2] - 2.0 * sub[:, 1:-1] + sub[:, 2:]).ravel()
+    z = sub[:, 1:-1].ravel()
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(second) & (second > 0) & (second < 0.05 * z)
+    return float(np.median(second[ok] / z[ok] ** 2) / 1.65) if ok.any() else 0.0
+
+
+def _frames(rng):
+    """Continuous, quantised (structured-light-like), holed, tiny and empty frames."""
+    yy, xx = np.mgrid[0:61, 0:83].astype(np.float64)
+    plane = 900.0 + 3.0 * xx + 1.5 * yy
+    yield (plane + rng.normal(0, 0.2, plane.shape)).astype(np.float32)
+    z = plane * 2.5
+    yield (np.round(z**2 / 30000.0) * 30000.0 / z).astype(np.float32)  # z^2-quantised
+    holed = (plane + rng.normal(0, 2.0, plane.shape)).astype(np.float32)
+    holed[rng.random(holed.shape) < 0.3] = np.nan
+    yield holed
+    yield np.full((5, 3), 700.0, np.float32)  # no non-zero second difference
+    yield np.full((4, 4), np.nan, np.float32)
+    yield np.ones((1, 2), np.float32)
+
+
+def test_noise_quad_equals_numpy(rng):
+    frames = list(_frames(rng))
+    for depth in frames:
+        assert estimate_noise_quad(depth) == _numpy_noise_quad(depth)
+    assert estimate_noise_quad(frames[1]) > 0.0  # the quantised frame has samples
+
+
+@pytest.mark.parametrize("kind", ["normal", "quantised", "signed", "constant", "wide"])
+def test_finite_median_equals_numpy(rng, kind):
+    for n in (1, 2, 3, 10, 11, 1000, 1001):
+        a = {
+            "normal": rng.normal(1000, 50, n),
+            "quantised": np.round(rng.normal(1000, 50, n) / 7) * 7,
+            "signed": rng.normal(0, 1, n),
+            "constant": np.full(n, 1234.5),
+            "wide": rng.uniform(1e-3, 1e5, n),
+        }[kind].astype(np.float32)
+        holes = rng.random(n) < 0.2
+        a[holes] = np.nan
+        a[rng.random(n) < 0.02] = np.inf
+        finite = a[np.isfinite(a)]
+        got = _finite_median32(a.reshape(1, -1))
+        if finite.size:
+            assert got == float(np.median(finite))
+        else:
+            assert np.isnan(got)
