@@ -1,5 +1,5 @@
-"""Per-frame statistics of the depth-noise model (A22) and the frame's median depth, in one
-pass over the frame each instead of numpy temporaries (issue 13). Private.
+"""Per-frame statistics of the depth-noise model (A22) and the frame's median depth, each one
+numba kernel over the frame instead of numpy temporaries (issue 13). Private.
 
 * :func:`_noise_quad_ratios`: the samples of :func:`fuse4d.motion.estimate_noise_quad`.
 * :func:`_finite_median32`: ``np.median`` of a float32 frame's finite values, bit for bit,
