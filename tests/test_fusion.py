@@ -25,6 +25,7 @@ from fuse4d.motion import (
     _pair_motion,
     _pair_ring,
     _track_window,
+    _window,
     compute_motion_field,
     estimate_noise_quad,
     motion_reference_depth,
@@ -1178,3 +1179,83 @@ def test_frame_state_errors(rng):
     other = FusionEngine(K, fusion=FusionParams(num_frames=3, motion_sigma=1.5))
     with pytest.raises(ValueError, match="motion reference"):
         other.push(depth, inten, state=state)
+
+
+# ----------------------------------------------------------------------------- composed tracks (A31)
+def _composed_engine_tracks(depth, inten, fwd, bwd, k, params):
+    """{t: (first, last, rows, cols, ok)} of every frame the engine emits (tracks="composed")."""
+    engine = FusionEngine(k, fusion=params, flow=SequenceFlow(fwd, bwd))
+    seen = {}
+    emit = engine._emit
+
+    def spy(t):
+        first, last = _window(t, engine.past, engine.future, engine._pushed)
+        rows, cols, ok = engine._composed.window(t, first, last)
+        seen[t] = (first, last, rows.copy(), cols.copy(), ok.copy())
+        return emit(t)
+
+    engine._emit = spy
+    for d, i in zip(depth, inten, strict=True):
+        engine.push(d, i)
+    engine.flush()
+    return engine, seen
+
+
+@pytest.mark.parametrize("causal", [False, True])
+def test_composed_tracks_match_oracle(rng, causal):
+    """The engine's composed tracks (A31) equal the NumPy composition (naive.composed_track)
+    for every frame, truncated windows included, and differ from the exact chains somewhere."""
+    depth, inten, fwd, bwd, k = _switch_scene(rng, n=7)
+    params = SWITCH_BASE.replace(num_frames=5, causal=causal)
+    assert params.tracks == "composed"  # the default
+    _engine, seen = _composed_engine_tracks(depth, inten, fwd, bwd, k, params)
+    quads = [estimate_noise_quad(d) for d in depth]
+    differs = 0
+    for t, (first, last, rows, cols, ok) in seen.items():
+        expected = naive.composed_track(fwd, bwd, depth, t, first, last, 1.0, 0.6, quads)
+        exact = naive.track(fwd, bwd, depth, t, first, last, 1.0, 0.6, quads[t], False)
+        others = [T for T in range(first, last + 1) if t != T]
+        for j, T in enumerate(others):
+            for v, u in np.ndindex(depth.shape[1:]):
+                r, c, valid = expected[(T, v, u)]
+                assert ok[j, v, u] == valid, (t, T, v, u)
+                if valid:
+                    assert (rows[j, v, u], cols[j, v, u]) == (r, c), (t, T, v, u)
+                differs += exact[(T, v, u)] != (r, c, valid) and (valid or exact[(T, v, u)][2])
+    assert differs > 0  # the scene's noisy flows tell composed from exact chains
+
+
+def test_composed_tracks_equal_exact_on_a_translation(rng):
+    """On a rigid sub-pixel translation (the same flow everywhere) composition is exact: the
+    composed and the exact tracks fuse to the same output, bit for bit."""
+    n, h, w = 9, 24, 30
+    k = Intrinsics(fx=600.0, fy=600.0, cx=14.5, cy=11.5, width=w, height=h)
+    depth = (800.0 + rng.normal(0, 0.2, (n, h, w))).astype(np.float32)
+    inten = rng.uniform(0.2, 0.8, (n, h, w)).astype(np.float32)
+    fwd = np.broadcast_to(np.array([0.35, -0.2], np.float32), (n - 1, h, w, 2)).copy()
+    bwd = -fwd
+    out = {}
+    for tracks in ("exact", "composed"):
+        res = fuse_sequence(
+            depth, inten, k, fusion=FusionParams(tracks=tracks), flow=SequenceFlow(fwd, bwd)
+        )
+        out[tracks] = res
+    np.testing.assert_array_equal(out["exact"].support, out["composed"].support)
+    np.testing.assert_array_equal(out["exact"].points, out["composed"].points)
+    assert (out["exact"].support[4] == 8).mean() > 0.5
+
+
+def test_composed_tracks_do_not_depend_on_where_the_engine_started(rng):
+    """A frame's composed tracks use only the pairs inside its window: an engine that starts
+    later (a dask chunk with its halo) emits the same frames bit for bit."""
+    depth, inten, fwd, bwd, k = _switch_scene(rng, n=9)
+    params = SWITCH_BASE.replace(num_frames=5)
+    full = fuse_sequence(depth, inten, k, fusion=params, flow=SequenceFlow(fwd, bwd))
+    start = 3
+    late = fuse_sequence(
+        depth[start:], inten[start:], k, fusion=params,
+        flow=SequenceFlow(fwd[start:], bwd[start:]),
+    )  # fmt: skip
+    for t in range(start + params.past_frames, 9 - params.future_frames):
+        np.testing.assert_array_equal(late.points[t - start], full.points[t])
+        np.testing.assert_array_equal(late.support[t - start], full.support[t])

@@ -125,3 +125,30 @@ def test_bilinear_stencil_clamps_and_both_samplers_agree(rng):
         assert a == _bilinear2_plane(ring[1], x, y)
         np.testing.assert_allclose(a, ref, rtol=1e-6, atol=1e-6)
     assert _bilinear_stencil(1, 1, 0.0, 0.0) == (0, 0, 0, 0, 1.0, 0.0, 0.0, 0.0)
+
+
+# ----------------------------------------------------------------------------- composed tracks (A31)
+def test_one_step_kernel_is_the_first_tracking_step(rng):
+    """_one_step_kernel's landing pixel and validity equal the first step of _track_kernel,
+    both directions, and its positions are the flow added to the pixel."""
+    from fuse4d._kernels.tracks import _one_step_kernel
+
+    fwd, bwd, depth = _window_case(rng)
+    _s, h, w = depth.shape
+    slots = np.arange(3, 6, dtype=np.int64)  # frames 3..5 in slots 3..5
+    exp = [np.zeros((2, h, w), dt) for dt in (np.int32, np.int32, np.bool_)]
+    _track_kernel(fwd, bwd, depth, slots, 4, 3, 5, 1.0, 5.0, 1e-5, False, *exp)
+    x, y = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
+    ok, r, c = np.empty((h, w), bool), np.empty((h, w), np.int32), np.empty((h, w), np.int32)
+    # pair (4, 5) lives in slot 5: forward from frame 4, backward from frame 5 to 4
+    for k, (step, check, frm, to) in enumerate(
+        [(bwd[4], fwd[4], depth[4], depth[3]), (fwd[5], bwd[5], depth[4], depth[5])]
+    ):
+        _one_step_kernel(step, check, frm, to, 1.0, 5.0, 1e-5, x, y, ok, r, c)
+        np.testing.assert_array_equal(ok, exp[2][k])
+        np.testing.assert_array_equal(r[ok], exp[0][k][ok])
+        np.testing.assert_array_equal(c[ok], exp[1][k][ok])
+        vv, uu = np.mgrid[0:h, 0:w]
+        np.testing.assert_allclose(x, uu + step[..., 0], atol=1e-4)
+        np.testing.assert_allclose(y, vv + step[..., 1], atol=1e-4)
+        assert 0.05 < ok.mean() < 0.95

@@ -41,6 +41,7 @@ from .holes import (
 )
 from .motion import (
     _box_radius,
+    _ComposedTracks,
     _pair_motion,
     _track_window,
     _window,
@@ -243,10 +244,14 @@ class FusionEngine:
         # the tracks of the frame being emitted (landing row, column, validity per other
         # frame of the window): one set of buffers, refilled for every output frame
         k = self.past + self.future
+        # A31: tracks composed as the pairs arrive (None: each output frame chains its own)
+        composed = p.tracks == "composed" and p.quantize == "final" and k > 0
+        self._composed = _ComposedTracks(h, w, self.past, self.future) if composed else None
+        kt = 0 if composed else k
         self._tracks = (
-            np.empty((k, h, w), np.int32),
-            np.empty((k, h, w), np.int32),
-            np.empty((k, h, w), np.bool_),
+            np.empty((kt, h, w), np.int32),
+            np.empty((kt, h, w), np.int32),
+            np.empty((kt, h, w), np.bool_),
         )
         tw = np.arange(max(self.past, self.future) + 1, dtype=np.float64)
         if math.isinf(p.sigma_temporal):
@@ -533,7 +538,20 @@ class FusionEngine:
                 raise ShapeError(f"{name} (pair {index - 1}->{index})", (h, w, 2), f.shape)
         self._fwd[slot] = fwd
         self._bwd[slot] = bwd
-        self.timings["flow"] += time.perf_counter() - t0
+        t1 = time.perf_counter()
+        self.timings["flow"] += t1 - t0
+        if self._composed is not None:
+            p = self.params
+            self._composed.add_frame(
+                index,
+                self._fwd,
+                self._bwd,
+                self._depth,
+                self._noise[:, 1],
+                fb_threshold=p.fb_threshold,
+                max_step=p.max_depth_step,
+            )
+            self.timings["tracking"] += time.perf_counter() - t1
         if self.on_pair is not None:
             p = self.params
             motion, fb = _pair_motion(
@@ -557,19 +575,23 @@ class FusionEngine:
         first, last = _window(t, self.past, self.future, self._pushed)
         t0 = time.perf_counter()
         sigma0, quad, z_med = self._noise[t % self.ring]
-        frame_slot, rows, cols, ok = _track_window(
-            self._fwd,
-            self._bwd,
-            self._depth,
-            t,
-            first,
-            last,
-            fb_threshold=p.fb_threshold,
-            max_step=p.max_depth_step,
-            quad=quad,
-            per_step=p.quantize == "per_step",
-            out=self._tracks,
-        )
+        if self._composed is not None:  # A31: built as the pairs arrived
+            frame_slot = np.arange(first, last + 1, dtype=np.int64) % self.ring
+            rows, cols, ok = self._composed.window(t, first, last)
+        else:
+            frame_slot, rows, cols, ok = _track_window(
+                self._fwd,
+                self._bwd,
+                self._depth,
+                t,
+                first,
+                last,
+                fb_threshold=p.fb_threshold,
+                max_step=p.max_depth_step,
+                quad=quad,
+                per_step=p.quantize == "per_step",
+                out=self._tracks,
+            )
         t1 = time.perf_counter()
         points = np.empty((h, w, 3), np.float32)
         support = np.empty((h, w), np.uint8)

@@ -27,6 +27,7 @@ from ._kernels.fusion import (
     _track_kernel,
 )
 from ._kernels.noise import _noise_quad_ratios
+from ._kernels.tracks import _compose_kernel, _one_step_kernel
 from ._validation import as_float32, check_shape
 from .camera import Intrinsics, depth_to_points
 from .config import FusionParams
@@ -266,6 +267,119 @@ def _track_window(
         ok,
     )
     return frame_slot, rows, cols, ok
+
+
+class _ComposedTracks:
+    """Composed tracks of a streaming engine (``FusionParams(tracks="composed")``, A31).
+
+    Built frame by frame as the pairs arrive (:meth:`add_frame`), each step shared by every
+    output frame that uses it (:mod:`fuse4d._kernels.tracks`); :meth:`window` gives frame t's
+    tracks in the layout of :func:`_track_window`. Engine-local frame indices from 0; a frame's
+    tracks depend only on the pairs inside its window, so an engine that starts later (a dask
+    chunk with its halo) computes the same ones.
+
+    Memory: ``future + 1`` frames of (past + future) landing pixels (int16) and validity (5
+    bytes per pixel and other frame: 72 MB at 600 x 600 and n = 9), the forward one-step maps
+    of the last ``future`` pairs and the backward chains of the last two frames (9 bytes per
+    pixel and frame each).
+    """
+
+    def __init__(self, height: int, width: int, past: int, future: int) -> None:
+        self.past, self.future = past, future
+        k = past + future
+        self._slots = future + 1  # frames whose tracks are kept (not yet emitted)
+        # landing pixels as int16 where the image allows (half the memory and traffic)
+        index = np.int16 if max(height, width) <= np.iinfo(np.int16).max else np.int32
+        self._rows = np.zeros((self._slots, k, height, width), index)
+        self._cols = np.zeros((self._slots, k, height, width), index)
+        self._ok = np.zeros((self._slots, k, height, width), np.bool_)
+
+        def maps(n: int) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.bool_]]:
+            shape = (n, height, width)
+            return np.empty(shape, np.float32), np.empty(shape, np.float32), np.empty(shape, bool)
+
+        self._step_fwd = maps(max(future, 1))  # pair (s, s+1) from s's pixels, slot s % future
+        self._back = (maps(max(past, 1)), maps(max(past, 1)))  # chains of frames N and N - 1
+        self._ahead = (maps(1), maps(1))  # chains s -> N of the newest N, while composing
+
+    def add_frame(
+        self,
+        index: int,
+        fwd_ring: NDArray[np.float32],
+        bwd_ring: NDArray[np.float32],
+        depth_ring: NDArray[np.float32],
+        quads: NDArray[np.float64],
+        *,
+        fb_threshold: float,
+        max_step: float,
+    ) -> None:
+        """Extend the tracks with frame ``index`` >= 1, whose pair (index - 1, index) is in the
+        rings (ring convention of :mod:`fuse4d._kernels.fusion`; ``quads`` (S,) the frames'
+        noise coefficients, mm^-1: a step is checked with its start frame's, a composed
+        landing with its own frame's)."""
+        s_ring = depth_ring.shape[0]
+        n, prev = index % s_ring, (index - 1) % s_ring
+        theta, step = float(fb_threshold), float(max_step)
+        if self.future > 0:
+            # chains s -> index for s = index - 1, index - 2, ... (newest first: each follows
+            # the one of s + 1 just computed)
+            f = self._step_fwd
+            j = (index - 1) % self.future
+            slot = (index - 1) % self._slots
+            jj = self.past  # other-frame index of T = s + 1 in frame s's layout
+            _one_step_kernel(
+                fwd_ring[n], bwd_ring[n], depth_ring[prev], depth_ring[n], theta, step,
+                float(quads[prev]), f[0][j], f[1][j], f[2][j],
+                self._rows[slot, jj], self._cols[slot, jj],
+            )  # fmt: skip
+            self._ok[slot, jj] = f[2][j]
+            follow = (f[0][j], f[1][j], f[2][j])
+            for s in range(index - 2, max(index - self.future, 0) - 1, -1):
+                slot = s % self._slots
+                jj = index - s + self.past - 1
+                out = self._ahead[s % 2]
+                first = s % self.future
+                _compose_kernel(
+                    f[0][first], f[1][first], f[2][first], *follow, depth_ring[n], step,
+                    float(quads[n]), out[0][0], out[1][0], out[2][0],
+                    self._rows[slot, jj], self._cols[slot, jj],
+                )  # fmt: skip
+                self._ok[slot, jj] = out[2][0]
+                follow = (out[0][0], out[1][0], out[2][0])
+        if self.past > 0:
+            # chains index -> index - k: the exact step to index - 1, then frame index - 1's
+            cur, old = self._back[index % 2], self._back[(index - 1) % 2]
+            slot = index % self._slots
+            _one_step_kernel(
+                bwd_ring[n], fwd_ring[n], depth_ring[n], depth_ring[prev], theta, step,
+                float(quads[n]), cur[0][0], cur[1][0], cur[2][0],
+                self._rows[slot, self.past - 1], self._cols[slot, self.past - 1],
+            )  # fmt: skip
+            self._ok[slot, self.past - 1] = cur[2][0]
+            for k in range(2, min(self.past, index) + 1):
+                c = (index - k) % s_ring
+                _compose_kernel(
+                    cur[0][0], cur[1][0], cur[2][0], old[0][k - 2], old[1][k - 2],
+                    old[2][k - 2], depth_ring[c], step, float(quads[c]),
+                    cur[0][k - 1], cur[1][k - 1], cur[2][k - 1],
+                    self._rows[slot, self.past - k], self._cols[slot, self.past - k],
+                )  # fmt: skip
+                self._ok[slot, self.past - k] = cur[2][k - 1]
+
+    def window(
+        self, t: int, first: int, last: int
+    ) -> tuple[NDArray[np.integer], NDArray[np.integer], NDArray[np.bool_]]:
+        """Frame t's tracks through ``first..last`` (as :func:`_track_window`'s rows, cols,
+        ok, but int16 rows/cols for images below 32768 px: views, valid until frame
+        t + future + 1 is added)."""
+        off = first - (t - self.past)
+        k = last - first
+        slot = t % self._slots
+        return (
+            self._rows[slot, off : off + k],
+            self._cols[slot, off : off + k],
+            self._ok[slot, off : off + k],
+        )
 
 
 def _pair_motion(

@@ -147,6 +147,83 @@ def track(fwd, bwd, depth, t, first, last, theta, max_step, quad=0.0, per_step=F
     return result
 
 
+def _round(x):
+    return math.floor(x + 0.5)
+
+
+def composed_track(fwd, bwd, depth, t, first, last, theta, max_step, quads):
+    """Composed tracks (A31, ``FusionParams(tracks="composed")``): {(T, v, u): (row, col,
+    valid)} like :func:`track`. A chain s -> c takes its exact first step to s +- 1 (checked
+    with frame s's ``quads[s]``) and then follows the chain of the rounded landing pixel,
+    shifted by the landing's sub-pixel offset; where the shift leaves that chain's landing
+    pixel, the new pixel needs valid depth within the step limit of it (``quads[c]``).
+    Positions are stored as float32, as the kernels store them."""
+    _n, h, w = depth.shape
+    memo = {}
+
+    def one_step(s, direction):
+        out = {}
+        T = s + direction
+        step, check = (fwd[s], bwd[s]) if direction == 1 else (bwd[s - 1], fwd[s - 1])
+        for v in range(h):
+            for u in range(w):
+                d0 = depth[s, v, u]
+                ok, x, y = flow_step(step, check, float(u), float(v), theta, False)
+                ok = ok and not np.isnan(d0)
+                r, c = v, u
+                if ok:
+                    r, c = _round(y), _round(x)
+                    d1 = depth[T, r, c]
+                    ok = not np.isnan(d1) and abs(d1 - d0) < step_limit(d0, max_step, quads[s])
+                    if not ok:
+                        r, c = v, u
+                out[(v, u)] = (float(np.float32(x)), float(np.float32(y)), ok, r, c)
+        return out
+
+    def chain(s, c_frame):
+        if (s, c_frame) in memo:
+            return memo[(s, c_frame)]
+        direction = 1 if c_frame > s else -1
+        first_step = one_step(s, direction)
+        if abs(c_frame - s) == 1:
+            memo[(s, c_frame)] = first_step
+            return first_step
+        nxt = chain(s + direction, c_frame)
+        out = {}
+        for v in range(h):
+            for u in range(w):
+                x1, y1, ok, _r, _c = first_step[(v, u)]
+                x, y, r, c = x1, y1, v, u
+                if ok:
+                    r1, c1 = _round(y1), _round(x1)
+                    nx, ny, ok, rn, cn = nxt[(r1, c1)]
+                    if ok:
+                        x, y = nx + (x1 - c1), ny + (y1 - r1)
+                        ok = 0 <= x <= w - 1 and 0 <= y <= h - 1
+                        if ok:
+                            r, c = _round(y), _round(x)
+                            rn, cn = _round(ny), _round(nx)
+                            if (r, c) != (rn, cn):
+                                d, dn = depth[c_frame, r, c], depth[c_frame, rn, cn]
+                                ok = not np.isnan(d) and abs(d - dn) < step_limit(
+                                    dn, max_step, quads[c_frame]
+                                )
+                if not ok:
+                    r, c = v, u
+                out[(v, u)] = (float(np.float32(x)), float(np.float32(y)), ok, r, c)
+        memo[(s, c_frame)] = out
+        return out
+
+    result = {}
+    for T in range(first, last + 1):
+        if t == T:
+            continue
+        ch = chain(t, T)
+        for (v, u), (_x, _y, ok, r, c) in ch.items():
+            result[(T, v, u)] = (r, c, ok)
+    return result
+
+
 def pair_motion(fwd, bwd, ref_t, ref_t1, depth_t, depth_t1, theta, max_step, quad, per_step):
     """FB error map (bilinear at the unrounded landing, px) and one-step motion (Eq. 3, mm)."""
     h, w = depth_t.shape
@@ -386,18 +463,24 @@ def engine_frame(depth, intensity, fwd, bwd, intrinsics, params, t):
     first = max(0, t - p.past_frames)
     last = min(n - 1, t + p.future_frames)
     pts, smooth, _ref, bil_t, quad, sigma0, z_med = frames[t]
-    tracks = track(
-        fwd,
-        bwd,
-        d_all,
-        t,
-        first,
-        last,
-        p.fb_threshold,
-        p.max_depth_step,
-        quad,
-        p.quantize == "per_step",
-    )
+    if p.tracks == "composed" and p.quantize == "final":
+        quads = [f[4] for f in frames]
+        tracks = composed_track(
+            fwd, bwd, d_all, t, first, last, p.fb_threshold, p.max_depth_step, quads
+        )
+    else:
+        tracks = track(
+            fwd,
+            bwd,
+            d_all,
+            t,
+            first,
+            last,
+            p.fb_threshold,
+            p.max_depth_step,
+            quad,
+            p.quantize == "per_step",
+        )
     tw = np.arange(max(p.past_frames, p.future_frames) + 1, dtype=np.float64)
     weights = (
         np.ones_like(tw)
