@@ -93,6 +93,18 @@ def test_chunked_equals_in_memory(ball, reference, chunk_frames):
     assert _same(bwd, reference.flow_backward)
 
 
+@pytest.mark.parametrize("chunk_frames", [3, 7])
+def test_chunked_composed_tracks_equal_in_memory(ball, chunk_frames):
+    """A31: the block graph's chunk engines (front and back halo frames not emitted, so not
+    all of their chains built) fuse as the in-memory engine does, bit for bit."""
+    fusion = FusionParams(tracks="composed")
+    expected = fuse_sequence(ball.depth, ball.intensity, ball.intrinsics, fusion=fusion)
+    res = fd.fuse(
+        ball.depth, ball.intensity, ball.intrinsics, fusion=fusion, chunk_frames=chunk_frames
+    )
+    _assert_equal(res, expected, scheduler="threads")
+
+
 def test_fewer_frames_than_window(ball):
     seq = _crop(make_falling_ball(small=True, num_frames=5), 5)
     ref = fuse_sequence(seq.depth, seq.intensity, seq.intrinsics)  # 9-frame window, T = 5

@@ -54,6 +54,8 @@ def _run(seq, tmp_path, name, **kwargs):
         (7, FusionParams()),
         (32, FusionParams()),  # one chunk
         (4, FusionParams(num_frames=5, causal=True)),
+        (7, FusionParams(tracks="composed")),  # A31: the halos' chains (FusionEngine._emit_stop)
+        (4, FusionParams(num_frames=5, causal=True, tracks="composed")),
     ],
 )
 def test_streamed_equals_in_memory(ball, tmp_path, chunk_frames, fusion):

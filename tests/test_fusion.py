@@ -447,6 +447,7 @@ SWITCHES = {
     "base-smoothing-off": {"base_smoothing": 0.0},  # A29
     "base-fine-limit-0": {"base_fine_limit": 0.0},  # A29: the plain spatial mean
     "temporal-gate-off": {"temporal_gate": math.inf},
+    "tracks-composed": {"tracks": "composed"},  # A31
     "literal": {**LITERAL, "quantize": "per_step", "fill_fallback": "nan"},
 }
 
@@ -1206,8 +1207,7 @@ def test_composed_tracks_match_oracle(rng, causal):
     """The engine's composed tracks (A31) equal the NumPy composition (naive.composed_track)
     for every frame, truncated windows included, and differ from the exact chains somewhere."""
     depth, inten, fwd, bwd, k = _switch_scene(rng, n=7)
-    params = SWITCH_BASE.replace(num_frames=5, causal=causal)
-    assert params.tracks == "composed"  # the default
+    params = SWITCH_BASE.replace(num_frames=5, causal=causal, tracks="composed")
     _engine, seen = _composed_engine_tracks(depth, inten, fwd, bwd, k, params)
     quads = [estimate_noise_quad(d) for d in depth]
     differs = 0
@@ -1249,7 +1249,7 @@ def test_composed_tracks_do_not_depend_on_where_the_engine_started(rng):
     """A frame's composed tracks use only the pairs inside its window: an engine that starts
     later (a dask chunk with its halo) emits the same frames bit for bit."""
     depth, inten, fwd, bwd, k = _switch_scene(rng, n=9)
-    params = SWITCH_BASE.replace(num_frames=5)
+    params = SWITCH_BASE.replace(num_frames=5, tracks="composed")
     full = fuse_sequence(depth, inten, k, fusion=params, flow=SequenceFlow(fwd, bwd))
     start = 3
     late = fuse_sequence(

@@ -42,7 +42,8 @@ BilateralMode = Literal["residual", "points"]
 #: every fuse4d decision that changes Eq. 3-6 — motion from raw depth (A3), the plain weighted
 #: mean of 3D points in the bilateral (A18) and as output (A17), no temporal gate (A19), frame
 #: t's own point as base (A21), the fixed δ_d (A25), no sensor-hole fill from time or of far
-#: holes (A26/A27) and every track chained through its own flows (A31). Per-step rounding (``quantize="per_step"``, A6) is a separate switch.
+#: holes (A26/A27) and every track chained through its own flows (A31). Per-step rounding
+#: (``quantize="per_step"``, A6) is a separate switch.
 LITERAL_PAPER: Mapping[str, Any] = MappingProxyType(
     {
         "motion_depth": "raw",
@@ -156,19 +157,21 @@ class FusionParams:
     quantize : {"final", "per_step"}
         "final": sub-pixel accumulation, round only for lookup (A6). "per_step": literal
         rounding after every step.
-    tracks : {"composed", "exact"}
-        Our A31 (issue 13). "composed" (default): a chain takes its exact first step and then
-        follows the chain of the pixel it landed on, computed once for that frame, shifted by
-        the landing's sub-pixel offset (:mod:`fuse4d._kernels.tracks`): two exact steps and
-        n - 3 gathers per frame instead of n - 1 bilinear steps (tracking 49.6 -> 33.6
-        ms/frame on the 600x600 ball). "exact" (METHOD): every pixel of frame t is chained
-        through each flow of its window. Measured against the exact tracks (window of 9): the
-        same landing pixel for 99.2-100 % of the ball's valid tracks and 96-100 % of the real
-        uva clip's, validity different for 0-0.25 % (ball) and 0-3.1 % (uva, most at the
-        window's ends); ``fuse4d bench --quality`` and the uva person's roughness, flicker and
-        trail measures within 0.2 % (docs/method_notes.md, A31). With
-        ``quantize="per_step"`` the exact chains are used (per-step rounding is an ablation of
-        the chain itself).
+    tracks : {"exact", "composed"}
+        Our A31 (issue 13). "exact" (default, METHOD): every pixel of frame t is chained
+        through each flow of its window. "composed" (opt-in): a chain takes its exact first
+        step and then follows the chain of the pixel it landed on, computed once for that
+        frame, shifted by the landing's sub-pixel offset (:mod:`fuse4d._kernels.tracks`):
+        two exact steps and n - 3 gathers per frame instead of n - 1 bilinear steps per output
+        frame (tracking 48-50 -> 30-34 ms/frame on the 600x600 ball, end to end -7 to -11 %).
+        Against the exact tracks (window of 9): the same landing pixel for 99.2-100 % of the
+        ball's valid tracks and 96-100 % of the real uva clip's, validity different for
+        0-0.25 % (ball) and 0-3.1 % (uva, most at the window's ends); ``fuse4d bench
+        --quality`` and the uva person's roughness, flicker and trail within 0.2 %. Not the
+        default yet: in the dask graph it gains less than in the streaming engine (dask
+        1-worker overhead vs streaming +25 % against +7 % with "exact", 300 frames; see
+        docs/method_notes.md, A31). With ``quantize="per_step"`` the exact chains are used
+        (per-step rounding is an ablation of the chain itself).
     min_temporal_support : int
         Pixels with fewer valid tracked frames (other than t) are holes filled by Eq. 6.
     fill_holes : bool
@@ -227,7 +230,7 @@ class FusionParams:
     base_fine_limit: float = param(0.075, ge=0)
     motion_depth: MotionDepth = "smoothed"
     quantize: Quantize = "final"
-    tracks: Tracks = "composed"
+    tracks: Tracks = "exact"
     min_temporal_support: int = param(1, ge=0)
     fill_holes: bool = True
     fill_radius: int = param(2, ge=0)

@@ -260,6 +260,9 @@ class FusionEngine:
             self._temporal_weight = np.exp(-(tw**2) / (2.0 * p.sigma_temporal**2))
         self._pushed = 0  # frames received
         self._emitted = 0  # frames emitted
+        # frames from this one on are never emitted (a dask chunk's back halo; None: all are):
+        # their composed tracks (A31) are not built
+        self._emit_stop: int | None = None
         self._closed = False
         # overlap_flow: one worker thread, created on the first pair
         self.overlap_flow = bool(overlap_flow)
@@ -550,6 +553,8 @@ class FusionEngine:
                 self._noise[:, 1],
                 fb_threshold=p.fb_threshold,
                 max_step=p.max_depth_step,
+                first_output=self._emitted,
+                stop_output=self._emit_stop,
             )
             self.timings["tracking"] += time.perf_counter() - t1
         if self.on_pair is not None:

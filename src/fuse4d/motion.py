@@ -312,15 +312,22 @@ class _ComposedTracks:
         *,
         fb_threshold: float,
         max_step: float,
+        first_output: int = 0,
+        stop_output: int | None = None,
     ) -> None:
         """Extend the tracks with frame ``index`` >= 1, whose pair (index - 1, index) is in the
         rings (ring convention of :mod:`fuse4d._kernels.fusion`; ``quads`` (S,) the frames'
         noise coefficients, mm^-1: a step is checked with its start frame's, a composed
-        landing with its own frame's)."""
+        landing with its own frame's).
+
+        Only frames ``first_output`` <= t < ``stop_output`` will be emitted (a dask chunk's
+        halo frames are sources only): the forward chains of earlier frames and the backward
+        chains of frames from ``stop_output`` on are not built (nothing needs them)."""
         s_ring = depth_ring.shape[0]
         n, prev = index % s_ring, (index - 1) % s_ring
         theta, step = float(fb_threshold), float(max_step)
-        if self.future > 0:
+        lowest = max(index - self.future, first_output, 0)  # lowest start s of chains to index
+        if self.future > 0 and index - 1 >= lowest:
             # chains s -> index for s = index - 1, index - 2, ... (newest first: each follows
             # the one of s + 1 just computed)
             f = self._step_fwd
@@ -334,7 +341,7 @@ class _ComposedTracks:
             )  # fmt: skip
             self._ok[slot, jj] = f[2][j]
             follow = (f[0][j], f[1][j], f[2][j])
-            for s in range(index - 2, max(index - self.future, 0) - 1, -1):
+            for s in range(index - 2, lowest - 1, -1):
                 slot = s % self._slots
                 jj = index - s + self.past - 1
                 out = self._ahead[s % 2]
@@ -346,7 +353,7 @@ class _ComposedTracks:
                 )  # fmt: skip
                 self._ok[slot, jj] = out[2][0]
                 follow = (out[0][0], out[1][0], out[2][0])
-        if self.past > 0:
+        if self.past > 0 and (stop_output is None or index < stop_output):
             # chains index -> index - k: the exact step to index - 1, then frame index - 1's
             cur, old = self._back[index % 2], self._back[(index - 1) % 2]
             slot = index % self._slots

@@ -422,6 +422,8 @@ def _fuse_block(
         # tracked and fused for nothing. (FusionEngine has no public switch for this yet; if
         # the attribute goes away the halo frames are fused and discarded: same bits, slower.)
         engine._emitted = a
+    if b < n:
+        engine._emit_stop = b  # the back halo too: no composed tracks built for it (A31)
 
     def take(frames: list[Any]) -> None:
         for fr in frames:

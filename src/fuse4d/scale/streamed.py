@@ -379,6 +379,8 @@ def _fuse_task(
     a, b = s - lo, e - lo
     if a > 0 and isinstance(getattr(engine, "_emitted", None), int):
         engine._emitted = a  # halo frames are sources only (see graph._fuse_block)
+    if b < hi - lo:
+        engine._emit_stop = b  # the back halo too: no composed tracks built for it (A31)
     state_key = _state_key(source, intrinsics, params)
     key = (scratch, state_key)
     limit = 2 * (params.past_frames + params.future_frames)
