@@ -298,9 +298,11 @@ class _ComposedTracks:
             shape = (n, height, width)
             return np.empty(shape, np.float32), np.empty(shape, np.float32), np.empty(shape, bool)
 
-        self._step_fwd = maps(max(future, 1))  # pair (s, s+1) from s's pixels, slot s % future
-        self._back = (maps(max(past, 1)), maps(max(past, 1)))  # chains of frames N and N - 1
-        self._ahead = (maps(1), maps(1))  # chains s -> N of the newest N, while composing
+        # forward: pair (s, s+1) from s's pixels in slot s % future, and the chains s -> N of
+        # the newest N while composing; backward: the chains of frames N and N - 1
+        self._step_fwd = maps(future) if future > 0 else None
+        self._ahead = (maps(1), maps(1)) if future > 0 else None
+        self._back = (maps(past), maps(past)) if past > 0 else None
 
     def add_frame(
         self,

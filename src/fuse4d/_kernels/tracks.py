@@ -18,9 +18,21 @@ from __future__ import annotations
 import numpy as np
 
 from ._common import _bilinear2_plane, _round_half_up, _step_limit
-from ._numba import njit_parallel, prange
+from ._numba import njit, njit_parallel, prange
 
 __all__ = ["_compose_kernel", "_one_step_kernel"]
+
+
+@njit(inline="always")
+def _in_image(x, y, w, h):
+    """Whether (x = column, y = row) px lies in a W x H image (its last pixel included)."""
+    return x >= 0.0 and x <= w - 1.0 and y >= 0.0 and y <= h - 1.0
+
+
+@njit(inline="always")
+def _continues(d, d_ref, max_step, quad):
+    """Whether depth ``d`` (mm) is valid and within ``_step_limit`` of ``d_ref`` (A22)."""
+    return (not np.isnan(d)) and abs(d - d_ref) < _step_limit(d_ref, max_step, quad)
 
 
 @njit_parallel
@@ -57,7 +69,7 @@ def _one_step_kernel(
             sv = float(step_flow[v, u, 1])
             x = u + su
             y = v + sv
-            ok = (not np.isnan(d0)) and x >= 0.0 and x <= w - 1.0 and y >= 0.0 and y <= h - 1.0
+            ok = (not np.isnan(d0)) and _in_image(x, y, w, h)
             if ok:
                 cu, cv = _bilinear2_plane(check_flow, x, y)
                 ok = (su + cu) * (su + cu) + (sv + cv) * (sv + cv) < theta2
@@ -66,8 +78,7 @@ def _one_step_kernel(
             if ok:
                 r = _round_half_up(y)
                 c = _round_half_up(x)
-                d1 = depth_to[r, c]
-                ok = (not np.isnan(d1)) and abs(d1 - d0) < _step_limit(d0, max_step, quad)
+                ok = _continues(depth_to[r, c], d0, max_step, quad)
                 if not ok:
                     r = v
                     c = u
@@ -116,8 +127,6 @@ def _compose_kernel(
             y = y1
             r = v
             c = u
-            rn = v
-            cn = u
             if ok:
                 r1 = _round_half_up(y1)
                 c1 = _round_half_up(x1)
@@ -127,16 +136,14 @@ def _compose_kernel(
                     ny = float(next_y[r1, c1])
                     x = nx + (x1 - c1)
                     y = ny + (y1 - r1)
-                    ok = x >= 0.0 and x <= w - 1.0 and y >= 0.0 and y <= h - 1.0
+                    ok = _in_image(x, y, w, h)
                     if ok:
                         r = _round_half_up(y)
                         c = _round_half_up(x)
                         rn = _round_half_up(ny)
                         cn = _round_half_up(nx)
                         if r != rn or c != cn:
-                            d = depth_c[r, c]
-                            dn = depth_c[rn, cn]
-                            ok = (not np.isnan(d)) and abs(d - dn) < _step_limit(dn, max_step, quad)
+                            ok = _continues(depth_c[r, c], depth_c[rn, cn], max_step, quad)
             if not ok:  # an in-image pixel, never read through (the start pixel)
                 r = v
                 c = u
