@@ -35,7 +35,7 @@ from fuse4d.flow import estimate_sequence_flow
 from fuse4d.metrics import roughness
 from fuse4d.range_scenes import make_range_scene
 
-BASES = ("trajectory", "quadratic", "frame")
+BASES = ("adaptive", "trajectory", "quadratic", "frame")
 
 
 def _variants(extra: list[str]) -> dict[str, FusionParams]:

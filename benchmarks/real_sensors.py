@@ -4,7 +4,8 @@ For each range scene × sensor model (``fuse4d.range_scenes``, ``fuse4d.sensors`
 baseline of :func:`fuse4d.baselines.available_baselines` at its defaults (thresholds from the
 depth-noise model, A22; the 6D ED method is skipped unless ``--with-ed``: seconds per frame),
 the self-guided filter tuned per scene for its best RMSE (the issue's "best single-frame
-peer"), and fuse4d (``fast`` preset, its A28 variant ``FusionParams(base="quadratic")`` and
+peer"), and fuse4d (``fast`` preset, whose base is A32's adaptive trajectory, with the A21
+line ``FusionParams(base="trajectory")``, the A28 parabola ``base="quadratic"`` and
 ``--frames 1``) are scored against the true depth:
 
 * ``rmse``: RMSE (mm) on the pixels valid in the raw sensor depth where every method has an
@@ -47,6 +48,7 @@ from fuse4d.sensors import depth_step_mm, get_sensor
 #: fuse4d variants: label -> FusionParams
 FUSE4D = {
     "fuse4d fast": preset("fast").fusion,
+    "fuse4d line": preset("fast").fusion.replace(base="trajectory"),
     "fuse4d quadratic": preset("fast").fusion.replace(base="quadratic"),
     "fuse4d n=1": preset("fast").fusion.replace(num_frames=1),
 }

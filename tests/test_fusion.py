@@ -18,7 +18,14 @@ from fuse4d._kernels.fusion import (
 from fuse4d.bilateral import bilateral_filter_points
 from fuse4d.config import LITERAL_PAPER, FusionParams, preset
 from fuse4d.flow import SequenceFlow
-from fuse4d.fusion import FusionEngine, fuse_sequence, fuse_stream
+from fuse4d.fusion import (
+    CURVATURE_MIN_BIAS,
+    CURVATURE_TEST_LEVEL,
+    FusionEngine,
+    curvature_f_critical,
+    fuse_sequence,
+    fuse_stream,
+)
 from fuse4d.holes import SOURCE_NONE, SOURCE_TIME, _fill_holes, fill_holes
 from fuse4d.metrics import roughness_stats
 from fuse4d.motion import (
@@ -201,7 +208,9 @@ def test_track_and_fuse_kernels_match_oracles(rng, quad, per_step, sigma0, min_g
     gate_factor = 1.0 if quad == 0 else 3.0
     sigma0 = 0.8 if quad == 0 else sigma0  # quad = 0: a plain 0.8 mm gate
     gate = naive.noise_gate(gate_factor, sigma0, quad, min_gate)
-    for trajectory in (0, 1, 2):  # frame base, line (A21), parabola (A28)
+    f_crit = curvature_f_critical(4)
+    # frame base, line (A21), parabola (A28), the F-test choice (A32)
+    for trajectory in (0, 1, 2, 3):
         _fuse_kernel(
             bil,
             ref,
@@ -218,13 +227,25 @@ def test_track_and_fuse_kernels_match_oracles(rng, quad, per_step, sigma0, min_g
             quad,
             min_gate,
             trajectory,
+            f_crit,
+            CURVATURE_MIN_BIAS,
             out,
             support,
             hole,
             base,
         )
         expected, exp_support = naive.fuse(
-            bil, ref, oracle, t, first, last, weights, gate, trajectory=trajectory
+            bil,
+            ref,
+            oracle,
+            t,
+            first,
+            last,
+            weights,
+            gate,
+            trajectory=trajectory,
+            noise=lambda z: max(sigma0, quad * z * z),
+            min_bias=CURVATURE_MIN_BIAS,
         )
         np.testing.assert_array_equal(support, exp_support)
         fused = support >= 1
@@ -239,6 +260,81 @@ def test_track_and_fuse_kernels_match_oracles(rng, quad, per_step, sigma0, min_g
         np.testing.assert_allclose((out - base)[fused], frame_out[fused], atol=1e-4)
         # the gate rejected some tracked samples, and not all
         assert 0 < support.sum() < ok[:, np.isfinite(ref[t, ..., 2])].sum()
+
+
+def _fuse_static_tracks(ref, trajectory, f_crit, sigma0):
+    """_fuse_kernel on a 9-frame window whose tracks all stay on their pixel, B = P~
+    (no detail), depth noise sigma0 mm: the output is P~^4 + the trajectory base."""
+    n, h, w, _ = ref.shape
+    rows = np.broadcast_to(np.arange(h)[None, :, None], (n - 1, h, w)).astype(np.int32)
+    cols = np.broadcast_to(np.arange(w)[None, None, :], (n - 1, h, w)).astype(np.int32)
+    ok = np.ones((n - 1, h, w), bool)
+    out = np.empty((h, w, 3), np.float32)
+    base = np.empty((h, w, 3), np.float32)
+    support = np.empty((h, w), np.uint8)
+    hole = np.empty((h, w), bool)
+    weights = np.exp(-(np.arange(5.0) ** 2) / 18.0)
+    slots = np.arange(n, dtype=np.int64)
+    args = (ref, ref, slots, 4, 0, rows, cols, ok, weights, 1, math.inf, sigma0, 0.0, 0.05)
+    _fuse_kernel(*args, trajectory, f_crit, CURVATURE_MIN_BIAS, out, support, hole, base)
+    return out
+
+
+def test_adaptive_base_takes_the_parabola_only_where_the_line_is_rejected(rng):
+    # A32: pixel (0, 0) moves linearly in depth, pixel (0, 1) on a parabola (1 mm/frame^2,
+    # a bounce), pixel (0, 2) only laterally on a parabola (a lateral bounce at constant
+    # depth), pixel (0, 3) on a parabola too flat to matter (0.02 mm/frame^2: the line's
+    # chord bias ~0.1 mm, a fifth of the 1 mm noise sigma; significant against the 0.01 mm
+    # scatter of this test's samples, but it keeps the line)
+    tau = np.arange(-4.0, 5.0)
+    ref = np.zeros((9, 1, 4, 3), np.float32)
+    ref[..., 0] = 10.0
+    ref[..., 1] = -20.0
+    ref[..., 2] = 1000.0
+    ref[:, 0, 0, 2] += 2.0 * tau
+    ref[:, 0, 1, 2] += 2.0 * tau + tau**2
+    ref[:, 0, 2, 1] += 3.0 * tau + tau**2
+    ref[:, 0, 3, 2] += 2.0 * tau + 0.02 * tau**2
+    ref += rng.normal(0, 0.01, ref.shape).astype(np.float32)
+    f_crit = curvature_f_critical(6)
+    line, parabola, adaptive = (_fuse_static_tracks(ref, k, f_crit, 1.0) for k in (1, 2, 3))
+    np.testing.assert_array_equal(adaptive[0, 0], line[0, 0])
+    np.testing.assert_array_equal(adaptive[0, 1], parabola[0, 1])
+    np.testing.assert_array_equal(adaptive[0, 2], parabola[0, 2])  # one model for the point
+    np.testing.assert_array_equal(adaptive[0, 3], line[0, 3])
+    assert abs(parabola[0, 3, 2] - line[0, 3, 2]) > 0.05  # the flat curve was detectable
+    # the line's chord bias is what the parabola removes: the true value at tau = 0
+    assert abs(line[0, 1, 2] - 1000.0) > 3.0
+    assert abs(adaptive[0, 1, 2] - 1000.0) < 0.1
+    assert abs(adaptive[0, 2, 1] - -20.0) < 0.1
+    # with a tiny noise sigma the flat curve takes the parabola too
+    tiny = _fuse_static_tracks(ref, 3, f_crit, 0.01)
+    np.testing.assert_array_equal(tiny[0, 3], parabola[0, 3])
+    # and the same choices as the scipy.stats oracle
+    for sigma0, fused in ((1.0, adaptive), (0.01, tiny)):
+        expected, _ = naive.fuse(
+            ref,
+            ref,
+            {(T, 0, u): (0, u, True) for T in range(9) for u in range(4)},
+            4,
+            0,
+            8,
+            np.exp(-(np.arange(5.0) ** 2) / 18.0),
+            math.inf,
+            trajectory=3,
+            noise=lambda z, s=sigma0: s,
+            min_bias=CURVATURE_MIN_BIAS,
+        )
+        np.testing.assert_allclose(fused, expected, atol=1e-3)
+
+
+def test_curvature_critical_values_are_the_f_quantiles():
+    from scipy.stats import f as f_dist
+
+    crit = curvature_f_critical(12)
+    assert crit[0] == math.inf
+    k = np.arange(1, 13)
+    np.testing.assert_allclose(crit[1:], f_dist.ppf(1 - CURVATURE_TEST_LEVEL / 3, 1, k), rtol=1e-9)
 
 
 @pytest.mark.parametrize("per_step", [False, True])
@@ -444,6 +540,7 @@ SWITCHES = {
     "motion-raw": {"motion_depth": "raw"},
     "base-frame": {"base": "frame"},
     "base-quadratic": {"base": "quadratic"},
+    "base-line": {"base": "trajectory"},  # A21 (the default is A32's adaptive base)
     "base-smoothing-off": {"base_smoothing": 0.0},  # A29
     "base-fine-limit-0": {"base_fine_limit": 0.0},  # A29: the plain spatial mean
     "temporal-gate-off": {"temporal_gate": math.inf},

@@ -50,7 +50,7 @@ from fuse4d.io import load_sequence, save_sequence
         (
             lambda: FusionParams(base="x"),
             ValueError,
-            r"base must be one of 'trajectory', 'frame', 'quadratic', got 'x'",
+            r"base must be one of 'adaptive', 'trajectory', 'frame', 'quadratic', got 'x'",
         ),
         (lambda: PMBPParams(num_particles=17), ValueError, r"PMBPParams\.num_particles must be an integer in \[1, 16\], got 17"),
         (lambda: PMBPParams(num_particles=2.0), ValueError, r"num_particles must be an integer"),
@@ -121,7 +121,9 @@ def test_coerce_fields_reads_every_annotation_kind():
     }
     p = FusionParams(**values)
     assert (p.sigma_temporal, p.fill_holes, p.base) == (math.inf, False, "frame")
-    with pytest.raises(ValueError, match=r"parameter base: 'nope' is not one of trajectory, frame"):
+    with pytest.raises(
+        ValueError, match=r"parameter base: 'nope' is not one of adaptive, trajectory, frame"
+    ):
         coerce_fields(FusionParams, {"base": "nope"})
     with pytest.raises(
         ValueError, match=r"parameter fill_holes: cannot read 'maybe' as true/false"
@@ -229,7 +231,7 @@ def test_run_set_inf_bool_and_literal(tiny, tmp_path, capsys):
     api = fuse_sequence(tiny.depth, tiny.intensity, tiny.intrinsics, fusion=fusion)
     np.testing.assert_array_equal(load_sequence(out).depth, api.depth)
     assert main([*args, "--force", "--set", "base=middle"]) == 2
-    assert "'middle' is not one of trajectory, frame" in capsys.readouterr().err
+    assert "'middle' is not one of adaptive, trajectory, frame" in capsys.readouterr().err
     assert main([*args, "--force", "--window", "300"]) == 2
     assert "num_frames must be an integer in [1, 256], got 300" in capsys.readouterr().err
 

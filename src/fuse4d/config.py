@@ -117,24 +117,26 @@ class FusionParams:
         depth changes by mm per pixel) from entering Eq. 5. ``math.inf`` disables it.
     min_gate_mm : float
         Lower bound (mm) of the temporal gate, for noise-free or quantised depth.
-    base : {"trajectory", "frame", "quadratic"}
-        Base of Eq. 5 to which the averaged detail is added. "trajectory" (default, our A21):
-        the value at t of a weighted least-squares line through the tracked reference
-        positions P~^T[x^_i^T] over the window, i.e. motion vectors regularised to be linear in
-        time, so frame t's own low-frequency noise is averaged too. "frame": P~^t[x_i] as in
-        METHOD §4.3, whose noise is never averaged. Measured (ball 600x600, 0.2 mm / 2 %, DIS,
-        frame 4, RMSE in the ball ROI): frame base 0.023 mm at sigma_m = 3 px (0.0147 only
-        with sigma_m = 12 px, which over-smooths coarse scenes: 150x150 ball 0.175 mm);
-        trajectory base 0.0136 mm at sigma_m = 3 px (150x150 ball 0.055 mm).
-        "quadratic" (our A28): a weighted least-squares parabola instead of the line, for
-        curved trajectories (a turning body, accelerating objects). Measured
-        (``uva_cv2_person_turning``, first 30 frames, 9-frame window, Eq. 7 on the person's
-        raw-valid pixels / mean frame-to-frame |change| on static background): trajectory
-        6.56 / 1.38 mm, quadratic 4.96 / 1.52 mm, frame 4.16 / 3.36 mm, one frame 4.58 /
-        4.35 mm; falling ball 600x600 (14 frames, RMSE in the ball ROI): trajectory 0.0157 mm,
-        quadratic 0.0176 mm. The default stays "trajectory". (These figures are without A29,
-        ``base_smoothing=0``; with the A29 defaults the person's roughness is 4.50 mm with the
-        line, 4.26 with the parabola, at 1.45 / 1.64 mm flicker.)
+    base : {"adaptive", "trajectory", "frame", "quadratic"}
+        Base of Eq. 5 to which the averaged detail is added. "trajectory" (our A21): the value
+        at t of a weighted least-squares line through the tracked reference positions
+        P~^T[x^_i^T] over the window, i.e. motion vectors regularised to be linear in time, so
+        frame t's own low-frequency noise is averaged too. "frame": P~^t[x_i] as in METHOD
+        §4.3, whose noise is never averaged. Measured (ball 600x600, 0.2 mm / 2 %, DIS, frame
+        4, RMSE in the ball ROI): frame base 0.023 mm at sigma_m = 3 px (0.0147 only with
+        sigma_m = 12 px, which over-smooths coarse scenes: 150x150 ball 0.175 mm); trajectory
+        base 0.0136 mm at sigma_m = 3 px (150x150 ball 0.055 mm). "quadratic" (our A28): a
+        weighted least-squares parabola instead of the line, for curved trajectories (a
+        turning body, accelerating objects), noisier where the line holds. "adaptive"
+        (default, our A32): per pixel the line, or the parabola for all three coordinates
+        where some coordinate's curvature is significant (F test at 5 %, Bonferroni over the
+        coordinates) *and* moves the base by more than 0.5 sigma(z) (A22 noise model;
+        ``fuse4d.fusion.CURVATURE_TEST_LEVEL`` / ``CURVATURE_MIN_BIAS``). Measured against the
+        line (``docs/method_notes.md`` A32): Kinect-model ball object RMSE 5.72 -> 3.43 mm
+        (its bounce bends the lateral trajectory; the line's chord bias, projected onto the
+        pixel's ray across the sphere's slope, was a depth error), body object 6.37 -> 5.55
+        mm; static real scenes within 0.1-2.3 % (``static_room_rgbd`` flicker,
+        ``uva_cv2_person_turning`` background), the paper's ball unchanged.
     base_smoothing : float
         Our A29: sigma (px) of an edge-limited spatial smoothing (the A3 operator, on frame
         t's depth-continuous segments) of the base offset that the trajectory fit adds to
@@ -225,7 +227,7 @@ class FusionParams:
     reference_sigma: float = param(3.0, gt=0)
     temporal_gate: float = param(3.0, gt=0)
     min_gate_mm: float = param(0.05, gt=0)
-    base: Literal["trajectory", "frame", "quadratic"] = "trajectory"
+    base: Literal["adaptive", "trajectory", "frame", "quadratic"] = "adaptive"
     base_smoothing: float = param(2.0, ge=0)
     base_fine_limit: float = param(0.075, ge=0)
     motion_depth: MotionDepth = "smoothed"

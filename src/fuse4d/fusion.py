@@ -61,7 +61,29 @@ __all__ = [
 ]
 
 #: ``FusionParams.base`` -> the fusion kernel's ``trajectory`` code
-_BASE_CODES = {"frame": 0, "trajectory": 1, "quadratic": 2}
+_BASE_CODES = {"frame": 0, "trajectory": 1, "quadratic": 2, "adaptive": 3}
+
+#: significance level of the A32 curvature test (``base="adaptive"``): a pixel's trajectory is
+#: a parabola where the line is rejected at this level (Bonferroni over the three coordinates:
+#: each coordinate's F test at a third of it)
+CURVATURE_TEST_LEVEL = 0.05
+#: ... and where the parabola moves the pixel's base by more than this many times its depth
+#: noise sigma(z) (A22): a significant but small curvature (a hand-held camera's jitter on a
+#: static room) keeps the steadier line
+CURVATURE_MIN_BIAS = 0.5
+
+
+def curvature_f_critical(max_df: int, level: float = CURVATURE_TEST_LEVEL) -> NDArray[np.float64]:
+    """Per-coordinate critical values of A32's curvature test, F(1, k) at ``level`` / 3 for
+    k = 0..``max_df`` (entry 0 unused, inf). F(1, k) = t(k)^2, so the two-sided Student-t
+    quantile gives it without importing ``scipy.stats``."""
+    from scipy.special import stdtrit
+
+    out = np.full(max(max_df, 1) + 1, np.inf)
+    k = np.arange(1, out.size)
+    out[1:] = stdtrit(k, 1.0 - level / 6.0) ** 2
+    return out
+
 
 STAGES = ("flow", "bilateral", "motion_reference", "tracking", "fusion", "fill")
 
@@ -258,6 +280,12 @@ class FusionEngine:
             self._temporal_weight = np.ones_like(tw)
         else:
             self._temporal_weight = np.exp(-(tw**2) / (2.0 * p.sigma_temporal**2))
+        # A32's F test: samples in a window = past + future + 1, parameters 3
+        self._f_critical = (
+            curvature_f_critical(self.past + self.future - 2)
+            if p.base == "adaptive"
+            else np.full(2, np.inf)
+        )
         self._pushed = 0  # frames received
         self._emitted = 0  # frames emitted
         # frames from this one on are never emitted (a dask chunk's back halo; None: all are):
@@ -619,6 +647,8 @@ class FusionEngine:
             quad,
             p.min_gate_mm,
             _BASE_CODES[p.base],
+            self._f_critical,
+            CURVATURE_MIN_BIAS,
             points,
             support,
             hole,

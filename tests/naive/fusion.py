@@ -250,15 +250,68 @@ def pair_motion(fwd, bwd, ref_t, ref_t1, depth_t, depth_t1, theta, max_step, qua
     return fb, motion
 
 
+def _trajectory_fit(taus, wts, motions, trajectory, bias_floor):
+    """(3,) value at tau = 0 of the weighted least-squares line (1) or parabola (2) through
+    (taus, motions), or (3) the parabola for all coordinates where a coordinate's F test
+    (scipy.stats, level ``CURVATURE_TEST_LEVEL`` / 3) rejects the line and its parabola
+    differs from its line at tau = 0 by more than ``bias_floor`` mm."""
+    from scipy.stats import f as f_dist
+
+    from fuse4d.fusion import CURVATURE_TEST_LEVEL
+
+    def fit(degree, m):
+        design = np.stack([taus**k for k in range(degree + 1)], axis=1)
+        sw = np.sqrt(wts)
+        coef = np.linalg.lstsq(design * sw[:, None], m * sw, rcond=None)[0]
+        return float(coef[0]), float(np.sum(wts * (m - design @ coef) ** 2))
+
+    distinct = len(set(taus.tolist()))
+    if distinct == 1:
+        return np.average(motions, axis=0, weights=wts)
+    lines = np.array([fit(1, motions[:, c])[0] for c in range(3)])
+    if trajectory == 1 or distinct == 2:
+        return lines
+    parabolas = np.array([fit(2, motions[:, c])[0] for c in range(3)])
+    if trajectory == 2:
+        return parabolas
+    n = len(taus)
+    if n <= 3:
+        return lines
+    crit = f_dist.ppf(1.0 - CURVATURE_TEST_LEVEL / 3.0, 1, n - 3)
+    for c in range(3):
+        m = motions[:, c]
+        rss_line, rss_par = fit(1, m)[1], fit(2, m)[1]
+        if rss_line > 1e-12 * float(np.sum(wts * m * m)) and rss_line - rss_par > 0:
+            significant = rss_par <= 0 or (rss_line - rss_par) * (n - 3) / rss_par > crit
+            if significant and abs(parabolas[c] - lines[c]) > bias_floor:
+                return parabolas
+    return lines
+
+
 def fuse(
-    bilateral, reference, tracks, t, first, last, weights, gate, *, trajectory=False, base_out=None
+    bilateral,
+    reference,
+    tracks,
+    t,
+    first,
+    last,
+    weights,
+    gate,
+    *,
+    trajectory=False,
+    base_out=None,
+    noise=None,
+    min_bias=0.0,
 ):
     """Outer sum of Eq. 5 along given tracks, with the temporal range gate (A19) and,
     optionally, the trajectory base (A21: least-squares line through the motion vectors;
-    ``trajectory=2``: a parabola, A28). ``base_out`` (H, W, 3), if given, receives each
-    pixel's base offset (A29; NaN where the reference is NaN).
+    ``trajectory=2``: a parabola, A28; ``trajectory=3``: the parabola where the F test of a
+    coordinate rejects the line, A32). ``base_out`` (H, W, 3), if given, receives each pixel's base
+    offset (A29; NaN where the reference is NaN).
 
-    ``gate``: mm, or a function of frame t's reference depth z (mm) giving the gate in mm.
+    ``gate``: mm, or a function of frame t's reference depth z (mm) giving the gate in mm;
+    ``noise``: a function of z giving the depth noise sigma(z) in mm (A32's bias floor is
+    ``min_bias`` sigma(z); None: 0).
     """
     _n, h, w, _ = bilateral.shape
     out = np.full((h, w, 3), np.nan)
@@ -286,22 +339,10 @@ def fuse(
                 support[v, u] += 1
             wts_a = np.array(wts)
             base = np.zeros(3)
-            if trajectory == 2 and len(set(taus)) > 2:  # A28: weighted parabola
-                taus_a = np.array(taus)
-                design = np.stack([np.ones_like(taus_a), taus_a, taus_a**2], axis=1)
-                design = design * np.sqrt(wts_a)[:, None]
-                rhs = np.array(motions) * np.sqrt(wts_a)[:, None]
-                base = np.linalg.lstsq(design, rhs, rcond=None)[0][0]
-            elif trajectory:
-                taus_a = np.array(taus)
-                if len(set(taus)) > 1:
-                    design = (
-                        np.stack([np.ones_like(taus_a), taus_a], axis=1) * np.sqrt(wts_a)[:, None]
-                    )
-                    rhs = np.array(motions) * np.sqrt(wts_a)[:, None]
-                    base = np.linalg.lstsq(design, rhs, rcond=None)[0][0]
-                else:
-                    base = np.average(np.array(motions), axis=0, weights=wts_a)
+            if trajectory:
+                z = float(reference[t, v, u, 2])
+                floor = min_bias * (noise(z) if noise is not None else 0.0)
+                base = _trajectory_fit(np.array(taus), wts_a, np.array(motions), trajectory, floor)
             out[v, u] = (
                 reference[t, v, u] + base + np.average(np.array(details), axis=0, weights=wts_a)
             )
@@ -491,6 +532,8 @@ def engine_frame(depth, intensity, fwd, bwd, intrinsics, params, t):
     ref_all = np.stack([f[2] for f in frames])
     gate = noise_gate(p.temporal_gate, sigma0, quad, p.min_gate_mm)
     base = np.full(bil_all.shape[1:], np.nan)
+    from fuse4d.fusion import CURVATURE_MIN_BIAS  # a constant of the method, not the code
+
     out, support = fuse(
         bil_all,
         ref_all,
@@ -500,8 +543,10 @@ def engine_frame(depth, intensity, fwd, bwd, intrinsics, params, t):
         last,
         weights,
         gate,
-        trajectory={"frame": 0, "trajectory": 1, "quadratic": 2}[p.base],
+        trajectory={"frame": 0, "trajectory": 1, "quadratic": 2, "adaptive": 3}[p.base],
         base_out=base,
+        noise=lambda z: max(sigma0, quad * z * z),
+        min_bias=CURVATURE_MIN_BIAS,
     )
     hole = np.isfinite(ref_all[t, ..., 2]) & (support < p.min_temporal_support)
     if p.base_smoothing > 0 and p.base != "frame" and not math.isinf(p.base_fine_limit):

@@ -318,6 +318,46 @@ def _track_kernel(
 
 
 # --------------------------------------------------------------------------- fusion (Eq. 5)
+@njit(inline="always")
+def _trajectory_fits(wsum, s1, s2, s3, s4, y0, y1, y2, syy, n):
+    """One coordinate's weighted least-squares trajectory through the samples (tau = T - t,
+    weight w, motion m = P~^T[x^] - P~^t[x] in that coordinate, frame t itself with m = 0):
+    wsum = sum w, s_k = sum w tau^k, y_k = sum w tau^k m, syy = sum w m^2, n samples.
+
+    Returns ``(line, parabola, f)``: the line's value at tau = 0 (A21; the weighted mean
+    when all samples share one time), the parabola's (A28; the line's when fewer than three
+    distinct times determine it) and the F statistic of the parabola's curvature term,
+    (RSS_line - RSS_parabola) (n - 3) / RSS_parabola (0 where the parabola is undetermined or
+    the line fits exactly, inf where only the parabola does).
+
+    The parabola by Frisch-Waugh: with (g, h) the line through (tau, tau^2), its curvature is
+    c = (y2 - g y0 - h y1) / D, D = s4 - g s2 - h s3 (the weighted residual sum of squares of
+    tau^2), its value at 0 the line's minus c g, and RSS_line - RSS_parabola = c^2 D.
+    """
+    det = wsum * s2 - s1 * s1
+    if not det > 1e-9 * wsum * wsum:
+        mean = y0 / wsum
+        return mean, mean, 0.0
+    line = (y0 * s2 - y1 * s1) / det
+    g = (s2 * s2 - s3 * s1) / det
+    h = (wsum * s3 - s1 * s2) / det
+    d = s4 - g * s2 - h * s3
+    if not det * d > 1e-6 * wsum * wsum * wsum:  # the 3x3 normal matrix's determinant
+        return line, line, 0.0
+    num = y2 - g * y0 - h * y1
+    parabola = line - num / d * g
+    if n <= 3:
+        return line, parabola, 0.0
+    gain = num * num / d
+    rss_line = syy - line * y0 - (wsum * y1 - s1 * y0) / det * y1
+    rss_par = rss_line - gain
+    if not rss_line > 1e-12 * syy or not gain > 0.0:
+        return line, parabola, 0.0
+    if not rss_par > 0.0:
+        return line, parabola, np.inf
+    return line, parabola, gain * (n - 3) / rss_par
+
+
 @njit_parallel
 def _fuse_kernel(
     bil_ring,
@@ -335,6 +375,8 @@ def _fuse_kernel(
     quad,
     min_gate,
     trajectory,
+    f_crit,
+    min_bias,
     out_points,
     support,
     hole,
@@ -358,7 +400,12 @@ def _fuse_kernel(
     be linear in time, so frame t's own low-frequency noise is averaged too. trajectory = 2
     (A28): the same with a weighted least-squares parabola (curved trajectories of turning or
     accelerating surfaces; falls back to the line when fewer than 3 distinct times
-    determine it). 0 (or False): the frame base.
+    determine it). trajectory = 3 (A32): the line, or the parabola for all three coordinates
+    where some coordinate's curvature is both significant and large: its F statistic exceeds
+    ``f_crit[n - 3]`` (n = the samples, t included; ``f_crit`` (K,) float64, the last entry
+    for larger n) and the parabola moves its value at t by more than ``min_bias`` times the
+    pixel's noise sigma(z) (f_crit and min_bias are unused by the other codes). 0 (or
+    False): the frame base.
 
     base_out (H,W,3) receives the base offset (mm) added to P~^t[x_i]: the trajectory fit's
     value at t minus P~^t[x_i] (0 with the frame base and at holes, NaN where P~^t is NaN),
@@ -371,18 +418,21 @@ def _fuse_kernel(
     w0 = temporal_weight[0]
     n_chunks = min(h, ROW_CHUNKS)
     for ci in prange(n_chunks):  # scratch allocated once per chunk, not per row
-        acc = np.empty((22, w), dtype=np.float64)
+        acc = np.empty((25, w), dtype=np.float64)
+        lines = np.empty(3)
+        parabolas = np.empty(3)
         for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
             acc[:] = 0.0
             # sample-major order over the row (independent per-pixel work overlaps in the CPU).
             # acc rows: 0-2 own detail e, 3-5 detail sum, 6 weight sum, 7 count, 8 s1, 9 s2,
-            # 10-12 y0 (sum w m), 13-15 y1 (sum w tau m), 16 gate^2
+            # 10 s3, 11 s4, 12 gate^2, per coordinate q: 13+q y0 (sum w m), 16+q y1
+            # (sum w tau m), 19+q y2 (sum w tau^2 m), 22+q sum w m^2
             for u in range(w):
                 zt = ref_ring[st, v, u, 2]
                 if np.isnan(zt):
                     continue
                 gate = max(gate_factor * max(sigma0, quad * zt * zt), min_gate)
-                acc[16, u] = gate * gate
+                acc[12, u] = gate * gate
                 for c in range(3):
                     e = bil_ring[st, v, u, c] - ref_ring[st, v, u, c]  # detail of frame t
                     acc[c, u] = e
@@ -402,7 +452,7 @@ def _fuse_kernel(
                     dy = bil_ring[sT, r, c, 1] - ref_ring[sT, r, c, 1]
                     dz = bil_ring[sT, r, c, 2] - ref_ring[sT, r, c, 2]
                     dist2 = (dx - acc[0, u]) ** 2 + (dy - acc[1, u]) ** 2 + (dz - acc[2, u]) ** 2
-                    if not (dist2 < acc[16, u]):
+                    if not (dist2 < acc[12, u]):
                         continue
                     acc[3, u] += wt * dx
                     acc[4, u] += wt * dy
@@ -411,17 +461,20 @@ def _fuse_kernel(
                     acc[7, u] += 1.0
                     acc[8, u] += wt * tau
                     acc[9, u] += wt * tau * tau
-                    if trajectory == 2:  # the parabola's sums (A28), unused otherwise
-                        acc[17, u] += wt * tau * tau * tau
-                        acc[18, u] += wt * tau * tau * tau * tau
-                    for q in range(3):
-                        m = ref_ring[sT, r, c, q] - ref_ring[st, v, u, q]
-                        acc[10 + q, u] += wt * m
-                        acc[13 + q, u] += wt * tau * m
-                        if trajectory == 2:
-                            acc[19 + q, u] += wt * tau * tau * m
+                    if trajectory >= 2:
+                        acc[10, u] += wt * tau * tau * tau
+                        acc[11, u] += wt * tau * tau * tau * tau
+                    if trajectory:  # the trajectory's sums (A21, A28, A32)
+                        for q in range(3):
+                            m = ref_ring[sT, r, c, q] - ref_ring[st, v, u, q]
+                            acc[13 + q, u] += wt * m
+                            acc[16 + q, u] += wt * tau * m
+                            if trajectory >= 2:  # the parabola's sums, unused by the line
+                                acc[19 + q, u] += wt * tau * tau * m
+                                acc[22 + q, u] += wt * m * m
             for u in range(w):
-                if np.isnan(ref_ring[st, v, u, 2]):
+                zt = ref_ring[st, v, u, 2]
+                if np.isnan(zt):
                     for c in range(3):
                         out_points[v, u, c] = np.nan
                         base_out[v, u, c] = np.nan
@@ -438,30 +491,38 @@ def _fuse_kernel(
                     continue
                 hole[v, u] = False
                 wsum = acc[6, u]
-                s1 = acc[8, u]
-                s2 = acc[9, u]
-                det = wsum * s2 - s1 * s1
-                s3 = acc[17, u]
-                s4 = acc[18, u]
-                # parabola (A28): normal matrix [[w, s1, s2], [s1, s2, s3], [s2, s3, s4]]
-                det3 = (
-                    wsum * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2)
-                )
+                # A21 line, A28 parabola, A32 the parabola for all three coordinates where
+                # some coordinate's curvature is significant (F test) and larger than
+                # min_bias sigma(z): one model for the point, so that the lateral and depth
+                # offsets of a sample landing beside x stay consistent
+                n = count + 1
+                curved = trajectory == 2
                 for c in range(3):
-                    base = 0.0
-                    y0 = acc[10 + c, u]
-                    y1 = acc[13 + c, u]
-                    y2 = acc[19 + c, u]
-                    if trajectory == 2 and det3 > 1e-6 * wsum * wsum * wsum:
-                        base = (
-                            y0 * (s2 * s4 - s3 * s3)
-                            - s1 * (y1 * s4 - s3 * y2)
-                            + s2 * (y1 * s3 - s2 * y2)
-                        ) / det3
-                    elif trajectory and det > 1e-9 * wsum * wsum:
-                        base = (y0 * s2 - y1 * s1) / det
-                    elif trajectory:
-                        base = y0 / wsum
+                    fits = (0.0, 0.0, 0.0)
+                    if trajectory:
+                        fits = _trajectory_fits(
+                            wsum,
+                            acc[8, u],
+                            acc[9, u],
+                            acc[10, u],
+                            acc[11, u],
+                            acc[13 + c, u],
+                            acc[16 + c, u],
+                            acc[19 + c, u],
+                            acc[22 + c, u],
+                            n,
+                        )
+                    lines[c] = fits[0]
+                    parabolas[c] = fits[1]
+                    if (
+                        trajectory == 3
+                        and n > 3
+                        and fits[2] > f_crit[min(n - 3, f_crit.size - 1)]
+                        and abs(fits[0] - fits[1]) > min_bias * max(sigma0, quad * zt * zt)
+                    ):
+                        curved = True
+                for c in range(3):
+                    base = parabolas[c] if curved else lines[c]
                     out_points[v, u, c] = ref_ring[st, v, u, c] + base + acc[3 + c, u] / wsum
                     base_out[v, u, c] = base
 
