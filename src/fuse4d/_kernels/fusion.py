@@ -319,43 +319,38 @@ def _track_kernel(
 
 # --------------------------------------------------------------------------- fusion (Eq. 5)
 @njit(inline="always")
-def _trajectory_fits(wsum, s1, s2, s3, s4, y0, y1, y2, syy, n):
-    """One coordinate's weighted least-squares trajectory through the samples (tau = T - t,
-    weight w, motion m = P~^T[x^] - P~^t[x] in that coordinate, frame t itself with m = 0):
-    wsum = sum w, s_k = sum w tau^k, y_k = sum w tau^k m, syy = sum w m^2, n samples.
+def _parabola_basis(wsum, s1, s2, s3, s4):
+    """The part of the weighted least-squares parabola that all coordinates share (A28, A32).
 
-    Returns ``(line, parabola, f)``: the line's value at tau = 0 (A21; the weighted mean
-    when all samples share one time), the parabola's (A28; the line's when fewer than three
-    distinct times determine it) and the F statistic of the parabola's curvature term,
-    (RSS_line - RSS_parabola) (n - 3) / RSS_parabola (0 where the parabola is undetermined or
-    the line fits exactly, inf where only the parabola does).
-
-    The parabola by Frisch-Waugh: with (g, h) the line through (tau, tau^2), its curvature is
-    c = (y2 - g y0 - h y1) / D, D = s4 - g s2 - h s3 (the weighted residual sum of squares of
-    tau^2), its value at 0 the line's minus c g, and RSS_line - RSS_parabola = c^2 D.
+    Sums over the samples (tau = T - t, weight w, frame t itself included): wsum = sum w,
+    s_k = sum w tau^k. By Frisch-Waugh, with (g, h) the weighted line through (tau, tau^2)
+    and d = s4 - g s2 - h s3 the weighted residual sum of squares of tau^2, a coordinate with
+    motion sums y_k = sum w tau^k m has the curvature c = (y2 - g y0 - h y1) / d, the
+    parabola's value at tau = 0 is the line's minus c g, and RSS_line - RSS_parabola = c^2 d.
+    Returns ``(ok, inv_det, g, h, inv_d)``; ok is False where the line or the parabola is
+    undetermined (fewer than three distinct times).
     """
     det = wsum * s2 - s1 * s1
     if not det > 1e-9 * wsum * wsum:
-        mean = y0 / wsum
-        return mean, mean, 0.0
-    line = (y0 * s2 - y1 * s1) / det
-    g = (s2 * s2 - s3 * s1) / det
-    h = (wsum * s3 - s1 * s2) / det
+        return False, 0.0, 0.0, 0.0, 0.0
+    inv_det = 1.0 / det
+    g = (s2 * s2 - s3 * s1) * inv_det
+    h = (wsum * s3 - s1 * s2) * inv_det
     d = s4 - g * s2 - h * s3
     if not det * d > 1e-6 * wsum * wsum * wsum:  # the 3x3 normal matrix's determinant
-        return line, line, 0.0
-    num = y2 - g * y0 - h * y1
-    parabola = line - num / d * g
-    if n <= 3:
-        return line, parabola, 0.0
-    gain = num * num / d
-    rss_line = syy - line * y0 - (wsum * y1 - s1 * y0) / det * y1
-    rss_par = rss_line - gain
-    if not rss_line > 1e-12 * syy or not gain > 0.0:
-        return line, parabola, 0.0
-    if not rss_par > 0.0:
-        return line, parabola, np.inf
-    return line, parabola, gain * (n - 3) / rss_par
+        return False, 0.0, 0.0, 0.0, 0.0
+    return True, inv_det, g, h, 1.0 / d
+
+
+@njit(inline="always")
+def _line_value(wsum, s1, s2, y0, y1):
+    """Value at tau = 0 of the weighted least-squares line through one coordinate's motion
+    samples (A21; sums as in :func:`_parabola_basis`, y_k = sum w tau^k m); the weighted mean
+    where all samples share one time."""
+    det = wsum * s2 - s1 * s1
+    if det > 1e-9 * wsum * wsum:
+        return (y0 * s2 - y1 * s1) / det
+    return y0 / wsum
 
 
 @njit_parallel
@@ -496,31 +491,33 @@ def _fuse_kernel(
                 # min_bias sigma(z): one model for the point, so that the lateral and depth
                 # offsets of a sample landing beside x stay consistent
                 n = count + 1
-                curved = trajectory == 2
+                s1 = acc[8, u]
+                s2 = acc[9, u]
+                basis = (False, 0.0, 0.0, 0.0, 0.0)
+                if trajectory >= 2:
+                    basis = _parabola_basis(wsum, s1, s2, acc[10, u], acc[11, u])
+                curved = trajectory == 2 and basis[0]
+                test = trajectory == 3 and basis[0] and n > 3
+                crit = f_crit[min(max(n - 3, 0), f_crit.size - 1)]
+                floor = min_bias * max(sigma0, quad * zt * zt)
                 for c in range(3):
-                    fits = (0.0, 0.0, 0.0)
-                    if trajectory:
-                        fits = _trajectory_fits(
-                            wsum,
-                            acc[8, u],
-                            acc[9, u],
-                            acc[10, u],
-                            acc[11, u],
-                            acc[13 + c, u],
-                            acc[16 + c, u],
-                            acc[19 + c, u],
-                            acc[22 + c, u],
-                            n,
-                        )
-                    lines[c] = fits[0]
-                    parabolas[c] = fits[1]
-                    if (
-                        trajectory == 3
-                        and n > 3
-                        and fits[2] > f_crit[min(n - 3, f_crit.size - 1)]
-                        and abs(fits[0] - fits[1]) > min_bias * max(sigma0, quad * zt * zt)
-                    ):
-                        curved = True
+                    y0 = acc[13 + c, u]
+                    y1 = acc[16 + c, u]
+                    lines[c] = _line_value(wsum, s1, s2, y0, y1) if trajectory else 0.0
+                    parabolas[c] = lines[c]
+                    if basis[0]:
+                        _, inv_det, lin_g, lin_h, inv_d = basis  # (h is the height)
+                        num = acc[19 + c, u] - lin_g * y0 - lin_h * y1
+                        curvature = num * inv_d
+                        parabolas[c] = lines[c] - curvature * lin_g
+                        if test and not curved and abs(curvature * lin_g) > floor:
+                            # F test: (RSS_line - RSS_par) (n - 3) / RSS_par > crit
+                            gain = num * curvature
+                            slope = (wsum * y1 - s1 * y0) * inv_det
+                            syy = acc[22 + c, u]
+                            rss_line = syy - lines[c] * y0 - slope * y1
+                            if rss_line > 1e-12 * syy and gain > 0.0:
+                                curved = gain * (n - 3) > crit * (rss_line - gain)
                 for c in range(3):
                     base = parabolas[c] if curved else lines[c]
                     out_points[v, u, c] = ref_ring[st, v, u, c] + base + acc[3 + c, u] / wsum
