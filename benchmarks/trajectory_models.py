@@ -10,6 +10,9 @@ complete (4 .. T-5):
 * ``obj``: RMSE (mm) on the moving object's raw-valid pixels;
 * ``obj interior``: the same on the object mask eroded by 4 px (no silhouette rim).
 
+``--per-frame N`` adds, for the ball, the object RMSE of every frame of an N-frame clip
+(window ends and the bounce at frame 12 included) for one frame vs the default base.
+
 ``--tracks`` adds the reference check behind A32: the motion reference P~ (A3) of the ball
 sampled along the *true* tracks (ground-truth flow, chained forward from frame 2 over 9
 frames, object pixels 4 px inside the mask), and the RMS error (mm) of one frame's sample vs
@@ -18,6 +21,7 @@ the mean over the 9 frames: how much temporal averaging along tracks can remove 
 Usage::
 
     python benchmarks/trajectory_models.py [--frames 14] [--scenes ball,body] [--tracks]
+        [--per-frame 20]
 """
 
 from __future__ import annotations
@@ -73,6 +77,20 @@ def score(scene: str, frames: int) -> list[tuple[str, float, float, float]]:
     return rows
 
 
+def per_frame(frames: int) -> list[tuple[int, float, float]]:
+    """(frame, object RMSE one frame, object RMSE default) on every frame of the ball."""
+    seq = make_range_scene("ball", sensor="kinect", num_frames=frames, rng=0)
+    truth = seq.ground_truth.depth
+    obj = seq.ground_truth.mask & np.isfinite(seq.depth)
+    outs = [
+        fuse_sequence(
+            seq.depth, seq.intensity, seq.intrinsics, fusion=params, flow=preset("fast").flow
+        ).depth
+        for params in (preset("fast").fusion.replace(num_frames=1), preset("fast").fusion)
+    ]
+    return [(t, *(_rmse(o[t], truth[t], obj[t]) for o in outs)) for t in range(frames)]
+
+
 def track_averaging(start: int = 2, length: int = 9) -> dict[str, tuple[float, float]]:
     """RMS error (mm) of one sample vs the mean of ``length`` samples along the true tracks
     of the ball, for the motion reference P~ and the raw depth."""
@@ -114,6 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=14)
     parser.add_argument("--scenes", default="ball,body")
     parser.add_argument("--tracks", action="store_true", help="also the true-track check")
+    parser.add_argument("--per-frame", type=int, default=0, help="ball frames scored per frame")
     args = parser.parse_args(argv)
     if args.frames < 9:
         parser.error("--frames must be >= 9 (a full 9-frame window)")
@@ -123,6 +142,13 @@ def main(argv: list[str] | None = None) -> int:
         print("|---|---|---|---|")
         for name, rmse, obj, inner in score(scene, args.frames):
             print(f"| {name} | {rmse:.2f} | {obj:.2f} | {inner:.2f} |")
+        print()
+    if args.per_frame:
+        print(f"### ball: object RMSE per frame ({args.per_frame} frames)\n")
+        print("| frame | one frame, mm | default (9 frames), mm |")
+        print("|---|---|---|")
+        for t, one, fused in per_frame(args.per_frame):
+            print(f"| {t} | {one:.2f} | {fused:.2f} |")
         print()
     if args.tracks:
         print("### ball: error along the true tracks (9 frames)\n")
