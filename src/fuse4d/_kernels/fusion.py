@@ -319,7 +319,7 @@ def _track_kernel(
 
 # --------------------------------------------------------------------------- fusion (Eq. 5)
 @njit(inline="always")
-def _parabola_basis(wsum, s1, s2, s3, s4):
+def _parabola_basis(wsum, s1, s2, s3, s4, det):
     """The part of the weighted least-squares parabola that all coordinates share (A28, A32).
 
     Sums over the samples (tau = T - t, weight w, frame t itself included): wsum = sum w,
@@ -327,10 +327,10 @@ def _parabola_basis(wsum, s1, s2, s3, s4):
     and d = s4 - g s2 - h s3 the weighted residual sum of squares of tau^2, a coordinate with
     motion sums y_k = sum w tau^k m has the curvature c = (y2 - g y0 - h y1) / d, the
     parabola's value at tau = 0 is the line's minus c g, and RSS_line - RSS_parabola = c^2 d.
-    Returns ``(ok, inv_det, g, h, inv_d)``; ok is False where the line or the parabola is
-    undetermined (fewer than three distinct times).
+    ``det`` = wsum s2 - s1^2, the line's determinant. Returns ``(ok, inv_det, g, h, inv_d)``;
+    ok is False where the line or the parabola is undetermined (fewer than three distinct
+    times).
     """
-    det = wsum * s2 - s1 * s1
     if not det > 1e-9 * wsum * wsum:
         return False, 0.0, 0.0, 0.0, 0.0
     inv_det = 1.0 / det
@@ -343,11 +343,10 @@ def _parabola_basis(wsum, s1, s2, s3, s4):
 
 
 @njit(inline="always")
-def _line_value(wsum, s1, s2, y0, y1):
+def _line_value(wsum, s1, s2, y0, y1, det):
     """Value at tau = 0 of the weighted least-squares line through one coordinate's motion
-    samples (A21; sums as in :func:`_parabola_basis`, y_k = sum w tau^k m); the weighted mean
-    where all samples share one time."""
-    det = wsum * s2 - s1 * s1
+    samples (A21; sums and ``det`` as in :func:`_parabola_basis`, y_k = sum w tau^k m); the
+    weighted mean where all samples share one time."""
     if det > 1e-9 * wsum * wsum:
         return (y0 * s2 - y1 * s1) / det
     return y0 / wsum
@@ -421,7 +420,7 @@ def _fuse_kernel(
             # sample-major order over the row (independent per-pixel work overlaps in the CPU).
             # acc rows: 0-2 own detail e, 3-5 detail sum, 6 weight sum, 7 count, 8 s1, 9 s2,
             # 10 s3, 11 s4, 12 gate^2, per coordinate q: 13+q y0 (sum w m), 16+q y1
-            # (sum w tau m), 19+q y2 (sum w tau^2 m), 22+q sum w m^2
+            # (sum w tau m), 19+q y2 (sum w tau^2 m), 22+q sum w m^2 (A32 only)
             for u in range(w):
                 zt = ref_ring[st, v, u, 2]
                 if np.isnan(zt):
@@ -466,6 +465,7 @@ def _fuse_kernel(
                             acc[16 + q, u] += wt * tau * m
                             if trajectory >= 2:  # the parabola's sums, unused by the line
                                 acc[19 + q, u] += wt * tau * tau * m
+                            if trajectory == 3:  # the F test's sum
                                 acc[22 + q, u] += wt * m * m
             for u in range(w):
                 zt = ref_ring[st, v, u, 2]
@@ -493,9 +493,10 @@ def _fuse_kernel(
                 n = count + 1
                 s1 = acc[8, u]
                 s2 = acc[9, u]
+                det = wsum * s2 - s1 * s1  # the line's, shared by the coordinates
                 basis = (False, 0.0, 0.0, 0.0, 0.0)
                 if trajectory >= 2:
-                    basis = _parabola_basis(wsum, s1, s2, acc[10, u], acc[11, u])
+                    basis = _parabola_basis(wsum, s1, s2, acc[10, u], acc[11, u], det)
                 curved = trajectory == 2 and basis[0]
                 test = trajectory == 3 and basis[0] and n > 3
                 crit = f_crit[min(max(n - 3, 0), f_crit.size - 1)]
@@ -503,7 +504,7 @@ def _fuse_kernel(
                 for c in range(3):
                     y0 = acc[13 + c, u]
                     y1 = acc[16 + c, u]
-                    lines[c] = _line_value(wsum, s1, s2, y0, y1) if trajectory else 0.0
+                    lines[c] = _line_value(wsum, s1, s2, y0, y1, det) if trajectory else 0.0
                     parabolas[c] = lines[c]
                     if basis[0]:
                         _, inv_det, lin_g, lin_h, inv_d = basis  # (h is the height)
