@@ -229,6 +229,8 @@ def test_track_and_fuse_kernels_match_oracles(rng, quad, per_step, sigma0, min_g
             trajectory,
             f_crit,
             CURVATURE_MIN_BIAS,
+            np.zeros((14, 16), bool),  # no static pixels (A33 has its own tests)
+            0.0,
             out,
             support,
             hole,
@@ -276,7 +278,10 @@ def _fuse_static_tracks(ref, trajectory, f_crit, sigma0):
     weights = np.exp(-(np.arange(5.0) ** 2) / 18.0)
     slots = np.arange(n, dtype=np.int64)
     args = (ref, ref, slots, 4, 0, rows, cols, ok, weights, 1, math.inf, sigma0, 0.0, 0.05)
-    _fuse_kernel(*args, trajectory, f_crit, CURVATURE_MIN_BIAS, out, support, hole, base)
+    no_static = np.zeros((h, w), bool)
+    _fuse_kernel(
+        *args, trajectory, f_crit, CURVATURE_MIN_BIAS, no_static, 0.0, out, support, hole, base
+    )
     return out
 
 
@@ -545,6 +550,7 @@ SWITCHES = {
     "base-fine-limit-0": {"base_fine_limit": 0.0},  # A29: the plain spatial mean
     "temporal-gate-off": {"temporal_gate": math.inf},
     "tracks-composed": {"tracks": "composed"},  # A31
+    "static-off": {"static_tracks": False},  # A33
     "literal": {**LITERAL, "quantize": "per_step", "fill_fallback": "nan"},
 }
 
@@ -700,8 +706,14 @@ def test_nan_propagation(rng):
     assert np.isnan(res.depth[2, 10:13, 10:13]).all()
     assert np.isfinite(res.depth[2, 9, 9:14]).all()  # no spreading
     assert np.isfinite(res.depth[2, 20, 30])  # other frame's hole only lowers support:
-    assert res.support[2, 20, 30] == 2  # frames 1 and 0 (behind it) are lost, 3 and 4 kept
     assert res.support[2, 20, 31] == 4
+    # a chain (METHOD §4.1) loses frames 1 and 0 (behind it) and keeps 3 and 4 ...
+    chained = fuse_sequence(
+        depth, inten, K, flow=_zero_flow(n), fusion=no_fill.replace(static_tracks=False)
+    )
+    assert chained.support[2, 20, 30] == 2
+    # ... a static pixel (A33) samples itself in every frame: only frame 1 is lost
+    assert res.support[2, 20, 30] == 3
     assert np.isnan(res.points[2, 11, 11]).all()
     assert (res.source[2, 10:13, 10:13] == SOURCE_NONE).all()
     # default: the sensor hole of frame 2 is filled from frames 0, 1, 3, 4 along its track (A26)
@@ -922,8 +934,14 @@ def test_all_nan_frame_and_single_frame_are_graceful():
     assert (filled.source[1] == SOURCE_TIME).all()
     np.testing.assert_allclose(filled.depth[1], depth[0], atol=0.05)  # the smoothed reference
     # tracks are never re-acquired (METHOD §4.1): an empty frame 1 cuts frame 0 off the rest
-    assert (res.support[0] == 0).all()
-    assert (res.support[3, 5:-5, 5:-5] == 1).all()
+    chained = fuse_sequence(
+        depth, inten, K, flow=_zero_flow(4), fusion=no_fill.replace(static_tracks=False)
+    )
+    assert (chained.support[0] == 0).all()
+    assert (chained.support[3, 5:-5, 5:-5] == 1).all()
+    # static pixels (A33, the default) sample themselves in each frame: only frame 1 is lost
+    assert (res.support[0, 5:-5, 5:-5] == 2).all()
+    assert (res.support[3, 5:-5, 5:-5] == 2).all()
     single = fuse_sequence(depth[:1], inten[:1], K)
     assert (single.support == 0).all()  # no other frame: bilateral-only result, documented
     np.testing.assert_allclose(single.depth[0], depth[0], atol=2e-3)

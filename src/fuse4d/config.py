@@ -42,8 +42,8 @@ BilateralMode = Literal["residual", "points"]
 #: every fuse4d decision that changes Eq. 3-6 — motion from raw depth (A3), the plain weighted
 #: mean of 3D points in the bilateral (A18) and as output (A17), no temporal gate (A19), frame
 #: t's own point as base (A21), the fixed δ_d (A25), no sensor-hole fill from time or of far
-#: holes (A26/A27) and every track chained through its own flows (A31). Per-step rounding
-#: (``quantize="per_step"``, A6) is a separate switch.
+#: holes (A26/A27), every track chained through its own flows (A31) and no static pixels
+#: (A33). Per-step rounding (``quantize="per_step"``, A6) is a separate switch.
 LITERAL_PAPER: Mapping[str, Any] = MappingProxyType(
     {
         "motion_depth": "raw",
@@ -55,6 +55,7 @@ LITERAL_PAPER: Mapping[str, Any] = MappingProxyType(
         "fill_from_time": False,
         "fill_max_hole_px": 0,
         "tracks": "exact",
+        "static_tracks": False,
     }
 )
 
@@ -174,6 +175,17 @@ class FusionParams:
         1-worker overhead vs streaming +25 % against +7 % with "exact", 300 frames; see
         docs/method_notes.md, A31). With ``quantize="per_step"`` the exact chains are used
         (per-step rounding is an ablation of the chain itself).
+    static_tracks : bool
+        Our A33 (issue 10): a pixel whose motion-reference depth stays within two
+        quantisation levels (2 q z^2, A22) at the same pixel over the whole window, and whose
+        intensity does not favour the flow's landings over standing still (not moving costs
+        at most twice as much, summed over a 5x5 box), is fused from its own samples
+        instead of its tracks (:mod:`fuse4d.static_tracks`). DIS answers 0.5-2 px of spurious
+        motion on textureless or reflecting static background, so every track landed on
+        another step of the quantised depth and the background flickered. Measured
+        (``docs/method_notes.md`` A33): uva background flicker 1.16 -> 0.67 mm (9-frame
+        temporal mean 0.57), person roughness unchanged, silhouette trail 0 %; the paper's
+        moving ball unchanged. Off = every pixel follows its tracks (METHOD).
     min_temporal_support : int
         Pixels with fewer valid tracked frames (other than t) are holes filled by Eq. 6.
     fill_holes : bool
@@ -233,6 +245,7 @@ class FusionParams:
     motion_depth: MotionDepth = "smoothed"
     quantize: Quantize = "final"
     tracks: Tracks = "exact"
+    static_tracks: bool = True
     min_temporal_support: int = param(1, ge=0)
     fill_holes: bool = True
     fill_radius: int = param(2, ge=0)

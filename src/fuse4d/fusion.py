@@ -50,6 +50,7 @@ from .motion import (
     motion_reference_depth,
 )
 from .sequence import check_unit_intensity, normalize_intensity
+from .static_tracks import STATIC_DEPTH_TOLERANCE, static_pixels
 
 __all__ = [
     "FrameState",
@@ -286,6 +287,7 @@ class FusionEngine:
             if p.base == "adaptive"
             else np.full(2, np.inf)
         )
+        self._no_static = np.zeros((h, w), np.bool_)  # A33 off, or a window of one frame
         self._pushed = 0  # frames received
         self._emitted = 0  # frames emitted
         # frames from this one on are never emitted (a dask chunk's back halo; None: all are):
@@ -625,6 +627,19 @@ class FusionEngine:
                 per_step=p.quantize == "per_step",
                 out=self._tracks,
             )
+        if p.static_tracks and last > first:  # A33: static pixels keep still
+            static = static_pixels(
+                self._reference,
+                self._intensity,
+                self._depth[t % self.ring],
+                frame_slot,
+                t,
+                first,
+                (rows, cols, ok),
+                quad,
+            )
+        else:
+            static = self._no_static
         t1 = time.perf_counter()
         points = np.empty((h, w, 3), np.float32)
         support = np.empty((h, w), np.uint8)
@@ -649,6 +664,8 @@ class FusionEngine:
             _BASE_CODES[p.base],
             self._f_critical,
             CURVATURE_MIN_BIAS,
+            static,
+            STATIC_DEPTH_TOLERANCE * quad,
             points,
             support,
             hole,

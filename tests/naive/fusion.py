@@ -224,6 +224,53 @@ def composed_track(fwd, bwd, depth, t, first, last, theta, max_step, quads):
     return result
 
 
+def static_tracks(tracks, reference_z, intensity, depth_t, t, first, last, quad, tol, ratio, box):
+    """A33 as a rewrite of the tracks: where the pixel is static, its "track" is the pixel
+    itself in each frame whose reference depth there is within ``tol * q z~_t^2`` of frame t's.
+
+    Static: raw depth valid at t, the reference depth at the pixel within that tolerance in
+    every frame where it is finite, and sum over a (2 box + 1)^2 box (mirrored at the border,
+    edge not repeated) of sum_T (I_T(x) - I_t(x))^2 at most ``ratio`` times the same sum at
+    the tracks' landings (the pixel's own term where a track is invalid). Returns the new
+    tracks dict and the static mask.
+    """
+    _n, h, w = reference_z.shape
+    still = np.zeros((h, w), bool)
+    zero = np.zeros((h, w))
+    moved = np.zeros((h, w))
+    others = [T for T in range(first, last + 1) if t != T]
+    for v in range(h):
+        for u in range(w):
+            zt = float(reference_z[t, v, u])
+            limit = tol * quad * zt * zt
+            still[v, u] = not (np.isnan(depth_t[v, u]) or np.isnan(zt)) and all(
+                not abs(float(reference_z[T, v, u]) - zt) > limit for T in others
+            )
+            for T in others:
+                own = (float(intensity[T, v, u]) - float(intensity[t, v, u])) ** 2
+                r, c, ok = tracks[(T, v, u)]
+                landed = (float(intensity[T, r, c]) - float(intensity[t, v, u])) ** 2
+                zero[v, u] += own
+                moved[v, u] += landed if ok else own
+
+    def box_sum(a):
+        padded = np.pad(a, box, mode="reflect")
+        return sum(
+            padded[box + dv : box + dv + h, box + du : box + du + w]
+            for dv in range(-box, box + 1)
+            for du in range(-box, box + 1)
+        )
+
+    static = still & (box_sum(zero) <= ratio * box_sum(moved))
+    out = dict(tracks)
+    for v, u in zip(*np.nonzero(static), strict=True):
+        zt = float(reference_z[t, v, u])
+        for T in others:
+            near = abs(float(reference_z[T, v, u]) - zt) <= tol * quad * zt * zt
+            out[(T, v, u)] = (v, u, bool(near))
+    return out, static
+
+
 def pair_motion(fwd, bwd, ref_t, ref_t1, depth_t, depth_t1, theta, max_step, quad, per_step):
     """FB error map (bilinear at the unrounded landing, px) and one-step motion (Eq. 3, mm)."""
     h, w = depth_t.shape
@@ -521,6 +568,27 @@ def engine_frame(depth, intensity, fwd, bwd, intrinsics, params, t):
             p.max_depth_step,
             quad,
             p.quantize == "per_step",
+        )
+    if p.static_tracks and last > first:  # A33
+        from fuse4d.static_tracks import (  # constants of the method, not the code
+            STATIC_BOX_RADIUS,
+            STATIC_DEPTH_TOLERANCE,
+            STATIC_PHOTO_RATIO,
+        )
+
+        ref_z = np.stack([f[2][..., 2] for f in frames])
+        tracks, _static = static_tracks(
+            tracks,
+            ref_z,
+            intensity,
+            d_all[t],
+            t,
+            first,
+            last,
+            quad,
+            STATIC_DEPTH_TOLERANCE,
+            STATIC_PHOTO_RATIO,
+            STATIC_BOX_RADIUS,
         )
     tw = np.arange(max(p.past_frames, p.future_frames) + 1, dtype=np.float64)
     weights = (

@@ -371,6 +371,8 @@ def _fuse_kernel(
     trajectory,
     f_crit,
     min_bias,
+    static,
+    static_tol_quad,
     out_points,
     support,
     hole,
@@ -400,6 +402,10 @@ def _fuse_kernel(
     for larger n) and the parabola moves its value at t by more than ``min_bias`` times the
     pixel's noise sigma(z) (f_crit and min_bias are unused by the other codes). 0 (or
     False): the frame base.
+
+    static (H,W) bool (A33, ``fuse4d.static_tracks``): a static pixel's samples are the pixel
+    itself in each frame T whose reference depth there lies within ``static_tol_quad *
+    z~_t^2`` mm of frame t's, instead of its tracks (``land_*`` unused for it).
 
     base_out (H,W,3) receives the base offset (mm) added to P~^t[x_i]: the trajectory fit's
     value at t minus P~^t[x_i] (0 with the frame base and at holes, NaN where P~^t is NaN),
@@ -438,10 +444,17 @@ def _fuse_kernel(
                 wt = temporal_weight[abs(T - t)]
                 tau = float(T - t)
                 for u in range(w):
-                    if not land_ok[k, v, u]:
+                    if static[v, u]:  # A33: the pixel's own sample, if its depth agrees
+                        zt = ref_ring[st, v, u, 2]
+                        if not abs(ref_ring[sT, v, u, 2] - zt) <= static_tol_quad * zt * zt:
+                            continue
+                        r = v
+                        c = u
+                    elif land_ok[k, v, u]:
+                        r = land_row[k, v, u]
+                        c = land_col[k, v, u]
+                    else:
                         continue
-                    r = land_row[k, v, u]
-                    c = land_col[k, v, u]
                     dx = bil_ring[sT, r, c, 0] - ref_ring[sT, r, c, 0]
                     dy = bil_ring[sT, r, c, 1] - ref_ring[sT, r, c, 1]
                     dz = bil_ring[sT, r, c, 2] - ref_ring[sT, r, c, 2]

@@ -1,0 +1,168 @@
+"""A33: static pixels keep still (fuse4d.static_tracks, FusionParams.static_tracks)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fuse4d import Intrinsics, fuse_sequence
+from fuse4d.config import FusionParams
+from fuse4d.flow import SequenceFlow
+from fuse4d.motion import _pair_ring, _track_window
+from fuse4d.static_tracks import (
+    STATIC_BOX_RADIUS,
+    STATIC_DEPTH_TOLERANCE,
+    STATIC_PHOTO_RATIO,
+    static_pixels,
+)
+from naive import fusion as naive
+
+
+def _scene(rng, n=9, h=40, w=56, jitter=1.0):
+    """A quantised, textureless static wall at 2.5 m with DIS-like spurious flow (smooth,
+    forward-backward consistent, up to ~``jitter`` px, new in every pair), and a textured
+    foreground square at 1.5 m moving 2 px per frame to the right with its exact flow."""
+    k = Intrinsics(fx=580.0, fy=580.0, cx=w / 2, cy=h / 2, width=w, height=h)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    step = 2500.0**2 / (580.0 * 75.0 * 8.0)  # one disparity level of a Kinect v1 at 2.5 m
+    wall = 2500.0 + 0.8 * xx + rng.normal(0, 0.35 * step, (n, h, w))
+    depth = (np.round(wall / step) * step).astype(np.float32)
+    inten = np.full((n, h, w), 0.5, np.float32) + rng.normal(0, 0.01, (n, h, w)).astype(np.float32)
+    r0, r1, side = int(0.3 * h), int(0.7 * h), w // 4
+    texture = rng.uniform(0.1, 0.9, (r1 - r0, side)).astype(np.float32)
+    fwd = np.empty((n - 1, h, w, 2), np.float32)
+    square = np.zeros((n, h, w), bool)
+    for t in range(n):
+        c0 = w // 8 + 2 * t
+        square[t, r0:r1, c0 : c0 + side] = True
+        depth[t, r0:r1, c0 : c0 + side] = 1500.0
+        inten[t, r0:r1, c0 : c0 + side] = texture  # the texture moves with the square
+    for t in range(n - 1):
+        phase = rng.uniform(0, 2 * np.pi, 2)
+        fwd[t, ..., 0] = jitter * np.sin(xx / 9.0 + phase[0]) * np.cos(yy / 7.0)
+        fwd[t, ..., 1] = jitter * np.cos(xx / 8.0) * np.sin(yy / 11.0 + phase[1])
+        fwd[t][square[t]] = (2.0, 0.0)
+    bwd = -fwd  # consistent enough for the FB check (the flow is smooth)
+    for t in range(n - 1):
+        bwd[t][square[t + 1]] = (-2.0, 0.0)
+    return depth, inten, fwd, bwd, k, square
+
+
+def test_static_pixels_match_the_oracle(rng):
+    depth, inten, fwd, bwd, _k, _square = _scene(rng, n=5, h=14, w=18, jitter=0.8)
+    ref = depth.copy()  # any reference: a slightly smoothed copy keeps some pixels apart
+    ref[:, :, 1:] = 0.5 * (depth[:, :, 1:] + depth[:, :, :-1])
+    ref_points = np.zeros((*ref.shape, 3), np.float32)
+    ref_points[..., 2] = ref
+    quad = 4.0e-6
+    t, first, last = 2, 0, 4
+    slots, rows, cols, ok = _track_window(
+        _pair_ring(fwd),
+        _pair_ring(bwd),
+        depth,
+        t,
+        first,
+        last,
+        fb_threshold=2.0,
+        max_step=10.0,
+        quad=quad,
+        per_step=False,
+    )
+    got = static_pixels(ref_points, inten, depth[t], slots, t, first, (rows, cols, ok), quad)
+    tracks = naive.track(fwd, bwd, depth, t, first, last, 2.0, 10.0, quad)
+    _tracks, expected = naive.static_tracks(
+        tracks,
+        ref,
+        inten,
+        depth[t],
+        t,
+        first,
+        last,
+        quad,
+        STATIC_DEPTH_TOLERANCE,
+        STATIC_PHOTO_RATIO,
+        STATIC_BOX_RADIUS,
+    )
+    np.testing.assert_array_equal(got, expected)
+    assert 0 < got.mean() < 1  # both kinds of pixel occur
+
+
+def _static_mask(depth, inten, shift=2.0):
+    """static_pixels on a scene whose every pixel moves ``shift`` px per frame to the right
+    (exact flows, valid tracks), t = 2 of 5 frames, reference = the raw depth."""
+    n, h, w = depth.shape
+    fwd = np.zeros((n - 1, h, w, 2), np.float32)
+    fwd[..., 0] = shift
+    ref = np.zeros((*depth.shape, 3), np.float32)
+    ref[..., 2] = depth
+    quad = 2.0e-6  # 2 q z^2 = 9 mm at 1.5 m
+    slots, rows, cols, ok = _track_window(
+        _pair_ring(fwd),
+        _pair_ring(-fwd),
+        depth,
+        2,
+        0,
+        n - 1,
+        fb_threshold=1.0,
+        max_step=10.0,
+        quad=quad,
+        per_step=False,
+    )
+    return static_pixels(ref, inten, depth[2], slots, 2, 0, (rows, cols, ok), quad)
+
+
+def test_static_needs_still_depth_and_no_better_flow(rng):
+    n, h, w = 5, 20, 40
+    depth = np.full((n, h, w), 1500.0, np.float32)
+    inside = (slice(None), slice(4, -4))  # tracks from the middle columns stay in the image
+    texture = rng.uniform(0.1, 0.9, (h, w + 2 * n)).astype(np.float32)
+    moving = np.stack([texture[:, 2 * (n - t) : 2 * (n - t) + w] for t in range(n)])
+    # a textured surface sliding sideways at constant depth: the flow explains the intensity
+    assert not _static_mask(depth, moving)[inside].any()
+    # the same without texture (intensity noise only): standing still is as good
+    flat = 0.5 + rng.normal(0, 0.01, (n, h, w)).astype(np.float32)
+    assert _static_mask(depth, flat)[inside].all()
+    # ... unless the depth at the pixel moves by more than 2 q z^2 in some frame
+    stepped = depth.copy()
+    stepped[4, :, : w // 2] += 10.0
+    mask = _static_mask(stepped, flat)
+    assert not mask[:, 4 : w // 2].any()
+    assert mask[:, w // 2 : -4].all()
+    # frame t's own holes are never static
+    holed = depth.copy()
+    holed[2, 5:8, 10:14] = np.nan
+    assert not _static_mask(holed, flat)[5:8, 10:14].any()
+
+
+def _flicker(depth, mask):
+    """Mean |frame-to-frame change| (mm) over the (H, W) ``mask``'s pixels, where valid."""
+    step = np.abs(np.diff(depth, axis=0))
+    both = mask[None] & np.isfinite(step)
+    return float(step[both].mean())
+
+
+@pytest.mark.parametrize("tracks", ["exact", "composed"])
+def test_static_background_stops_flickering_without_trails(rng, tracks):
+    depth, inten, fwd, bwd, k, square = _scene(rng)
+    flows = SequenceFlow(fwd, bwd)
+    on = FusionParams(tracks=tracks)
+    off = on.replace(static_tracks=False)
+    fused_on = fuse_sequence(depth, inten, k, fusion=on, flow=flows).depth
+    fused_off = fuse_sequence(depth, inten, k, fusion=off, flow=flows).depth
+    # the wall never covered by the square, in the frames with a full window (2..6)
+    wall = ~np.any(square, axis=0)
+    wall[:, :3] = wall[:, -3:] = False  # away from the border, where tracks leave
+    raw, f_on, f_off = (_flicker(d[2:7], wall) for d in (depth, fused_on, fused_off))
+    assert f_on < 0.6 * f_off < 0.6 * raw
+    # no trail: near the square's edges the output keeps the raw depth's side of the edge
+    edge = np.zeros_like(square)
+    for t in range(depth.shape[0]):
+        grown = np.roll(square[t], 3, axis=1) | np.roll(square[t], -3, axis=1)
+        grown |= np.roll(square[t], 3, axis=0) | np.roll(square[t], -3, axis=0)
+        edge[t] = grown & ~square[t]  # wall pixels within 3 px of the square
+        edge[t] |= square[t] & ~np.roll(square[t], 3, axis=1)  # square pixels near its edge
+    valid = edge & np.isfinite(depth) & np.isfinite(fused_on)
+    assert np.abs(fused_on - depth)[valid].max() < 100.0
+    # the moving textured square follows its tracks: the same result as without A33
+    inner = square & np.roll(square, 2, axis=2) & np.roll(square, -2, axis=2)
+    np.testing.assert_allclose(fused_on[inner], fused_off[inner], atol=1e-3)
