@@ -5,8 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fuse4d._kernels.holes import _temporal_fill_kernel, _temporal_fill_reference
-from fuse4d.holes import fill_small_holes, small_hole_mask
+from fuse4d._kernels.holes import (
+    _hole_run_sides_kernel,
+    _temporal_fill_kernel,
+    _temporal_fill_reference,
+)
+from fuse4d.holes import _rim_holes, fill_small_holes, small_hole_mask
 
 
 def _ring(depth, flow_u):
@@ -163,6 +167,47 @@ def test_spatial_fill_takes_one_side_and_never_blends_across_an_edge():
     out2, filled2 = fill_small_holes(d2, inten, radius=3)
     assert filled2.sum() == 8
     np.testing.assert_allclose(out2[filled2], 1500.0)
+
+
+def test_hole_runs_are_oriented_by_the_nearer_end():
+    d = np.array([[3000, np.nan, np.nan, 1500, 1500, np.nan, 3000, np.nan, 3004, np.nan]])
+    side = np.empty(d.shape, np.int16)
+    _hole_run_sides_kernel(d.astype(np.float32), 10.0, 0.0, side)
+    # foreground right of the first run, left of the second (signed run lengths); no edge at
+    # the third; the fourth touches the border
+    assert side.tolist() == [[0, 2, 2, 0, 0, -1, 0, 0, 0, 0]]
+
+
+def _edge_scene(rim_cols):
+    """A wall at 3 m with a foreground block at 1.5 m (cols 10-19) in a textureless scene (the
+    intensity cannot tell a shadow from a rim); shadow bands of 3 px left of the block in
+    rows 0-29; a 2-px rim dropout at ``rim_cols`` in rows 12-15."""
+    d = np.full((30, 30), 3000.0, np.float32)
+    d[:, 10:20] = 1500.0
+    d[:, 7:10] = np.nan  # the projector's shadow: left of the foreground
+    d[12:16, rim_cols] = np.nan
+    return d, np.full(d.shape, 0.5, np.float32)
+
+
+def test_rim_dropouts_away_from_the_shadow_side_take_the_foreground():
+    """Every shadow lies left of the foreground, so a hole right of it is the foreground's
+    grazing rim, not a shadow: it takes the foreground's depth even where the intensity
+    cannot tell (measured on the Kinect-model ball: the ball's far rim got the wall, 1 m off)."""
+    d, inten = _edge_scene(slice(18, 20))
+    rims = _rim_holes(d, max_step=10.0, quad=0.0)
+    assert rims[12:16, 18:20].all()
+    assert rims.sum() == 8  # the shadow bands are not rims
+    out, filled = fill_small_holes(d, inten, max_area_px=64)
+    assert filled[12:16, 18:20].all()
+    np.testing.assert_allclose(out[12:16, 18:20], 1500.0)
+    # a wide band on that side is no rim (a registration gap): the intensity rule decides
+    d3, _ = _edge_scene(slice(18, 20))
+    d3[12:16, 20:26] = np.nan
+    assert not _rim_holes(d3, max_step=10.0, quad=0.0)[12:16, 18:26].any()
+    # without a shadow side (the same rim, no shadow bands) nothing is forced
+    d2, _ = _edge_scene(slice(18, 20))
+    d2[:, 7:10] = 3000.0
+    assert not _rim_holes(d2, max_step=10.0, quad=0.0).any()
 
 
 def test_spatial_fill_prefers_similar_intensity():

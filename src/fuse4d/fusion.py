@@ -37,6 +37,7 @@ from .holes import (
     _fill_from_time,
     _fill_holes,
     _fill_small_holes,
+    _rim_holes,
     _side_consistent,
 )
 from .motion import (
@@ -743,6 +744,7 @@ class FusionEngine:
         if not _source_confidence_kernel(self._depth[slot], support, n, source, confidence, holes):
             return source, confidence
         _, quad, _ = self._noise[slot]
+        rims = _rim_holes(self._depth[slot], max_step=p.max_depth_step, quad=quad)
         if p.fill_from_time and last > first:
             filled_points, count = _fill_from_time(
                 self._fwd,
@@ -769,6 +771,7 @@ class FusionEngine:
                 self._depth[slot],
                 self._intensity[slot],
                 reached,
+                rims,
                 radius=p.fill_space_radius,
                 sigma_intensity=p.sigma_intensity,
                 max_step=p.max_depth_step,
@@ -787,6 +790,7 @@ class FusionEngine:
                 np.ascontiguousarray(points[..., 2]),
                 self._intensity[slot],
                 holes,
+                rims,
                 max_area_px=p.fill_max_hole_px,
                 radius=p.fill_space_radius,
                 sigma_intensity=p.sigma_intensity,

@@ -258,8 +258,42 @@ def _temporal_fill_reference(
 
 
 @njit_parallel
+def _hole_run_sides_kernel(depth, max_step, quad, side):
+    """Which side of a depth discontinuity each horizontal run of holes lies on.
+
+    For each maximal run of NaN pixels in a row with valid depth on both ends, ``side`` (int16)
+    gets the run's length (px) where the right end is nearer than the left end by more than
+    the depth-step limit (A22) of the nearer one (the foreground is to the run's right), minus
+    the length where the left end is nearer, and 0 elsewhere (no discontinuity, a run
+    touching the border, valid pixels). A projector's
+    occlusion shadow lies on one side of every foreground edge (the side away from the
+    projector along the baseline); :func:`fuse4d.holes._rim_holes` votes on it.
+    """
+    h, w = depth.shape
+    for v in prange(h):
+        u = 0
+        while u < w:
+            if not np.isnan(depth[v, u]):
+                side[v, u] = 0
+                u += 1
+                continue
+            start = u
+            while u < w and np.isnan(depth[v, u]):
+                u += 1
+            mark = 0
+            if start > 0 and u < w:
+                left = depth[v, start - 1]
+                right = depth[v, u]
+                nearer = min(left, right)
+                if abs(left - right) >= _step_limit(nearer, max_step, quad):
+                    mark = u - start if right < left else start - u
+            for uu in range(start, u):
+                side[v, uu] = mark
+
+
+@njit_parallel
 def _spatial_fill_kernel(
-    depth, intensity, target, radius, inv_2si2, inv_2ss2, max_step, quad, out_depth
+    depth, intensity, target, near_only, radius, inv_2si2, inv_2ss2, max_step, quad, out_depth
 ):
     """Fill ``target`` pixels from the valid neighbours of one side of the hole.
 
@@ -318,7 +352,9 @@ def _spatial_fill_kernel(
                             if d - near < near_limit:
                                 acc_near += wgt * d
                                 w_near += wgt
-                if w_far >= w_near and w_far > 0.0:
+                if near_only[v, u] and w_near > 0.0:
+                    out_depth[v, u] = acc_near / w_near
+                elif w_far >= w_near and w_far > 0.0:
                     out_depth[v, u] = acc_far / w_far
                 elif w_near > 0.0:
                     out_depth[v, u] = acc_near / w_near
