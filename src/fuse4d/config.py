@@ -183,7 +183,7 @@ class FusionParams:
         instead of its tracks (:mod:`fuse4d.static_tracks`). DIS answers 0.5-2 px of spurious
         motion on textureless or reflecting static background, so every track landed on
         another step of the quantised depth and the background flickered. Measured
-        (``docs/method_notes.md`` A33): uva background flicker 1.16 -> 0.67 mm (9-frame
+        (``docs/method_notes.md`` A33): uva background flicker 1.16 -> 0.66 mm (9-frame
         temporal mean 0.57), person roughness unchanged, silhouette trail 0 %; the paper's
         moving ball unchanged. Off = every pixel follows its tracks (METHOD).
     min_temporal_support : int
