@@ -9,12 +9,7 @@ from fuse4d import Intrinsics, fuse_sequence
 from fuse4d.config import FusionParams
 from fuse4d.flow import SequenceFlow
 from fuse4d.motion import _pair_ring, _track_window
-from fuse4d.static_tracks import (
-    STATIC_BOX_RADIUS,
-    STATIC_DEPTH_TOLERANCE,
-    STATIC_PHOTO_RATIO,
-    static_pixels,
-)
+from fuse4d.static_tracks import static_pixels
 from naive import fusion as naive
 
 
@@ -70,19 +65,7 @@ def test_static_pixels_match_the_oracle(rng):
     )
     got = static_pixels(ref_points, inten, depth[t], slots, t, first, (rows, cols, ok), quad)
     tracks = naive.track(fwd, bwd, depth, t, first, last, 2.0, 10.0, quad)
-    _tracks, expected = naive.static_tracks(
-        tracks,
-        ref,
-        inten,
-        depth[t],
-        t,
-        first,
-        last,
-        quad,
-        STATIC_DEPTH_TOLERANCE,
-        STATIC_PHOTO_RATIO,
-        STATIC_BOX_RADIUS,
-    )
+    _tracks, expected = naive.static_tracks(tracks, ref, inten, depth[t], t, first, last, quad)
     np.testing.assert_array_equal(got, expected)
     assert 0 < got.mean() < 1  # both kinds of pixel occur
 

@@ -224,9 +224,10 @@ def composed_track(fwd, bwd, depth, t, first, last, theta, max_step, quads):
     return result
 
 
-def static_tracks(tracks, reference_z, intensity, depth_t, t, first, last, quad, tol, ratio, box):
+def static_tracks(tracks, reference_z, intensity, depth_t, t, first, last, quad):
     """A33 as a rewrite of the tracks: where the pixel is static, its "track" is the pixel
-    itself in each frame whose reference depth there is within ``tol * q z~_t^2`` of frame t's.
+    itself in each frame whose reference depth there is within ``tol * q z~_t^2`` of frame t's
+    (``tol``, ``ratio``, ``box``: the method's constants in :mod:`fuse4d.static_tracks`).
 
     Static: raw depth valid at t, the reference depth at the pixel within that tolerance in
     every frame where it is finite, and sum over a (2 box + 1)^2 box (mirrored at the border,
@@ -234,6 +235,14 @@ def static_tracks(tracks, reference_z, intensity, depth_t, t, first, last, quad,
     the tracks' landings (the pixel's own term where a track is invalid). Returns the new
     tracks dict and the static mask.
     """
+    import fuse4d.static_tracks as method  # its constants, not its code
+
+    tol, ratio, box = (
+        method.STATIC_DEPTH_TOLERANCE,
+        method.STATIC_PHOTO_RATIO,
+        method.STATIC_BOX_RADIUS,
+    )
+
     _n, h, w = reference_z.shape
     still = np.zeros((h, w), bool)
     zero = np.zeros((h, w))
@@ -570,26 +579,8 @@ def engine_frame(depth, intensity, fwd, bwd, intrinsics, params, t):
             p.quantize == "per_step",
         )
     if p.static_tracks and last > first:  # A33
-        from fuse4d.static_tracks import (  # constants of the method, not the code
-            STATIC_BOX_RADIUS,
-            STATIC_DEPTH_TOLERANCE,
-            STATIC_PHOTO_RATIO,
-        )
-
         ref_z = np.stack([f[2][..., 2] for f in frames])
-        tracks, _static = static_tracks(
-            tracks,
-            ref_z,
-            intensity,
-            d_all[t],
-            t,
-            first,
-            last,
-            quad,
-            STATIC_DEPTH_TOLERANCE,
-            STATIC_PHOTO_RATIO,
-            STATIC_BOX_RADIUS,
-        )
+        tracks, _static = static_tracks(tracks, ref_z, intensity, d_all[t], t, first, last, quad)
     tw = np.arange(max(p.past_frames, p.future_frames) + 1, dtype=np.float64)
     weights = (
         np.ones_like(tw)
