@@ -4,6 +4,8 @@ colour wheel, and the ``flow`` / ``bench-flow`` CLI commands."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from dataclasses import replace
 
 import cv2
@@ -284,6 +286,45 @@ def test_dis_does_not_keep_a_stale_init():
     estimate_flow(image, moved, method="dis", init=np.full((*image.shape, 2), 5, np.float32))
     again = estimate_flow(image, moved, method="dis")
     np.testing.assert_array_equal(cold, again)
+
+
+@pytest.mark.parametrize("shape", [(3, 3), (8, 11), (5, 40), (12, 40), (16, 128), (31, 640)])
+def test_dis_on_images_it_cannot_take(shape):
+    """OpenCV's DIS raises on images under 12 px and crashes the process on short, wide ones
+    (12 x 40 px at its fast preset); fuse4d pads them (a small --roi crop is a valid input):
+    the flow has the image's shape, cold and warm-started (the start is padded alike)."""
+    image = texture(shape, sigma=1.0)
+    moved = np.roll(image, 1, axis=1)
+    init = np.ones((*shape, 2), np.float32)
+    for start in (None, init):
+        flow = estimate_flow(image, moved, method="dis", init=start)
+        assert flow.shape == (*shape, 2)
+        assert np.isfinite(flow).all()
+
+
+def test_dis_runs_on_every_small_shape():
+    """No shape up to 64 px crashes the process (run in a child process: a crash there is a
+    failed test here), with each preset and the finest scales / patch sizes around them."""
+    script = """
+import numpy as np
+from fuse4d.flow.opencv import DISParams, dis_flow
+settings = [DISParams.from_preset(p) for p in ("ultrafast", "fast", "medium")]
+settings += [DISParams(finest_scale=f, patch_size=s, patch_stride=s // 2)
+             for f in (0, 3, 4) for s in (8, 12)]
+sizes = (2, 5, 8, 11, 12, 15, 16, 23, 24, 31, 32, 47, 64)
+for p in settings:
+    for h in sizes:
+        for w in sizes + (100, 300, 640):
+            for a, b in ((h, w), (w, h)):
+                img = np.random.default_rng(a * 1000 + b).random((a, b), dtype=np.float32)
+                assert dis_flow(img, img, p, None).shape == (a, b, 2)
+print("ok")
+"""
+    done = subprocess.run(
+        [sys.executable, "-c", script], check=False, capture_output=True, text=True
+    )
+    assert done.returncode == 0, (done.returncode, done.stderr[-2000:])
+    assert done.stdout.strip() == "ok"
 
 
 def test_init_ignored_for_deepflow():

@@ -34,6 +34,7 @@ The DeepFlow variant of OpenCV exposes no parameters to Python (its C++ fields `
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from typing import Any, ClassVar, Literal
 
@@ -176,9 +177,63 @@ def dis_flow(
     ``init`` (a same-size flow) is handed to ``DISOpticalFlow.calc``, which resamples it to
     every pyramid level and tries it as an extra candidate for each patch (OpenCV's "temporal
     candidates"); it does not replace the coarse-to-fine search.
+
+    Images that OpenCV's DIS cannot take (under 12 px; short and wide ones such as 12 x 40 px,
+    on which OpenCV 4.x-5.x crashes the process, see :func:`_dis_accepts`) are padded by edge
+    replication to the nearest size it takes, and the flow of the original pixels is returned.
     """
     dis = _make_dis(params)
-    return dis.calc(to_uint8(image0), to_uint8(image1), _init_or_none(init))
+    h, w = image0.shape[:2]
+    need_h, need_w = _dis_padded_shape(h, w, params)
+    if (need_h, need_w) == (h, w):
+        return dis.calc(to_uint8(image0), to_uint8(image1), _init_or_none(init))
+
+    def padded(a: NDArray) -> NDArray:
+        return cv2.copyMakeBorder(a, 0, need_h - h, 0, need_w - w, cv2.BORDER_REPLICATE)
+
+    flow = dis.calc(
+        padded(to_uint8(image0)),
+        padded(to_uint8(image1)),
+        None if init is None else padded(_init_or_none(init)),
+    )
+    return np.ascontiguousarray(flow[:h, :w])
+
+
+def _dis_accepts(height: int, width: int, params: DISParams) -> bool:
+    """Whether OpenCV's ``DISOpticalFlow.calc`` runs on a ``height x width`` image.
+
+    Mirrors ``DISOpticalFlowImpl::calc`` (OpenCV 4.5-5.x): the coarsest pyramid level is
+    ``min(int(log2(max side / (4 patch)) + 0.5), int(log2(min side // patch)))``; below 0 it
+    raises; below ``finest_scale`` it replaces the scales and patch size with a choice from
+    the image *width* alone (``autoSelectPatchSizeAndScales``), whose coarsest level can be
+    shorter than a patch on a short, wide image, and then it reads out of bounds. This test
+    asks that level to hold a patch of the larger candidate size (12 px), which is
+    conservative: it may refuse sizes OpenCV would take (they are then padded, not lost).
+    Checked against OpenCV 5.1 on 1440 shapes and settings; ``tests/test_flow.py`` runs
+    :func:`dis_flow` on every shape up to 64 px (and 640 px wide) in a child process.
+    """
+    patch, finest = int(params.patch_size), int(params.finest_scale)
+    short, long = min(height, width), max(height, width)
+    if short // patch < 1:
+        return False
+    coarsest = min(int(math.log2(long / (4.0 * patch)) + 0.5), int(math.log2(short // patch)))
+    if coarsest < 0:
+        return False
+    if coarsest >= finest:
+        return True
+    auto_coarsest = max(0, math.floor(math.log2(2.0 * width / (5.0 * 8))))
+    return min(height, width) >> auto_coarsest >= 12
+
+
+def _dis_padded_shape(height: int, width: int, params: DISParams) -> tuple[int, int]:
+    """The given shape, or the nearest one (shorter side grown 1 px at a time) that
+    :func:`_dis_accepts`."""
+    while not _dis_accepts(height, width, params):
+        if height <= width:
+            height += 1
+        else:
+            width += 1
+    return height, width
 
 
 # --------------------------------------------------------------------------------------------
