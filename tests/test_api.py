@@ -126,6 +126,10 @@ MODULES = [
     ("fuse4d.sensors", "Depth-sensor models: structured light, active stereo, time of flight"),
     ("fuse4d.range_scenes", "Scenes at 1-5 m seen through a sensor model, with ground truth"),
     ("fuse4d.camera", "Pinhole camera, Eq. 2 back-projection"),
+    (
+        "fuse4d.decimate",
+        "Depth, intensity and camera at 1/f of the resolution (the RealSense decimation filter)",
+    ),
     ("fuse4d.sequence", "The in-memory recording"),
     ("fuse4d.config", "Fusion parameters, presets, TOML files"),
     ("fuse4d.fusion", "The fusion engine (Eq. 5-6)"),

@@ -12,8 +12,8 @@ from scipy import ndimage as ndi
 from fuse4d import FusionParams, load_config, load_sequence, preset
 from fuse4d.cli import main
 from fuse4d.errors import InputFileError
-from fuse4d.io import FrameFolderWriter, read_npz_extra
-from fuse4d.synthetic import make_falling_ball
+from fuse4d.io import FrameFolderWriter, read_npz_extra, write_npz
+from fuse4d.synthetic import make_falling_ball, make_scene
 
 
 @pytest.fixture(scope="module")
@@ -266,6 +266,18 @@ def test_bench_input_times_a_recording_with_io_stages(tmp_path, capsys):
     assert {"flow", "fill", "read", "write", "summary", "io_wait"} <= set(result["stage_ms"])
     assert result["stage_ms"]["read"] > 0
     assert result["us_per_pixel"] > 0
+
+
+def test_bench_input_npz_is_refused_with_one_clear_line(tmp_path, capsys):
+    """An .npz is not streamed: one error line that says what to give, not an internal error."""
+    seq = make_scene("ball", small=True, num_frames=3, rng=0)
+    src = tmp_path / "ball.npz"
+    write_npz(seq, src)
+    assert main(["bench", "--input", str(src), "--frames", "2"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("fuse4d: error:") == 1
+    assert "internal error" not in err
+    assert "write_zarr" in err
 
 
 def test_bench_input_causal_runs_the_causal_streaming_path(tmp_path, monkeypatch, capsys):

@@ -80,6 +80,14 @@ def live_command(
             "(across the gap as if consecutive).",
         ),
     ] = "restart",
+    decimate: Annotated[
+        int,
+        typer.Option(
+            "--decimate",
+            help="Fuse at 1/N of the resolution (N x N blocks, as the RealSense decimation "
+            "filter: lower median of the valid depths for N = 2-3, mean for 4-8); 1 = off.",
+        ),
+    ] = 1,
     max_frames: Annotated[
         int | None, typer.Option("--frames", help="Stop after this many frames.")
     ] = None,
@@ -118,7 +126,9 @@ def live_command(
     waiting frame is dropped, so latency stays bounded. At a gap the engine restarts (its
     window and flow warm start begin again) unless --on-gap track.
     """
+    from ..decimate import MAX_DECIMATION
     from ..live import (
+        DecimatedSource,
         LiveWriter,
         RealSenseSource,
         RecordingSource,
@@ -134,6 +144,8 @@ def live_command(
         fail(f"--queue must be >= 1, got {queue_size}")
     if fps is not None and fps <= 0:
         fail(f"--fps must be > 0, got {fps}")
+    if not 1 <= decimate <= MAX_DECIMATION:
+        fail(f"--decimate must be 1..{MAX_DECIMATION}, got {decimate}")
     fusion, flow = _resolve(preset_name, config, window, True, sets, flow_method, flow_params)
     if input_path is None:
         if not realsense_available():
@@ -147,6 +159,8 @@ def live_command(
         )  # fmt: skip
         realtime = realtime or fps is not None
         source = RecordingSource(input_path, realtime=realtime, fps=fps, **options)
+    if decimate > 1:
+        source = DecimatedSource(source, decimate)
     sinks: list[Any] = []
     stop = threading.Event()
     with contextlib.ExitStack() as stack:
@@ -177,6 +191,11 @@ def live_command(
             "fuse4d live: "
             + ("camera" if input_path is None else str(input_path))
             + (f" at {source.fps:g} fps" if realtime and source.fps else "")
+            + (
+                f", decimated {decimate}x to {source.intrinsics.width}x{source.intrinsics.height}"
+                if decimate > 1
+                else ""
+            )
             + f", window {fusion.num_frames} (causal), queue {queue_size}, Ctrl-C stops"
         )
         stats = run_live(
@@ -197,6 +216,8 @@ def live_command(
         "input": "camera" if input_path is None else str(input_path),
         "output": None if output is None else str(output),
         "window": fusion.num_frames,
+        "decimate": decimate,
+        "size": [source.intrinsics.width, source.intrinsics.height],
         "flow_method": flow.method,
         "realtime": realtime,
         "source_fps": source.fps,
@@ -250,6 +271,11 @@ def _table(s: dict[str, Any]) -> Table:
                 f"{s['window']} frames (causal), flow {s['flow_method']}; "
                 f"{s['mean_window']:.2f} frames fused per output on average"
             ),
+        ),
+        (
+            "size",
+            f"{s['size'][0]}x{s['size'][1]}"
+            + (f" (decimated {s['decimate']}x)" if s["decimate"] > 1 else ""),
         ),
         (
             "frames",

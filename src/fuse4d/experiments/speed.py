@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from ..config import preset as get_preset
+from ..errors import ParameterError
 from ..fusion import STAGES, FusionEngine
 from ..synthetic import make_falling_ball
 
@@ -194,7 +195,12 @@ def benchmark_recording(
     src = Path(path)
     fmt = detect_format(src)
     if fmt == "npz":
-        raise ValueError(f"{src}: bench --input times the streaming path; give a recording")
+        raise ParameterError(
+            f"{src}: bench --input times the streaming path of `fuse4d run`, and an .npz is "
+            "read whole into memory, not streamed; give a recording (frame folder, .zarr, "
+            ".mkv, ROS bag, ...), e.g. fuse4d.io.write_zarr(fuse4d.io.load_sequence(REC), "
+            "'rec.zarr')"
+        )
     common = {
         "src": src,
         "fmt": fmt,
