@@ -149,3 +149,63 @@ def test_static_background_stops_flickering_without_trails(rng, tracks):
     # the moving textured square follows its tracks: the same result as without A33
     inner = square & np.roll(square, 2, axis=2) & np.roll(square, -2, axis=2)
     np.testing.assert_allclose(fused_on[inner], fused_off[inner], atol=1e-3)
+
+
+@pytest.mark.parametrize("trajectory", [1, 3])
+def test_static_pixels_have_a_constant_trajectory(rng, trajectory):
+    """A34: with a trajectory base, a static pixel's base is the weighted mean of its motion
+    vectors (t's own zero included), not a line through them: at the end of a causal window a
+    line extrapolates its fitted noise. Kernel against the oracle, static pixels fused from
+    their own samples (A33) and the others along their tracks."""
+    from fuse4d._kernels.fusion import _fuse_kernel
+    from fuse4d.fusion import CURVATURE_MIN_BIAS, curvature_f_critical
+
+    n, h, w = 5, 10, 12
+    first, last = 0, n - 1
+    t = last  # causal: the window ends at t
+    slots = np.arange(n, dtype=np.int64)
+    bil = (rng.normal(0, 0.3, (n, h, w, 3)) + 2000).astype(np.float32)
+    ref = (rng.normal(0, 0.3, (n, h, w, 3)) + 2000).astype(np.float32)
+    ref[..., 2] += np.arange(n, dtype=np.float32)[:, None, None] * 0.2  # a drift to fit
+    rows = rng.integers(0, h, (n - 1, h, w)).astype(np.int32)
+    cols = rng.integers(0, w, (n - 1, h, w)).astype(np.int32)
+    ok = rng.random((n - 1, h, w)) < 0.8
+    static = rng.random((h, w)) < 0.5
+    tol_quad = 1.5 / 2000.0**2  # 1.5 mm at 2 m: some of the own samples fail it
+    tracks = {}
+    for k, T in enumerate(range(first, last)):
+        for v in range(h):
+            for u in range(w):
+                if static[v, u]:
+                    zt = float(ref[t, v, u, 2])
+                    agree = abs(float(ref[T, v, u, 2]) - zt) <= tol_quad * zt * zt
+                    tracks[(T, v, u)] = (v, u, agree)
+                else:
+                    tracks[(T, v, u)] = (int(rows[k, v, u]), int(cols[k, v, u]), bool(ok[k, v, u]))
+    weights = np.exp(-(np.arange(n, dtype=np.float64) ** 2) / 18.0)
+    out = np.empty((h, w, 3), np.float32)
+    support = np.empty((h, w), np.uint8)
+    hole = np.empty((h, w), bool)
+    base = np.empty((h, w, 3), np.float32)
+    gate = 1e9
+    _fuse_kernel(
+        bil, ref, slots, t, first, rows, cols, ok, weights, 1, np.inf, 0.3, 0.0, gate,
+        trajectory, curvature_f_critical(n), CURVATURE_MIN_BIAS, static, tol_quad,
+        out, support, hole, base,
+    )  # fmt: skip
+    expected, exp_support = naive.fuse(
+        bil, ref, tracks, t, first, last, weights, gate, trajectory=trajectory,
+        noise=lambda z: 0.3, min_bias=CURVATURE_MIN_BIAS, constant=static,
+    )  # fmt: skip
+    np.testing.assert_array_equal(support, exp_support)
+    fused = support >= 1
+    assert (fused & static).sum() > 10
+    assert (fused & ~static).sum() > 10
+    np.testing.assert_allclose(out[fused], expected[fused], atol=1e-3)
+    # the line would have extrapolated the drift: different at the static pixels
+    line, _ = naive.fuse(
+        bil, ref, tracks, t, first, last, weights, gate, trajectory=trajectory,
+        noise=lambda z: 0.3, min_bias=CURVATURE_MIN_BIAS,
+    )  # fmt: skip
+    assert np.abs(line - expected)[fused & static].max() > 0.1
+    np.testing.assert_allclose(line[fused & ~static], expected[fused & ~static])

@@ -23,7 +23,9 @@ motion, which leaves a plane's depth as it is (``static_room_rgbd``: flicker wit
 
 A static pixel's samples are the pixel itself in every frame T whose z~ at that pixel is
 within the same tolerance (the fusion kernel takes them instead of the tracks, METHOD §5.2
-unchanged otherwise). The depth condition keeps the no-trail property: a foreground edge
+unchanged otherwise). With a trajectory base (A21/A28/A32) its trajectory is constant (our
+A34): the base is the weighted mean of its motion vectors, t's own zero included, not a line
+through them, whose slope is fitted noise that a causal window (t at its end) extrapolates. The depth condition keeps the no-trail property: a foreground edge
 crossing the pixel moves z~ by far more than two levels. Holes of frame t are never static
 (the A26 fill from time keeps its tracks).
 """

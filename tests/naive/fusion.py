@@ -358,6 +358,7 @@ def fuse(
     base_out=None,
     noise=None,
     min_bias=0.0,
+    constant=None,
 ):
     """Outer sum of Eq. 5 along given tracks, with the temporal range gate (A19) and,
     optionally, the trajectory base (A21: least-squares line through the motion vectors;
@@ -367,7 +368,9 @@ def fuse(
 
     ``gate``: mm, or a function of frame t's reference depth z (mm) giving the gate in mm;
     ``noise``: a function of z giving the depth noise sigma(z) in mm (A32's bias floor is
-    ``min_bias`` sigma(z); None: 0).
+    ``min_bias`` sigma(z); None: 0). ``constant`` (H, W) bool: with a trajectory base, these
+    pixels' trajectory is constant (A34, the static pixels of A33): the weighted mean of
+    their motion vectors, t's own zero included.
     """
     _n, h, w, _ = bilateral.shape
     out = np.full((h, w, 3), np.nan)
@@ -395,7 +398,9 @@ def fuse(
                 support[v, u] += 1
             wts_a = np.array(wts)
             base = np.zeros(3)
-            if trajectory:
+            if trajectory and constant is not None and constant[v, u]:
+                base = np.average(np.array(motions), axis=0, weights=wts_a)
+            elif trajectory:
                 z = float(reference[t, v, u, 2])
                 floor = min_bias * (noise(z) if noise is not None else 0.0)
                 base = _trajectory_fit(np.array(taus), wts_a, np.array(motions), trajectory, floor)
@@ -580,7 +585,9 @@ def engine_frame(depth, intensity, fwd, bwd, intrinsics, params, t):
         )
     if p.static_tracks and last > first:  # A33
         ref_z = np.stack([f[2][..., 2] for f in frames])
-        tracks, _static = static_tracks(tracks, ref_z, intensity, d_all[t], t, first, last, quad)
+        tracks, static = static_tracks(tracks, ref_z, intensity, d_all[t], t, first, last, quad)
+    else:
+        static = None
     tw = np.arange(max(p.past_frames, p.future_frames) + 1, dtype=np.float64)
     weights = (
         np.ones_like(tw)
@@ -606,6 +613,7 @@ def engine_frame(depth, intensity, fwd, bwd, intrinsics, params, t):
         base_out=base,
         noise=lambda z: max(sigma0, quad * z * z),
         min_bias=CURVATURE_MIN_BIAS,
+        constant=static,
     )
     hole = np.isfinite(ref_all[t, ..., 2]) & (support < p.min_temporal_support)
     if p.base_smoothing > 0 and p.base != "frame" and not math.isinf(p.base_fine_limit):

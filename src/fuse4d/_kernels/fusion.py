@@ -405,7 +405,9 @@ def _fuse_kernel(
 
     static (H,W) bool (A33, ``fuse4d.static_tracks``): a static pixel's samples are the pixel
     itself in each frame T whose reference depth there lies within ``static_tol_quad *
-    z~_t^2`` mm of frame t's, instead of its tracks (``land_*`` unused for it).
+    z~_t^2`` mm of frame t's, instead of its tracks (``land_*`` unused for it); with a
+    trajectory base (codes 1-3) its trajectory is constant (A34): the base is the weighted
+    mean of its motion vectors, t's own zero included.
 
     base_out (H,W,3) receives the base offset (mm) added to P~^t[x_i]: the trajectory fit's
     value at t minus P~^t[x_i] (0 with the frame base and at holes, NaN where P~^t is NaN),
@@ -499,6 +501,15 @@ def _fuse_kernel(
                     continue
                 hole[v, u] = False
                 wsum = acc[6, u]
+                if trajectory and static[v, u]:
+                    # A34: a static pixel's trajectory is constant, its base the weighted
+                    # mean of the motion vectors (t's own 0 included); a line's slope would
+                    # be fitted noise, extrapolated at the end of a causal window
+                    for c in range(3):
+                        base = acc[13 + c, u] / wsum
+                        out_points[v, u, c] = ref_ring[st, v, u, c] + base + acc[3 + c, u] / wsum
+                        base_out[v, u, c] = base
+                    continue
                 # A21 line, A28 parabola, A32 the parabola for all three coordinates where
                 # some coordinate's curvature is significant (F test) and larger than
                 # min_bias sigma(z): one model for the point, so that the lateral and depth
