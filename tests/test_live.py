@@ -252,6 +252,23 @@ def test_cli_live_writes_the_causal_fusion(ball, reference, tmp_path, capsys):
     assert capsys.readouterr().err.count("fuse4d: error:") == 1
 
 
+def test_cli_live_says_what_to_do_when_the_fusion_falls_behind(ball, capsys):
+    """Overloaded (every fusion step 80 ms longer, 30 fps in): the drops, the frames fused
+    per output and the remedies on stderr, the JSON on stdout unchanged; without drops
+    (a queue as long as the recording) nothing is said."""
+    path, _ = ball
+    args = ["live", str(path), "--fps", "30", "--window", "3", "--json"]
+    assert main([*args, "--simulate-delay-ms", "80"]) == 0
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out)
+    assert summary["dropped"] > 0.1 * summary["frames_captured"]
+    assert f"{summary['dropped']} of {summary['frames_captured']} frames dropped" in captured.err
+    assert "--on-gap track" in captured.err
+    assert "--decimate 2" in captured.err
+    assert main([*args, "--queue", "64"]) == 0
+    assert "fell behind" not in capsys.readouterr().err
+
+
 def test_cli_live_without_camera_fails_cleanly(capsys, monkeypatch):
     import fuse4d.live
 

@@ -226,10 +226,40 @@ def live_command(
         "overlap_flow": overlap_flow,
         **stats.to_dict(),
     }
+    advice = _overload_advice(summary)
+    if advice:
+        eprint(advice)
     if as_json:
         print(json.dumps(summary, indent=2))
         return
     out_console.print(_table(summary))
+
+
+#: Dropped frames (fraction of the captured ones) above which ``fuse4d live`` says what to do.
+OVERLOAD_DROP_FRACTION = 0.1
+
+
+def _overload_advice(s: dict[str, Any]) -> str | None:
+    """A few lines for stderr when the fusion could not keep up (None when it did)."""
+    captured, dropped = s["frames_captured"], s["dropped"]
+    if not captured or dropped <= OVERLOAD_DROP_FRACTION * captured:
+        return None
+    head = (
+        f"fuse4d live: the fusion fell behind: {dropped} of {captured} frames dropped "
+        f"({s['fps']:.1f} fps fused of {s['input_fps']:.1f} in); each output fused "
+        f"{s['mean_window']:.1f} of up to {s['window']} frames on average"
+    )
+    lines = [head]
+    if s["on_gap"] == "restart" and s["mean_window"] < 0.6 * s["window"]:
+        lines.append(
+            "  every drop restarts the window, so little was fused: --on-gap track keeps "
+            "fusing across drops"
+        )
+    if s["decimate"] == 1:
+        lines.append("  --decimate 2 fuses at half resolution, about 3x the rate (docs/live.md)")
+    if s["window"] > 3:
+        lines.append(f"  a smaller --window (now {s['window']}) costs less per frame")
+    return "\n".join(lines)
 
 
 def _window_sink(stop: Any) -> Any:
