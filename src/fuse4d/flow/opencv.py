@@ -216,7 +216,11 @@ def _dis_accepts(height: int, width: int, params: DISParams) -> bool:
     short, long = min(height, width), max(height, width)
     if short // patch < 1:
         return False
-    coarsest = min(int(math.log2(long / (4.0 * patch)) + 0.5), int(math.log2(short // patch)))
+    # the same double expressions as OpenCV's (ln ratios, truncation toward zero)
+    ln2 = math.log(2.0)
+    coarsest = min(
+        int(math.log(long / (4.0 * patch)) / ln2 + 0.5), int(math.log(short // patch) / ln2)
+    )
     if coarsest < 0:
         return False
     if coarsest >= finest:
