@@ -9,7 +9,7 @@ import warnings
 import numpy as np
 import pytest
 
-from fuse4d import FusionParams, depth_to_points, fuse_sequence
+from fuse4d import FusionParams, Sequence, depth_to_points, fuse_sequence
 from fuse4d.camera import Intrinsics
 from fuse4d.cli import main
 from fuse4d.decimate import (
@@ -148,3 +148,15 @@ def test_cli_live_decimate_fuses_the_decimated_frames(ball, tmp_path, capsys):
     np.testing.assert_array_equal(written.depth, expected.depth)
     assert main([*args[:-1], "--force", "--decimate", "9"]) == 2
     assert "--decimate must be 1..8" in capsys.readouterr().err
+
+
+def test_cli_live_decimate_larger_than_the_image_is_one_error_line(tmp_path, capsys):
+    path = tmp_path / "tiny.npz"
+    k = Intrinsics(fx=6.0, fy=6.0, cx=2.5, cy=2.5, width=6, height=6)
+    depth = np.full((2, 6, 6), 1000.0, np.float32)
+    write_npz(Sequence(depth=depth, intensity=np.full_like(depth, 0.5), intrinsics=k), path)
+    assert main(["live", str(path), "--decimate", "8"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("fuse4d: error:") == 1
+    assert f"{path}: --decimate 8" in err
+    assert "smaller than one 8 x 8 block" in err

@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._kernels.decimate import _decimate_depth_kernel
 from ._validation import as_float32
 from .camera import Intrinsics
+from .errors import ParameterError
 
 __all__ = [
     "MAX_DECIMATION",
@@ -44,7 +45,7 @@ MAX_DECIMATION = 8
 
 def _check_factor(factor: int) -> int:
     if isinstance(factor, bool) or int(factor) != factor or not 1 <= factor <= MAX_DECIMATION:
-        raise ValueError(
+        raise ParameterError(
             f"decimation factor must be an integer 1..{MAX_DECIMATION}, got {factor!r}"
         )
     return int(factor)
@@ -52,9 +53,9 @@ def _check_factor(factor: int) -> int:
 
 def _check_size(shape: tuple[int, ...], factor: int, name: str) -> None:
     if len(shape) != 2:
-        raise ValueError(f"{name} must have shape (H, W), got {shape}")
+        raise ParameterError(f"{name} must have shape (H, W), got {shape}")
     if shape[0] < factor or shape[1] < factor:
-        raise ValueError(
+        raise ParameterError(
             f"{name} of {shape[0]} x {shape[1]} px is smaller than one {factor} x {factor} block"
         )
 
@@ -116,5 +117,6 @@ def decimate_intrinsics(intrinsics: Intrinsics, factor: int) -> Intrinsics:
     """The camera of the decimated image: focal lengths / f, principal point
     ``(c + 0.5) / f - 0.5`` (pixel centres), size ``(H // f, W // f)``."""
     f = _check_factor(factor)
+    _check_size((intrinsics.height, intrinsics.width), f, "the camera's image")
     scaled = intrinsics.scaled(1.0 / f)
     return dataclasses.replace(scaled, width=intrinsics.width // f, height=intrinsics.height // f)

@@ -127,6 +127,7 @@ def live_command(
     window and flow warm start begin again) unless --on-gap track.
     """
     from ..decimate import MAX_DECIMATION
+    from ..errors import ParameterError
     from ..live import (
         DecimatedSource,
         LiveWriter,
@@ -160,7 +161,11 @@ def live_command(
         realtime = realtime or fps is not None
         source = RecordingSource(input_path, realtime=realtime, fps=fps, **options)
     if decimate > 1:
-        source = DecimatedSource(source, decimate)
+        try:
+            source = DecimatedSource(source, decimate)
+        except ParameterError as exc:
+            source.close()
+            fail(f"{'camera' if input_path is None else input_path}: --decimate {decimate}: {exc}")
     sinks: list[Any] = []
     stop = threading.Event()
     with contextlib.ExitStack() as stack:
