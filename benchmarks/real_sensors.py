@@ -20,6 +20,13 @@ the true depth:
 * ``fill`` / ``rmse fill``: % of raw holes (true surface present) the method outputs a depth
   for, and the RMSE (mm) of those filled pixels.
 
+And per scene the *temporal bound*: on the static background pixels valid in every raw frame,
+the RMSE of each pixel's mean over all the frames of the clip (what a purely temporal method
+with perfect tracks reaches: the sensor's fixed-pattern error and the quantisation staircase
+stay), beside fuse4d and the tuned self-guided filter on the same pixels. Where the bound
+exceeds 0.35 × the guided filter, the issue's RMSE target is out of reach of temporal
+fusion, whatever the tracking.
+
 Targets (issue 10): fused RMSE <= 0.35 × the tuned self-guided filter and <= 0.25 × the
 9-frame mean; pixels > 1.5 steps off no more than raw.
 
@@ -158,11 +165,32 @@ def score(
     return {
         "scene": scene,
         "sensor": sensor,
+        "temporal bound": temporal_bound(seq.depth, truth, gt.mask, outputs),
         "size": f"{k.width}x{k.height}",
         "frames": frames,
         "common pixels %": float(100 * common.sum() / raw_valid.sum()),
         "raw holes %": float(100 * holes.mean()),
         "methods": methods,
+    }
+
+
+def temporal_bound(
+    raw: np.ndarray, truth: np.ndarray, moving: np.ndarray, outputs: dict[str, np.ndarray]
+) -> dict[str, float]:
+    """RMSE (mm) on the static pixels valid in every raw frame (never in the moving mask,
+    every output finite there) of: the per-pixel mean of raw over all frames (``bound``), the
+    raw frames, fuse4d fast and the tuned self-guided filter; ``pixels`` per frame."""
+    static = ~moving.any(axis=0) & np.isfinite(raw).all(axis=0)
+    for name in ("fuse4d fast", "guided self (tuned)"):
+        static &= np.isfinite(outputs[name]).all(axis=0)
+    every = np.broadcast_to(static, raw.shape)
+    mean = np.broadcast_to(raw.mean(axis=0), raw.shape)  # finite on the static pixels
+    return {
+        "pixels": int(static.sum()),
+        "raw": _rmse(raw, truth, every),
+        "bound": _rmse(mean, truth, every),
+        "fuse4d fast": _rmse(outputs["fuse4d fast"], truth, every),
+        "guided": _rmse(outputs["guided self (tuned)"], truth, every),
     }
 
 
@@ -225,6 +253,15 @@ def markdown(row: dict) -> str:
             f"{t['object rmse / tuned guided']:.2f}x tuned guided, "
             f"{t['object rmse / 9-frame mean']:.2f}x 9-frame mean"
         )
+    b = row["temporal bound"]
+    lines.append(
+        f"- temporal bound ({b['pixels']} static pixels valid in every frame, RMSE mm): raw "
+        f"{b['raw']:.2f}, each pixel's mean over all {row['frames']} frames {b['bound']:.2f}, "
+        f"fuse4d fast {b['fuse4d fast']:.2f}, tuned guided {b['guided']:.2f}: the bound is "
+        f"{b['bound'] / b['guided']:.2f}x the guided filter (the 0.35x target "
+        f"{'is' if b['bound'] <= 0.35 * b['guided'] else 'is not'} within reach of temporal "
+        "fusion)"
+    )
     return "\n".join(lines) + "\n"
 
 
