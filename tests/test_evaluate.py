@@ -290,7 +290,13 @@ def test_run_summary_says_what_each_number_means(tmp_path, capsys):
     assert f"the same {result.roughness_pixels} pixels (x frames) for both" in text
     assert f"on {result.static_pixels} static pixels" in text
     assert "(steadier)" in text
-    assert "not sensor holes" in text
+    assert "keep their own bilateral value (A35)" in text  # Eq. 6 is off by default
+    with_eq6 = fuse_file(
+        src, tmp_path / "o4.npz", fusion=FusionParams(num_frames=3, fill_holes=True)
+    )
+    console = Console(width=400, file=io.StringIO())
+    console.print(run_summary_table(with_eq6, with_eq6.params))
+    assert "not sensor holes" in console.file.getvalue()
     assert summary["fused_roughness_mm"] < summary["raw_roughness_mm"]
     assert summary["roughness_pixels"] > 0
     assert summary["static_pixels"] > 0

@@ -540,7 +540,7 @@ SWITCHES = {
     "output-points": {"output": "points"},
     "bilateral-points": {"bilateral": "points"},
     "fill-fallback-nan": {"fill_fallback": "nan"},
-    "no-fill": {"fill_holes": False},
+    "no-fill": {"fill_holes": False},  # the default since A35
     "reference-sigma": {"reference_sigma": 1.5},
     "motion-raw": {"motion_depth": "raw"},
     "base-frame": {"base": "frame"},
@@ -580,6 +580,7 @@ SWITCH_BASE = FusionParams(
     max_depth_step=0.6,
     min_temporal_support=3,
     min_gate_mm=0.3,
+    fill_holes=True,  # the paper's Eq. 6 (off by default since A35) is composed in too
 )
 
 

@@ -13,7 +13,8 @@ Two kinds of holes, one home:
   fused set F) and P_i the raw point of the hole. Onion peeling: each pass fills the holes with
   at least ``min_neighbours`` neighbours in F as F stood at the start of the pass, then adds
   them to F. A fill is accepted only within ``gate`` mm of the hole's current (fallback) value
-  (A20).
+  (A20). The engine runs it only with ``FusionParams(fill_holes=True)`` (our A35: off by
+  default, such pixels keep their own bilateral value, which measured more accurate).
 * **Sensor holes** (no raw depth: shadow bands beside foreground edges, dark or grazing
   surfaces, dropouts). The paper leaves them empty; two stages fill them where the data
   supports it, each switchable in :class:`fuse4d.FusionParams`:

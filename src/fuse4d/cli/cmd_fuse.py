@@ -324,8 +324,10 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
         ),
         (
             "Eq. 6 filled",
-            percent(summary.filled_fraction, 2),
-            "valid pixels without temporal support, filled from neighbours (not sensor holes)",
+            percent(summary.filled_fraction, 2) if fusion.fill_holes else "off",
+            "valid pixels without temporal support, filled from neighbours (not sensor holes)"
+            if fusion.fill_holes
+            else "valid pixels without temporal support keep their own bilateral value (A35)",
         ),
         (
             "time",

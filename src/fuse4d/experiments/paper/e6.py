@@ -62,7 +62,7 @@ VARIANTS: dict[str, tuple[dict[str, Any], str | None, str]] = {
     "theta=4": ({"fb_threshold": 4.0}, None, "θ = 4 px"),
     "theta=inf": ({"fb_threshold": INF}, None, "no FB check"),
     "depth_gate=off": ({"max_depth_step": INF}, None, "no 10 mm depth-jump gate"),
-    "fill_holes=off": ({"fill_holes": False}, None, "no Eq. 6 hole filling"),
+    "fill_holes=on": ({"fill_holes": True}, None, "the paper's Eq. 6 hole filling (A35: off)"),
     "flow=pmbp(K=3)": ({}, "pmbp", "paper tracker, K = 3 particles"),
     "flow=pmbp-fast(K=1)": ({}, "pmbp-fast", "PMBP fast mode, K = 1"),
     "flow=dis": ({}, "dis", "OpenCV DIS (non-paper)"),
