@@ -268,6 +268,15 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
         return f"{100 * fraction:.{digits}f} %" if math.isfinite(fraction) else "n/a"
 
     smooth = ("smoother", "rougher")
+    unsupported = "valid pixels without temporal support"
+    eq6 = (
+        (
+            percent(summary.filled_fraction, 2),
+            f"{unsupported}, filled from neighbours (not sensor holes)",
+        )
+        if fusion.fill_holes
+        else ("off", f"{unsupported} keep their own bilateral value (A35)")
+    )
 
     table = Table(title=f"fuse4d run: {summary.input} -> {summary.output}", show_header=True)
     table.add_column("")
@@ -322,13 +331,7 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
             percent(summary.support_fraction, 1),
             "valid pixels tracked into at least one other frame",
         ),
-        (
-            "Eq. 6 filled",
-            percent(summary.filled_fraction, 2) if fusion.fill_holes else "off",
-            "valid pixels without temporal support, filled from neighbours (not sensor holes)"
-            if fusion.fill_holes
-            else "valid pixels without temporal support keep their own bilateral value (A35)",
-        ),
+        ("Eq. 6 filled", *eq6),
         (
             "time",
             f"{summary.seconds:.1f} s",
