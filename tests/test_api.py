@@ -121,6 +121,7 @@ MODULES = [
     ),
     ("fuse4d.motion", "Eq. 3-4: tracks, motion fields, the depth-noise model"),
     ("fuse4d.holes", "Eq. 6 and the filling of sensor holes"),
+    ("fuse4d.flying_pixels", "Time-of-flight flying (mixed) pixels: found and left out (A36)"),
     ("fuse4d.baselines", "The paper's comparison methods behind one interface"),
     ("fuse4d.synthetic", "The paper's scenes with ground truth"),
     ("fuse4d.sensors", "Depth-sensor models: structured light, active stereo, time of flight"),

@@ -29,9 +29,11 @@ from .camera import Intrinsics, depth_to_points
 from .config import FlowConfig, FusionParams, preset
 from .errors import ShapeError
 from .flow import SequenceFlow, as_sequence_flow
+from .flying_pixels import flying_pixel_mask, resolve_flying_pixels
 from .holes import (
     SOURCE_FUSED,
     SOURCE_MEASURED,
+    SOURCE_REJECTED,
     SOURCE_SPACE,
     SOURCE_TIME,
     _fill_from_time,
@@ -110,7 +112,8 @@ class FusedFrame:
         Where each value comes from: :data:`fuse4d.holes.SOURCE_NONE` (0, no depth),
         ``SOURCE_MEASURED`` (1, raw depth without temporal support), ``SOURCE_FUSED`` (2,
         fused with >= 1 tracked frame), ``SOURCE_TIME`` (3, a sensor hole filled from other
-        frames, A26), ``SOURCE_SPACE`` (4, a small sensor hole filled in space, A27).
+        frames, A26), ``SOURCE_SPACE`` (4, a small sensor hole filled in space, A27),
+        ``SOURCE_REJECTED`` (5, raw depth removed as a ToF flying pixel, A36; no depth).
     confidence : (H, W) ndarray of float32
         Fraction of the n window frames that measured the value: (1 + support) / n for raw
         pixels, (tracked frames with depth) / n for time-filled holes, 0 for space-filled
@@ -246,6 +249,8 @@ class FusionEngine:
         h, w = intrinsics.height, intrinsics.width
         s = self.ring
         self._depth = np.full((s, h, w), np.nan, np.float32)
+        # A36: the flying pixels removed from each frame's raw depth (None: "off" / "auto")
+        self._rejected = np.zeros((s, h, w), np.bool_) if p.flying_pixels == "on" else None
         # (x_n, y_n, 1) of every pixel: depth z on the pixel's ray is z * ray (filled holes)
         self._rays = depth_to_points(np.ones((h, w), np.float32), intrinsics)
         # per-frame depth-noise model sigma(z) = max(sigma0, quad z^2) (A22) and median depth z_med
@@ -356,6 +361,13 @@ class FusionEngine:
         d = as_float32(depth, name="depth")
         check_shape(d, (h, w), name=f"depth (frame {index})")
         d = np.where(np.isfinite(d) & (d > 0), d, np.float32(np.nan))
+        slot = index % self.ring
+        if self._rejected is not None:  # A36, before anything sees the depth
+            t0 = time.perf_counter()
+            rejected = flying_pixel_mask(d, self.intrinsics)
+            d[rejected] = np.nan
+            self._rejected[slot] = rejected
+            self.timings["motion_reference"] += time.perf_counter() - t0
         inten = np.asarray(intensity)
         check_shape(inten, (h, w), name=f"intensity (frame {index})")
         inten = (
@@ -367,7 +379,6 @@ class FusionEngine:
             if points is not None:
                 raise ValueError("push takes points or a frame state, not both")
             _check_state(state, (h, w), index, separate=self._separate_reference)
-        slot = index % self.ring
         needs_pair = index > 0 and (self.past + self.future > 0 or pair_flow is not None)
         if needs_pair and pair_flow is None and self.overlap_flow and self.precomputed is None:
             self._start_flow(index, inten)
@@ -743,6 +754,9 @@ class FusionEngine:
         holes = np.empty(shape, np.bool_)
         if not _source_confidence_kernel(self._depth[slot], support, n, source, confidence, holes):
             return source, confidence
+        if self._rejected is not None and self._rejected[slot].any():  # A36: kept empty
+            source[self._rejected[slot]] = SOURCE_REJECTED
+            holes &= ~self._rejected[slot]
         _, quad, _ = self._noise[slot]
         rims = _rim_holes(self._depth[slot], max_step=p.max_depth_step, quad=quad)
         if p.fill_from_time and last > first:
@@ -939,6 +953,7 @@ def fuse_sequence(
     fusion: FusionParams | None = None,
     flow: FlowConfig | str | SequenceFlow | tuple | None = None,
     progress: Callable[[int, int], None] | None = None,
+    sensor: str | None = None,
 ) -> FusionResult:
     """Denoise a 3D video by intensity-guided 4D fusion (paper Eq. 2–6).
 
@@ -958,6 +973,10 @@ def fuse_sequence(
         :func:`fuse4d.flow.estimate_sequence_flow`) or a pair of ``(T-1, H, W, 2)`` px arrays.
     progress : callable, optional
         ``progress(done, total)`` after every output frame.
+    sensor : str, optional
+        The kind of depth camera (:attr:`fuse4d.Sequence.sensor`, e.g. ``"tof"``): decides
+        ``flying_pixels="auto"`` (A36, :func:`fuse4d.flying_pixels.resolve_flying_pixels`);
+        None = unknown ("auto" is off).
 
     Returns
     -------
@@ -979,7 +998,7 @@ def fuse_sequence(
     >>> res.points.shape
     (4, 150, 150, 3)
     """
-    params = fusion or FusionParams()
+    params = resolve_flying_pixels(fusion or FusionParams(), sensor)
     d = as_float32(depth, name="depth")
     check_shape(d, ("T", "H", "W"), name="depth")
     inten = np.asarray(intensity)

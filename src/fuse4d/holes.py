@@ -60,6 +60,7 @@ __all__ = [
     "SOURCE_FUSED",
     "SOURCE_MEASURED",
     "SOURCE_NONE",
+    "SOURCE_REJECTED",
     "SOURCE_SPACE",
     "SOURCE_TIME",
     "fill_holes",
@@ -73,6 +74,7 @@ SOURCE_MEASURED = 1  # raw depth, no temporal support (spatial bilateral / Eq. 6
 SOURCE_FUSED = 2  # raw depth fused with >= 1 tracked frame (Eq. 5)
 SOURCE_TIME = 3  # a sensor hole filled from other frames along its track (A26)
 SOURCE_SPACE = 4  # a small sensor hole filled from its far-side neighbours (A27)
+SOURCE_REJECTED = 5  # raw depth removed as a ToF flying pixel (A36); left empty, never filled
 
 
 def small_hole_mask(holes: ArrayLike, max_area_px: int) -> NDArray[np.bool_]:

@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 
 from .camera import Intrinsics
 from .config import FlowConfig, FusionParams
+from .flying_pixels import resolve_flying_pixels
 from .fusion import FusedFrame, FusionEngine
 
 __all__ = [
@@ -150,6 +151,7 @@ class RecordingSource:
         self._reader = open_frames(path, **reader_options)
         self.intrinsics = self._reader.intrinsics
         self.depth_unit_mm = self._reader.depth_unit_mm
+        self.sensor = self._reader.sensor  # the kind of depth camera, if the file says (A36)
         self.realtime = realtime
         self._frames = frames
         timestamps = self._reader.timestamps
@@ -223,6 +225,7 @@ class DecimatedSource:
         self.intrinsics = decimate_intrinsics(source.intrinsics, self.factor)
         self.fps = source.fps
         self.depth_unit_mm = source.depth_unit_mm
+        self.sensor = getattr(source, "sensor", None)
 
     def __iter__(self) -> Iterator[CapturedFrame]:
         from .decimate import decimate_depth, decimate_intensity, decimate_mask
@@ -533,6 +536,7 @@ def run_live(
     if on_gap not in ("restart", "track"):
         raise ValueError(f"on_gap must be 'restart' or 'track', got {on_gap!r}")
     params = (fusion or FusionParams()).replace(causal=True)
+    params = resolve_flying_pixels(params, getattr(source, "sensor", None))  # A36
     if params.iterations != 1:
         raise ValueError("live fusion supports iterations=1 only")
     queue = DropOldestQueue(queue_size, block=block)

@@ -346,4 +346,5 @@ def make_range_scene(
             fps=FPS,
             ground_truth=gt,
             name=f"{name}-{model.name}" + ("-small" if small else ""),
+            sensor=model.kind,
         )

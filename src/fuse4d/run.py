@@ -23,7 +23,9 @@ import numpy as np
 from .camera import depth_to_points
 from .config import FlowConfig, FusionParams, preset
 from .errors import ParameterError
+from .flying_pixels import resolve_flying_pixels
 from .fusion import STAGES, FusedFrame, FusionEngine, fuse_sequence
+from .holes import SOURCE_REJECTED
 from .io import check_output, detect_format, open_frames, read_npz_extra
 from .io import write_npz as _write_npz
 from .io.resume import ResumableFolderWriter, partial_path, run_identity
@@ -74,6 +76,8 @@ class RunSummary:
     filled_fraction : float
         Fraction of the raw-valid pixels whose output came from Eq. 6's hole filling
         (pixels where the fusion found too little support), not sensor holes filled.
+    rejected_fraction : float
+        Fraction of the raw-valid pixels removed as ToF flying pixels (A36; left empty).
     seconds : float
         Wall time of the whole run (I/O included).
     timings : dict
@@ -99,6 +103,7 @@ class RunSummary:
     static_pixels: int = 0
     support_fraction: float = float("nan")
     filled_fraction: float = float("nan")
+    rejected_fraction: float = float("nan")
     seconds: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
 
@@ -129,6 +134,7 @@ class RunSummary:
             "static_pixels": self.static_pixels,
             "support_fraction": self.support_fraction,
             "filled_fraction": self.filled_fraction,
+            "rejected_fraction": self.rejected_fraction,
             "seconds": self.seconds,
             "ms_per_frame": self.ms_per_frame,
             "timings_ms_per_frame": {
@@ -146,6 +152,7 @@ class _QualityTally:
         self.valid = 0
         self.supported = 0
         self.filled = 0
+        self.rejected = 0
 
     def add(self, raw_points: np.ndarray, frame: FusedFrame) -> None:
         self.scores.add(raw_points, frame.points)
@@ -153,6 +160,8 @@ class _QualityTally:
         self.valid += int(valid.sum())
         self.supported += int((frame.support[valid] > 0).sum())
         self.filled += int(frame.filled[valid].sum())
+        if frame.source is not None:
+            self.rejected += int((frame.source[valid] == SOURCE_REJECTED).sum())
 
     def fill(self, summary: RunSummary) -> None:
         res = self.scores.result()
@@ -168,6 +177,7 @@ class _QualityTally:
         if self.valid:
             summary.support_fraction = self.supported / self.valid
             summary.filled_fraction = self.filled / self.valid
+            summary.rejected_fraction = self.rejected / self.valid
 
 
 def fuse_file(
@@ -266,6 +276,7 @@ def _fuse_npz(
     from .io import load_sequence
 
     seq = load_sequence(src)
+    params = resolve_flying_pixels(params, seq.sensor)  # A36
     result = fuse_sequence(
         seq.depth, seq.intensity, seq.intrinsics, fusion=params, flow=flow, progress=progress
     )
@@ -285,7 +296,12 @@ def _fuse_npz(
         raw_points = seq.points()
         for t in range(seq.num_frames):
             frame = FusedFrame(
-                t, result.points[t], result.support[t], result.filled[t], np.zeros(seq.shape, bool)
+                t,
+                result.points[t],
+                result.support[t],
+                result.filled[t],
+                np.zeros(seq.shape, bool),
+                source=result.source[t],
             )
             tally.add(raw_points[t], frame)
         tally.fill(summary)
@@ -466,6 +482,7 @@ def _fuse_streaming(
     timings = dict.fromkeys(STAGES + IO_STAGES, 0.0)
     writer_cls, out_fmt = _writer_for(dst)
     with open_frames(src, **options) as reader:
+        params = resolve_flying_pixels(params, reader.sensor)  # A36
         total = len(reader) if limit is None else min(limit, len(reader))
         source = reader if limit is None else itertools.islice(reader, total)
         k = reader.intrinsics

@@ -352,6 +352,10 @@ class Sequence:
         Ground truth, for synthetic scenes.
     name : str, optional
         Human-readable name (file or scene).
+    sensor : str, optional
+        What kind of depth camera recorded it, where the input says so: ``"tof"``,
+        ``"structured-light"``, ``"active-stereo"`` (:data:`fuse4d.sensors.SensorKind`); None
+        when unknown. It decides ``FusionParams(flying_pixels="auto")`` (A36).
 
     Raises
     ------
@@ -377,6 +381,7 @@ class Sequence:
     fps: float | None = None
     ground_truth: GroundTruth | None = None
     name: str = ""
+    sensor: str | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.intrinsics, Intrinsics):

@@ -277,6 +277,15 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
         if fusion.fill_holes
         else ("off", f"{unsupported} keep their own bilateral value (A35)")
     )
+    flying = (
+        (
+            percent(summary.rejected_fraction, 2),
+            "valid pixels removed as ToF flying pixels (between the two sides of an edge), "
+            + "left empty (A36)",
+        )
+        if summary.params.flying_pixels == "on"
+        else ("off", "on for time-of-flight recordings, or with --set flying_pixels=on (A36)")
+    )
 
     table = Table(title=f"fuse4d run: {summary.input} -> {summary.output}", show_header=True)
     table.add_column("")
@@ -332,6 +341,7 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
             "valid pixels tracked into at least one other frame",
         ),
         ("Eq. 6 filled", *eq6),
+        ("flying pixels", *flying),
         (
             "time",
             f"{summary.seconds:.1f} s",

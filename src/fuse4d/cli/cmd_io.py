@@ -120,6 +120,7 @@ def info_command(
             "height": k.height,
             "intrinsics": {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy},
             "depth_unit_mm": reader.depth_unit_mm,
+            "sensor": reader.sensor,
             "fps": reader.fps,
             "duration_s": None if ts is None else float(ts[-1] - ts[0]),
             "valid_fraction": n_valid / total if total else 0.0,
@@ -149,6 +150,13 @@ def info_command(
             "float mm"
             if reader.depth_unit_mm is None
             else f"{reader.depth_unit_mm:g} mm per stored unit",
+        ),
+        (
+            "camera kind",
+            "not stated"
+            if reader.sensor is None
+            else reader.sensor
+            + (" (flying pixels removed by fuse4d run, A36)" if reader.sensor == "tof" else ""),
         ),
         ("fps", "not stored" if reader.fps is None else f"{reader.fps:g}"),
         (

@@ -104,6 +104,9 @@ class FrameReader(ABC):
     ground_truth_keys: tuple[str, ...] = ()
     #: Human-readable notes about how the input was interpreted (shown by ``fuse4d info``).
     notes: tuple[str, ...] = ()
+    #: The kind of depth camera, where the file says so (``"tof"`` for an Azure Kinect
+    #: recording; :attr:`fuse4d.Sequence.sensor`), else None.
+    sensor: str | None = None
 
     @abstractmethod
     def __len__(self) -> int:
@@ -198,6 +201,7 @@ class FrameReader(ABC):
                 fps=self.fps,
                 ground_truth=gt,
                 name=self.path.name,
+                sensor=self.sensor,
             )
         except (TypeError, ValueError) as exc:
             raise InputFileError(self.path, str(exc)) from None

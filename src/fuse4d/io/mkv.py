@@ -142,6 +142,7 @@ class MkvReader(SequentialReader):
                 self._setup_fuse4d(meta, depth_unit_mm, intrinsics, notes)
             else:
                 self._setup_k4a(meta, depth_unit_mm, intrinsics, undistort, notes)
+                self.sensor = "tof"  # the Azure Kinect's depth camera
             self._scan()
         except BaseException:
             self.close()

@@ -6,6 +6,7 @@ Keys
 ``intensity``    (T, H, W) float32 in [0, 1]                                    (required)
 ``intrinsics``   (4,) float64 ``[fx, fy, cx, cy]`` in px                         (required)
 ``timestamps``   (T,) float64 seconds; ``fps`` scalar; ``name`` string          (optional)
+``sensor``       string: the kind of depth camera (``Sequence.sensor``)           (optional)
 ``depth_gt``     (T, H, W) float32 mm; ``mask_gt`` (T, H, W) bool;
 ``flow_gt``      (T-1, H, W, 2) float32 px ([..., 0] = du, [..., 1] = dv)       (optional GT)
 ``gt_<key>``     ``GroundTruth.extra[key]``; ``gt_scene`` (``ball``/``plane``/``sheet``)
@@ -44,7 +45,7 @@ __all__ = ["RESERVED_NPZ_KEYS", "NpzReader", "read_npz", "read_npz_extra", "writ
 
 #: Keys with a meaning in the fuse4d npz format (``gt_*`` keys are reserved as well).
 RESERVED_NPZ_KEYS = frozenset(
-    {"depth", "intensity", "intrinsics", "timestamps", "fps", "name", "depth_gt", "mask_gt",
+    {"depth", "intensity", "intrinsics", "timestamps", "fps", "name", "sensor", "depth_gt", "mask_gt",
      "flow_gt"}
 )  # fmt: skip
 _REQUIRED = ("depth", "intensity", "intrinsics")
@@ -138,6 +139,11 @@ class NpzReader(FrameReader):
             self._name = str(name)
         else:
             self._name = self.path.name
+        if "sensor" in names:
+            sensor = self._array("sensor")
+            if sensor.ndim != 0 or sensor.dtype.kind not in "US":
+                raise InputFileError(self.path, "key 'sensor' must hold one string")
+            self.sensor = str(sensor)
         gt = [k[:-3] for k in ("depth_gt", "mask_gt", "flow_gt") if k in names]
         gt += [k for k in names if k.startswith("gt_")]
         self.ground_truth_keys = tuple(gt)
@@ -307,6 +313,7 @@ class NpzReader(FrameReader):
                 fps=self.fps,
                 ground_truth=self._ground_truth(sel),
                 name=self._name,
+                sensor=self.sensor,
             )
         except (TypeError, ValueError) as exc:
             raise InputFileError(self.path, str(exc)) from None
@@ -497,6 +504,8 @@ def write_npz(
         arrays["fps"] = np.float64(seq.fps)
     if seq.name:
         arrays["name"] = np.str_(seq.name)
+    if seq.sensor:
+        arrays["sensor"] = np.str_(seq.sensor)
     gt = seq.ground_truth
     if gt is not None:
         for key, value in (("depth_gt", gt.depth), ("mask_gt", gt.mask), ("flow_gt", gt.flow)):

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from ..config import FlowConfig, FusionParams
+from ..flying_pixels import resolve_flying_pixels
 from .cluster import open_compute
 from .graph import even_chunk_frames, fuse
 from .inputs import open_lazy
@@ -179,6 +180,7 @@ def run_dask(
     lookahead = 2 + threads
     for src, dst in zip(inputs, targets, strict=True):
         rec = open_lazy(src, frames_per_task=chunk_frames, **(reader_options or {}))
+        params = resolve_flying_pixels(fusion, rec.sensor)  # A36
         frames = even_chunk_frames(rec.num_frames, chunk_frames)
         out = ZarrOutput(
             dst,
@@ -186,7 +188,7 @@ def run_dask(
             chunk_frames=frames,
             intrinsics=rec.intrinsics,
             metadata={
-                "params": fusion.to_dict(),
+                "params": params.to_dict(),
                 "flow": flow_meta,
                 "source": {**_source(rec.path), "format": rec.format, "fps": rec.fps},
             },
@@ -195,14 +197,14 @@ def run_dask(
             save_flows=save_flows,
         )
         skipped = len(out.done_chunks())
-        if fusion.iterations == 1:  # bounded memory: frames and flows travel through files
+        if params.iterations == 1:  # bounded memory: frames and flows travel through files
             source = source_of(rec.path, rec.format, rec.num_frames, **(reader_options or {}))
             tasks.extend(
                 recording_tasks(
                     source,
                     out,
                     rec.intrinsics,
-                    fusion=fusion,
+                    fusion=params,
                     flow=flow,
                     chunk_frames=frames,
                     warm_start=warm_start,
@@ -215,7 +217,7 @@ def run_dask(
                 rec.depth,
                 rec.intensity,
                 rec.intrinsics,
-                fusion=fusion,
+                fusion=params,
                 flow=flow,
                 chunk_frames=frames,
                 warm_start=warm_start,

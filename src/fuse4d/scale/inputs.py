@@ -97,6 +97,8 @@ class LazyRecording:
     fps : float or None
     depth_unit_mm : float or None
         Millimetres per stored depth unit of the input (None for float layouts).
+    sensor : str or None
+        The kind of depth camera, where the file says so (``FrameReader.sensor``).
     """
 
     path: Path
@@ -106,6 +108,7 @@ class LazyRecording:
     intrinsics: Intrinsics
     fps: float | None
     depth_unit_mm: float | None
+    sensor: str | None = None
 
     @property
     def num_frames(self) -> int:
@@ -145,7 +148,7 @@ def open_lazy(
     with open_frames(src, format=fmt, **reader_options) as reader:
         total = len(reader)
         k = reader.intrinsics
-        fps, unit = reader.fps, reader.depth_unit_mm
+        fps, unit, sensor = reader.fps, reader.depth_unit_mm, reader.sensor
     h, w = k.height, k.width
     read = dask.delayed(read_frames, pure=True)
     stamp = src.stat().st_mtime_ns  # a rewritten input gets new task keys
@@ -156,4 +159,4 @@ def open_lazy(
         for a in range(0, total, step)
     ]  # fmt: skip
     both = da.concatenate(blocks)  # (T, 2, H, W)
-    return LazyRecording(src, fmt, both[:, 0], both[:, 1], k, fps, unit)
+    return LazyRecording(src, fmt, both[:, 0], both[:, 1], k, fps, unit, sensor)
