@@ -226,3 +226,32 @@ def test_large_or_border_holes_stay_holes():
     out, filled = fill_small_holes(d, np.full_like(d, 0.5), max_area_px=64)
     assert not filled.any()
     assert np.isnan(out[5:15, 5:15]).all()
+
+
+def test_spatial_fill_follows_a_slanted_surface():
+    """A37: a floor seen at an angle changes depth by 8 mm per row (within the 10 mm step
+    limit between neighbours) and by 64 mm across the window, yet it is one surface: the fill
+    lies on its plane (A27's "within one step of the farthest neighbour" kept only the hole's
+    far edge: 20-30 mm off)."""
+    rows = np.arange(20, dtype=np.float32)[:, None]
+    d = np.repeat(3000.0 + 8.0 * rows, 20, axis=1).astype(np.float32)
+    truth = d.copy()
+    d[8:11, 6:9] = np.nan
+    d[14, 15] = np.nan
+    out, filled = fill_small_holes(d, np.full_like(d, 0.5), max_area_px=64, radius=4)
+    assert filled.sum() == 10
+    np.testing.assert_allclose(out[filled], truth[filled], atol=0.5)
+
+
+def test_spatial_fill_on_a_slanted_surface_still_stops_at_an_edge():
+    """The slanted wall left of a foreground block at 1.5 m: a hole on the wall beside the
+    block takes the wall's plane, never the block's depth or a blend."""
+    cols = np.arange(24, dtype=np.float32)[None, :]
+    wall = np.repeat(3000.0 + 7.0 * cols, 16, axis=0).astype(np.float32)
+    d = wall.copy()
+    d[:, 14:] = 1500.0
+    inten = np.where(np.arange(24) < 14, 0.3, 0.8)[None, :].repeat(16, 0).astype(np.float32)
+    d[6:9, 12:14] = np.nan  # on the wall, touching the block
+    out, filled = fill_small_holes(d, inten, max_area_px=64, radius=4)
+    assert filled[6:9, 12:14].all()
+    np.testing.assert_allclose(out[6:9, 12:14], wall[6:9, 12:14], atol=0.5)

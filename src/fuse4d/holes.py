@@ -26,12 +26,13 @@ Two kinds of holes, one home:
      that a moving object uncovers or that flicker from frame to frame.
   2. *In space* (A27, ``fill_max_hole_px``, :func:`fill_small_holes`): each remaining hole
      component (8-connected) that is small and does not touch the image border (no
-     extrapolation beyond the sensor's field of view) gets an intensity-weighted mean of valid
-     neighbours from one side of any depth discontinuity in the window: the far side (within
-     the depth-step limit (A22) of the farthest neighbour) or the near side, whichever the
-     hole's intensity resembles more (an occlusion shadow looks like the background it lies
-     on, a dropout on a foreground rim like the rim), so the fill never bridges a depth
-     discontinuity. Where the frame's holes show on which side of its foreground edges the
+     extrapolation beyond the sensor's field of view) gets the intensity-weighted plane through
+     the valid neighbours on one side of any depth discontinuity in the window (our A37: the
+     neighbours sorted by depth split where consecutive depths jump by more than the
+     depth-step limit (A22); a slanted floor or wall has no such jump and stays whole), the
+     side whose intensity the hole resembles more (an occlusion shadow looks like the
+     background it lies on, a dropout on a foreground rim like the rim), so the fill never
+     bridges a depth discontinuity. Where the frame's holes show on which side of its foreground edges the
      sensor's shadows lie, a thin hole on the other side cannot be a shadow and takes the near
      side (:func:`_rim_holes`). Time fills (1.) that disagree with that side are dropped.
 
@@ -283,7 +284,7 @@ def fill_small_holes(
     max_step: float = 10.0,
     noise_quad: float = 0.0,
 ) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
-    """Fill small sensor holes from their far-side neighbours (A27).
+    """Fill small sensor holes from the neighbours on one side of any depth edge (A27, A37).
 
     Parameters
     ----------
@@ -302,8 +303,8 @@ def fill_small_holes(
     sigma_space : float
         Spatial scale of the weights (px).
     max_step : float
-        tau_jump (mm): neighbours farther than the depth-step limit from the farthest
-        neighbour are not used.
+        tau_jump (mm): consecutive neighbour depths (sorted) further apart than the
+        depth-step limit mark a depth discontinuity; only one side of it is used.
     noise_quad : float
         Depth-noise coefficient (mm^-1, A22); the step limit is max(max_step, 2.5 q z^2).
 

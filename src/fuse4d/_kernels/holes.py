@@ -7,9 +7,9 @@ validate):
   the intensity video (the flow is defined everywhere); where its track lands on valid depth
   in other frames of the window, those frames' motion-reference points are collected and the
   weighted least-squares line through them (the A21 trajectory) is evaluated at t.
-* :func:`_spatial_fill_kernel` (A27): small remaining holes get an intensity-weighted mean
-  of valid neighbours from one side of any depth discontinuity in the window (the side whose
-  intensity resembles the hole's), so a fill never bridges a discontinuity.
+* :func:`_spatial_fill_kernel` (A27, A37): small remaining holes get the intensity-weighted
+  plane through the valid neighbours on one side of any depth discontinuity in the window
+  (the side whose intensity resembles the hole's), so a fill never bridges a discontinuity.
 """
 
 from __future__ import annotations
@@ -291,50 +291,82 @@ def _hole_run_sides_kernel(depth, max_step, quad, side):
                 side[v, uu] = mark
 
 
+@njit
+def _side_plane_value(zs, ws, dus, dvs, order, lo, hi):  # pragma: no cover - compiled
+    """Value at the hole (offset 0, 0) of the weighted least-squares plane z = a + b du + c dv
+    through the neighbours ``order[lo:hi]`` (depth ``zs``, weight ``ws``, offsets ``dus``,
+    ``dvs`` px), clamped to their depth range (no extrapolation beyond what was measured);
+    their weighted mean where the offsets are (nearly) collinear."""
+    s = sx = sy = sxx = sxy = syy = sz = sxz = syz = 0.0
+    zmin = np.inf
+    zmax = -np.inf
+    for j in range(lo, hi):
+        i = order[j]
+        wt = ws[i]
+        x = dus[i]
+        y = dvs[i]
+        z = zs[i]
+        s += wt
+        sx += wt * x
+        sy += wt * y
+        sxx += wt * x * x
+        sxy += wt * x * y
+        syy += wt * y * y
+        sz += wt * z
+        sxz += wt * x * z
+        syz += wt * y * z
+        zmin = min(zmin, z)
+        zmax = max(zmax, z)
+    mean = sz / s
+    mx = sx / s
+    my = sy / s
+    cxx = sxx - s * mx * mx
+    cxy = sxy - s * mx * my
+    cyy = syy - s * my * my
+    cxz = sxz - s * mx * mean
+    cyz = syz - s * my * mean
+    det = cxx * cyy - cxy * cxy
+    if det <= 1e-6 * s * s:
+        return mean
+    b = (cxz * cyy - cyz * cxy) / det
+    c = (cyz * cxx - cxz * cxy) / det
+    return min(max(mean - b * mx - c * my, zmin), zmax)
+
+
 @njit_parallel
 def _spatial_fill_kernel(
     depth, intensity, target, near_only, radius, inv_2si2, inv_2ss2, max_step, quad, out_depth
-):
-    """Fill ``target`` pixels from the valid neighbours of one side of the hole.
+):  # pragma: no cover - compiled
+    """Fill ``target`` pixels from the valid neighbours of one side of the hole (A27, A37).
 
-    For each target pixel, the valid pixels of ``depth`` within ``radius`` px are split into
-    the *far* side (within the depth-step limit (A22) of the farthest of them) and the *near*
-    side (within the limit of the nearest); when the window spans no discontinuity the two are
-    the same. Each side's neighbours are weighted by exp(-dI^2 / 2 sigma_I^2 - r^2 / 2
-    sigma_s^2); the side with the larger total weight — the one whose intensity resembles the
-    hole's — gives the weighted mean. An occlusion shadow (the background's) looks like the
-    background in the intensity image; a dropout on a foreground rim looks like the rim.
-    ``out_depth`` gets the result, NaN where no neighbour is valid; non-target pixels are
-    copied from ``depth``.
+    For each target pixel, the valid pixels of ``depth`` within ``radius`` px are sorted by
+    depth and split at the largest gap between consecutive depths that exceeds the
+    depth-step limit (A22) at the nearer of the two: a depth discontinuity. Each neighbour
+    weighs exp(-dI^2 / 2 sigma_I^2 - r^2 / 2 sigma_s^2); the side with the larger total weight
+    — the one whose intensity resembles the hole's — is kept (the near side where
+    ``near_only``), and split again while it spans another discontinuity. A slanted surface
+    has no such gap however much its depth changes across the window, so it stays one side
+    (our A37; A27 took the neighbours within one step limit of the farthest / nearest, which
+    on a floor or a wall seen at an angle kept one edge of the hole's neighbourhood). The fill
+    is the weighted least-squares plane through the kept side, evaluated at the hole and
+    clamped to the side's depth range (:func:`_side_plane_value`). ``out_depth`` gets the
+    result, NaN where no neighbour is valid; non-target pixels are copied from ``depth``.
     """
     h, w = depth.shape
+    n_max = (2 * radius + 1) ** 2
     n_chunks = min(h, ROW_CHUNKS)
-    for ci in prange(n_chunks):
+    for ci in prange(n_chunks):  # scratch allocated once per chunk, not per pixel
+        zs = np.empty(n_max, np.float64)
+        ws = np.empty(n_max, np.float64)
+        dus = np.empty(n_max, np.float64)
+        dvs = np.empty(n_max, np.float64)
+        order = np.empty(n_max, np.int64)
         for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
             for u in range(w):
                 if not target[v, u]:
                     out_depth[v, u] = depth[v, u]
                     continue
-                far = -1.0
-                near = np.inf
-                for dv in range(-radius, radius + 1):
-                    for du in range(-radius, radius + 1):
-                        vv = v + dv
-                        uu = u + du
-                        if 0 <= vv < h and 0 <= uu < w:
-                            d = depth[vv, uu]
-                            if not np.isnan(d):
-                                far = max(far, d)
-                                near = min(near, d)
-                if far <= 0.0:
-                    out_depth[v, u] = np.nan
-                    continue
-                far_limit = _step_limit(far, max_step, quad)
-                near_limit = _step_limit(near, max_step, quad)
-                acc_far = 0.0
-                w_far = 0.0
-                acc_near = 0.0
-                w_near = 0.0
+                n = 0
                 i0 = intensity[v, u]
                 for dv in range(-radius, radius + 1):
                     for du in range(-radius, radius + 1):
@@ -345,21 +377,43 @@ def _spatial_fill_kernel(
                             if np.isnan(d):
                                 continue
                             di = intensity[vv, uu] - i0
-                            wgt = math.exp(-di * di * inv_2si2 - (dv * dv + du * du) * inv_2ss2)
-                            if far - d < far_limit:
-                                acc_far += wgt * d
-                                w_far += wgt
-                            if d - near < near_limit:
-                                acc_near += wgt * d
-                                w_near += wgt
-                if near_only[v, u] and w_near > 0.0:
-                    out_depth[v, u] = acc_near / w_near
-                elif w_far >= w_near and w_far > 0.0:
-                    out_depth[v, u] = acc_far / w_far
-                elif w_near > 0.0:
-                    out_depth[v, u] = acc_near / w_near
-                else:
+                            zs[n] = d
+                            ws[n] = math.exp(-di * di * inv_2si2 - (dv * dv + du * du) * inv_2ss2)
+                            dus[n] = du
+                            dvs[n] = dv
+                            j = n  # insertion into the depth order
+                            while j > 0 and zs[order[j - 1]] > d:
+                                order[j] = order[j - 1]
+                                j -= 1
+                            order[j] = n
+                            n += 1
+                if n == 0:
                     out_depth[v, u] = np.nan
+                    continue
+                lo = 0
+                hi = n
+                while True:
+                    best = 0.0
+                    split = -1
+                    for j in range(lo, hi - 1):
+                        a = zs[order[j]]
+                        gap = zs[order[j + 1]] - a
+                        if gap > _step_limit(a, max_step, quad) and gap > best:
+                            best = gap
+                            split = j
+                    if split < 0:
+                        break
+                    w_near = 0.0
+                    w_far = 0.0
+                    for j in range(lo, split + 1):
+                        w_near += ws[order[j]]
+                    for j in range(split + 1, hi):
+                        w_far += ws[order[j]]
+                    if near_only[v, u] or w_near > w_far:
+                        hi = split + 1
+                    else:
+                        lo = split + 1
+                out_depth[v, u] = _side_plane_value(zs, ws, dus, dvs, order, lo, hi)
 
 
 @njit(fastmath=False)
