@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 
+import cv2
 import numpy as np
 import pytest
 from scipy import ndimage as ndi
@@ -12,6 +13,7 @@ from scipy import ndimage as ndi
 from fuse4d import FusionParams, load_config, load_sequence, preset
 from fuse4d.cli import main
 from fuse4d.errors import InputFileError
+from fuse4d.holes import SOURCE_FUSED, SOURCE_MEASURED, SOURCE_NONE
 from fuse4d.io import FrameFolderWriter, read_npz_extra, write_npz
 from fuse4d.synthetic import make_falling_ball, make_scene
 
@@ -37,6 +39,11 @@ def test_run_npz_to_npz_keeps_keys_and_adds_support(ball_npz, tmp_path, capsys):
     extra = read_npz_extra(out)
     assert extra["support"].shape == (6, 150, 150)
     assert extra["support"].max() <= 4
+    # the per-pixel flags: where each value comes from and how many frames measured it
+    assert extra["source"].dtype == np.uint8
+    measured = np.isin(extra["source"], (SOURCE_MEASURED, SOURCE_FUSED))
+    np.testing.assert_array_equal(measured, np.isfinite(raw.depth))
+    np.testing.assert_allclose(extra["confidence"][measured], (1 + extra["support"][measured]) / 5)
     # away from the ball's silhouette (3 px band), the fused depth is much closer to GT
     gt = raw.ground_truth
     band = np.stack(
@@ -68,6 +75,18 @@ def test_run_folder_streams_to_folder(tmp_path, capsys):
     fused = load_sequence(out)
     assert fused.num_frames == 5
     raw = load_sequence(src)
+    # the per-pixel flags beside the depth: source codes and confidence x 255
+    source, conf = (
+        np.stack(
+            [cv2.imread(str(out / sub / f"{t:06d}.png"), cv2.IMREAD_UNCHANGED) for t in range(5)]
+        )
+        for sub in ("source", "confidence")
+    )
+    assert source.dtype == np.uint8
+    assert conf.dtype == np.uint8
+    np.testing.assert_array_equal(source == SOURCE_NONE, fused.depth != fused.depth)
+    assert (conf[source == SOURCE_FUSED] > 0).all()
+    assert (conf[source == SOURCE_NONE] == 0).all()
     assert np.nanstd(fused.depth - seq.ground_truth.depth) < np.nanstd(
         raw.depth - seq.ground_truth.depth
     )

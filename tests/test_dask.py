@@ -229,6 +229,8 @@ def test_zarr_output_and_resume_after_interruption(ball, reference, tmp_path):
     assert _same(store["depth"][:], reference.depth)
     assert _same(store["support"][:], reference.support)
     assert _same(store["filled"][:], reference.filled)
+    assert _same(store["source"][:], reference.source)
+    assert _same(store["confidence"][:], reference.confidence)
     other = fd.fuse(ball.depth, ball.intensity, ball.intrinsics, chunk_frames=3,
                     fusion=FusionParams(num_frames=5))  # fmt: skip
     with pytest.raises(FileExistsError):

@@ -36,6 +36,8 @@ def _check(store_path, ref) -> None:
     assert _same(store["depth"][:], ref.depth)
     assert _same(store["support"][:], ref.support)
     assert _same(store["filled"][:], ref.filled)
+    assert _same(store["source"][:], ref.source)
+    assert _same(store["confidence"][:], ref.confidence)
 
 
 def _run(seq, tmp_path, name, **kwargs):

@@ -196,3 +196,30 @@ def test_cli_info_and_run_on_a_tof_scene(tmp_path, tof_body, capsys):
     summary = json.loads(capsys.readouterr().out)
     assert summary["params"]["flying_pixels"] == "off"
     assert summary["rejected_fraction"] == 0
+
+
+def test_rejected_pixels_are_flagged_in_a_zarr_output(tmp_path, tof_body, capsys):
+    """A frame folder says nothing about its camera: --set flying_pixels=on; the zarr output
+    holds the per-pixel source codes (5 = rejected) and confidence beside the depth."""
+    import zarr
+
+    from fuse4d.cli import main
+    from fuse4d.io import FrameFolderWriter
+
+    src = tmp_path / "tof"
+    with FrameFolderWriter(src, tof_body.intrinsics) as writer:
+        for d, i in zip(tof_body.depth, tof_body.intensity, strict=True):
+            writer.write(d, i)
+    with open_frames(src) as reader:
+        assert reader.sensor is None
+    out = tmp_path / "out.zarr"
+    args = ["run", str(src), "-o", str(out), "--set", "flying_pixels=on", "--json"]
+    assert main(args) == 0
+    assert json.loads(capsys.readouterr().out)["rejected_fraction"] > 0.001
+    store = zarr.open_group(str(out), mode="r")
+    source, confidence, depth = store["source"][:], store["confidence"][:], store["depth"][:]
+    raw = load_sequence(src).depth
+    found = np.stack([flying_pixel_mask(d, tof_body.intrinsics) for d in raw])
+    np.testing.assert_array_equal(source == SOURCE_REJECTED, found)
+    assert np.isnan(depth[found]).all()
+    assert (confidence[found] == 0).all()

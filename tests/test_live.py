@@ -417,3 +417,18 @@ def _scale(depth):
     from fuse4d.live import display_range
 
     return display_range(depth)
+
+
+def test_cli_live_zarr_output_holds_the_per_pixel_flags(ball, tmp_path, capsys):
+    import zarr
+
+    path, _ = ball
+    out = tmp_path / "fused.zarr"
+    args = ["live", str(path), "--fps", "30", "--window", "3", "--queue", "64", "-o", str(out)]
+    assert main([*args, "--json"]) == 0
+    capsys.readouterr()
+    store = zarr.open_group(str(out), mode="r")
+    depth, source, confidence = (store[k][:] for k in ("depth", "source", "confidence"))
+    assert depth.shape[0] == 12
+    np.testing.assert_array_equal(source == 0, np.isnan(depth))
+    assert (confidence[source == 2] > 0).all()

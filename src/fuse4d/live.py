@@ -760,6 +760,8 @@ class LiveWriter:
         suffix = self.path.suffix.lower()
         self._frames: list[tuple[np.ndarray, np.ndarray, float | None]] | None = None
         self._writer: Any = None
+        # the per-pixel source codes and confidence go with the depth (not into an .mkv)
+        self._flags = suffix != ".mkv"
         if suffix == ".npz":
             check_output(self.path, overwrite=overwrite)
             self._frames = []
@@ -783,12 +785,15 @@ class LiveWriter:
         return self
 
     def __call__(self, captured: CapturedFrame, fused: FusedFrame) -> None:
-        """Write one output frame (fused depth, the raw intensity, mask and timestamp)."""
+        """Write one output frame (fused depth, the raw intensity, mask, timestamp and, but
+        for an .mkv or .npz, the per-pixel source codes and confidence)."""
         if self._frames is not None:
             self._frames.append((fused.depth.copy(), captured.intensity, captured.timestamp))
             return
         args = (fused.depth, captured.intensity)
         kwargs = {"mask": captured.mask, "timestamp": captured.timestamp}
+        if self._flags and getattr(fused, "source", None) is not None:
+            kwargs.update(source=fused.source, confidence=fused.confidence)
         if self._sink is not None:
             self._sink.submit(*args, **kwargs)  # FusedFrame arrays are not reused by the engine
         else:

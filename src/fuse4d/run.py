@@ -306,7 +306,14 @@ def _fuse_npz(
             tally.add(raw_points[t], frame)
         tally.fill(summary)
     extra = read_npz_extra(src)
-    extra.update({"support": result.support, "filled": result.filled})
+    extra.update(
+        {
+            "support": result.support,
+            "filled": result.filled,
+            "source": result.source,
+            "confidence": result.confidence,
+        }
+    )
     _write_npz(seq.with_depth(result.depth), dst, extra=extra, overwrite=overwrite)
     return summary
 
@@ -551,6 +558,8 @@ def _fuse_streaming(
                 frames = _timed(todo, timings)
                 sink = _Inline(writer.write, timings)
 
+            # per-pixel source codes and confidence go with the depth (not into an .mkv video)
+            stores_flags = out_fmt in ("folder", "zarr")
             # frames handed to the writer (the writer thread's `frames_done` lags behind it)
             queued = writer.frames_done if resumable else 0
 
@@ -565,7 +574,12 @@ def _fuse_streaming(
                         t0 = time.perf_counter()
                         tally.add(depth_to_points(raw.depth, k), fr)
                         timings["summary"] += time.perf_counter() - t0
-                    sink.submit(fr.depth, raw.intensity, mask=raw.mask, timestamp=raw.timestamp)
+                    flags = (
+                        {"source": fr.source, "confidence": fr.confidence} if stores_flags else {}
+                    )
+                    sink.submit(
+                        fr.depth, raw.intensity, mask=raw.mask, timestamp=raw.timestamp, **flags
+                    )
                     written += 1
                     queued += 1
                     if resumable and queued % writer.checkpoint_every == 0 and queued < total:

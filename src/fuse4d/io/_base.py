@@ -315,6 +315,22 @@ def _parse_frame_string(text: str) -> slice:
     raise ParameterError(f"frames must look like 'A:B', 'A:', ':B' or 'K', got {text!r}")
 
 
+def confidence_image(confidence: np.ndarray) -> np.ndarray:
+    """Fusion confidence in [0, 1] as the uint8 image of a frame folder's ``confidence/``:
+    round(255 c) (:attr:`fuse4d.FusedFrame.confidence`)."""
+    c = np.clip(np.nan_to_num(np.asarray(confidence, np.float32)), 0.0, 1.0)
+    return np.rint(c * 255.0).astype(np.uint8)
+
+
+def check_flags(index: int, shape: tuple[int, int], source: Any, confidence: Any) -> None:
+    """Both per-pixel fusion flags of frame ``index`` or neither, each of ``shape``."""
+    if (source is None) != (confidence is None):
+        raise ValueError(f"frame {index}: give source and confidence together")
+    for name, a in (("source", source), ("confidence", confidence)):
+        if a is not None and np.shape(a) != shape:
+            raise ValueError(f"frame {index}: {name} has shape {np.shape(a)}, expected {shape}")
+
+
 def check_frame_shapes(index: int, shape: tuple[int, int], **arrays: ArrayLike | None) -> None:
     """Raise ``ValueError`` unless every given array (None = absent) has ``shape`` ``(H, W)``.
 

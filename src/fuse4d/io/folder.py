@@ -37,7 +37,9 @@ from ._base import (
     IntrinsicsLike,
     ProgressCallback,
     _check_size,
+    check_flags,
     check_frame_shapes,
+    confidence_image,
     depth_unit,
     read_camera_json,
     resolve_intrinsics,
@@ -302,6 +304,7 @@ class FrameFolderWriter:
         self.num_written = 0
         self._timestamps: list[float | None] = []
         self._has_mask: bool | None = None
+        self._has_flags: bool | None = None
         self._report = QuantizationReport(self.depth_unit_mm)
         self._stack: ExitStack | None = None
         self._tmp: Path | None = None
@@ -327,6 +330,8 @@ class FrameFolderWriter:
         *,
         mask: np.ndarray | None = None,
         timestamp: float | None = None,
+        source: np.ndarray | None = None,
+        confidence: np.ndarray | None = None,
     ) -> None:
         """Append one frame.
 
@@ -340,6 +345,10 @@ class FrameFolderWriter:
             Object mask (all frames or none).
         timestamp : float, optional
             Capture time in seconds (all frames or none).
+        source, confidence : (H, W) ndarray, optional
+            A fused frame's per-pixel flags (:attr:`fuse4d.FusedFrame.source` codes,
+            ``confidence`` in [0, 1]), stored as ``source/`` (uint8 codes) and ``confidence/``
+            (uint8, round(255 c)) PNGs; both or neither, for all frames or none.
         """
         if self._tmp is None:
             raise RuntimeError("FrameFolderWriter is not open; use it in a `with` block")
@@ -351,6 +360,16 @@ class FrameFolderWriter:
                 (self._tmp / "mask").mkdir()
         elif self._has_mask != (mask is not None):
             raise ValueError(f"frame {self.num_written}: give a mask for every frame or for none")
+        check_flags(self.num_written, shape, source, confidence)
+        if self._has_flags is None:
+            self._has_flags = source is not None
+            if self._has_flags:
+                (self._tmp / "source").mkdir()
+                (self._tmp / "confidence").mkdir()
+        elif self._has_flags != (source is not None):
+            raise ValueError(
+                f"frame {self.num_written}: give source and confidence for every frame or none"
+            )
         k = self.num_written
         name = f"{k:06d}.png"
         encode_png(
@@ -360,6 +379,9 @@ class FrameFolderWriter:
         if mask is not None:
             encode_png(np.where(np.asarray(mask, bool), 255, 0).astype(np.uint8),
                        self._tmp / "mask" / name)  # fmt: skip
+        if source is not None:
+            encode_png(np.asarray(source, np.uint8), self._tmp / "source" / name)
+            encode_png(confidence_image(confidence), self._tmp / "confidence" / name)
         self._timestamps.append(None if timestamp is None else float(timestamp))
         self.num_written += 1
 

@@ -38,6 +38,7 @@ import numpy as np
 from ..camera import Intrinsics
 from ..errors import InputFileError, OutputExistsError, ParameterError
 from ._atomic import _replace_existing, _set_default_mode, check_output, write_errors
+from ._base import check_flags, confidence_image
 from ._images import QuantizationReport, depth_to_units, encode_png
 from .folder import camera_json_text, intensity_image
 
@@ -366,8 +367,11 @@ class ResumableFolderWriter:
         *,
         mask: np.ndarray | None = None,
         timestamp: float | None = None,
+        source: np.ndarray | None = None,
+        confidence: np.ndarray | None = None,
     ) -> None:
-        """Write frame :attr:`frames_done` and count it as done (one manifest update)."""
+        """Write frame :attr:`frames_done` and count it as done (one manifest update); the
+        arguments as :meth:`fuse4d.io.FrameFolderWriter.write`."""
         if not self._open:
             raise RuntimeError("ResumableFolderWriter is not open; use it in a `with` block")
         k = self.frames_done
@@ -383,6 +387,12 @@ class ResumableFolderWriter:
             if mask is not None:
                 (self.partial / "mask").mkdir(exist_ok=True)
                 self._png(np.where(np.asarray(mask, bool), 255, 0).astype(np.uint8), "mask", name)
+            check_flags(k, self.intrinsics.shape, source, confidence)
+            if source is not None:
+                for sub in ("source", "confidence"):
+                    (self.partial / sub).mkdir(exist_ok=True)
+                self._png(np.asarray(source, np.uint8), "source", name)
+                self._png(confidence_image(confidence), "confidence", name)
             stamp = "nan" if timestamp is None else f"{float(timestamp):.6f}"
             with (self.partial / "resume" / "timestamps.txt").open("a") as f:
                 f.write(stamp + "\n")

@@ -28,7 +28,14 @@ from ..camera import Intrinsics
 from ..errors import InputFileError
 from ..sequence import Sequence
 from ._atomic import StagedWriter, atomic_dir, check_output
-from ._base import Frame, FrameReader, IntrinsicsLike, check_frame_shapes, resolve_intrinsics
+from ._base import (
+    Frame,
+    FrameReader,
+    IntrinsicsLike,
+    check_flags,
+    check_frame_shapes,
+    resolve_intrinsics,
+)
 from ._extras import require
 
 __all__ = ["ZarrReader", "ZarrWriter", "codec", "is_zarr_store", "write_zarr"]
@@ -121,17 +128,43 @@ class ZarrWriter(StagedWriter):
         *,
         mask: np.ndarray | None = None,
         timestamp: float | None = None,
+        source: np.ndarray | None = None,
+        confidence: np.ndarray | None = None,
     ) -> None:
-        """Append one frame (depth mm, NaN invalid; intensity [0, 1]; mask ignored)."""
+        """Append one frame (depth mm, NaN invalid; intensity [0, 1]; mask ignored).
+
+        ``source`` / ``confidence`` (both or neither, all frames or none): a fused frame's
+        per-pixel flags (:attr:`fuse4d.FusedFrame.source` codes, confidence in [0, 1]),
+        stored as the arrays ``source`` (uint8) and ``confidence`` (float32).
+        """
         if self._stack is None:
             raise RuntimeError("ZarrWriter is not open; use it in a `with` block")
         shape = self.intrinsics.shape
         d = np.asarray(depth, dtype=np.float32)
         i = np.asarray(intensity, dtype=np.float32)
         check_frame_shapes(self.num_written, shape, depth=d, intensity=i)
+        check_flags(self.num_written, shape, source, confidence)
+        if self.num_written == 0 and source is not None:
+            for name, dtype, fill in (("source", "uint8", 0), ("confidence", "float32", 0.0)):
+                self._arrays[name] = self._group.create_array(
+                    name,
+                    shape=(0, *shape),
+                    chunks=(1, *shape),
+                    dtype=dtype,
+                    fill_value=fill,
+                    compressors=codec(),
+                    dimension_names=_DIMS,
+                )
+        if ("source" in self._arrays) != (source is not None):
+            raise ValueError(
+                f"frame {self.num_written}: give source and confidence for every frame or none"
+            )
         d = np.where(np.isfinite(d) & (d > 0), d, np.float32(np.nan))
         self._arrays["depth"].append(d[None], axis=0)
         self._arrays["intensity"].append(np.clip(i, 0.0, 1.0)[None], axis=0)
+        if source is not None:
+            self._arrays["source"].append(np.asarray(source, np.uint8)[None], axis=0)
+            self._arrays["confidence"].append(np.asarray(confidence, np.float32)[None], axis=0)
         self._timestamps.append(None if timestamp is None else float(timestamp))
         self.num_written += 1
 

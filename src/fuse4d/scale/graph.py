@@ -127,6 +127,10 @@ class DaskFusion:
     params: FusionParams
     #: Futures of inputs scattered to the caller's client, kept alive with the result.
     scattered: tuple[Any, ...] = ()
+    #: (T, H, W) uint8: where each value comes from (:attr:`fuse4d.FusedFrame.source`).
+    source: da.Array | None = None
+    #: (T, H, W) float32: fraction of the window's frames that measured it (``confidence``).
+    confidence: da.Array | None = None
 
     @property
     def num_chunks(self) -> int:
@@ -415,6 +419,8 @@ def _fuse_block(
     out_points = np.empty((b - a, h, w, 3), np.float32)
     support = np.empty((b - a, h, w), np.uint8)
     filled = np.empty((b - a, h, w), np.bool_)
+    source = np.empty((b - a, h, w), np.uint8)
+    confidence = np.empty((b - a, h, w), np.float32)
     engine = FusionEngine(intrinsics, fusion=params, warm_start=False)
     if a > 0 and isinstance(getattr(engine, "_emitted", None), int):
         # The front halo frames are needed as sources of the kept frames' windows, not as
@@ -431,6 +437,8 @@ def _fuse_block(
                 out_points[fr.index - a] = fr.points
                 support[fr.index - a] = fr.support
                 filled[fr.index - a] = fr.filled
+                source[fr.index - a] = fr.source
+                confidence[fr.index - a] = fr.confidence
 
     for j in range(n):
         pair = None if j == 0 else (forward[j - 1], backward[j - 1])
@@ -444,7 +452,7 @@ def _fuse_block(
         )
     if at_end:
         take(engine.flush())
-    return out_points, support, filled
+    return out_points, support, filled, source, confidence
 
 
 def _depth_of(points: NDArray[np.float32]) -> NDArray[np.float32]:
@@ -534,8 +542,9 @@ def fuse(
     points = None
     filled = None
     support = None
+    source = confidence = None
     for _ in range(params.iterations):
-        pieces: list[tuple[da.Array, da.Array, da.Array]] = []
+        pieces: list[tuple[da.Array, ...]] = []
         for s, e in chunk_bounds(total, chunk_frames):
             lo, hi = max(0, s - past), min(total, e + future)
             inputs = {
@@ -545,7 +554,7 @@ def fuse(
                 "backward": delayed_blocks(pair_flows.backward[lo : max(lo, hi - 1)]),
                 "points": None if points is None else delayed_blocks(points[lo:hi]),
             }
-            block = dask.delayed(_fuse_block, nout=3, pure=True)(
+            block = dask.delayed(_fuse_block, nout=5, pure=True)(
                 inputs,
                 intrinsics,
                 params,
@@ -558,18 +567,31 @@ def fuse(
                     da.from_delayed(block[0], (n, h, w, 3), np.float32),
                     da.from_delayed(block[1], (n, h, w), np.uint8),
                     da.from_delayed(block[2], (n, h, w), np.bool_),
+                    da.from_delayed(block[3], (n, h, w), np.uint8),
+                    da.from_delayed(block[4], (n, h, w), np.float32),
                 )
             )
         points = da.concatenate([p[0] for p in pieces])
         support = da.concatenate([p[1] for p in pieces])
         new_filled = da.concatenate([p[2] for p in pieces])
         filled = new_filled if filled is None else filled | new_filled
+        source = da.concatenate([p[3] for p in pieces])  # the last pass's
+        confidence = da.concatenate([p[4] for p in pieces])
     assert points is not None
     assert support is not None
     assert filled is not None
     depth_out = points.map_blocks(_depth_of, drop_axis=3, dtype=np.float32)
     return DaskFusion(
-        points, depth_out, support, filled, pair_flows, chunk_frames, params, tuple(keep)
+        points,
+        depth_out,
+        support,
+        filled,
+        pair_flows,
+        chunk_frames,
+        params,
+        tuple(keep),
+        source=source,
+        confidence=confidence,
     )
 
 

@@ -375,6 +375,8 @@ def _fuse_task(
     depth = np.empty((e - s, h, w), np.float32)
     support = np.empty((e - s, h, w), np.uint8)
     filled = np.empty((e - s, h, w), np.bool_)
+    source_codes = np.empty((e - s, h, w), np.uint8)
+    confidence = np.empty((e - s, h, w), np.float32)
     engine = FusionEngine(intrinsics, fusion=params, warm_start=False)
     a, b = s - lo, e - lo
     if a > 0 and isinstance(getattr(engine, "_emitted", None), int):
@@ -395,6 +397,8 @@ def _fuse_task(
                 depth[fr.index - a] = fr.points[..., 2]
                 support[fr.index - a] = fr.support
                 filled[fr.index - a] = fr.filled
+                source_codes[fr.index - a] = fr.source
+                confidence[fr.index - a] = fr.confidence
 
     for t in range(lo, hi):
         depth_t, intensity_t = source.frame(t)
@@ -419,7 +423,9 @@ def _fuse_task(
                 _save_state(_state_file(scratch, t), kept, state_key)
     if hi == source.frames:
         take(engine.flush())
-    return write_chunk(staging, k, s, depth, support, filled)
+    return write_chunk(
+        staging, k, s, depth, support, filled, source=source_codes, confidence=confidence
+    )
 
 
 def _drop_task(scratch: str, k: int, bounds: tuple[int, int], *after: Any) -> int:

@@ -5,6 +5,9 @@ Layout of ``OUT.zarr`` (a zarr v3 group)::
     depth    (T, H, W) float32, mm, NaN = invalid   dims ("t", "y", "x")
     support  (T, H, W) uint8, frames                 temporal support
     filled   (T, H, W) bool                          filled by Eq. 6
+    source   (T, H, W) uint8                         where each value comes from
+                                                     (``fuse4d.FusedFrame.source`` codes)
+    confidence (T, H, W) float32                     fraction of the window that measured it
     flow_forward, flow_backward  (T-1, H, W, 2) float32 px   only with ``save_flows``
 
 Group attributes: ``intrinsics`` (fx, fy, cx, cy, width, height in px), ``units``, and
@@ -45,6 +48,8 @@ _ARRAYS = {
     "depth": (np.float32, float("nan"), "mm"),
     "support": (np.uint8, 0, "frames"),
     "filled": (np.bool_, False, ""),
+    "source": (np.uint8, 0, ""),
+    "confidence": (np.float32, 0.0, ""),
 }
 _MARKERS = ".fuse4d-done"
 _SCRATCH = ".fuse4d-flows"
@@ -63,6 +68,8 @@ def write_chunk(
     filled: NDArray[np.bool_],
     forward: NDArray[np.float32] | None = None,
     backward: NDArray[np.float32] | None = None,
+    source: NDArray[np.uint8] | None = None,
+    confidence: NDArray[np.float32] | None = None,
 ) -> int:
     """Write time chunk ``k`` (frames ``[start, start + len(depth))``, and the pairs starting
     there when flows are saved) into the store at ``staging``, then its done marker; runs on a
@@ -70,6 +77,8 @@ def write_chunk(
     root = zarr.open_group(staging, mode="r+")
     stop = start + depth.shape[0]
     blocks = [("depth", depth), ("support", support), ("filled", filled)]
+    if source is not None and confidence is not None:
+        blocks += [("source", source), ("confidence", confidence)]
     if forward is not None and backward is not None and len(forward):
         blocks += [("flow_forward", forward), ("flow_backward", backward)]
     for name, block in blocks:
@@ -246,8 +255,15 @@ class ZarrOutput:
         if tuple(result.depth.shape) != self.shape:
             raise ValueError(f"result shape {result.depth.shape} != output shape {self.shape}")
         c = self.chunk_frames
-        depth, support, filled = (
-            delayed_blocks(a.rechunk({0: c})) for a in (result.depth, result.support, result.filled)
+        depth, support, filled, source, confidence = (
+            delayed_blocks(a.rechunk({0: c}))
+            for a in (
+                result.depth,
+                result.support,
+                result.filled,
+                result.source,
+                result.confidence,
+            )
         )
         pairs: list[Any] = [None] * len(self.bounds)
         forward, backward = pairs, pairs
@@ -259,7 +275,18 @@ class ZarrOutput:
         done = self.done_chunks()
         write = dask.delayed(write_chunk, pure=False)
         return [
-            write(str(self.staging), k, s, depth[k], support[k], filled[k], forward[k], backward[k])
+            write(
+                str(self.staging),
+                k,
+                s,
+                depth[k],
+                support[k],
+                filled[k],
+                forward[k],
+                backward[k],
+                source[k],
+                confidence[k],
+            )
             for k, (s, _) in enumerate(self.bounds)
             if k not in done
         ]
