@@ -92,6 +92,8 @@ def test_report_folder_holds_page_video_metrics_and_clouds(run_with_report):
     assert m["timing"]["report_ms_per_frame"] > 0
     assert 0.5 < m["fusion"]["support_fraction"] <= 1.0
     assert m["xt_slice"]["how"].startswith("auto")
+    # the run's npz holds the per-pixel source codes: the support figure maps them
+    assert "Source: where each value of the frame comes from" in page
 
 
 def test_mp4_decodes_to_one_frame_per_input_frame(run_with_report):

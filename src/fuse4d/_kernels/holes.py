@@ -292,20 +292,21 @@ def _hole_run_sides_kernel(depth, max_step, quad, side):
 
 
 @njit
-def _side_plane_value(zs, ws, dus, dvs, order, lo, hi):  # pragma: no cover - compiled
+def _side_plane_value(zs, ws, dus, dvs, n, z_min, z_max):  # pragma: no cover - compiled
     """Value at the hole (offset 0, 0) of the weighted least-squares plane z = a + b du + c dv
-    through the neighbours ``order[lo:hi]`` (depth ``zs``, weight ``ws``, offsets ``dus``,
-    ``dvs`` px), clamped to their depth range (no extrapolation beyond what was measured);
-    their weighted mean where the offsets are (nearly) collinear."""
+    through the neighbours ``i < n`` with ``z_min <= zs[i] <= z_max`` (depth ``zs``, weight
+    ``ws``, offsets ``dus``, ``dvs`` px), clamped to their depth range (no extrapolation
+    beyond what was measured); their weighted mean where the offsets are (nearly) collinear."""
     s = sx = sy = sxx = sxy = syy = sz = sxz = syz = 0.0
-    zmin = np.inf
-    zmax = -np.inf
-    for j in range(lo, hi):
-        i = order[j]
+    lo = np.inf
+    hi = -np.inf
+    for i in range(n):
+        z = zs[i]
+        if z < z_min or z > z_max:
+            continue
         wt = ws[i]
         x = dus[i]
         y = dvs[i]
-        z = zs[i]
         s += wt
         sx += wt * x
         sy += wt * y
@@ -315,8 +316,8 @@ def _side_plane_value(zs, ws, dus, dvs, order, lo, hi):  # pragma: no cover - co
         sz += wt * z
         sxz += wt * x * z
         syz += wt * y * z
-        zmin = min(zmin, z)
-        zmax = max(zmax, z)
+        lo = min(lo, z)
+        hi = max(hi, z)
     mean = sz / s
     mx = sx / s
     my = sy / s
@@ -330,7 +331,17 @@ def _side_plane_value(zs, ws, dus, dvs, order, lo, hi):  # pragma: no cover - co
         return mean
     b = (cxz * cyy - cyz * cxy) / det
     c = (cyz * cxx - cxz * cxy) / det
-    return min(max(mean - b * mx - c * my, zmin), zmax)
+    return min(max(mean - b * mx - c * my, lo), hi)
+
+
+@njit
+def _side_weight(zs, ws, n, z_min, z_max):  # pragma: no cover - compiled
+    """Total weight of the neighbours ``i < n`` with ``z_min <= zs[i] <= z_max``."""
+    total = 0.0
+    for i in range(n):
+        if z_min <= zs[i] <= z_max:
+            total += ws[i]
+    return total
 
 
 @njit_parallel
@@ -349,8 +360,9 @@ def _spatial_fill_kernel(
     (our A37; A27 took the neighbours within one step limit of the farthest / nearest, which
     on a floor or a wall seen at an angle kept one edge of the hole's neighbourhood). The fill
     is the weighted least-squares plane through the kept side, evaluated at the hole and
-    clamped to the side's depth range (:func:`_side_plane_value`). ``out_depth`` gets the
-    result, NaN where no neighbour is valid; non-target pixels are copied from ``depth``.
+    clamped to the side's depth range (:func:`_side_plane_value`). Windows whose depth range
+    is within the step limit (no gap possible) skip the sort. ``out_depth`` gets the result,
+    NaN where no neighbour is valid; non-target pixels are copied from ``depth``.
     """
     h, w = depth.shape
     n_max = (2 * radius + 1) ** 2
@@ -360,7 +372,7 @@ def _spatial_fill_kernel(
         ws = np.empty(n_max, np.float64)
         dus = np.empty(n_max, np.float64)
         dvs = np.empty(n_max, np.float64)
-        order = np.empty(n_max, np.int64)
+        srt = np.empty(n_max, np.float64)
         for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
             for u in range(w):
                 if not target[v, u]:
@@ -368,6 +380,8 @@ def _spatial_fill_kernel(
                     continue
                 n = 0
                 i0 = intensity[v, u]
+                z_lo = np.inf
+                z_hi = -np.inf
                 for dv in range(-radius, radius + 1):
                     for du in range(-radius, radius + 1):
                         vv = v + dv
@@ -381,39 +395,36 @@ def _spatial_fill_kernel(
                             ws[n] = math.exp(-di * di * inv_2si2 - (dv * dv + du * du) * inv_2ss2)
                             dus[n] = du
                             dvs[n] = dv
-                            j = n  # insertion into the depth order
-                            while j > 0 and zs[order[j - 1]] > d:
-                                order[j] = order[j - 1]
-                                j -= 1
-                            order[j] = n
+                            z_lo = min(z_lo, zs[n])
+                            z_hi = max(z_hi, zs[n])
                             n += 1
                 if n == 0:
                     out_depth[v, u] = np.nan
                     continue
-                lo = 0
-                hi = n
-                while True:
-                    best = 0.0
-                    split = -1
-                    for j in range(lo, hi - 1):
-                        a = zs[order[j]]
-                        gap = zs[order[j + 1]] - a
-                        if gap > _step_limit(a, max_step, quad) and gap > best:
-                            best = gap
-                            split = j
-                    if split < 0:
-                        break
-                    w_near = 0.0
-                    w_far = 0.0
-                    for j in range(lo, split + 1):
-                        w_near += ws[order[j]]
-                    for j in range(split + 1, hi):
-                        w_far += ws[order[j]]
-                    if near_only[v, u] or w_near > w_far:
-                        hi = split + 1
-                    else:
-                        lo = split + 1
-                out_depth[v, u] = _side_plane_value(zs, ws, dus, dvs, order, lo, hi)
+                if z_hi - z_lo > _step_limit(z_lo, max_step, quad):  # a gap is possible
+                    srt[:n] = zs[:n]
+                    srt[:n].sort()
+                    lo = 0
+                    hi = n
+                    while srt[hi - 1] - srt[lo] > _step_limit(srt[lo], max_step, quad):
+                        best = 0.0
+                        split = -1
+                        for j in range(lo, hi - 1):
+                            gap = srt[j + 1] - srt[j]
+                            if gap > _step_limit(srt[j], max_step, quad) and gap > best:
+                                best = gap
+                                split = j
+                        if split < 0:
+                            break
+                        w_near = _side_weight(zs, ws, n, srt[lo], srt[split])
+                        w_far = _side_weight(zs, ws, n, srt[split + 1], srt[hi - 1])
+                        if near_only[v, u] or w_near > w_far:
+                            hi = split + 1
+                        else:
+                            lo = split + 1
+                    z_lo = srt[lo]
+                    z_hi = srt[hi - 1]
+                out_depth[v, u] = _side_plane_value(zs, ws, dus, dvs, n, z_lo, z_hi)
 
 
 @njit(fastmath=False)

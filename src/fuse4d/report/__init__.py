@@ -600,6 +600,7 @@ def _write(
                             "pis": pis,
                             "intensity": rseq.intensity[t - ra].copy(),
                             "support": sup,
+                            "source": None if fch.source is None else fch.source[j],
                             "normals": {n: normal_map(points[n]) for n in ("raw", "fused")},
                         }
                     if progress is not None:
@@ -705,11 +706,20 @@ def _write(
                     None if keep["support"] is None else keep["support"].astype(np.float32),
                     frame=frame,
                     max_support=support_max,
+                    source_frame=keep.get("source"),
                 ),
                 (
                     "Support: number of other frames whose track passed every check and was fused "
-                    "into the pixel. Hole-filled: valid raw pixels without support, filled from "
-                    "their neighbours (Eq. 6)."
+                    "into the pixel. "
+                    + (
+                        "Source: where each value of the frame comes from — measured (raw depth "
+                        "without temporal support), fused (with support), sensor holes filled "
+                        "from other frames along the track or in space from one side of the "
+                        "depth edges, ToF flying pixels rejected and left empty, no depth."
+                        if keep.get("source") is not None
+                        else "Hole-filled: valid raw pixels without support, filled from "
+                        "their neighbours (Eq. 6)."
+                    )
                 ),
             ),
             "cloud": (

@@ -85,11 +85,14 @@ class FusedChunk:
         Frames fused per pixel (temporal support), when the result stores it.
     filled : (C, H, W) ndarray of bool or None
         Pixels filled by hole filling (Eq. 6), when stored.
+    source : (C, H, W) ndarray of uint8 or None
+        Where each value comes from (:attr:`fuse4d.FusedFrame.source` codes), when stored.
     """
 
     depth: NDArray[np.float32]
     support: NDArray[np.uint8] | None
     filled: NDArray[np.bool_] | None
+    source: NDArray[np.uint8] | None = None
 
 
 class FusedSource:
@@ -106,6 +109,7 @@ class FusedSource:
         self._depth: NDArray[np.float32] | None = None
         self._support = None if support is None else np.asarray(support)
         self._filled = None if filled is None else np.asarray(filled, dtype=bool)
+        self._source: NDArray[np.uint8] | None = None
         self.params: dict[str, Any] | None = None
         #: mm per stored depth step of a fused frame folder (None: float depth)
         self.depth_unit_mm: float | None = None
@@ -115,6 +119,7 @@ class FusedSource:
             self._depth = data.depth
             self._support = data.support if self._support is None else self._support
             self._filled = data.filled if self._filled is None else self._filled
+            self._source = data.source
             self.params = {**data.params.to_dict(), "flow_method": data.flow_method}
             self.seconds = float(sum(data.timings.values())) if data.timings else None
         elif isinstance(data, Sequence):
@@ -129,7 +134,7 @@ class FusedSource:
             self._keys: set[str] = set()
             members = getattr(self._reader, "_members", None)
             if isinstance(members, dict):  # NpzReader: support/filled are memory-mapped members
-                self._keys = {k for k in ("support", "filled") if k in members}
+                self._keys = {k for k in ("support", "filled", "source") if k in members}
         else:
             depth = np.asarray(data, dtype=np.float32)
             if depth.ndim != 3:
@@ -165,15 +170,18 @@ class FusedSource:
                 seq = self._reader.read_sequence((start, stop))
             support = self._member("support", start, stop)
             filled = self._member("filled", start, stop)
+            source = self._member("source", start, stop)
             return FusedChunk(
                 seq.depth,
                 None if support is None else support.astype(np.uint8),
                 None if filled is None else filled.astype(bool),
+                None if source is None else source.astype(np.uint8),
             )
         assert self._depth is not None
         s = None if self._support is None else self._support[start:stop].astype(np.uint8)
         f = None if self._filled is None else self._filled[start:stop]
-        return FusedChunk(np.asarray(self._depth[start:stop], dtype=np.float32), s, f)
+        o = None if self._source is None else self._source[start:stop]
+        return FusedChunk(np.asarray(self._depth[start:stop], dtype=np.float32), s, f, o)
 
     def close(self) -> None:
         """Close the file reader (if any)."""

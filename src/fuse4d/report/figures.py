@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import io
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -228,8 +228,11 @@ def support_figure(
     *,
     frame: int,
     max_support: float,
+    source_frame: NDArray[np.uint8] | None = None,
 ) -> bytes:
-    """Support (frames fused per pixel) and hole-filling maps."""
+    """Support (frames fused per pixel) maps, and where frame ``frame``'s values come from
+    (``source_frame``, :attr:`fuse4d.FusedFrame.source` codes) or, without it, the Eq. 6
+    hole-filling map."""
     fig = _figure(11.5, 3.6)
     axes = fig.subplots(1, 3, squeeze=False)[0]
     panels = (
@@ -240,12 +243,46 @@ def support_figure(
     for ax, (data, title, cmap, vmax, unit) in zip(axes, panels, strict=True):
         ax.set_axis_off()
         ax.set_title(title, fontsize=10)
+        if source_frame is not None and ax is axes[2]:
+            _source_panel(fig, ax, source_frame, frame)
+            continue
         if data is None:
             ax.text(0.5, 0.5, "not stored\nin the fused result", ha="center", va="center")
             continue
         im = ax.imshow(_masked(data), cmap=_cmap(cmap), vmin=0.0, vmax=max(vmax, 1e-6))
         fig.colorbar(im, ax=ax, label=unit, shrink=0.85)
     return png_bytes(fig)
+
+
+#: Colours and names of the source codes (``fuse4d.holes.SOURCE_*``, 0-5), for the legend.
+SOURCE_STYLE = (
+    ("no depth", "#000000"),
+    ("measured", "#b4b4b4"),
+    ("fused", "#3c9a5a"),
+    ("hole, from time", "#f0a02a"),
+    ("hole, in space", "#2a78e6"),
+    ("rejected (ToF)", "#e62a2a"),
+)
+
+
+def _source_panel(fig: Any, ax: Any, source: NDArray[np.uint8], frame: int) -> None:
+    """Categorical map of one frame's source codes with a legend of the codes present."""
+    from matplotlib.colors import ListedColormap
+    from matplotlib.patches import Patch
+
+    codes = np.clip(np.asarray(source), 0, len(SOURCE_STYLE) - 1)
+    cmap = ListedColormap([c for _, c in SOURCE_STYLE])
+    ax.imshow(codes, cmap=cmap, vmin=-0.5, vmax=len(SOURCE_STYLE) - 0.5, interpolation="nearest")
+    ax.set_title(f"source, frame {frame}", fontsize=10)
+    total = codes.size
+    handles = [
+        Patch(color=color, label=f"{name} {100 * np.count_nonzero(codes == k) / total:.1f} %")
+        for k, (name, color) in enumerate(SOURCE_STYLE)
+        if np.any(codes == k)
+    ]
+    ax.legend(
+        handles=handles, loc="center left", bbox_to_anchor=(1.0, 0.5), fontsize=7, frameon=False
+    )
 
 
 def cloud_figure(renders: dict[str, NDArray[np.uint8]], *, frame: int) -> bytes:
