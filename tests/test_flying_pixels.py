@@ -223,3 +223,21 @@ def test_rejected_pixels_are_flagged_in_a_zarr_output(tmp_path, tof_body, capsys
     np.testing.assert_array_equal(source == SOURCE_REJECTED, found)
     assert np.isnan(depth[found]).all()
     assert (confidence[found] == 0).all()
+
+
+def test_dask_chunks_reject_the_same_pixels_as_one_engine(tof_body):
+    """The dask graph's chunk engines (halo frames pushed with a neighbour's frame state)
+    remove the same flying pixels and give the same output as one streaming engine."""
+    pytest.importorskip("dask.array")
+    import dask
+
+    import fuse4d.dask as fd
+
+    seq = tof_body
+    params = FusionParams(flying_pixels="on", num_frames=5)
+    ref = fuse_sequence(seq.depth, seq.intensity, seq.intrinsics, fusion=params)
+    res = fd.fuse(seq.depth, seq.intensity, seq.intrinsics, fusion=params, chunk_frames=2)
+    depth, source = dask.compute(res.depth, res.source, scheduler="synchronous")
+    np.testing.assert_array_equal(source, ref.source)
+    assert (source == SOURCE_REJECTED).sum() > 50
+    np.testing.assert_array_equal(depth, ref.depth)  # NaN where NaN, bit for bit elsewhere

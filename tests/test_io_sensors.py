@@ -583,3 +583,23 @@ def test_realsense_color_alignment(tmp_path):
     )
     inside = (x_color >= 0) & (x_color < 63)
     np.testing.assert_allclose(frame.intensity[5, inside], want[inside], atol=2e-3)
+
+
+@pytest.mark.realdata
+def test_realsense_camera_name_gives_the_sensor_kind(recordings):
+    """librealsense records the camera's name: a D435 is active stereo (so fuse4d's ToF
+    flying-pixel removal stays off, A36); the software-device fixtures say nothing."""
+    with open_frames(recordings / "realsense_legacy_single_depth_color_640x480.bag") as reader:
+        assert reader.sensor == "active-stereo"
+        assert "camera: Intel RealSense D435 (active-stereo)" in reader.notes
+    with open_frames(recordings / "rs2551_swdev_5f.bag") as reader:
+        assert reader.sensor is None
+
+
+def test_realsense_sensor_kind_by_product_line():
+    from fuse4d.io._realsense import realsense_sensor_kind
+
+    assert realsense_sensor_kind("Intel RealSense D455") == "active-stereo"
+    assert realsense_sensor_kind("Intel RealSense L515") == "tof"
+    assert realsense_sensor_kind("Intel RealSense SR305") == "structured-light"
+    assert realsense_sensor_kind("Software-Device") is None

@@ -6,7 +6,9 @@ depth units as an option (ROS 1 ``std_msgs/Float32`` in metres under ``option/De
 extrinsics under ``<Stream>/tf/<ref>`` (ROS 1 ``geometry_msgs/Transform``; ROS 2 a String
 ``rotation=r0,...,r8;translation=x,y,z`` with the rotation column-major, librealsense's
 ``rs2_extrinsics``) mapping the stream's frame to the reference stream's, and a nominal frame
-rate in ``<Stream>/info`` (``realsense_msgs/StreamInfo`` or String ``encoding=Z16;fps=30``).
+rate in ``<Stream>/info`` (``realsense_msgs/StreamInfo`` or String ``encoding=Z16;fps=30``),
+and the camera's name in ``/device_0/info`` (``diagnostic_msgs/KeyValue`` ``Name``, e.g.
+``Intel RealSense D435``), from which :func:`realsense_sensor_kind` tells the depth technology.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ __all__ = [
     "is_realsense_topic",
     "parse_key_values",
     "quaternion_matrix",
+    "realsense_sensor_kind",
     "sensor_prefix",
     "stream_prefix",
 ]
@@ -42,6 +45,25 @@ def sensor_prefix(topic: str) -> str | None:
     """``/device_0/sensor_0`` for any topic of that sensor, else None."""
     m = _SENSOR.match(topic)
     return m.group(1) if m else None
+
+
+#: RealSense product lines by model number: D4xx active stereo, L5xx lidar (time of flight,
+#: mixed pixels at edges), SR3xx coded (structured) light.
+_KINDS = (
+    (re.compile(r"\bD4\d\d"), "active-stereo"),
+    (re.compile(r"\bL5\d\d"), "tof"),
+    (re.compile(r"\bSR3\d\d"), "structured-light"),
+)
+
+
+def realsense_sensor_kind(name: str) -> str | None:
+    """The depth technology of a RealSense camera from its name (``Intel RealSense D435`` ->
+    ``"active-stereo"``, ``... L515`` -> ``"tof"``, ``... SR305`` -> ``"structured-light"``);
+    None for other names (a software device)."""
+    for pattern, kind in _KINDS:
+        if pattern.search(str(name).upper()):
+            return kind
+    return None
 
 
 def parse_key_values(text: str) -> dict[str, str]:

@@ -38,6 +38,7 @@ from ._realsense import (
     is_realsense_topic,
     parse_key_values,
     quaternion_matrix,
+    realsense_sensor_kind,
     sensor_prefix,
     stream_prefix,
 )
@@ -280,12 +281,32 @@ class RosbagReader(SequentialReader):
         self._depth, self._inten = depth, inten
         by = " written by librealsense" if self.realsense else ""
         self._notes.insert(0, f"container: {self.container}{by}")
+        name = self._device_name() if self.realsense else None
+        if name:
+            self.sensor = realsense_sensor_kind(name)
+            kind = f" ({self.sensor})" if self.sensor else ""
+            self._notes.append(f"camera: {name}{kind}")
         self._notes.append(f"depth: {depth.topic} ({depth.encoding}, {depth.width}x{depth.height})")
         h, w = depth.height, depth.width
         self._set_intrinsics(intrinsics, w, h)
         self._set_unit(depth_unit_mm)
         self._set_alignment(intensity, intensity_topic)
         self._build_index()
+
+    def _device_name(self) -> str | None:
+        """The camera's ``Name`` in librealsense's ``/device_0/info`` (KeyValue messages, or
+        ``key=value`` Strings), None when not recorded."""
+        for c in self._all:
+            if c.topic != "/device_0/info":
+                continue
+            for _, _, raw in self._messages([c]):
+                msg = self._deserialize(raw, c)
+                if getattr(msg, "key", None) == "Name":
+                    return str(msg.value).strip() or None
+                name = parse_key_values(getattr(msg, "data", "")).get("Name")
+                if name:
+                    return name
+        return None
 
     def _probe(self, s: _Stream) -> None:
         first = self._first(s.connection) if s.count else None
