@@ -344,6 +344,60 @@ def _side_weight(zs, ws, n, z_min, z_max):  # pragma: no cover - compiled
     return total
 
 
+@njit
+def _largest_gap(zs, n, z_min, z_max, max_step, quad, bucket_lo, bucket_hi, srt):
+    """The largest gap between consecutive values of ``zs[i]`` (i < n) within ``[z_min,
+    z_max]`` that exceeds the depth-step limit at its lower end: ``(below, above)``, the
+    values either side of it, or ``(nan, nan)`` when no gap qualifies (A37).
+
+    Bucketed in O(n): with buckets of the limit at ``z_min`` (the smallest limit in the
+    range), two values in one bucket are closer than any qualifying gap, so the candidates
+    are the gaps between consecutive non-empty buckets (from one's maximum to the next's
+    minimum). Ranges needing more buckets than ``bucket_lo`` holds are sorted instead
+    (``srt``). The same gap as sorting all values and scanning them.
+    """
+    width = _step_limit(z_min, max_step, quad)
+    nb = int((z_max - z_min) / width) + 1
+    best = 0.0
+    below = np.nan
+    above = np.nan
+    if nb <= bucket_lo.size:
+        for b in range(nb):
+            bucket_lo[b] = np.inf
+            bucket_hi[b] = -np.inf
+        for i in range(n):
+            z = zs[i]
+            if z_min <= z <= z_max:
+                b = min(int((z - z_min) / width), nb - 1)
+                bucket_lo[b] = min(bucket_lo[b], z)
+                bucket_hi[b] = max(bucket_hi[b], z)
+        prev = -1.0
+        for b in range(nb):
+            if bucket_lo[b] == np.inf:
+                continue
+            if prev >= 0.0:
+                gap = bucket_lo[b] - prev
+                if gap > _step_limit(prev, max_step, quad) and gap > best:
+                    best = gap
+                    below = prev
+                    above = bucket_lo[b]
+            prev = bucket_hi[b]
+        return below, above
+    m = 0
+    for i in range(n):
+        if z_min <= zs[i] <= z_max:
+            srt[m] = zs[i]
+            m += 1
+    srt[:m].sort()
+    for j in range(m - 1):
+        gap = srt[j + 1] - srt[j]
+        if gap > _step_limit(srt[j], max_step, quad) and gap > best:
+            best = gap
+            below = srt[j]
+            above = srt[j + 1]
+    return below, above
+
+
 @njit_parallel
 def _spatial_fill_kernel(
     depth, intensity, target, near_only, radius, inv_2si2, inv_2ss2, max_step, quad, out_depth
@@ -360,8 +414,9 @@ def _spatial_fill_kernel(
     (our A37; A27 took the neighbours within one step limit of the farthest / nearest, which
     on a floor or a wall seen at an angle kept one edge of the hole's neighbourhood). The fill
     is the weighted least-squares plane through the kept side, evaluated at the hole and
-    clamped to the side's depth range (:func:`_side_plane_value`). Windows whose depth range
-    is within the step limit (no gap possible) skip the sort. ``out_depth`` gets the result,
+    clamped to the side's depth range (:func:`_side_plane_value`). The gap is found without
+    sorting (:func:`_largest_gap`), and not looked for where the window's depth range is within
+    the step limit. ``out_depth`` gets the result,
     NaN where no neighbour is valid; non-target pixels are copied from ``depth``.
     """
     h, w = depth.shape
@@ -373,6 +428,8 @@ def _spatial_fill_kernel(
         dus = np.empty(n_max, np.float64)
         dvs = np.empty(n_max, np.float64)
         srt = np.empty(n_max, np.float64)
+        bucket_lo = np.empty(4 * n_max, np.float64)
+        bucket_hi = np.empty(4 * n_max, np.float64)
         for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
             for u in range(w):
                 if not target[v, u]:
@@ -401,29 +458,18 @@ def _spatial_fill_kernel(
                 if n == 0:
                     out_depth[v, u] = np.nan
                     continue
-                if z_hi - z_lo > _step_limit(z_lo, max_step, quad):  # a gap is possible
-                    srt[:n] = zs[:n]
-                    srt[:n].sort()
-                    lo = 0
-                    hi = n
-                    while srt[hi - 1] - srt[lo] > _step_limit(srt[lo], max_step, quad):
-                        best = 0.0
-                        split = -1
-                        for j in range(lo, hi - 1):
-                            gap = srt[j + 1] - srt[j]
-                            if gap > _step_limit(srt[j], max_step, quad) and gap > best:
-                                best = gap
-                                split = j
-                        if split < 0:
-                            break
-                        w_near = _side_weight(zs, ws, n, srt[lo], srt[split])
-                        w_far = _side_weight(zs, ws, n, srt[split + 1], srt[hi - 1])
-                        if near_only[v, u] or w_near > w_far:
-                            hi = split + 1
-                        else:
-                            lo = split + 1
-                    z_lo = srt[lo]
-                    z_hi = srt[hi - 1]
+                while z_hi - z_lo > _step_limit(z_lo, max_step, quad):  # a gap is possible
+                    below, above = _largest_gap(
+                        zs, n, z_lo, z_hi, max_step, quad, bucket_lo, bucket_hi, srt
+                    )
+                    if np.isnan(below):
+                        break
+                    w_near = _side_weight(zs, ws, n, z_lo, below)
+                    w_far = _side_weight(zs, ws, n, above, z_hi)
+                    if near_only[v, u] or w_near > w_far:
+                        z_hi = below
+                    else:
+                        z_lo = above
                 out_depth[v, u] = _side_plane_value(zs, ws, dus, dvs, n, z_lo, z_hi)
 
 
