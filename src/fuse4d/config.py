@@ -197,10 +197,11 @@ class FusionParams:
         Our A36 (issue 10): remove time-of-flight *flying pixels* (a depth between the two
         surfaces of an edge, :mod:`fuse4d.flying_pixels`) from the raw depth before fusing;
         they stay holes, flagged ``SOURCE_REJECTED`` and never filled. "auto" (default): on
-        where the input says it comes from a ToF camera (an Azure Kinect ``.mkv``, a RealSense L5xx recording, a scene or
-        ``Sequence`` with ``sensor="tof"``; :func:`fuse4d.flying_pixels.resolve_flying_pixels`,
-        applied by ``fuse4d run`` / ``live`` and :func:`fuse4d.fuse_sequence` given a
-        ``Sequence``), off otherwise; an engine fed bare arrays reads "auto" as "off".
+        where the input says it comes from a ToF camera (an Azure Kinect ``.mkv``, a
+        RealSense L5xx recording, a scene or ``Sequence`` with ``sensor="tof"``;
+        :func:`fuse4d.flying_pixels.resolve_flying_pixels`, applied by ``fuse4d run`` /
+        ``live`` / ``run --engine dask`` and by :func:`fuse4d.fuse_sequence` given
+        ``sensor=``), off otherwise; an engine fed bare arrays reads "auto" as "off".
         Measured on the ToF model (``docs/method_notes.md`` A36): 97 % / 94 % of the ball's /
         body's pixels > 100 mm off found, 0.02-0.04 % of good pixels taken.
     min_temporal_support : int

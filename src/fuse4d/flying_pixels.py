@@ -30,8 +30,9 @@ In the engine (``FusionParams(flying_pixels="on")``) the pixels found are remove
 depth before anything else and stay holes: flagged :data:`fuse4d.holes.SOURCE_REJECTED`, never
 filled from time or space (which side of the edge such a pixel belongs to is not in the data:
 the A26/A27 fills gave the removed pixels of the ToF ball 185 mm RMSE). ``"auto"`` (default)
-is on where the recording says it comes from a ToF camera (an Azure Kinect ``.mkv``, a RealSense L5xx recording, a
-``Sequence`` or scene made with ``sensor="tof"``), off otherwise: :func:`resolve_flying_pixels`.
+is on where the recording says it comes from a ToF camera (an Azure Kinect ``.mkv``, a
+RealSense L5xx recording, a ``Sequence`` or scene made with ``sensor="tof"``), off otherwise:
+:func:`resolve_flying_pixels`.
 """
 
 from __future__ import annotations
