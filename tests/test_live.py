@@ -288,6 +288,7 @@ class _FakeRealSense:
         self.stream = types.SimpleNamespace(depth="depth", infrared="infrared")
         self.format = types.SimpleNamespace(z16="z16", y8="y8")
         self.option = types.SimpleNamespace(emitter_enabled="emitter")
+        self.camera_info = types.SimpleNamespace(name="name")
         self.options: dict[str, float] = {}
         self.enabled: list[tuple] = []
         fake = self
@@ -337,7 +338,8 @@ class _FakeRealSense:
         )
         video = types.SimpleNamespace(get_intrinsics=lambda: intr)
         stream_profile = types.SimpleNamespace(as_video_stream_profile=lambda: video)
-        device = types.SimpleNamespace(first_depth_sensor=_Sensor)
+        names = {"name": "Intel RealSense D435"}
+        device = types.SimpleNamespace(first_depth_sensor=_Sensor, get_info=names.__getitem__)
         profile = types.SimpleNamespace(
             get_device=lambda: device, get_stream=lambda stream: stream_profile
         )
@@ -384,6 +386,7 @@ def test_realsense_source_against_a_fake_pipeline(ball, monkeypatch):
     assert fake.options == {"emitter": 0.0}
     assert source.depth_unit_mm == pytest.approx(1.0)
     assert source.intrinsics.width == 150
+    assert source.sensor == "active-stereo"  # from the camera's name: no flying-pixel removal
     frame = next(iter(source))
     valid = np.isfinite(seq.depth[0])
     assert np.array_equal(np.isfinite(frame.depth), valid & (np.round(seq.depth[0]) > 0))

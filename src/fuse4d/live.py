@@ -307,7 +307,12 @@ class RealSenseSource:
         config.enable_stream(rs.stream.depth, width, height, rs.format.z16, fps)
         config.enable_stream(rs.stream.infrared, 1, width, height, rs.format.y8, fps)
         profile = self._pipeline.start(config)
-        sensor = profile.get_device().first_depth_sensor()
+        from .io._realsense import realsense_sensor_kind
+
+        device = profile.get_device()
+        #: the depth technology from the camera's name (D4xx active stereo, L5xx ToF: A36)
+        self.sensor = realsense_sensor_kind(str(device.get_info(rs.camera_info.name)))
+        sensor = device.first_depth_sensor()
         if emitter is not None and sensor.supports(rs.option.emitter_enabled):
             sensor.set_option(rs.option.emitter_enabled, 1.0 if emitter else 0.0)
         #: millimetres per z16 unit (the device's depth scale is in metres)
