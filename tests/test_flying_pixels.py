@@ -24,7 +24,7 @@ from fuse4d.flying_pixels import (
     resolve_flying_pixels,
 )
 from fuse4d.holes import SOURCE_REJECTED
-from fuse4d.io import load_sequence, open_frames, write_npz
+from fuse4d.io import load_sequence, open_frames, read_npz_extra, write_npz
 from fuse4d.motion import estimate_noise_quad
 from fuse4d.range_scenes import make_range_scene
 from fuse4d.synthetic import make_falling_ball
@@ -191,6 +191,13 @@ def test_cli_info_and_run_on_a_tof_scene(tmp_path, tof_body, capsys):
     summary = json.loads(capsys.readouterr().out)
     assert summary["params"]["flying_pixels"] == "on"
     assert 0.001 < summary["rejected_fraction"] < 0.02
+    # the summary's sensor-hole row: the same counts as the written source codes
+    source = read_npz_extra(tmp_path / "out.npz")["source"]
+    holes = np.isnan(tof_body.depth)
+    assert summary["hole_fraction"] == pytest.approx(holes.mean())
+    assert summary["hole_time_fraction"] == pytest.approx((source == 3).sum() / holes.sum())
+    assert summary["hole_space_fraction"] == pytest.approx((source == 4).sum() / holes.sum())
+    assert summary["hole_time_fraction"] + summary["hole_space_fraction"] > 0.5
     off = ["--set", "flying_pixels=off", "--json"]
     assert main(["run", str(path), "-o", str(tmp_path / "off.npz"), *off]) == 0
     summary = json.loads(capsys.readouterr().out)

@@ -25,7 +25,7 @@ from .config import FlowConfig, FusionParams, preset
 from .errors import ParameterError
 from .flying_pixels import resolve_flying_pixels
 from .fusion import STAGES, FusedFrame, FusionEngine, fuse_sequence
-from .holes import SOURCE_REJECTED
+from .holes import SOURCE_REJECTED, SOURCE_SPACE, SOURCE_TIME
 from .io import check_output, detect_format, open_frames, read_npz_extra
 from .io import write_npz as _write_npz
 from .io.resume import ResumableFolderWriter, partial_path, run_identity
@@ -78,6 +78,11 @@ class RunSummary:
         (pixels where the fusion found too little support), not sensor holes filled.
     rejected_fraction : float
         Fraction of the raw-valid pixels removed as ToF flying pixels (A36; left empty).
+    hole_fraction : float
+        Fraction of all pixels (x frames) without raw depth: the sensor's holes.
+    hole_time_fraction, hole_space_fraction : float
+        Fraction of those holes filled from other frames along the track (A26) / in space
+        from one side of the depth edges (A27).
     seconds : float
         Wall time of the whole run (I/O included).
     timings : dict
@@ -104,6 +109,9 @@ class RunSummary:
     support_fraction: float = float("nan")
     filled_fraction: float = float("nan")
     rejected_fraction: float = float("nan")
+    hole_fraction: float = float("nan")
+    hole_time_fraction: float = float("nan")
+    hole_space_fraction: float = float("nan")
     seconds: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
 
@@ -135,6 +143,9 @@ class RunSummary:
             "support_fraction": self.support_fraction,
             "filled_fraction": self.filled_fraction,
             "rejected_fraction": self.rejected_fraction,
+            "hole_fraction": self.hole_fraction,
+            "hole_time_fraction": self.hole_time_fraction,
+            "hole_space_fraction": self.hole_space_fraction,
             "seconds": self.seconds,
             "ms_per_frame": self.ms_per_frame,
             "timings_ms_per_frame": {
@@ -153,6 +164,10 @@ class _QualityTally:
         self.supported = 0
         self.filled = 0
         self.rejected = 0
+        self.pixels = 0
+        self.holes = 0
+        self.holes_time = 0
+        self.holes_space = 0
 
     def add(self, raw_points: np.ndarray, frame: FusedFrame) -> None:
         self.scores.add(raw_points, frame.points)
@@ -160,8 +175,12 @@ class _QualityTally:
         self.valid += int(valid.sum())
         self.supported += int((frame.support[valid] > 0).sum())
         self.filled += int(frame.filled[valid].sum())
+        self.pixels += valid.size
+        self.holes += valid.size - int(valid.sum())
         if frame.source is not None:
             self.rejected += int((frame.source[valid] == SOURCE_REJECTED).sum())
+            self.holes_time += int(np.count_nonzero(frame.source == SOURCE_TIME))
+            self.holes_space += int(np.count_nonzero(frame.source == SOURCE_SPACE))
 
     def fill(self, summary: RunSummary) -> None:
         res = self.scores.result()
@@ -178,6 +197,11 @@ class _QualityTally:
             summary.support_fraction = self.supported / self.valid
             summary.filled_fraction = self.filled / self.valid
             summary.rejected_fraction = self.rejected / self.valid
+        if self.pixels:
+            summary.hole_fraction = self.holes / self.pixels
+        if self.holes:
+            summary.hole_time_fraction = self.holes_time / self.holes
+            summary.hole_space_fraction = self.holes_space / self.holes
 
 
 def fuse_file(

@@ -287,6 +287,23 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
         else ("off", "on for time-of-flight recordings, or with --set flying_pixels=on (A36)")
     )
 
+    filled_holes = summary.hole_time_fraction + summary.hole_space_fraction
+    holes = (
+        (
+            f"{100 * filled_holes:.1f} %"
+            if math.isfinite(filled_holes)
+            else "none"
+            if summary.hole_fraction == 0
+            else "n/a"
+        ),
+        (
+            f"of the raw pixels without depth ({percent(summary.hole_fraction, 1)} of the "
+            f"image): {percent(summary.hole_time_fraction, 1)} from other frames along the "
+            f"track (A26), {percent(summary.hole_space_fraction, 1)} in space from one side "
+            "of the depth edges (A27); the rest stay empty"
+        ),
+    )
+
     table = Table(title=f"fuse4d run: {summary.input} -> {summary.output}", show_header=True)
     table.add_column("")
     table.add_column("raw -> fused")
@@ -342,6 +359,7 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
         ),
         ("Eq. 6 filled", *eq6),
         ("flying pixels", *flying),
+        ("sensor holes filled", *holes),
         (
             "time",
             f"{summary.seconds:.1f} s",
