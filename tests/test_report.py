@@ -94,6 +94,8 @@ def test_report_folder_holds_page_video_metrics_and_clouds(run_with_report):
     assert m["xt_slice"]["how"].startswith("auto")
     # the run's npz holds the per-pixel source codes: the support figure maps them
     assert "Source: where each value of the frame comes from" in page
+    assert m["fusion"]["rejected_fraction"] == 0.0  # source codes read, no ToF input
+    assert "hole_time_fraction" in m["fusion"]
 
 
 def test_mp4_decodes_to_one_frame_per_input_frame(run_with_report):

@@ -535,6 +535,10 @@ def _write(
         valid_raw = 0
         supported = 0
         filled_count = 0
+        # per source code (fuse4d.holes.SOURCE_*, 0-5) and the raw holes, where the result has
+        # source codes (None: it has not)
+        source_counts: NDArray[np.int64] | None = None
+        raw_holes = 0
         keep: dict[str, Any] = {}
         compare_seconds = 0.0
         video = Mp4Writer(tmp / "compare.mp4", layout.width, layout.height, fps=rate)
@@ -564,6 +568,10 @@ def _write(
                         series[n].append(depths[n][rr, cc])
                     ok = np.isfinite(d_raw)
                     valid_raw += int(ok.sum())
+                    if fch.source is not None:
+                        counts = np.bincount(fch.source[j].ravel(), minlength=6)[:6]
+                        source_counts = counts if source_counts is None else source_counts + counts
+                        raw_holes += int(ok.size - ok.sum())
                     sup = None if fch.support is None else fch.support[j]
                     fil = None if fch.filled is None else fch.filled[j]
                     if sup is not None and support_sum is not None:
@@ -768,6 +776,23 @@ def _write(
             "filled_fraction": (
                 filled_count / valid_raw if fres.has_support and valid_raw else None
             ),
+            # sensor holes filled from time (A26) / in space (A27), ToF flying pixels removed
+            # (A36): shares of the raw holes / of the raw-valid pixels
+            "hole_time_fraction": (
+                int(source_counts[3]) / raw_holes
+                if source_counts is not None and raw_holes
+                else None
+            ),
+            "hole_space_fraction": (
+                int(source_counts[4]) / raw_holes
+                if source_counts is not None and raw_holes
+                else None
+            ),
+            "rejected_fraction": (
+                int(source_counts[5]) / valid_raw
+                if source_counts is not None and valid_raw
+                else None
+            ),
         }
         metrics = {
             "input": raw.name,
@@ -942,6 +967,31 @@ def _metric_rows(
                 "values": {"fused": 100.0 * fill["filled_fraction"]},
                 "unit": "%",
                 "meaning": "valid pixels without support, filled by Eq. 6",
+            }
+        )
+    if fill.get("hole_time_fraction") is not None:
+        rows.append(
+            {
+                "name": "sensor holes filled",
+                "values": {
+                    "fused": 100.0 * (fill["hole_time_fraction"] + fill["hole_space_fraction"])
+                },
+                "unit": "%",
+                "meaning": (
+                    f"raw pixels without depth given a value: "
+                    f"{100 * fill['hole_time_fraction']:.1f} % from other frames along the "
+                    f"track (A26), {100 * fill['hole_space_fraction']:.1f} % in space from one "
+                    "side of the depth edges (A27)"
+                ),
+            }
+        )
+    if fill.get("rejected_fraction"):
+        rows.append(
+            {
+                "name": "flying pixels removed",
+                "values": {"fused": 100.0 * fill["rejected_fraction"]},
+                "unit": "%",
+                "meaning": "valid raw pixels removed as ToF flying pixels, left empty (A36)",
             }
         )
     rows.append(
