@@ -754,9 +754,10 @@ class FusionEngine:
         holes = np.empty(shape, np.bool_)
         if not _source_confidence_kernel(self._depth[slot], support, n, source, confidence, holes):
             return source, confidence
-        if self._rejected is not None and self._rejected[slot].any():  # A36: kept empty
-            source[self._rejected[slot]] = SOURCE_REJECTED
-            holes &= ~self._rejected[slot]
+        rejected = None if self._rejected is None else self._rejected[slot]
+        if rejected is not None and rejected.any():  # A36: kept empty
+            source[rejected] = SOURCE_REJECTED
+            holes &= ~rejected
         _, quad, _ = self._noise[slot]
         rims = _rim_holes(self._depth[slot], max_step=p.max_depth_step, quad=quad)
         if p.fill_from_time and last > first:

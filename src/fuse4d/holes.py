@@ -32,9 +32,9 @@ Two kinds of holes, one home:
      depth-step limit (A22); a slanted floor or wall has no such jump and stays whole), the
      side whose intensity the hole resembles more (an occlusion shadow looks like the
      background it lies on, a dropout on a foreground rim like the rim), so the fill never
-     bridges a depth discontinuity. Where the frame's holes show on which side of its foreground edges the
-     sensor's shadows lie, a thin hole on the other side cannot be a shadow and takes the near
-     side (:func:`_rim_holes`). Time fills (1.) that disagree with that side are dropped.
+     bridges a depth discontinuity. Where the frame's holes show on which side of its
+     foreground edges the sensor's shadows lie, a thin hole on the other side cannot be a
+     shadow and takes the near side (:func:`_rim_holes`). Time fills (1.) that disagree with that side are dropped.
 
   Every filled pixel is flagged (:data:`SOURCE_TIME`, :data:`SOURCE_SPACE` in
   :attr:`fuse4d.FusedFrame.source`), so a user can drop them.

@@ -765,8 +765,6 @@ class LiveWriter:
         suffix = self.path.suffix.lower()
         self._frames: list[tuple[np.ndarray, np.ndarray, float | None]] | None = None
         self._writer: Any = None
-        # the per-pixel source codes and confidence go with the depth (not into an .mkv)
-        self._flags = suffix != ".mkv"
         if suffix == ".npz":
             check_output(self.path, overwrite=overwrite)
             self._frames = []
@@ -797,7 +795,7 @@ class LiveWriter:
             return
         args = (fused.depth, captured.intensity)
         kwargs = {"mask": captured.mask, "timestamp": captured.timestamp}
-        if self._flags and getattr(fused, "source", None) is not None:
+        if self._writer.stores_flags and getattr(fused, "source", None) is not None:
             kwargs.update(source=fused.source, confidence=fused.confidence)
         if self._sink is not None:
             self._sink.submit(*args, **kwargs)  # FusedFrame arrays are not reused by the engine

@@ -582,8 +582,8 @@ def _fuse_streaming(
                 frames = _timed(todo, timings)
                 sink = _Inline(writer.write, timings)
 
-            # per-pixel source codes and confidence go with the depth (not into an .mkv video)
-            stores_flags = out_fmt in ("folder", "zarr")
+            # per-pixel source codes and confidence go with the depth where the writer stores them
+            stores_flags = writer.stores_flags
             # frames handed to the writer (the writer thread's `frames_done` lags behind it)
             queued = writer.frames_done if resumable else 0
 

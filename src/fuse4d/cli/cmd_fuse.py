@@ -289,13 +289,7 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
 
     filled_holes = summary.hole_time_fraction + summary.hole_space_fraction
     holes = (
-        (
-            f"{100 * filled_holes:.1f} %"
-            if math.isfinite(filled_holes)
-            else "none"
-            if summary.hole_fraction == 0
-            else "n/a"
-        ),
+        "none" if summary.hole_fraction == 0 else percent(filled_holes, 1),
         (
             f"of the raw pixels without depth ({percent(summary.hole_fraction, 1)} of the "
             f"image): {percent(summary.hole_time_fraction, 1)} from other frames along the "

@@ -315,11 +315,14 @@ def _parse_frame_string(text: str) -> slice:
     raise ParameterError(f"frames must look like 'A:B', 'A:', ':B' or 'K', got {text!r}")
 
 
-def confidence_image(confidence: np.ndarray) -> np.ndarray:
-    """Fusion confidence in [0, 1] as the uint8 image of a frame folder's ``confidence/``:
-    round(255 c) (:attr:`fuse4d.FusedFrame.confidence`)."""
+def flag_images(source: ArrayLike, confidence: ArrayLike) -> tuple[tuple[str, NDArray], ...]:
+    """A fused frame's per-pixel flags as the images of a frame folder: ``("source", uint8
+    codes)`` (:attr:`fuse4d.FusedFrame.source`) and ``("confidence", uint8 round(255 c))``."""
     c = np.clip(np.nan_to_num(np.asarray(confidence, np.float32)), 0.0, 1.0)
-    return np.rint(c * 255.0).astype(np.uint8)
+    return (
+        ("source", np.asarray(source, np.uint8)),
+        ("confidence", np.rint(c * 255.0).astype(np.uint8)),
+    )
 
 
 def check_flags(index: int, shape: tuple[int, int], source: Any, confidence: Any) -> None:

@@ -39,8 +39,8 @@ from ._base import (
     _check_size,
     check_flags,
     check_frame_shapes,
-    confidence_image,
     depth_unit,
+    flag_images,
     read_camera_json,
     resolve_intrinsics,
 )
@@ -277,6 +277,9 @@ class FrameFolderWriter:
     ...         writer.write(depth, intensity)
     """
 
+    #: :meth:`write` stores a fused frame's per-pixel ``source`` and ``confidence``.
+    stores_flags = True
+
     def __init__(
         self,
         path: str | PathLike[str],
@@ -363,9 +366,6 @@ class FrameFolderWriter:
         check_flags(self.num_written, shape, source, confidence)
         if self._has_flags is None:
             self._has_flags = source is not None
-            if self._has_flags:
-                (self._tmp / "source").mkdir()
-                (self._tmp / "confidence").mkdir()
         elif self._has_flags != (source is not None):
             raise ValueError(
                 f"frame {self.num_written}: give source and confidence for every frame or none"
@@ -380,8 +380,9 @@ class FrameFolderWriter:
             encode_png(np.where(np.asarray(mask, bool), 255, 0).astype(np.uint8),
                        self._tmp / "mask" / name)  # fmt: skip
         if source is not None:
-            encode_png(np.asarray(source, np.uint8), self._tmp / "source" / name)
-            encode_png(confidence_image(confidence), self._tmp / "confidence" / name)
+            for sub, image in flag_images(source, confidence):
+                (self._tmp / sub).mkdir(exist_ok=True)
+                encode_png(image, self._tmp / sub / name)
         self._timestamps.append(None if timestamp is None else float(timestamp))
         self.num_written += 1
 

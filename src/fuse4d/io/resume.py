@@ -38,7 +38,7 @@ import numpy as np
 from ..camera import Intrinsics
 from ..errors import InputFileError, OutputExistsError, ParameterError
 from ._atomic import _replace_existing, _set_default_mode, check_output, write_errors
-from ._base import check_flags, confidence_image
+from ._base import check_flags, flag_images
 from ._images import QuantizationReport, depth_to_units, encode_png
 from .folder import camera_json_text, intensity_image
 
@@ -217,6 +217,9 @@ class ResumableFolderWriter:
         Warm-start flow stored with the checkpoint (``FusionEngine(initial_flow=...)``).
     """
 
+    #: :meth:`write` stores a fused frame's per-pixel ``source`` and ``confidence``.
+    stores_flags = True
+
     def __init__(
         self,
         path: str | PathLike[str],
@@ -389,10 +392,9 @@ class ResumableFolderWriter:
                 self._png(np.where(np.asarray(mask, bool), 255, 0).astype(np.uint8), "mask", name)
             check_flags(k, self.intrinsics.shape, source, confidence)
             if source is not None:
-                for sub in ("source", "confidence"):
+                for sub, image in flag_images(source, confidence):
                     (self.partial / sub).mkdir(exist_ok=True)
-                self._png(np.asarray(source, np.uint8), "source", name)
-                self._png(confidence_image(confidence), "confidence", name)
+                    self._png(image, sub, name)
             stamp = "nan" if timestamp is None else f"{float(timestamp):.6f}"
             with (self.partial / "resume" / "timestamps.txt").open("a") as f:
                 f.write(stamp + "\n")

@@ -55,6 +55,9 @@ class DepthVideoWriter(StagedWriter):
         Replace an existing output.
     """
 
+    #: A depth video holds depth and intensity only (no per-pixel fusion flags).
+    stores_flags = False
+
     def __init__(
         self,
         path: str | PathLike[str],

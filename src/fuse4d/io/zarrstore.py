@@ -76,6 +76,9 @@ class ZarrWriter(StagedWriter):
         Replace an existing output.
     """
 
+    #: :meth:`write` stores a fused frame's per-pixel ``source`` and ``confidence``.
+    stores_flags = True
+
     def __init__(
         self,
         path: str | PathLike[str],
@@ -108,18 +111,22 @@ class ZarrWriter(StagedWriter):
         stack = ExitStack()
         tmp = stack.enter_context(atomic_dir(self.path, overwrite=self.overwrite))
         self._stack = stack
-        h, w = self.intrinsics.shape
         self._group = self._zarr.open_group(str(tmp), mode="w", zarr_format=3)
-        for name in ("depth", "intensity"):
-            self._arrays[name] = self._group.create_array(
-                name,
-                shape=(0, h, w),
-                chunks=(1, h, w),
-                dtype="float32",
-                fill_value=float("nan") if name == "depth" else 0.0,
-                compressors=codec(),
-                dimension_names=_DIMS,
-            )
+        self._add_array("depth", "float32", float("nan"))
+        self._add_array("intensity", "float32", 0.0)
+
+    def _add_array(self, name: str, dtype: str, fill: float) -> None:
+        """An empty (0, H, W) array, one frame per chunk, appended to by :meth:`write`."""
+        h, w = self.intrinsics.shape
+        self._arrays[name] = self._group.create_array(
+            name,
+            shape=(0, h, w),
+            chunks=(1, h, w),
+            dtype=dtype,
+            fill_value=fill,
+            compressors=codec(),
+            dimension_names=_DIMS,
+        )
 
     def write(
         self,
@@ -145,16 +152,8 @@ class ZarrWriter(StagedWriter):
         check_frame_shapes(self.num_written, shape, depth=d, intensity=i)
         check_flags(self.num_written, shape, source, confidence)
         if self.num_written == 0 and source is not None:
-            for name, dtype, fill in (("source", "uint8", 0), ("confidence", "float32", 0.0)):
-                self._arrays[name] = self._group.create_array(
-                    name,
-                    shape=(0, *shape),
-                    chunks=(1, *shape),
-                    dtype=dtype,
-                    fill_value=fill,
-                    compressors=codec(),
-                    dimension_names=_DIMS,
-                )
+            self._add_array("source", "uint8", 0)
+            self._add_array("confidence", "float32", 0.0)
         if ("source" in self._arrays) != (source is not None):
             raise ValueError(
                 f"frame {self.num_written}: give source and confidence for every frame or none"

@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..camera import depth_to_points
 from ..errors import ParameterError, ShapeError
+from ..holes import SOURCE_REJECTED, SOURCE_SPACE, SOURCE_TIME
 from ..sequence import Sequence
 from ._sources import RawSource, open_fused, open_raw
 from .planes import Plane, detect_planes, given_plane
@@ -535,8 +536,8 @@ def _write(
         valid_raw = 0
         supported = 0
         filled_count = 0
-        # per source code (fuse4d.holes.SOURCE_*, 0-5) and the raw holes, where the result has
-        # source codes (None: it has not)
+        # pixels per source code (fuse4d.holes.SOURCE_*) and the raw holes, where the result
+        # has source codes (None: it has not)
         source_counts: NDArray[np.int64] | None = None
         raw_holes = 0
         keep: dict[str, Any] = {}
@@ -569,7 +570,7 @@ def _write(
                     ok = np.isfinite(d_raw)
                     valid_raw += int(ok.sum())
                     if fch.source is not None:
-                        counts = np.bincount(fch.source[j].ravel(), minlength=6)[:6]
+                        counts = np.bincount(fch.source[j].ravel(), minlength=SOURCE_REJECTED + 1)
                         source_counts = counts if source_counts is None else source_counts + counts
                         raw_holes += int(ok.size - ok.sum())
                     sup = None if fch.support is None else fch.support[j]
@@ -779,17 +780,17 @@ def _write(
             # sensor holes filled from time (A26) / in space (A27), ToF flying pixels removed
             # (A36): shares of the raw holes / of the raw-valid pixels
             "hole_time_fraction": (
-                int(source_counts[3]) / raw_holes
+                int(source_counts[SOURCE_TIME]) / raw_holes
                 if source_counts is not None and raw_holes
                 else None
             ),
             "hole_space_fraction": (
-                int(source_counts[4]) / raw_holes
+                int(source_counts[SOURCE_SPACE]) / raw_holes
                 if source_counts is not None and raw_holes
                 else None
             ),
             "rejected_fraction": (
-                int(source_counts[5]) / valid_raw
+                int(source_counts[SOURCE_REJECTED]) / valid_raw
                 if source_counts is not None and valid_raw
                 else None
             ),

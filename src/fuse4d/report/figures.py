@@ -244,7 +244,7 @@ def support_figure(
         ax.set_axis_off()
         ax.set_title(title, fontsize=10)
         if source_frame is not None and ax is axes[2]:
-            _source_panel(fig, ax, source_frame, frame)
+            _source_panel(ax, source_frame, frame)
             continue
         if data is None:
             ax.text(0.5, 0.5, "not stored\nin the fused result", ha="center", va="center")
@@ -265,7 +265,7 @@ SOURCE_STYLE = (
 )
 
 
-def _source_panel(fig: Any, ax: Any, source: NDArray[np.uint8], frame: int) -> None:
+def _source_panel(ax: Any, source: NDArray[np.uint8], frame: int) -> None:
     """Categorical map of one frame's source codes with a legend of the codes present."""
     from matplotlib.colors import ListedColormap
     from matplotlib.patches import Patch
