@@ -194,9 +194,12 @@ def test_cli_info_and_run_on_a_tof_scene(tmp_path, tof_body, capsys):
     # the summary's sensor-hole row: the same counts as the written source codes
     source = read_npz_extra(tmp_path / "out.npz")["source"]
     holes = np.isnan(tof_body.depth)
+    outside = source == 6  # A38: beyond the field of view, never filled
     assert summary["hole_fraction"] == pytest.approx(holes.mean())
-    assert summary["hole_time_fraction"] == pytest.approx((source == 3).sum() / holes.sum())
-    assert summary["hole_space_fraction"] == pytest.approx((source == 4).sum() / holes.sum())
+    assert summary["hole_outside_fraction"] == pytest.approx(outside.sum() / holes.sum())
+    inside = (holes & ~outside).sum()
+    assert summary["hole_time_fraction"] == pytest.approx((source == 3).sum() / inside)
+    assert summary["hole_space_fraction"] == pytest.approx((source == 4).sum() / inside)
     assert summary["hole_time_fraction"] + summary["hole_space_fraction"] > 0.5
     off = ["--set", "flying_pixels=off", "--json"]
     assert main(["run", str(path), "-o", str(tmp_path / "off.npz"), *off]) == 0

@@ -26,7 +26,7 @@ from fuse4d.fusion import (
     fuse_sequence,
     fuse_stream,
 )
-from fuse4d.holes import SOURCE_NONE, SOURCE_TIME, _fill_holes, fill_holes
+from fuse4d.holes import SOURCE_NONE, SOURCE_OUTSIDE, SOURCE_TIME, _fill_holes, fill_holes
 from fuse4d.metrics import roughness_stats
 from fuse4d.motion import (
     _pair_motion,
@@ -725,6 +725,28 @@ def test_nan_propagation(rng):
     np.testing.assert_allclose(filled.confidence[2, 10:13, 10:13], 4 / 9)
     # measured pixels are untouched by the sensor-hole fill
     np.testing.assert_array_equal(filled.depth[2, 9, 9:14], res.depth[2, 9, 9:14])
+
+
+def test_no_sensor_hole_is_filled_outside_the_field_of_view():
+    """A38: the bottom rows have no depth in any frame (the band a registered depth image
+    leaves around the colour image); the scene moves down 2 px/frame, so their tracks land on
+    valid depth in the earlier frames, but they stay empty, flagged SOURCE_OUTSIDE."""
+    n = 5
+    depth, inten, fwd, bwd = _translating(n)
+    depth[:, -4:] = np.nan  # beyond the sensor's field of view, in every frame
+    depth[2, 10:13, 10:13] = np.nan  # a dropout inside it
+    res = fuse_sequence(depth, inten, K, flow=SequenceFlow(fwd, bwd))
+    assert (res.source[:, -4:] == SOURCE_OUTSIDE).all()
+    assert np.isnan(res.depth[:, -4:]).all()
+    assert (res.confidence[:, -4:] == 0).all()
+    assert (res.source[2, 10:13, 10:13] == SOURCE_TIME).all()
+    # the same rows without depth in frame 2 only lie inside the field of view: the time
+    # fill reaches them along the same tracks
+    depth[:, -4:] = 600.0
+    depth[2, -4:] = np.nan
+    res = fuse_sequence(depth, inten, K, flow=SequenceFlow(fwd, bwd))
+    assert (res.source[2, -4:] == SOURCE_TIME).all()
+    np.testing.assert_allclose(res.depth[2, -4:], 600.0, atol=0.01)
 
 
 def test_literal_motion_is_much_rougher_than_regularised(rng):

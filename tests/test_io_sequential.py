@@ -88,3 +88,42 @@ def test_every_writer_refuses_a_frame_of_the_wrong_shape_and_leaves_nothing(tmp_
     with pytest.raises(ValueError, match=bad):
         write_two_frames()
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("kind", ["folder", "zarr", "npz"])
+def test_readers_give_back_the_source_codes_a_fused_output_stores(tmp_path, kind):
+    """A fused output's per-pixel source codes (what `fuse4d run` writes beside the depth)
+    come back through every layout's ``read_source``, so `fuse4d report` can map them; a
+    recording without them gives None."""
+    from fuse4d import Sequence
+    from fuse4d.io import FrameFolderWriter, open_frames, write_npz
+
+    k = Intrinsics(fx=30.0, fy=30.0, cx=15.5, cy=11.5, width=32, height=24)
+    rng = np.random.default_rng(0)
+    depth = rng.uniform(500, 900, (3, 24, 32)).astype(np.float32)
+    inten = rng.uniform(0, 1, (3, 24, 32)).astype(np.float32)
+    source = rng.integers(0, 7, (3, 24, 32)).astype(np.uint8)
+    conf = rng.uniform(0, 1, (3, 24, 32)).astype(np.float32)
+    if kind == "npz":
+        path = tmp_path / "out.npz"
+        write_npz(Sequence(depth, inten, k), path, extra={"source": source, "confidence": conf})
+        write_npz(Sequence(depth, inten, k), tmp_path / "plain.npz")
+        plain = tmp_path / "plain.npz"
+    else:
+        if kind == "folder":
+            path, writer_type = tmp_path / "out", FrameFolderWriter
+        else:
+            pytest.importorskip("zarr")
+            from fuse4d.io.zarrstore import ZarrWriter
+
+            path, writer_type = tmp_path / "out.zarr", ZarrWriter
+        plain = tmp_path / f"plain{path.suffix}"
+        for dst, flags in ((path, True), (plain, False)):
+            with writer_type(dst, k) as w:
+                for t in range(3):
+                    extra = {"source": source[t], "confidence": conf[t]} if flags else {}
+                    w.write(depth[t], inten[t], **extra)
+    with open_frames(path) as reader:
+        np.testing.assert_array_equal(reader.read_source(1, 3), source[1:3])
+    with open_frames(plain) as reader:
+        assert reader.read_source(0, 3) is None

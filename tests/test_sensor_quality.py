@@ -122,6 +122,29 @@ def test_nine_frames_smoother_than_one_on_the_real_person(shared_data):
 
 
 # ------------------------------------------------------------------------------ hole fill
+@pytest.mark.realdata
+def test_no_fill_beyond_the_field_of_view_of_a_registered_recording(shared_data):
+    """A38 on uva_cv2_person_turning: depth registered to the colour image covers rows 34-463
+    and columns 41-604 only; the tracks from that band land on depth (the person moves), but
+    no pixel there is filled, and the holes inside are."""
+    from fuse4d import load_sequence
+    from fuse4d.holes import SOURCE_OUTSIDE, SOURCE_TIME
+
+    path = shared_data / "uva_cv2_person_turning"
+    if not path.is_dir():
+        pytest.skip(f"{path} not found")
+    seq = load_sequence(path, frames="0:6")
+    res = fuse_sequence(seq.depth, seq.intensity, seq.intrinsics)
+    seen = np.isfinite(seq.depth).any(axis=0)
+    rows, cols = np.flatnonzero(seen.any(axis=1)), np.flatnonzero(seen.any(axis=0))
+    band = np.ones(seen.shape, bool)
+    band[rows.min() : rows.max() + 1, cols.min() : cols.max() + 1] = False
+    assert band.mean() > 0.15  # the band exists
+    assert np.isnan(res.depth[:, band]).all()
+    assert (res.source[:, band] == SOURCE_OUTSIDE).all()
+    assert (res.source == SOURCE_TIME).sum() > 10_000  # the holes inside are filled
+
+
 def test_holes_filled_from_time_mostly_land_on_the_true_surface(kinect_ball):
     """A26 fill on a moving-ball scene: the typical time-filled pixel is within a step."""
     seq, fused = kinect_ball

@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._kernels.fusion import _fuse_kernel, _project_to_rays_kernel
-from ._kernels.holes import _source_confidence_kernel
+from ._kernels.holes import _source_confidence_kernel, _valid_extents_kernel
 from ._kernels.noise import _finite_median32
 from ._kernels.smooth_base import _smooth_base_cols_kernel, _smooth_base_rows_kernel
 from ._validation import as_float32, check_shape
@@ -33,12 +33,14 @@ from .flying_pixels import flying_pixel_mask, resolve_flying_pixels
 from .holes import (
     SOURCE_FUSED,
     SOURCE_MEASURED,
+    SOURCE_OUTSIDE,
     SOURCE_REJECTED,
     SOURCE_SPACE,
     SOURCE_TIME,
     _fill_from_time,
     _fill_holes,
     _fill_small_holes,
+    _inside_extents,
     _rim_holes,
     _side_consistent,
 )
@@ -113,7 +115,8 @@ class FusedFrame:
         ``SOURCE_MEASURED`` (1, raw depth without temporal support), ``SOURCE_FUSED`` (2,
         fused with >= 1 tracked frame), ``SOURCE_TIME`` (3, a sensor hole filled from other
         frames, A26), ``SOURCE_SPACE`` (4, a small sensor hole filled in space, A27),
-        ``SOURCE_REJECTED`` (5, raw depth removed as a ToF flying pixel, A36; no depth).
+        ``SOURCE_REJECTED`` (5, raw depth removed as a ToF flying pixel, A36; no depth),
+        ``SOURCE_OUTSIDE`` (6, no depth, outside the sensor's field of view, A38).
     confidence : (H, W) ndarray of float32
         Fraction of the n window frames that measured the value: (1 + support) / n for raw
         pixels, (tracked frames with depth) / n for time-filled holes, 0 for space-filled
@@ -251,6 +254,10 @@ class FusionEngine:
         self._depth = np.full((s, h, w), np.nan, np.float32)
         # A36: the flying pixels removed from each frame's raw depth (None: "off" / "auto")
         self._rejected = np.zeros((s, h, w), np.bool_) if p.flying_pixels == "on" else None
+        # A38: first and last valid pixel of each row / column of each frame (its part of the
+        # sensor's field of view), computed once per frame
+        self._row_extent = np.empty((s, h, 2), np.int32)
+        self._col_extent = np.empty((s, w, 2), np.int32)
         # (x_n, y_n, 1) of every pixel: depth z on the pixel's ray is z * ray (filled holes)
         self._rays = depth_to_points(np.ones((h, w), np.float32), intrinsics)
         # per-frame depth-noise model sigma(z) = max(sigma0, quad z^2) (A22) and median depth z_med
@@ -420,6 +427,7 @@ class FusionEngine:
             self._bilateral[slot] = state.bilateral
             self._noise[slot] = state.noise
         self._depth[slot] = d
+        _valid_extents_kernel(self._depth[slot], self._row_extent[slot], self._col_extent[slot])
         self._intensity[slot] = inten
         # a window of one frame uses no pair: no flows, no tracks (issue 13); flows that are
         # passed in are still stored (and reported through ``on_pair``)
@@ -754,6 +762,9 @@ class FusionEngine:
         holes = np.empty(shape, np.bool_)
         if not _source_confidence_kernel(self._depth[slot], support, n, source, confidence, holes):
             return source, confidence
+        # A38: nothing is filled outside the field of view that the window's frames show
+        inside = _inside_extents(self._row_extent[frame_slot], self._col_extent[frame_slot])
+        source[~inside] = SOURCE_OUTSIDE
         rejected = None if self._rejected is None else self._rejected[slot]
         if rejected is not None and rejected.any():  # A36: kept empty
             source[rejected] = SOURCE_REJECTED
@@ -761,6 +772,7 @@ class FusionEngine:
         _, quad, _ = self._noise[slot]
         rims = _rim_holes(self._depth[slot], max_step=p.max_depth_step, quad=quad)
         if p.fill_from_time and last > first:
+            targets = holes & inside
             filled_points, count = _fill_from_time(
                 self._fwd,
                 self._bwd,
@@ -770,7 +782,7 @@ class FusionEngine:
                 t,
                 first,
                 last,
-                holes,
+                targets,
                 fb_threshold=p.fb_threshold,
                 max_step=p.max_depth_step,
                 quad=quad,
@@ -780,7 +792,7 @@ class FusionEngine:
             # value at a pixel does not depend on the other targets); most sensor holes of a
             # real recording (glass, range, shadows of static objects) are never reached
             reached = count > 0
-            reached &= holes
+            reached &= targets
             got = _side_consistent(
                 filled_points[..., 2],
                 self._depth[slot],
@@ -812,6 +824,7 @@ class FusionEngine:
                 max_step=p.max_depth_step,
                 quad=quad,
             )
+            got &= inside  # (a hole outside joins the image border: A27 leaves it anyway)
             if got.any():
                 points[got] = self._rays[got] * depth[got][:, None]
                 source[got] = SOURCE_SPACE

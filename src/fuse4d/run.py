@@ -25,7 +25,7 @@ from .config import FlowConfig, FusionParams, preset
 from .errors import ParameterError
 from .flying_pixels import resolve_flying_pixels
 from .fusion import STAGES, FusedFrame, FusionEngine, fuse_sequence
-from .holes import SOURCE_REJECTED, SOURCE_SPACE, SOURCE_TIME
+from .holes import SOURCE_OUTSIDE, SOURCE_REJECTED, SOURCE_SPACE, SOURCE_TIME
 from .io import check_output, detect_format, open_frames, read_npz_extra
 from .io import write_npz as _write_npz
 from .io.resume import ResumableFolderWriter, partial_path, run_identity
@@ -80,9 +80,12 @@ class RunSummary:
         Fraction of the raw-valid pixels removed as ToF flying pixels (A36; left empty).
     hole_fraction : float
         Fraction of all pixels (x frames) without raw depth: the sensor's holes.
+    hole_outside_fraction : float
+        Fraction of those holes outside the sensor's field of view (A38: the band a
+        registered depth image leaves around the colour image; never filled).
     hole_time_fraction, hole_space_fraction : float
-        Fraction of those holes filled from other frames along the track (A26) / in space
-        from one side of the depth edges (A27).
+        Fraction of the holes inside the field of view filled from other frames along the
+        track (A26) / in space from one side of the depth edges (A27).
     seconds : float
         Wall time of the whole run (I/O included).
     timings : dict
@@ -110,6 +113,7 @@ class RunSummary:
     filled_fraction: float = float("nan")
     rejected_fraction: float = float("nan")
     hole_fraction: float = float("nan")
+    hole_outside_fraction: float = float("nan")
     hole_time_fraction: float = float("nan")
     hole_space_fraction: float = float("nan")
     seconds: float = 0.0
@@ -144,6 +148,7 @@ class RunSummary:
             "filled_fraction": self.filled_fraction,
             "rejected_fraction": self.rejected_fraction,
             "hole_fraction": self.hole_fraction,
+            "hole_outside_fraction": self.hole_outside_fraction,
             "hole_time_fraction": self.hole_time_fraction,
             "hole_space_fraction": self.hole_space_fraction,
             "seconds": self.seconds,
@@ -166,6 +171,7 @@ class _QualityTally:
         self.rejected = 0
         self.pixels = 0
         self.holes = 0
+        self.holes_outside = 0
         self.holes_time = 0
         self.holes_space = 0
 
@@ -179,6 +185,7 @@ class _QualityTally:
         self.holes += valid.size - int(valid.sum())
         if frame.source is not None:
             self.rejected += int((frame.source[valid] == SOURCE_REJECTED).sum())
+            self.holes_outside += int(np.count_nonzero(frame.source == SOURCE_OUTSIDE))
             self.holes_time += int(np.count_nonzero(frame.source == SOURCE_TIME))
             self.holes_space += int(np.count_nonzero(frame.source == SOURCE_SPACE))
 
@@ -200,8 +207,11 @@ class _QualityTally:
         if self.pixels:
             summary.hole_fraction = self.holes / self.pixels
         if self.holes:
-            summary.hole_time_fraction = self.holes_time / self.holes
-            summary.hole_space_fraction = self.holes_space / self.holes
+            summary.hole_outside_fraction = self.holes_outside / self.holes
+        if self.holes > self.holes_outside:
+            inside = self.holes - self.holes_outside
+            summary.hole_time_fraction = self.holes_time / inside
+            summary.hole_space_fraction = self.holes_space / inside
 
 
 def fuse_file(

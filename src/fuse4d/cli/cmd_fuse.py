@@ -291,10 +291,12 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
     holes = (
         "none" if summary.hole_fraction == 0 else percent(filled_holes, 1),
         (
-            f"of the raw pixels without depth ({percent(summary.hole_fraction, 1)} of the "
-            f"image): {percent(summary.hole_time_fraction, 1)} from other frames along the "
-            f"track (A26), {percent(summary.hole_space_fraction, 1)} in space from one side "
-            "of the depth edges (A27); the rest stay empty"
+            f"of the raw pixels without depth inside the sensor's field of view "
+            f"({percent(summary.hole_fraction, 1)} of the image has no depth, "
+            f"{percent(summary.hole_outside_fraction, 1)} of that outside the field of view, "
+            f"never filled, A38): {percent(summary.hole_time_fraction, 1)} from other frames "
+            f"along the track (A26), {percent(summary.hole_space_fraction, 1)} in space from "
+            "one side of the depth edges (A27); the rest stay empty"
         ),
     )
 

@@ -122,6 +122,13 @@ class FrameReader(ABC):
         reading and checking the depth (the flow stage of the dask engine reads only this)."""
         return self.read_frame(index).intensity
 
+    def read_source(self, start: int, stop: int) -> NDArray[np.uint8] | None:
+        """The per-pixel source codes (:attr:`fuse4d.FusedFrame.source`) of frames
+        ``start:stop`` ((C, H, W) uint8) where the recording is a fused output that stores
+        them (a frame folder's ``source/``, a zarr array or npz key ``source``: what
+        ``fuse4d run`` writes); None for layouts or recordings without them."""
+        return None
+
     @property
     def num_frames(self) -> int:
         """Number of frames T."""

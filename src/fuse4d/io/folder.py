@@ -150,6 +150,10 @@ class FolderReader(FrameReader):
                     root / "mask", f"{len(self._mask)} mask frames but {n} depth frames"
                 )
             self.ground_truth_keys = ("mask",)
+        # a fused output's per-pixel source codes (FrameFolderWriter's flags), when complete
+        self._source = _numbered_files(root / "source", (".png",))
+        if len(self._source) != n:
+            self._source = []
         first = decode_image(self._depth[0], frame=0)
         h, w = first.shape[:2]
         cam_path = root / "camera.json"
@@ -197,6 +201,19 @@ class FolderReader(FrameReader):
         """Frame ``index``'s intensity alone (the depth PNG is not decoded)."""
         k = self._index(index)
         return read_checked_intensity(self._intensity[k], k, self.shape)
+
+    def read_source(self, start: int, stop: int) -> NDArray[np.uint8] | None:
+        """The ``source/`` PNGs of frames ``start:stop`` (see :meth:`FrameReader.read_source`)."""
+        if not self._source:
+            return None
+        frames = []
+        for k in range(start, stop):
+            codes = decode_image(self._source[k], frame=k)
+            if codes.dtype != np.uint8:
+                raise InputFileError(self._source[k], "source codes must be 8-bit", frame=k)
+            check_frame_shape(codes, self.shape, self._source[k], k, against="the depth frame")
+            frames.append(codes)
+        return np.stack(frames)
 
 
 def _refuse_unfinished_run(root: Path) -> None:

@@ -281,6 +281,12 @@ class NpzReader(FrameReader):
         """Frame ``index``'s intensity, (H, W) float32 in [0, 1], without reading its depth."""
         return self._checked_intensity(self._index(index))
 
+    def read_source(self, start: int, stop: int) -> NDArray[np.uint8] | None:
+        """The ``source`` key's frames ``start:stop`` (see :meth:`FrameReader.read_source`)."""
+        if "source" not in self._members:
+            return None
+        return np.array(self._array("source")[start:stop], dtype=np.uint8)
+
     def _checked_intensity(self, k: int) -> NDArray[np.float32]:
         """Frame ``k``'s intensity as float32, released from the map, checked to lie in [0, 1]."""
         intensity = _intensity_frame(self._array("intensity")[k])

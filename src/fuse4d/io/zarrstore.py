@@ -251,6 +251,8 @@ class ZarrReader(FrameReader):
         self.fps = float(attrs["fps"]) if attrs.get("fps") else None
         if "timestamps" in group:
             self.timestamps = np.asarray(group["timestamps"][:], dtype=np.float64)
+        source = group.get("source")  # a fused output's per-pixel flags
+        self._source = source if source is not None and source.shape == (t, h, w) else None
         self._t = int(t)
         self.notes = ("zarr v3 store, float32 depth in mm",)
 
@@ -274,6 +276,15 @@ class ZarrReader(FrameReader):
             return np.asarray(self._inten[k], dtype=np.float32)
         except (OSError, ValueError, TypeError, LookupError) as exc:
             raise InputFileError(self.path, f"cannot read chunk ({exc})", frame=k) from None
+
+    def read_source(self, start: int, stop: int) -> NDArray[np.uint8] | None:
+        """The ``source`` array's frames ``start:stop`` (see :meth:`FrameReader.read_source`)."""
+        if self._source is None:
+            return None
+        try:
+            return np.asarray(self._source[start:stop], dtype=np.uint8)
+        except (OSError, ValueError, TypeError, LookupError) as exc:
+            raise InputFileError(self.path, f"cannot read source ({exc})", frame=start) from None
 
 
 def write_zarr(seq: Sequence, path: str | PathLike[str], *, overwrite: bool = False) -> Path:

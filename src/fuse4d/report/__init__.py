@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..camera import depth_to_points
 from ..errors import ParameterError, ShapeError
-from ..holes import SOURCE_REJECTED, SOURCE_SPACE, SOURCE_TIME
+from ..holes import SOURCE_OUTSIDE, SOURCE_REJECTED, SOURCE_SPACE, SOURCE_TIME
 from ..sequence import Sequence
 from ._sources import RawSource, open_fused, open_raw
 from .planes import Plane, detect_planes, given_plane
@@ -570,7 +570,7 @@ def _write(
                     ok = np.isfinite(d_raw)
                     valid_raw += int(ok.sum())
                     if fch.source is not None:
-                        counts = np.bincount(fch.source[j].ravel(), minlength=SOURCE_REJECTED + 1)
+                        counts = np.bincount(fch.source[j].ravel(), minlength=SOURCE_OUTSIDE + 1)
                         source_counts = counts if source_counts is None else source_counts + counts
                         raw_holes += int(ok.size - ok.sum())
                     sup = None if fch.support is None else fch.support[j]
@@ -724,7 +724,8 @@ def _write(
                         "Source: where each value of the frame comes from — measured (raw depth "
                         "without temporal support), fused (with support), sensor holes filled "
                         "from other frames along the track or in space from one side of the "
-                        "depth edges, ToF flying pixels rejected and left empty, no depth."
+                        "depth edges, ToF flying pixels rejected and left empty, no depth, "
+                        "and no depth outside the sensor's field of view (never filled)."
                         if keep.get("source") is not None
                         else "Hole-filled: valid raw pixels without support, filled from "
                         "their neighbours (Eq. 6)."
@@ -772,22 +773,27 @@ def _write(
         }
         if timing["fusion_ms_per_frame"] is None and fres.seconds is not None:
             timing["fusion_ms_per_frame"] = 1000.0 * fres.seconds / total
+        holes_inside = (
+            raw_holes - int(source_counts[SOURCE_OUTSIDE]) if source_counts is not None else 0
+        )
         fill = {
             "support_fraction": supported / valid_raw if fres.has_support and valid_raw else None,
             "filled_fraction": (
                 filled_count / valid_raw if fres.has_support and valid_raw else None
             ),
-            # sensor holes filled from time (A26) / in space (A27), ToF flying pixels removed
-            # (A36): shares of the raw holes / of the raw-valid pixels
-            "hole_time_fraction": (
-                int(source_counts[SOURCE_TIME]) / raw_holes
+            # raw holes outside the field of view (A38): share of the raw holes; filled from
+            # time (A26) / in space (A27): shares of the raw holes inside it; ToF flying
+            # pixels removed (A36): share of the raw-valid pixels
+            "hole_outside_fraction": (
+                int(source_counts[SOURCE_OUTSIDE]) / raw_holes
                 if source_counts is not None and raw_holes
                 else None
             ),
+            "hole_time_fraction": (
+                int(source_counts[SOURCE_TIME]) / holes_inside if holes_inside else None
+            ),
             "hole_space_fraction": (
-                int(source_counts[SOURCE_SPACE]) / raw_holes
-                if source_counts is not None and raw_holes
-                else None
+                int(source_counts[SOURCE_SPACE]) / holes_inside if holes_inside else None
             ),
             "rejected_fraction": (
                 int(source_counts[SOURCE_REJECTED]) / valid_raw
@@ -979,10 +985,12 @@ def _metric_rows(
                 },
                 "unit": "%",
                 "meaning": (
-                    f"raw pixels without depth given a value: "
-                    f"{100 * fill['hole_time_fraction']:.1f} % from other frames along the "
-                    f"track (A26), {100 * fill['hole_space_fraction']:.1f} % in space from one "
-                    "side of the depth edges (A27)"
+                    "raw pixels without depth inside the sensor's field of view given a "
+                    f"value: {100 * fill['hole_time_fraction']:.1f} % from other frames along "
+                    f"the track (A26), {100 * fill['hole_space_fraction']:.1f} % in space from "
+                    "one side of the depth edges (A27); "
+                    f"{100 * (fill['hole_outside_fraction'] or 0.0):.1f} % of the raw holes lie "
+                    "outside the field of view and stay empty (A38)"
                 ),
             }
         )

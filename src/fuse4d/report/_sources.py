@@ -134,7 +134,7 @@ class FusedSource:
             self._keys: set[str] = set()
             members = getattr(self._reader, "_members", None)
             if isinstance(members, dict):  # NpzReader: support/filled are memory-mapped members
-                self._keys = {k for k in ("support", "filled", "source") if k in members}
+                self._keys = {k for k in ("support", "filled") if k in members}
         else:
             depth = np.asarray(data, dtype=np.float32)
             if depth.ndim != 3:
@@ -170,12 +170,11 @@ class FusedSource:
                 seq = self._reader.read_sequence((start, stop))
             support = self._member("support", start, stop)
             filled = self._member("filled", start, stop)
-            source = self._member("source", start, stop)
             return FusedChunk(
                 seq.depth,
                 None if support is None else support.astype(np.uint8),
                 None if filled is None else filled.astype(bool),
-                None if source is None else source.astype(np.uint8),
+                self._reader.read_source(start, stop),  # what `fuse4d run` stores, any layout
             )
         assert self._depth is not None
         s = None if self._support is None else self._support[start:stop].astype(np.uint8)

@@ -254,7 +254,7 @@ def support_figure(
     return png_bytes(fig)
 
 
-#: Colours and names of the source codes (``fuse4d.holes.SOURCE_*``, 0-5), for the legend.
+#: Colours and names of the source codes (``fuse4d.holes.SOURCE_*``, 0-6), for the legend.
 SOURCE_STYLE = (
     ("no depth", "#000000"),
     ("measured", "#b4b4b4"),
@@ -262,6 +262,7 @@ SOURCE_STYLE = (
     ("hole, from time", "#f0a02a"),
     ("hole, in space", "#2a78e6"),
     ("rejected (ToF)", "#e62a2a"),
+    ("outside the field of view", "#4b3c78"),
 )
 
 
