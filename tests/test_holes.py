@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from fuse4d._kernels.holes import (
-    _hole_run_sides_kernel,
+    _hole_runs_kernel,
     _temporal_fill_kernel,
     _temporal_fill_reference,
 )
-from fuse4d.holes import _rim_holes, field_of_view, fill_small_holes, small_hole_mask
+from fuse4d.holes import _hole_sides, field_of_view, fill_small_holes, small_hole_mask
 
 
 def _ring(depth, flow_u):
@@ -171,11 +171,20 @@ def test_spatial_fill_takes_one_side_and_never_blends_across_an_edge():
 
 def test_hole_runs_are_oriented_by_the_nearer_end():
     d = np.array([[3000, np.nan, np.nan, 1500, 1500, np.nan, 3000, np.nan, 3004, np.nan]])
-    side = np.empty(d.shape, np.int16)
-    _hole_run_sides_kernel(d.astype(np.float32), 10.0, 0.0, side)
-    # foreground right of the first run, left of the second (signed run lengths); no edge at
-    # the third; the fourth touches the border
-    assert side.tolist() == [[0, 2, 2, 0, 0, -1, 0, 0, 0, 0]]
+    row, start, length = (np.zeros(6, np.int32) for _ in range(3))
+    orient = np.zeros(6, np.int8)
+    z_near, z_far = np.zeros(6), np.zeros(6)
+    n = _hole_runs_kernel(
+        d.astype(np.float32), 10.0, 0.0, row, start, length, orient, z_near, z_far
+    )
+    # foreground right of the first run, left of the second; no edge at the third; the
+    # fourth touches the border
+    assert n == 2
+    assert start[:2].tolist() == [1, 5]
+    assert length[:2].tolist() == [2, 1]
+    assert orient[:2].tolist() == [1, -1]
+    assert z_near[:2].tolist() == [1500.0, 1500.0]
+    assert z_far[:2].tolist() == [3000.0, 3000.0]
 
 
 def _edge_scene(rim_cols):
@@ -194,7 +203,7 @@ def test_rim_dropouts_away_from_the_shadow_side_take_the_foreground():
     grazing rim, not a shadow: it takes the foreground's depth even where the intensity
     cannot tell (measured on the Kinect-model ball: the ball's far rim got the wall, 1 m off)."""
     d, inten = _edge_scene(slice(18, 20))
-    rims = _rim_holes(d, max_step=10.0, quad=0.0)
+    rims = _hole_sides(d, focal_px=None, max_step=10.0, quad=0.0).rims
     assert rims[12:16, 18:20].all()
     assert rims.sum() == 8  # the shadow bands are not rims
     out, filled = fill_small_holes(d, inten, max_area_px=64)
@@ -203,11 +212,52 @@ def test_rim_dropouts_away_from_the_shadow_side_take_the_foreground():
     # a wide band on that side is no rim (a registration gap): the intensity rule decides
     d3, _ = _edge_scene(slice(18, 20))
     d3[12:16, 20:26] = np.nan
-    assert not _rim_holes(d3, max_step=10.0, quad=0.0)[12:16, 18:26].any()
+    assert not _hole_sides(d3, focal_px=None, max_step=10.0, quad=0.0).rims[12:16, 18:26].any()
     # without a shadow side (the same rim, no shadow bands) nothing is forced
     d2, _ = _edge_scene(slice(18, 20))
     d2[:, 7:10] = 3000.0
-    assert not _rim_holes(d2, max_step=10.0, quad=0.0).any()
+    assert not _hole_sides(d2, focal_px=None, max_step=10.0, quad=0.0).rims.any()
+
+
+def _shadow_scene():
+    """A wall at 3 m, a foreground block at 1.5 m (cols 30-44) and, left of it in rows 2-37,
+    the projector's shadow of a camera with f = 100 px, b = 90 mm: f b (1/1.5 m - 1/3 m) =
+    3 px (cols 27-29). The shadow looks like the foreground in the intensity image (0.8; the
+    wall is 0.2), so the intensity rule alone gives it the foreground's depth."""
+    d = np.full((40, 60), 3000.0, np.float32)
+    d[:, 30:45] = 1500.0
+    d[2:38, 27:30] = np.nan
+    inten = np.full(d.shape, 0.2, np.float32)
+    inten[:, 27:45] = 0.8
+    return d, inten
+
+
+def test_projector_shadow_never_takes_the_foreground():
+    """A39: within the shadow's width a fill on the foreground's surface is refused, whatever
+    the intensity says; one on the wall is kept."""
+    d, inten = _shadow_scene()
+    sides = _hole_sides(d, focal_px=100.0, max_step=10.0, quad=0.0)
+    np.testing.assert_array_equal(sides.kind == 2, np.isnan(d))
+    np.testing.assert_allclose(sides.bound[np.isnan(d)], 2250.0)
+    assert not sides.agrees(np.full(d.shape, 1510.0, np.float32))[2:38, 27:30].any()
+    assert sides.agrees(np.full(d.shape, 2990.0, np.float32)).all()
+    out, filled = fill_small_holes(d, inten, max_area_px=128, focal_px=100.0)
+    band = np.s_[2:38, 27:30]
+    assert not (filled & (out < 2250.0))[band].any()  # never the foreground
+    assert not filled[10:30, 27:30].any()  # where the intensity chose it: refused, left empty
+    wall_like = inten.copy()
+    wall_like[2:38, 27:30] = 0.2  # the shadow looks like the wall: filled from it
+    out, filled = fill_small_holes(d, wall_like, max_area_px=128, focal_px=100.0)
+    assert filled[2:38, 27:30].all()
+    np.testing.assert_allclose(out[2:38, 27:30], 3000.0)
+    # without the focal length the intensity rule decides: the foreground, 1.5 m off
+    out, filled = fill_small_holes(d, inten, max_area_px=128)
+    np.testing.assert_allclose(out[10:30, 27:30], 1500.0)
+    # a run wider than its shadow by more than a rim (a hole of another cause) is not split
+    d2, _ = _shadow_scene()
+    d2[2:38, 18:27] = np.nan
+    kind = _hole_sides(d2, focal_px=100.0, max_step=10.0, quad=0.0).kind
+    assert not kind[2:38, 18:30].any()
 
 
 def test_spatial_fill_prefers_similar_intensity():

@@ -40,8 +40,8 @@ from .holes import (
     _fill_from_time,
     _fill_holes,
     _fill_small_holes,
+    _hole_sides,
     _inside_extents,
-    _rim_holes,
     _side_consistent,
 )
 from .motion import (
@@ -770,7 +770,9 @@ class FusionEngine:
             source[rejected] = SOURCE_REJECTED
             holes &= ~rejected
         _, quad, _ = self._noise[slot]
-        rims = _rim_holes(self._depth[slot], max_step=p.max_depth_step, quad=quad)
+        sides = _hole_sides(
+            self._depth[slot], focal_px=self.intrinsics.fx, max_step=p.max_depth_step, quad=quad
+        )
         if p.fill_from_time and last > first:
             targets = holes & inside
             filled_points, count = _fill_from_time(
@@ -798,7 +800,7 @@ class FusionEngine:
                 self._depth[slot],
                 self._intensity[slot],
                 reached,
-                rims,
+                sides,
                 radius=p.fill_space_radius,
                 sigma_intensity=p.sigma_intensity,
                 max_step=p.max_depth_step,
@@ -817,7 +819,7 @@ class FusionEngine:
                 np.ascontiguousarray(points[..., 2]),
                 self._intensity[slot],
                 holes,
-                rims,
+                sides,
                 max_area_px=p.fill_max_hole_px,
                 radius=p.fill_space_radius,
                 sigma_intensity=p.sigma_intensity,

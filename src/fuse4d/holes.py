@@ -34,7 +34,10 @@ Two kinds of holes, one home:
      background it lies on, a dropout on a foreground rim like the rim), so the fill never
      bridges a depth discontinuity. Where the frame's holes show on which side of its
      foreground edges the sensor's shadows lie, a thin hole on the other side cannot be a
-     shadow and takes the near side (:func:`_rim_holes`). Time fills (1.) that disagree with that side are dropped.
+     shadow and takes the near side, and the pixels of a shadow-side hole within the width of
+     the projector's shadow (f b (1/z_near - 1/z_far), the baseline b estimated from the
+     frame's holes) take the far side (:func:`_hole_sides`, our A39). Time fills (1.) that
+     disagree with that side are dropped.
 
   Neither stage fills a pixel outside the sensor's field of view (our A38,
   :func:`field_of_view`): a registered depth image covers less than the colour image it is
@@ -50,6 +53,7 @@ Two kinds of holes, one home:
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -57,7 +61,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._kernels.fusion import _fill_holes_kernel
 from ._kernels.holes import (
-    _hole_run_sides_kernel,
+    _hole_runs_kernel,
+    _side_bounds_kernel,
     _spatial_fill_kernel,
     _temporal_fill_kernel,
     _valid_extents_kernel,
@@ -190,30 +195,104 @@ SHADOW_VOTE_MIN_PX = 64
 RIM_MAX_PX = 5
 
 
-def _rim_holes(depth: NDArray[np.float32], *, max_step: float, quad: float) -> NDArray[np.bool_]:
-    """Holes that cannot be an occlusion shadow: rim dropouts of the foreground (A27).
+#: The projector-camera baseline of a frame is estimated as this quantile of
+#: run length / (f (1/z_near - 1/z_far)) over its shadow-side runs (rim dropouts only lengthen
+#: a run; Kinect-model ball / body: 75.9 / 67.9 mm for the true 75) ...
+SHADOW_BASELINE_QUANTILE = 0.2
+#: ... from at least this many runs, and used only inside this range (mm: RealSense D4xx
+#: 50-95, Kinect v1 / Xtion / Astra 75); elsewhere the shadow width is taken as unknown.
+SHADOW_MIN_RUNS = 20
+SHADOW_BASELINE_RANGE_MM = (20.0, 150.0)
+
+
+@dataclass(frozen=True)
+class _HoleSides:
+    """Which surface the holes beside frame t's depth discontinuities must take.
+
+    Attributes
+    ----------
+    kind : (H, W) ndarray of int8
+        1: a rim dropout of the foreground (A27: the near surface); 2: inside the projector's
+        shadow (A39: the far surface); 0: the intensity rule decides.
+    bound : (H, W) ndarray of float32
+        Where ``kind`` > 0, the depth (mm) halfway between the run's two surfaces; NaN
+        elsewhere.
+    """
+
+    kind: NDArray[np.int8]
+    bound: NDArray[np.float32]
+
+    @property
+    def rims(self) -> NDArray[np.bool_]:
+        """The holes that take the near side (the spatial fill's ``near_only``)."""
+        return self.kind == 1
+
+    def agrees(self, filled_depth: NDArray[np.float32]) -> NDArray[np.bool_]:
+        """False where a fill (mm) lies on the wrong surface: a rim farther than ``bound``, a
+        shadow nearer."""
+        with np.errstate(invalid="ignore"):
+            wrong = ((self.kind == 1) & (filled_depth > self.bound)) | (
+                (self.kind == 2) & (filled_depth < self.bound)
+            )
+        return ~wrong
+
+
+def _hole_sides(
+    depth: NDArray[np.float32], *, focal_px: float | None, max_step: float, quad: float
+) -> _HoleSides:
+    """Rim dropouts (A27) and projector shadows (A39) among the holes of one frame.
 
     A structured-light or stereo camera's shadow lies on the same side of every foreground
     edge (away from the projector or the second imager along the baseline). Each horizontal
-    run of holes between a far and a near surface is oriented (:func:`_hole_run_sides_kernel`)
+    run of holes between a far and a near surface is oriented (:func:`_hole_runs_kernel`)
     and the frame votes, weighted by run length: where one orientation has at least
     :data:`SHADOW_VOTE_RATIO` times the pixels of the other (and :data:`SHADOW_VOTE_MIN_PX`),
     it is the shadow side, and the thin runs (at most :data:`RIM_MAX_PX`) of the other
-    orientation are rims (the grazing edge of the foreground) that the side rule must give to
-    the near surface. Without a clear vote (ToF cameras, no edges) nothing is marked; wider
-    runs on the other side (the registration gap of depth mapped onto a colour camera, as in
-    ``uva_cv2_person_turning``) keep the intensity rule. On the Kinect-model ball the intensity rule
-    alone gave the ball's far rim the background's depth (1 m off).
+    orientation are rims (the grazing edge of the foreground) that must take the near
+    surface. Without a clear vote (ToF cameras, no edges) nothing is marked; wider runs on the
+    other side (the registration gap of depth mapped onto a colour camera, as in
+    ``uva_cv2_person_turning``) keep the intensity rule. On the Kinect-model ball the
+    intensity rule alone gave the ball's far rim the background's depth (1 m off).
+
+    A39: on the shadow side, a foreground edge at z_near over a surface at z_far hides
+    f b (1/z_near - 1/z_far) px of that surface from the projector (b the baseline, f the
+    focal length ``focal_px``); those pixels next to the run's far end must take the far
+    surface, whatever their intensity says (a shadow on the wall looks like the wall, but so
+    may the foreground's texture). b is estimated from the frame's own runs
+    (:data:`SHADOW_BASELINE_QUANTILE`); a run longer than its shadow by more than
+    :data:`RIM_MAX_PX` px (or shorter by more than 1 px) is not split. ``focal_px`` None: rims only.
     """
-    side = np.empty(depth.shape, np.int16)
-    _hole_run_sides_kernel(depth, float(max_step), float(quad), side)
-    right = int(np.count_nonzero(side > 0))  # foreground to the run's right
-    left = int(np.count_nonzero(side < 0))
+    cap = depth.size // 2 + 1
+    row, start, length = (np.empty(cap, np.int32) for _ in range(3))
+    orient = np.empty(cap, np.int8)
+    z_near, z_far = np.empty(cap, np.float64), np.empty(cap, np.float64)
+    n = _hole_runs_kernel(
+        depth, float(max_step), float(quad), row, start, length, orient, z_near, z_far
+    )
+    # the vote, weighted by run length; foreground to the run's right: +1
+    right = int(length[:n][orient[:n] > 0].sum())
+    left = int(length[:n][orient[:n] < 0].sum())
+    kind = np.zeros(depth.shape, np.int8)
+    bound = np.full(depth.shape, np.nan, np.float32)
     if right >= SHADOW_VOTE_MIN_PX and right >= SHADOW_VOTE_RATIO * left:
-        return (side < 0) & (side >= -RIM_MAX_PX)
-    if left >= SHADOW_VOTE_MIN_PX and left >= SHADOW_VOTE_RATIO * right:
-        return (side > 0) & (side <= RIM_MAX_PX)
-    return np.zeros(depth.shape, np.bool_)
+        shadow_orient = 1
+    elif left >= SHADOW_VOTE_MIN_PX and left >= SHADOW_VOTE_RATIO * right:
+        shadow_orient = -1
+    else:
+        return _HoleSides(kind, bound)
+    scale = 0.0
+    on_side = orient[:n] == shadow_orient
+    if focal_px is not None and np.count_nonzero(on_side) >= SHADOW_MIN_RUNS:
+        # f b: rim dropouts only lengthen a run, so a low quantile of length / (1/zn - 1/zf)
+        ratio = length[:n][on_side] / (1.0 / z_near[:n][on_side] - 1.0 / z_far[:n][on_side])
+        scale = float(np.quantile(ratio, SHADOW_BASELINE_QUANTILE))
+        lo, hi = SHADOW_BASELINE_RANGE_MM
+        if not lo * focal_px <= scale <= hi * focal_px:  # not a camera baseline
+            scale = 0.0
+    _side_bounds_kernel(
+        row, start, length, orient, z_near, z_far, n, shadow_orient, scale, RIM_MAX_PX, kind, bound
+    )
+    return _HoleSides(kind, bound)
 
 
 def _fill_from_time(
@@ -265,7 +344,7 @@ def _side_consistent(
     depth: NDArray[np.float32],
     intensity: NDArray[np.float32],
     holes: NDArray[np.bool_],
-    rims: NDArray[np.bool_],
+    sides: _HoleSides,
     *,
     radius: int,
     sigma_intensity: float,
@@ -280,14 +359,15 @@ def _side_consistent(
     within the depth-step limit (A22) of that side's depth, or if the window holds no valid
     depth at all (the inside of a large hole: nothing to compare with). Measured on the
     Kinect-model walking body (16 frames): without this check 30 % of the time fills were
-    more than 100 mm off.
+    more than 100 mm off. Fills on the wrong surface of a rim or a projector shadow
+    (``sides``, :func:`_hole_sides`) are dropped too.
     """
     side = np.empty_like(depth)
     _spatial_fill_kernel(
         depth,
         intensity,
         holes,
-        rims,
+        sides.rims,
         int(radius),
         1.0 / (2.0 * sigma_intensity**2),
         1.0 / (2.0 * 2.0**2),
@@ -305,6 +385,7 @@ def _side_consistent(
         agrees = np.abs(filled_depth.ravel()[at] - side_at) < limit
     out = np.zeros(holes.shape, np.bool_)
     out.ravel()[at] = no_side | agrees
+    out &= sides.agrees(filled_depth)
     return out
 
 
@@ -312,7 +393,7 @@ def _fill_small_holes(
     depth: NDArray[np.float32],
     intensity: NDArray[np.float32],
     holes: NDArray[np.bool_],
-    rims: NDArray[np.bool_],
+    sides: _HoleSides,
     *,
     max_area_px: int,
     radius: int,
@@ -321,8 +402,8 @@ def _fill_small_holes(
     quad: float,
     sigma_space: float = 2.0,
 ) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
-    """Unvalidated A27: fill the small components of ``holes`` in ``depth`` (mm); ``rims``
-    (:func:`_rim_holes`) take the near side."""
+    """Unvalidated A27: fill the small components of ``holes`` in ``depth`` (mm); rims and
+    projector shadows (``sides``, :func:`_hole_sides`) only from their own surface."""
     target = small_hole_mask(holes, int(max_area_px))
     out = depth.copy()
     if target.any():
@@ -330,7 +411,7 @@ def _fill_small_holes(
             depth,
             intensity,
             target,
-            rims,
+            sides.rims,
             int(radius),
             1.0 / (2.0 * sigma_intensity**2),
             1.0 / (2.0 * sigma_space**2),
@@ -338,7 +419,7 @@ def _fill_small_holes(
             float(quad),
             out,
         )
-    return out, target & np.isfinite(out)
+    return out, target & np.isfinite(out) & sides.agrees(out)
 
 
 def fill_small_holes(
@@ -351,6 +432,7 @@ def fill_small_holes(
     sigma_space: float = 2.0,
     max_step: float = 10.0,
     noise_quad: float = 0.0,
+    focal_px: float | None = None,
 ) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
     """Fill small sensor holes from the neighbours on one side of any depth edge (A27, A37).
 
@@ -375,6 +457,10 @@ def fill_small_holes(
         depth-step limit mark a depth discontinuity; only one side of it is used.
     noise_quad : float
         Depth-noise coefficient (mm^-1, A22); the step limit is max(max_step, 2.5 q z^2).
+    focal_px : float, optional
+        Focal length fx (px) of a structured-light or stereo camera: the pixels of a hole
+        within the width of the projector's shadow take the far side (A39). None: only the
+        rims are decided by the hole's geometry.
 
     Returns
     -------
@@ -400,7 +486,7 @@ def fill_small_holes(
         d,
         inten,
         np.isnan(d),
-        _rim_holes(d, max_step=max_step, quad=noise_quad),
+        _hole_sides(d, focal_px=focal_px, max_step=max_step, quad=noise_quad),
         max_area_px=max_area_px,
         radius=radius,
         sigma_intensity=sigma_intensity,

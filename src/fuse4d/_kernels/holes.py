@@ -260,40 +260,6 @@ def _temporal_fill_reference(
                 out_points[v, u, 2] = az / s0
 
 
-@njit_parallel
-def _hole_run_sides_kernel(depth, max_step, quad, side):
-    """Which side of a depth discontinuity each horizontal run of holes lies on.
-
-    For each maximal run of NaN pixels in a row with valid depth on both ends, ``side`` (int16)
-    gets the run's length (px) where the right end is nearer than the left end by more than
-    the depth-step limit (A22) of the nearer one (the foreground is to the run's right), minus
-    the length where the left end is nearer, and 0 elsewhere (no discontinuity, a run
-    touching the border, valid pixels). A projector's
-    occlusion shadow lies on one side of every foreground edge (the side away from the
-    projector along the baseline); :func:`fuse4d.holes._rim_holes` votes on it.
-    """
-    h, w = depth.shape
-    for v in prange(h):
-        u = 0
-        while u < w:
-            if not np.isnan(depth[v, u]):
-                side[v, u] = 0
-                u += 1
-                continue
-            start = u
-            while u < w and np.isnan(depth[v, u]):
-                u += 1
-            mark = 0
-            if start > 0 and u < w:
-                left = depth[v, start - 1]
-                right = depth[v, u]
-                nearer = min(left, right)
-                if abs(left - right) >= _step_limit(nearer, max_step, quad):
-                    mark = u - start if right < left else start - u
-            for uu in range(start, u):
-                side[v, uu] = mark
-
-
 @njit
 def _side_plane_value(zs, ws, dus, dvs, n, z_min, z_max):  # pragma: no cover - compiled
     """Value at the hole (offset 0, 0) of the weighted least-squares plane z = a + b du + c dv
@@ -528,3 +494,76 @@ def _valid_extents_kernel(depth, row_extent, col_extent):  # pragma: no cover - 
                 if col_extent[u, 0] == h:
                     col_extent[u, 0] = v
                 col_extent[u, 1] = v
+
+
+@njit
+def _hole_runs_kernel(
+    depth, max_step, quad, row, start, length, orient, z_near, z_far
+):  # pragma: no cover - compiled
+    """Every horizontal run of holes between two surfaces at a depth discontinuity (A27, A39).
+
+    For each maximal run of NaN pixels in a row with valid depth at both ends whose depths
+    differ by at least the depth-step limit (A22) of the nearer: its ``row``, first column
+    ``start`` and ``length`` (px); ``orient`` (int8) +1 where the right end is the nearer
+    (the foreground is to the run's right), -1 where the left end is; ``z_near`` / ``z_far``
+    (mm) the two ends' depths. The buffers hold at least H * W // 2 + 1 runs; returns the
+    number of runs.
+    """
+    h, w = depth.shape
+    n = 0
+    for v in range(h):
+        u = 0
+        while u < w:
+            if not np.isnan(depth[v, u]):
+                u += 1
+                continue
+            first = u
+            while u < w and np.isnan(depth[v, u]):
+                u += 1
+            if first > 0 and u < w:
+                left = depth[v, first - 1]
+                right = depth[v, u]
+                zn = min(left, right)
+                zf = max(left, right)
+                if zf - zn >= _step_limit(zn, max_step, quad):
+                    row[n] = v
+                    start[n] = first
+                    length[n] = u - first
+                    orient[n] = 1 if right < left else -1
+                    z_near[n] = zn
+                    z_far[n] = zf
+                    n += 1
+    return n
+
+
+@njit
+def _side_bounds_kernel(
+    row, start, length, orient, z_near, z_far, n, shadow_orient, shadow_scale, rim_max, kind, bound
+):  # pragma: no cover - compiled
+    """Which surface the holes of the runs of :func:`_hole_runs_kernel` must take (A27, A39).
+
+    ``shadow_orient`` (+1 / -1) is the orientation of the frame's shadow side. A run of the
+    other orientation of at most ``rim_max`` px is a rim dropout of the foreground: ``kind``
+    1. In a run of the shadow orientation, the projector's shadow covers
+    ns = round(``shadow_scale`` (1/z_near - 1/z_far)) px next to the far end
+    (``shadow_scale`` = f b, px mm; 0 = unknown): where the rest of the run (the rim next to
+    the near end) is -1 to ``rim_max`` px, those ns pixels get ``kind`` 2. Both get
+    ``bound`` = (z_near + z_far) / 2 mm, the depth that separates the two surfaces. ``kind``
+    (H, W) int8 and ``bound`` (H, W) float32 are written at those pixels only.
+    """
+    for r in range(n):
+        v, u0, run, o = row[r], start[r], length[r], orient[r]
+        zn, zf = z_near[r], z_far[r]
+        mid = np.float32(0.5 * (zn + zf))
+        if o != shadow_orient:
+            if run <= rim_max:
+                for uu in range(u0, u0 + run):
+                    kind[v, uu] = 1
+                    bound[v, uu] = mid
+        elif shadow_scale > 0.0:
+            ns = int(shadow_scale * (1.0 / zn - 1.0 / zf) + 0.5)
+            if -1 <= run - ns <= rim_max:
+                for i in range(min(ns, run)):  # counted from the far end
+                    uu = u0 + i if o == 1 else u0 + run - 1 - i
+                    kind[v, uu] = 2
+                    bound[v, uu] = mid
