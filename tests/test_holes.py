@@ -260,6 +260,28 @@ def test_projector_shadow_never_takes_the_foreground():
     assert not kind[2:38, 18:30].any()
 
 
+def test_thin_hole_beside_a_receding_foreground_never_takes_the_background():
+    """A40: no shadow side (a ToF camera). A 2 px hole between a foreground block and the
+    wall; where the block's surface recedes toward the hole (a grazing rim) a fill with the
+    wall's depth is refused, beside a face turned to the camera it is kept."""
+    d = np.full((30, 40), 3000.0, np.float32)
+    d[:, 10:20] = 1500.0
+    d[:, 18:20] = [1530.0, 1560.0]  # rows 0-14: receding 30 mm/px = 2 mm per mm across at f 100
+    d[15:, 18:20] = 1500.0  # rows 15-29: facing the camera
+    d[5:25, 20:22] = np.nan
+    inten = np.full(d.shape, 0.5, np.float32)  # the intensity cannot tell
+    sides = _hole_sides(d, focal_px=100.0, max_step=10.0, quad=0.0)
+    assert (sides.kind[5:15, 20:22] == 3).all()
+    assert not sides.kind[15:25].any()
+    assert not sides.rims.any()  # refused, not forced: the intensity rule still chooses
+    wall = np.full(d.shape, 3000.0, np.float32)
+    assert not sides.agrees(wall)[5:15, 20:22].any()
+    assert sides.agrees(wall)[15:25].all()
+    assert not _hole_sides(d, focal_px=None, max_step=10.0, quad=0.0).kind.any()
+    out, filled = fill_small_holes(d, inten, max_area_px=64, focal_px=100.0)
+    assert not (filled & (out > 2250.0))[5:15, 20:22].any()
+
+
 def test_spatial_fill_prefers_similar_intensity():
     d = np.full((9, 9), 2000.0, np.float32)
     d[:, 5:] = 2004.0  # same surface (2 levels apart), two materials

@@ -61,6 +61,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._kernels.fusion import _fill_holes_kernel
 from ._kernels.holes import (
+    _grazing_rims_kernel,
     _hole_runs_kernel,
     _side_bounds_kernel,
     _spatial_fill_kernel,
@@ -203,6 +204,10 @@ SHADOW_BASELINE_QUANTILE = 0.2
 #: 50-95, Kinect v1 / Xtion / Astra 75); elsewhere the shadow width is taken as unknown.
 SHADOW_MIN_RUNS = 20
 SHADOW_BASELINE_RANGE_MM = (20.0, 150.0)
+#: Without a shadow side (time of flight), a thin hole (at most :data:`RIM_MAX_PX`) whose near
+#: end's surface recedes toward it by more than this many mm of depth per mm across (45°
+#: from facing the camera) is taken for a grazing rim: a fill on the far surface is refused (A40).
+GRAZING_MIN_SLOPE = 1.0
 
 
 @dataclass(frozen=True)
@@ -213,7 +218,8 @@ class _HoleSides:
     ----------
     kind : (H, W) ndarray of int8
         1: a rim dropout of the foreground (A27: the near surface); 2: inside the projector's
-        shadow (A39: the far surface); 0: the intensity rule decides.
+        shadow (A39: not the near surface); 3: a thin hole beside a foreground that turns away
+        from the camera (A40: not the far surface); 0: the intensity rule decides.
     bound : (H, W) ndarray of float32
         Where ``kind`` > 0, the depth (mm) halfway between the run's two surfaces; NaN
         elsewhere.
@@ -230,8 +236,9 @@ class _HoleSides:
     def agrees(self, filled_depth: NDArray[np.float32]) -> NDArray[np.bool_]:
         """False where a fill (mm) lies on the wrong surface: a rim farther than ``bound``, a
         shadow nearer."""
+        rim = (self.kind == 1) | (self.kind == 3)
         with np.errstate(invalid="ignore"):
-            wrong = ((self.kind == 1) & (filled_depth > self.bound)) | (
+            wrong = (rim & (filled_depth > self.bound)) | (
                 (self.kind == 2) & (filled_depth < self.bound)
             )
         return ~wrong
@@ -261,6 +268,13 @@ def _hole_sides(
     may the foreground's texture). b is estimated from the frame's own runs
     (:data:`SHADOW_BASELINE_QUANTILE`); a run longer than its shadow by more than
     :data:`RIM_MAX_PX` px (or shorter by more than 1 px) is not split. ``focal_px`` None: rims only.
+
+    A40: without a shadow side (time-of-flight cameras have no projector offset), a thin run
+    whose near end's surface recedes toward it faster than :data:`GRAZING_MIN_SLOPE` is a
+    dropout at the foreground's grazing rim (where the returned signal fades), not a hole in
+    the far surface: a fill on the far side of the bound is refused (the intensity rule
+    still picks the side; forcing the near side put the ToF room's dark dropouts beside
+    furniture onto the furniture).
     """
     cap = depth.size // 2 + 1
     row, start, length = (np.empty(cap, np.int32) for _ in range(3))
@@ -278,7 +292,23 @@ def _hole_sides(
         shadow_orient = 1
     elif left >= SHADOW_VOTE_MIN_PX and left >= SHADOW_VOTE_RATIO * right:
         shadow_orient = -1
-    else:
+    else:  # no shadow side (time of flight): rims only where the foreground turns away
+        if focal_px is not None:
+            _grazing_rims_kernel(
+                depth,
+                row,
+                start,
+                length,
+                orient,
+                z_near,
+                z_far,
+                n,
+                float(focal_px),
+                GRAZING_MIN_SLOPE,
+                RIM_MAX_PX,
+                kind,
+                bound,
+            )
         return _HoleSides(kind, bound)
     scale = 0.0
     on_side = orient[:n] == shadow_orient

@@ -567,3 +567,34 @@ def _side_bounds_kernel(
                     uu = u0 + i if o == 1 else u0 + run - 1 - i
                     kind[v, uu] = 2
                     bound[v, uu] = mid
+
+
+@njit
+def _grazing_rims_kernel(
+    depth, row, start, length, orient, z_near, z_far, n, focal_px, min_slope, rim_max, kind, bound
+):  # pragma: no cover - compiled
+    """Thin holes beside a foreground surface that turns away from the camera (A40).
+
+    For each run of :func:`_hole_runs_kernel` of at most ``rim_max`` px whose near end's
+    surface recedes toward the hole, seen along the row, by more than ``min_slope`` mm of
+    depth per mm across (the last two valid pixels: (z_end - z_inner) / (z_end / f), f =
+    ``focal_px``): ``kind`` 3 and ``bound`` = (z_near + z_far) / 2 mm where ``kind`` is still 0.
+    """
+    w = depth.shape[1]
+    for r in range(n):
+        run = length[r]
+        if run > rim_max:
+            continue
+        v, u0 = row[r], start[r]
+        end = u0 + run if orient[r] == 1 else u0 - 1  # the near end
+        inner = end + 1 if orient[r] == 1 else end - 1
+        if inner < 0 or inner >= w or np.isnan(depth[v, inner]):
+            continue
+        z0 = depth[v, end]
+        if (z0 - depth[v, inner]) * focal_px / z0 <= min_slope:
+            continue
+        mid = np.float32(0.5 * (z_near[r] + z_far[r]))
+        for uu in range(u0, u0 + run):
+            if kind[v, uu] == 0:
+                kind[v, uu] = 3
+                bound[v, uu] = mid
