@@ -36,8 +36,9 @@ Two kinds of holes, one home:
      foreground edges the sensor's shadows lie, a thin hole on the other side cannot be a
      shadow and takes the near side, and the pixels of a shadow-side hole within the width of
      the projector's shadow (f b (1/z_near - 1/z_far), the baseline b estimated from the
-     frame's holes) take the far side (:func:`_hole_sides`, our A39). Time fills (1.) that
-     disagree with that side are dropped.
+     frame's holes) never take the near side (:func:`_hole_sides`, our A39; without a shadow
+     side, as on ToF cameras, a thin hole beside a foreground turning away from the camera
+     never takes the far side, A40). Time fills (1.) that disagree with that side are dropped.
 
   Neither stage fills a pixel outside the sensor's field of view (our A38,
   :func:`field_of_view`): a registered depth image covers less than the colour image it is
@@ -234,8 +235,8 @@ class _HoleSides:
         return self.kind == 1
 
     def agrees(self, filled_depth: NDArray[np.float32]) -> NDArray[np.bool_]:
-        """False where a fill (mm) lies on the wrong surface: a rim farther than ``bound``, a
-        shadow nearer."""
+        """False where a fill (mm) lies on the wrong surface: a rim (kind 1 or 3) farther than
+        ``bound``, a shadow (kind 2) nearer."""
         rim = (self.kind == 1) | (self.kind == 3)
         with np.errstate(invalid="ignore"):
             wrong = (rim & (filled_depth > self.bound)) | (
@@ -247,7 +248,7 @@ class _HoleSides:
 def _hole_sides(
     depth: NDArray[np.float32], *, focal_px: float | None, max_step: float, quad: float
 ) -> _HoleSides:
-    """Rim dropouts (A27) and projector shadows (A39) among the holes of one frame.
+    """Rim dropouts (A27, A40) and projector shadows (A39) among the holes of one frame.
 
     A structured-light or stereo camera's shadow lies on the same side of every foreground
     edge (away from the projector or the second imager along the baseline). Each horizontal
@@ -263,9 +264,10 @@ def _hole_sides(
 
     A39: on the shadow side, a foreground edge at z_near over a surface at z_far hides
     f b (1/z_near - 1/z_far) px of that surface from the projector (b the baseline, f the
-    focal length ``focal_px``); those pixels next to the run's far end must take the far
-    surface, whatever their intensity says (a shadow on the wall looks like the wall, but so
-    may the foreground's texture). b is estimated from the frame's own runs
+    focal length ``focal_px``); those pixels next to the run's far end never take the near
+    surface, whatever their intensity says (a fill nearer than the bound is refused; forcing
+    the far side instead gave the wall to the Kinect-model ball's rim pixels inside the
+    predicted width). b is estimated from the frame's own runs
     (:data:`SHADOW_BASELINE_QUANTILE`); a run longer than its shadow by more than
     :data:`RIM_MAX_PX` px (or shorter by more than 1 px) is not split. ``focal_px`` None: rims only.
 
