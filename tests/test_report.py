@@ -395,3 +395,26 @@ def test_rerun_missing_is_one_line_cli_error(run_with_report, tmp_path, capsys, 
     assert main(["report", str(raw), str(fused), "-o", str(out), "--rerun", "x.rrd"]) == 2
     assert "fuse4d[viz]" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_report_reads_the_parameters_of_a_run_folder(tmp_path):
+    """`fuse4d report IN OUT` on a frame folder that `fuse4d run` wrote: the parameters come
+    from the run's manifest (as `fuse4d run --report` passes them), the source codes from
+    its source/ PNGs."""
+    from fuse4d.io import FrameFolderWriter
+    from fuse4d.report._sources import FusedSource
+    from fuse4d.synthetic import make_falling_ball
+
+    seq = make_falling_ball(small=True, num_frames=4)
+    src = tmp_path / "rec"
+    with FrameFolderWriter(src, seq.intrinsics, depth_unit_mm=0.05) as writer:
+        for d, i in zip(seq.depth, seq.intensity, strict=True):
+            writer.write(d, i)
+    assert FusedSource(src).params is None  # a recording, not a run's output
+    out = tmp_path / "fused"
+    assert main(["run", str(src), "-o", str(out), "--window", "3", "--no-summary"]) == 0
+    fused = FusedSource(out)
+    assert fused.params["num_frames"] == 3
+    assert fused.params["flow_method"] == "dis"
+    assert fused.chunk(0, 4).source is not None
+    fused.close()

@@ -49,6 +49,7 @@ __all__ = [
     "fingerprint_input",
     "partial_path",
     "run_identity",
+    "run_parameters",
     "unfinished_run_message",
 ]
 
@@ -140,6 +141,20 @@ def _read_manifest(folder: Path) -> dict[str, Any] | None:
     if not isinstance(data, dict) or data.get("format") != _FORMAT:
         raise InputFileError(path, "not a fuse4d run manifest (unknown format)")
     return data
+
+
+def run_parameters(folder: str | PathLike[str]) -> dict[str, Any] | None:
+    """The fusion parameters (and ``flow_method``) that a finished ``fuse4d run`` wrote into
+    the manifest of its output folder, for ``fuse4d report``; None for a folder without a
+    finished run's manifest."""
+    data = _read_manifest(Path(folder))
+    if data is None or not data.get("complete"):
+        return None
+    identity = data.get("identity") or {}
+    fusion, flow = identity.get("fusion"), identity.get("flow") or {}
+    if not isinstance(fusion, dict):
+        return None
+    return {**fusion, "flow_method": flow.get("method", "")}
 
 
 def unfinished_run_message(folder: Path) -> str:
