@@ -10,7 +10,7 @@ from fuse4d._kernels.holes import (
     _temporal_fill_kernel,
     _temporal_fill_reference,
 )
-from fuse4d.holes import _hole_sides, field_of_view, fill_small_holes, small_hole_mask
+from fuse4d.holes import _hole_sides, fill_small_holes, small_hole_mask
 
 
 def _ring(depth, flow_u):
@@ -327,33 +327,3 @@ def test_spatial_fill_on_a_slanted_surface_still_stops_at_an_edge():
     out, filled = fill_small_holes(d, inten, max_area_px=64, radius=4)
     assert filled[6:9, 12:14].all()
     np.testing.assert_allclose(out[6:9, 12:14], wall[6:9, 12:14], atol=0.5)
-
-
-def _hull_reference(depth):
-    """field_of_view by its definition, pixel by pixel: valid depth in some frame at or on
-    both sides of the pixel along its row, and likewise along its column."""
-    valid = (np.nan_to_num(depth, nan=0.0) > 0).any(axis=0)
-    h, w = valid.shape
-    out = np.zeros((h, w), bool)
-    for v in range(h):
-        for u in range(w):
-            row, col = valid[v], valid[:, u]
-            out[v, u] = (
-                row[: u + 1].any() and row[u:].any() and col[: v + 1].any() and col[v:].any()
-            )
-    return out
-
-
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_field_of_view_is_the_row_and_column_hull_of_the_valid_depth(seed):
-    rng = np.random.default_rng(seed)
-    depth = rng.uniform(500, 3000, (3, 17, 23)).astype(np.float32)
-    depth[rng.random(depth.shape) < 0.6] = np.nan
-    depth[rng.random(depth.shape) < 0.1] = 0.0  # 0 = no depth, as in 16-bit files
-    depth[:, :2] = np.nan  # a band without depth at the top ...
-    depth[:, :, -3:] = 0.0  # ... and on the right
-    inside = field_of_view(depth)
-    np.testing.assert_array_equal(inside, _hull_reference(depth))
-    assert not inside[:2].any()
-    assert not inside[:, -3:].any()
-    np.testing.assert_array_equal(field_of_view(depth[1]), _hull_reference(depth[1:2]))

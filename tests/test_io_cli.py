@@ -37,6 +37,10 @@ def test_info_text(npz_path, small_sequence, capsys):
     assert lines["size"].strip() == "32 x 24 px (W x H)"
     assert lines["intrinsics"].strip() == "fx=80 fy=80 cx=15.5 cy=11.5 px"
     assert lines["valid pixels"].strip() == "91.7 %"
+    # the two first rows never have depth: outside the field of view (A38)
+    covers = lines["depth covers"].strip()
+    assert covers.startswith("91.7 % of the image (rows 2-23, columns 0-31")
+    assert covers.endswith("100.0 % of its pixels valid")
     assert lines["fps"].strip() == "30"
     assert lines["ground truth"].strip() == "depth"
     lo = np.nanmin(small_sequence.depth[:, 2:])

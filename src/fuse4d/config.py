@@ -228,7 +228,7 @@ class FusionParams:
         Our A26: fill *sensor* holes (no raw depth at t) from the other frames of the window
         along the pixel's track through the intensity video (the trajectory line through the
         tracked reference points, evaluated at t). Off = sensor holes stay NaN unless filled in
-        space. Never outside the sensor's field of view (A38, :func:`fuse4d.holes.field_of_view`
+        space. Never outside the sensor's field of view (A38, :func:`fuse4d.fov.field_of_view`
         of the window's frames). See :mod:`fuse4d.holes`.
     fill_max_hole_px : int
         Our A27: sensor-hole components (8-connected) of at most this many pixels that do not

@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._kernels.fusion import _fuse_kernel, _project_to_rays_kernel
-from ._kernels.holes import _source_confidence_kernel, _valid_extents_kernel
+from ._kernels.holes import _source_confidence_kernel
 from ._kernels.noise import _finite_median32
 from ._kernels.smooth_base import _smooth_base_cols_kernel, _smooth_base_rows_kernel
 from ._validation import as_float32, check_shape
@@ -30,6 +30,7 @@ from .config import FlowConfig, FusionParams, preset
 from .errors import ShapeError
 from .flow import SequenceFlow, as_sequence_flow
 from .flying_pixels import flying_pixel_mask, resolve_flying_pixels
+from .fov import _inside_extents, _valid_extents
 from .holes import (
     SOURCE_FUSED,
     SOURCE_MEASURED,
@@ -41,7 +42,6 @@ from .holes import (
     _fill_holes,
     _fill_small_holes,
     _hole_sides,
-    _inside_extents,
     _side_consistent,
 )
 from .motion import (
@@ -427,7 +427,7 @@ class FusionEngine:
             self._bilateral[slot] = state.bilateral
             self._noise[slot] = state.noise
         self._depth[slot] = d
-        _valid_extents_kernel(self._depth[slot], self._row_extent[slot], self._col_extent[slot])
+        self._row_extent[slot], self._col_extent[slot] = _valid_extents(d)
         self._intensity[slot] = inten
         # a window of one frame uses no pair: no flows, no tracks (issue 13); flows that are
         # passed in are still stored (and reported through ``on_pair``)

@@ -41,7 +41,7 @@ Two kinds of holes, one home:
      never takes the far side, A40). Time fills (1.) that disagree with that side are dropped.
 
   Neither stage fills a pixel outside the sensor's field of view (our A38,
-  :func:`field_of_view`): a registered depth image covers less than the colour image it is
+  :func:`fuse4d.fov.field_of_view`): a registered depth image covers less than the colour image it is
   registered to (a band of 30-50 px with no depth around a Kinect-class or aligned RealSense
   frame), and a track from such a pixel lands on valid depth as soon as anything moves, so
   the time fill (1.) extrapolated depth into that band. Those pixels are flagged
@@ -67,7 +67,6 @@ from ._kernels.holes import (
     _side_bounds_kernel,
     _spatial_fill_kernel,
     _temporal_fill_kernel,
-    _valid_extents_kernel,
 )
 from ._validation import as_float32, check_shape
 from .config import FusionParams
@@ -80,7 +79,6 @@ __all__ = [
     "SOURCE_REJECTED",
     "SOURCE_SPACE",
     "SOURCE_TIME",
-    "field_of_view",
     "fill_holes",
     "fill_small_holes",
     "small_hole_mask",
@@ -94,63 +92,6 @@ SOURCE_TIME = 3  # a sensor hole filled from other frames along its track (A26)
 SOURCE_SPACE = 4  # a small sensor hole filled from its far-side neighbours (A27)
 SOURCE_REJECTED = 5  # raw depth removed as a ToF flying pixel (A36); left empty, never filled
 SOURCE_OUTSIDE = 6  # no depth, outside the sensor's field of view (A38); never filled
-
-
-def field_of_view(depth: ArrayLike) -> NDArray[np.bool_]:
-    """The depth sensor's field of view, as the valid depth of one or more frames shows it (A38).
-
-    A pixel is inside when, in the frames given, its row has valid depth on both sides of it
-    (or at it) and so has its column: the row-and-column hull of the valid pixels. Holes in
-    the interior (shadows, dark or glassy surfaces) are inside; the band that a registered
-    depth image leaves around the colour image, and any row or column end beyond the last
-    valid pixel, are outside. The fusion engine takes the hull of the frames of each output
-    frame's window (from per-frame extents computed once per frame).
-
-    Parameters
-    ----------
-    depth : (H, W) or (K, H, W) ndarray
-        Depth in mm; NaN or <= 0 = no depth.
-
-    Returns
-    -------
-    (H, W) ndarray of bool
-        True inside the field of view.
-
-    Examples
-    --------
-    >>> d = np.full((5, 6), np.nan, np.float32); d[1:4, 1:5] = 1000.0; d[2, 2] = np.nan
-    >>> field_of_view(d).astype(int)  # the interior hole is inside, the border band is not
-    array([[0, 0, 0, 0, 0, 0],
-           [0, 1, 1, 1, 1, 0],
-           [0, 1, 1, 1, 1, 0],
-           [0, 1, 1, 1, 1, 0],
-           [0, 0, 0, 0, 0, 0]])
-    """
-    d = as_float32(depth, name="depth")
-    frames = d[None] if d.ndim == 2 else d
-    check_shape(frames, ("K", "H", "W"), name="depth")
-    k, h, w = frames.shape
-    rows = np.empty((k, h, 2), np.int32)
-    cols = np.empty((k, w, 2), np.int32)
-    for i in range(k):
-        valid = np.where(frames[i] > 0, frames[i], np.float32(np.nan))  # NaN, 0, < 0: none
-        _valid_extents_kernel(np.ascontiguousarray(valid), rows[i], cols[i])
-    return _inside_extents(rows, cols)
-
-
-def _inside_extents(
-    row_extent: NDArray[np.int32], col_extent: NDArray[np.int32]
-) -> NDArray[np.bool_]:
-    """Unvalidated :func:`field_of_view` from per-frame extents ((K, H, 2), (K, W, 2) int32
-    of :func:`~fuse4d._kernels.holes._valid_extents_kernel`): the hull of their union."""
-    h, w = row_extent.shape[1], col_extent.shape[1]
-    row_lo = row_extent[:, :, 0].min(axis=0)[:, None]
-    row_hi = row_extent[:, :, 1].max(axis=0)[:, None]
-    col_lo = col_extent[:, :, 0].min(axis=0)[None, :]
-    col_hi = col_extent[:, :, 1].max(axis=0)[None, :]
-    u = np.arange(w, dtype=np.int32)[None, :]
-    v = np.arange(h, dtype=np.int32)[:, None]
-    return (u >= row_lo) & (u <= row_hi) & (v >= col_lo) & (v <= col_hi)
 
 
 def small_hole_mask(holes: ArrayLike, max_area_px: int) -> NDArray[np.bool_]:

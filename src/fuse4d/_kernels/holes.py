@@ -10,9 +10,6 @@ validate):
 * :func:`_spatial_fill_kernel` (A27, A37): small remaining holes get the intensity-weighted
   plane through the valid neighbours on one side of any depth discontinuity in the window
   (the side whose intensity resembles the hole's), so a fill never bridges a discontinuity.
-
-And :func:`_valid_extents_kernel`, the per-frame part of the sensor's field of view (A38):
-neither stage fills a pixel outside it.
 """
 
 from __future__ import annotations
@@ -467,33 +464,6 @@ def _source_confidence_kernel(depth, support, n, source, confidence, holes):
                 confidence[v, u] = np.float32((1.0 + np.float64(s)) / n)
                 holes[v, u] = False
     return any_hole
-
-
-@njit
-def _valid_extents_kernel(depth, row_extent, col_extent):  # pragma: no cover - compiled
-    """First and last pixel with valid depth of every row and column of one frame (A38).
-
-    ``depth`` (H, W) float32 mm, NaN = invalid. Fills ``row_extent`` (H, 2) int32 with the
-    first and last valid column of each row ((W, -1) where the row has none) and
-    ``col_extent`` (W, 2) int32 with the first and last valid row of each column ((H, -1)).
-    One pass over the frame, done once when the frame is pushed.
-    """
-    h, w = depth.shape
-    for v in range(h):
-        row_extent[v, 0] = w
-        row_extent[v, 1] = -1
-    for u in range(w):
-        col_extent[u, 0] = h
-        col_extent[u, 1] = -1
-    for v in range(h):
-        for u in range(w):
-            if not np.isnan(depth[v, u]):
-                if row_extent[v, 0] == w:
-                    row_extent[v, 0] = u
-                row_extent[v, 1] = u
-                if col_extent[u, 0] == h:
-                    col_extent[u, 0] = v
-                col_extent[u, 1] = v
 
 
 @njit

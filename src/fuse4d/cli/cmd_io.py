@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -88,6 +88,7 @@ def info_command(
     """
     import numpy as np
 
+    from ..fov import field_of_view
     from ..io import open_frames
 
     reader = open_frames(
@@ -101,9 +102,11 @@ def info_command(
         n_valid = 0
         lo, hi = math.inf, -math.inf
         picked = stats_frames(len(reader), None if all_frames else INFO_SAMPLE_FRAMES)
+        seen = np.zeros(reader.intrinsics.shape, bool)  # pixels with depth in some frame
         for index in track(picked, "reading frames", total=len(picked)):
             frame = reader.read_frame(index)
             valid = np.isfinite(frame.depth)
+            seen |= valid
             count = int(valid.sum())
             if count:
                 n_valid += count
@@ -111,6 +114,9 @@ def info_command(
                 hi = max(hi, float(np.nanmax(frame.depth)))
         k = reader.intrinsics
         total = len(picked) * k.width * k.height
+        # the depth camera's field of view (A38: nothing is filled outside it)
+        inside = field_of_view(np.where(seen, np.float32(1.0), np.float32(np.nan)))
+        fov_px = int(inside.sum())
         ts = reader.timestamps
         summary = {
             "input": str(input_path),
@@ -124,6 +130,8 @@ def info_command(
             "fps": reader.fps,
             "duration_s": None if ts is None else float(ts[-1] - ts[0]),
             "valid_fraction": n_valid / total if total else 0.0,
+            "field_of_view_fraction": fov_px / inside.size,
+            "valid_fraction_inside": n_valid / (len(picked) * fov_px) if fov_px else 0.0,
             "stats_frames": len(picked),
             "depth_min_mm": lo if n_valid else None,
             "depth_max_mm": hi if n_valid else None,
@@ -164,6 +172,7 @@ def info_command(
             "not stored" if ts is None else f"{ts[0]:.6f} .. {ts[-1]:.6f} s ({len(ts)} values)",
         ),
         ("valid pixels", f"{100.0 * summary['valid_fraction']:.1f} %{sampled}"),
+        ("depth covers", _field_of_view_row(inside, summary)),
         (
             "depth range",
             "no valid depth" if not n_valid else f"{lo:.1f} .. {hi:.1f} mm{sampled}",
@@ -174,6 +183,19 @@ def info_command(
     rows += [("stream", _stream_row(s)) for s in summary["streams"]]
     for key, value in rows:
         out_console.print(f"{key + ':':<14}{value}", highlight=False, markup=False, soft_wrap=True)
+
+
+def _field_of_view_row(inside: Any, summary: dict[str, Any]) -> str:
+    """``fuse4d info``'s line on the depth camera's field of view (A38)."""
+    if not summary["field_of_view_fraction"]:
+        return "no valid depth"
+    rows, cols = inside.any(axis=1).nonzero()[0], inside.any(axis=0).nonzero()[0]
+    return (
+        f"{100.0 * summary['field_of_view_fraction']:.1f} % of the image (rows "
+        f"{rows[0]}-{rows[-1]}, columns {cols[0]}-{cols[-1]}: the depth camera's field of view, "
+        f"where fuse4d run fills holes); {100.0 * summary['valid_fraction_inside']:.1f} % of its "
+        "pixels valid"
+    )
 
 
 @app.command("export-ply")
