@@ -92,6 +92,41 @@ SOURCE_TIME = 3  # a sensor hole filled from other frames along its track (A26)
 SOURCE_SPACE = 4  # a small sensor hole filled from its far-side neighbours (A27)
 SOURCE_REJECTED = 5  # raw depth removed as a ToF flying pixel (A36); left empty, never filled
 SOURCE_OUTSIDE = 6  # no depth, outside the sensor's field of view (A38); never filled
+_SOURCE_CODES = SOURCE_OUTSIDE + 1
+
+
+class _SourceTally:
+    """Pixels per source code over fused frames, and the shares of them that the ``fuse4d
+    run`` summary and the report state: of the raw holes, outside the field of view (A38); of
+    the raw holes inside it, filled from time (A26) / in space (A27); of the raw-valid pixels,
+    removed as ToF flying pixels (A36)."""
+
+    def __init__(self) -> None:
+        self.counts = np.zeros(_SOURCE_CODES, np.int64)
+        self.pixels = 0
+        self.raw_valid = 0
+
+    def add(self, source: NDArray[np.uint8], raw_valid: int) -> None:
+        """One frame's source codes and its number of raw-valid pixels."""
+        codes = np.asarray(source).ravel()
+        self.counts += np.bincount(codes, minlength=_SOURCE_CODES)[:_SOURCE_CODES]
+        self.pixels += codes.size
+        self.raw_valid += int(raw_valid)
+
+    def shares(self) -> dict[str, float | None]:
+        """``hole_outside_fraction``, ``hole_time_fraction``, ``hole_space_fraction``,
+        ``rejected_fraction`` (None where nothing was counted)."""
+        raw_holes = self.pixels - self.raw_valid
+        outside = int(self.counts[SOURCE_OUTSIDE])
+        inside = raw_holes - outside
+        return {
+            "hole_outside_fraction": outside / raw_holes if raw_holes else None,
+            "hole_time_fraction": int(self.counts[SOURCE_TIME]) / inside if inside else None,
+            "hole_space_fraction": int(self.counts[SOURCE_SPACE]) / inside if inside else None,
+            "rejected_fraction": (
+                int(self.counts[SOURCE_REJECTED]) / self.raw_valid if self.raw_valid else None
+            ),
+        }
 
 
 def small_hole_mask(holes: ArrayLike, max_area_px: int) -> NDArray[np.bool_]:

@@ -25,7 +25,7 @@ from .config import FlowConfig, FusionParams, preset
 from .errors import ParameterError
 from .flying_pixels import resolve_flying_pixels
 from .fusion import STAGES, FusedFrame, FusionEngine, fuse_sequence
-from .holes import SOURCE_OUTSIDE, SOURCE_REJECTED, SOURCE_SPACE, SOURCE_TIME
+from .holes import _SourceTally
 from .io import check_output, detect_format, open_frames, read_npz_extra
 from .io import write_npz as _write_npz
 from .io.resume import ResumableFolderWriter, partial_path, run_identity
@@ -168,12 +168,8 @@ class _QualityTally:
         self.valid = 0
         self.supported = 0
         self.filled = 0
-        self.rejected = 0
         self.pixels = 0
-        self.holes = 0
-        self.holes_outside = 0
-        self.holes_time = 0
-        self.holes_space = 0
+        self.sources = _SourceTally()
 
     def add(self, raw_points: np.ndarray, frame: FusedFrame) -> None:
         self.scores.add(raw_points, frame.points)
@@ -182,12 +178,8 @@ class _QualityTally:
         self.supported += int((frame.support[valid] > 0).sum())
         self.filled += int(frame.filled[valid].sum())
         self.pixels += valid.size
-        self.holes += valid.size - int(valid.sum())
         if frame.source is not None:
-            self.rejected += int((frame.source[valid] == SOURCE_REJECTED).sum())
-            self.holes_outside += int(np.count_nonzero(frame.source == SOURCE_OUTSIDE))
-            self.holes_time += int(np.count_nonzero(frame.source == SOURCE_TIME))
-            self.holes_space += int(np.count_nonzero(frame.source == SOURCE_SPACE))
+            self.sources.add(frame.source, int(valid.sum()))
 
     def fill(self, summary: RunSummary) -> None:
         res = self.scores.result()
@@ -203,15 +195,11 @@ class _QualityTally:
         if self.valid:
             summary.support_fraction = self.supported / self.valid
             summary.filled_fraction = self.filled / self.valid
-            summary.rejected_fraction = self.rejected / self.valid
         if self.pixels:
-            summary.hole_fraction = self.holes / self.pixels
-        if self.holes:
-            summary.hole_outside_fraction = self.holes_outside / self.holes
-        if self.holes > self.holes_outside:
-            inside = self.holes - self.holes_outside
-            summary.hole_time_fraction = self.holes_time / inside
-            summary.hole_space_fraction = self.holes_space / inside
+            summary.hole_fraction = (self.pixels - self.valid) / self.pixels
+        for name, share in self.sources.shares().items():
+            if share is not None:
+                setattr(summary, name, share)
 
 
 def fuse_file(

@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..camera import depth_to_points
 from ..errors import ParameterError, ShapeError
-from ..holes import SOURCE_OUTSIDE, SOURCE_REJECTED, SOURCE_SPACE, SOURCE_TIME
+from ..holes import _SourceTally
 from ..sequence import Sequence
 from ._sources import RawSource, open_fused, open_raw
 from .planes import Plane, detect_planes, given_plane
@@ -536,10 +536,7 @@ def _write(
         valid_raw = 0
         supported = 0
         filled_count = 0
-        # pixels per source code (fuse4d.holes.SOURCE_*) and the raw holes, where the result
-        # has source codes (None: it has not)
-        source_counts: NDArray[np.int64] | None = None
-        raw_holes = 0
+        sources = _SourceTally()  # pixels per source code, where the result has them
         keep: dict[str, Any] = {}
         compare_seconds = 0.0
         video = Mp4Writer(tmp / "compare.mp4", layout.width, layout.height, fps=rate)
@@ -570,9 +567,7 @@ def _write(
                     ok = np.isfinite(d_raw)
                     valid_raw += int(ok.sum())
                     if fch.source is not None:
-                        counts = np.bincount(fch.source[j].ravel(), minlength=SOURCE_OUTSIDE + 1)
-                        source_counts = counts if source_counts is None else source_counts + counts
-                        raw_holes += int(ok.size - ok.sum())
+                        sources.add(fch.source[j], int(ok.sum()))
                     sup = None if fch.support is None else fch.support[j]
                     fil = None if fch.filled is None else fch.filled[j]
                     if sup is not None and support_sum is not None:
@@ -773,33 +768,14 @@ def _write(
         }
         if timing["fusion_ms_per_frame"] is None and fres.seconds is not None:
             timing["fusion_ms_per_frame"] = 1000.0 * fres.seconds / total
-        holes_inside = (
-            raw_holes - int(source_counts[SOURCE_OUTSIDE]) if source_counts is not None else 0
-        )
         fill = {
             "support_fraction": supported / valid_raw if fres.has_support and valid_raw else None,
             "filled_fraction": (
                 filled_count / valid_raw if fres.has_support and valid_raw else None
             ),
-            # raw holes outside the field of view (A38): share of the raw holes; filled from
-            # time (A26) / in space (A27): shares of the raw holes inside it; ToF flying
-            # pixels removed (A36): share of the raw-valid pixels
-            "hole_outside_fraction": (
-                int(source_counts[SOURCE_OUTSIDE]) / raw_holes
-                if source_counts is not None and raw_holes
-                else None
-            ),
-            "hole_time_fraction": (
-                int(source_counts[SOURCE_TIME]) / holes_inside if holes_inside else None
-            ),
-            "hole_space_fraction": (
-                int(source_counts[SOURCE_SPACE]) / holes_inside if holes_inside else None
-            ),
-            "rejected_fraction": (
-                int(source_counts[SOURCE_REJECTED]) / valid_raw
-                if source_counts is not None and valid_raw
-                else None
-            ),
+            # sensor holes outside the field of view / filled (A38, A26, A27), flying pixels
+            # removed (A36), from the source codes where the result has them
+            **sources.shares(),
         }
         metrics = {
             "input": raw.name,
