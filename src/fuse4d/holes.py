@@ -34,7 +34,8 @@ Two kinds of holes, one home:
      background it lies on, a dropout on a foreground rim like the rim), so the fill never
      bridges a depth discontinuity. Where the frame's holes show on which side of its
      foreground edges the sensor's shadows lie, a thin hole on the other side cannot be a
-     shadow and takes the near side, and the pixels of a shadow-side hole within the width of
+     shadow and never takes the far side (a rim of the foreground: where the intensity says
+     it belongs to the far surface it is left empty, our A41), and the pixels of a shadow-side hole within the width of
      the projector's shadow (f b (1/z_near - 1/z_far), the baseline b estimated from the
      frame's holes) never take the near side (:func:`_hole_sides`, our A39; without a shadow
      side, as on ToF cameras, a thin hole beside a foreground turning away from the camera
@@ -194,9 +195,11 @@ class _HoleSides:
     Attributes
     ----------
     kind : (H, W) ndarray of int8
-        1: a rim dropout of the foreground (A27: the near surface); 2: inside the projector's
-        shadow (A39: not the near surface); 3: a thin hole beside a foreground that turns away
-        from the camera (A40: not the far surface); 0: the intensity rule decides.
+        1: a rim dropout of the foreground opposite the shadow side (A27, A41: not the far
+        surface); 2: inside the projector's shadow (A39: not the near surface); 3: a thin hole
+        beside a foreground that turns away from the camera (A40: not the far surface); 0: the
+        intensity rule decides alone. Kinds 1-3 never force a side: the intensity rule picks
+        it and a fill on the excluded surface is refused (:meth:`agrees`).
     bound : (H, W) ndarray of float32
         Where ``kind`` > 0, the depth (mm) halfway between the run's two surfaces; NaN
         elsewhere.
@@ -204,11 +207,6 @@ class _HoleSides:
 
     kind: NDArray[np.int8]
     bound: NDArray[np.float32]
-
-    @property
-    def rims(self) -> NDArray[np.bool_]:
-        """The holes that take the near side (the spatial fill's ``near_only``)."""
-        return self.kind == 1
 
     def agrees(self, filled_depth: NDArray[np.float32]) -> NDArray[np.bool_]:
         """False where a fill (mm) lies on the wrong surface: a rim (kind 1 or 3) farther than
@@ -232,11 +230,18 @@ def _hole_sides(
     and the frame votes, weighted by run length: where one orientation has at least
     :data:`SHADOW_VOTE_RATIO` times the pixels of the other (and :data:`SHADOW_VOTE_MIN_PX`),
     it is the shadow side, and the thin runs (at most :data:`RIM_MAX_PX`) of the other
-    orientation are rims (the grazing edge of the foreground) that must take the near
+    orientation are rims (the grazing edge of the foreground) that never take the far
     surface. Without a clear vote (ToF cameras, no edges) nothing is marked; wider runs on the
     other side (the registration gap of depth mapped onto a colour camera, as in
     ``uva_cv2_person_turning``) keep the intensity rule. On the Kinect-model ball the
     intensity rule alone gave the ball's far rim the background's depth (1 m off).
+
+    A41: a rim is not forced onto the near surface either (stop 30 forced it): where the
+    intensity rule picks the far side the fill is refused and the pixel stays a hole. Block
+    matching also invalidates the *background* beside an edge (its window straddles the
+    edge), and those runs look the same; on the Kinect-model body 815 of the forced rim fills
+    were > 100 mm off, the background's depth being the truth. Where the intensity image says
+    the hole looks like the foreground (as a rim does) it is still filled from it.
 
     A39: on the shadow side, a foreground edge at z_near over a surface at z_far hides
     f b (1/z_near - 1/z_far) px of that surface from the projector (b the baseline, f the
@@ -375,7 +380,6 @@ def _side_consistent(
         depth,
         intensity,
         holes,
-        sides.rims,
         int(radius),
         1.0 / (2.0 * sigma_intensity**2),
         1.0 / (2.0 * 2.0**2),
@@ -410,8 +414,9 @@ def _fill_small_holes(
     quad: float,
     sigma_space: float = 2.0,
 ) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
-    """Unvalidated A27: fill the small components of ``holes`` in ``depth`` (mm); rims and
-    projector shadows (``sides``, :func:`_hole_sides`) only from their own surface."""
+    """Unvalidated A27: fill the small components of ``holes`` in ``depth`` (mm); a fill of
+    a rim or a projector shadow (``sides``, :func:`_hole_sides`) on the surface it cannot
+    belong to is refused."""
     target = small_hole_mask(holes, int(max_area_px))
     out = depth.copy()
     if target.any():
@@ -419,7 +424,6 @@ def _fill_small_holes(
             depth,
             intensity,
             target,
-            sides.rims,
             int(radius),
             1.0 / (2.0 * sigma_intensity**2),
             1.0 / (2.0 * sigma_space**2),

@@ -366,7 +366,7 @@ def _largest_gap(zs, n, z_min, z_max, max_step, quad, bucket_lo, bucket_hi, srt)
 
 @njit_parallel
 def _spatial_fill_kernel(
-    depth, intensity, target, near_only, radius, inv_2si2, inv_2ss2, max_step, quad, out_depth
+    depth, intensity, target, radius, inv_2si2, inv_2ss2, max_step, quad, out_depth
 ):  # pragma: no cover - compiled
     """Fill ``target`` pixels from the valid neighbours of one side of the hole (A27, A37).
 
@@ -374,8 +374,9 @@ def _spatial_fill_kernel(
     depth and split at the largest gap between consecutive depths that exceeds the
     depth-step limit (A22) at the nearer of the two: a depth discontinuity. Each neighbour
     weighs exp(-dI^2 / 2 sigma_I^2 - r^2 / 2 sigma_s^2); the side with the larger total weight
-    — the one whose intensity resembles the hole's — is kept (the near side where
-    ``near_only``), and split again while it spans another discontinuity. A slanted surface
+    — the one whose intensity resembles the hole's — is kept, and split again while it spans
+    another discontinuity (no side is forced: where the hole's geometry rules one out, the
+    caller refuses the fill, :class:`fuse4d.holes._HoleSides`). A slanted surface
     has no such gap however much its depth changes across the window, so it stays one side
     (our A37; A27 took the neighbours within one step limit of the farthest / nearest, which
     on a floor or a wall seen at an angle kept one edge of the hole's neighbourhood). The fill
@@ -432,7 +433,7 @@ def _spatial_fill_kernel(
                         break
                     w_near = _side_weight(zs, ws, n, z_lo, below)
                     w_far = _side_weight(zs, ws, n, above, z_hi)
-                    if near_only[v, u] or w_near > w_far:
+                    if w_near > w_far:
                         z_hi = below
                     else:
                         z_lo = above
