@@ -28,6 +28,7 @@ from .fusion import STAGES, FusedFrame, FusionEngine, fuse_sequence
 from .holes import _SourceTally
 from .io import check_output, detect_format, open_frames, read_npz_extra
 from .io import write_npz as _write_npz
+from .io._base import FrameSelection
 from .io.resume import ResumableFolderWriter, partial_path, run_identity
 from .metrics import RunningEvaluation
 
@@ -215,6 +216,7 @@ def fuse_file(
     resume: bool = False,
     io_queue: int = 2,
     summary_every: int = SUMMARY_EVERY,
+    frames: FrameSelection = None,
 ) -> RunSummary:
     """Fuse a recording on disk and write the result next to nothing it reads.
 
@@ -251,6 +253,9 @@ def fuse_file(
         Folder output only: continue the unfinished run in ``output.partial`` (left by a
         killed or interrupted run; see :mod:`fuse4d.io.resume`). The result equals an
         uninterrupted run bit for bit; the quality figures cover the frames fused now.
+    frames : slice, range, (start, stop) or "A:B", optional
+        Fuse only this contiguous part of the recording, as if it were the whole (the output
+        has its frames, numbered from 0; ``fuse4d run --frames``). Default: all frames.
 
     Returns
     -------
@@ -272,8 +277,13 @@ def fuse_file(
         raise ParameterError("--resume applies to frame-folder outputs; .npz is written at once")
     start = time.perf_counter()
     if fmt == "npz":
-        summary = _fuse_npz(src, dst, params, flow, overwrite, quality, progress, summary_every)
+        summary = _fuse_npz(
+            src, dst, params, flow, overwrite, quality, progress, summary_every, frames
+        )
     else:
+        options = dict(reader_options or {})
+        if frames is not None:
+            options["frames"] = frames
         summary = _fuse_streaming(
             src,
             dst,
@@ -283,7 +293,7 @@ def fuse_file(
             overwrite,
             quality,
             progress,
-            reader_options or {},
+            options,
             resume=resume,
             io_queue=io_queue,
             summary_every=summary_every,
@@ -293,11 +303,11 @@ def fuse_file(
 
 
 def _fuse_npz(
-    src, dst, params, flow, overwrite, quality, progress, summary_every=SUMMARY_EVERY
+    src, dst, params, flow, overwrite, quality, progress, summary_every=SUMMARY_EVERY, frames=None
 ) -> RunSummary:
     from .io import load_sequence
 
-    seq = load_sequence(src)
+    seq = load_sequence(src, frames=frames)
     params = resolve_flying_pixels(params, seq.sensor)  # A36
     result = fuse_sequence(
         seq.depth, seq.intensity, seq.intrinsics, fusion=params, flow=flow, progress=progress
@@ -327,7 +337,7 @@ def _fuse_npz(
             )
             tally.add(raw_points[t], frame)
         tally.fill(summary)
-    extra = read_npz_extra(src)
+    extra = read_npz_extra(src, frames=frames)
     extra.update(
         {
             "support": result.support,
@@ -516,9 +526,12 @@ def _fuse_streaming(
         source = reader if limit is None else itertools.islice(reader, total)
         k = reader.intrinsics
         flow_config = _flow_config(flow)
+        if "frames" in options:  # one spelling of the range for the manifest: "A:B"
+            options = {**options, "frames": f"{reader.first_frame}:{reader.first_frame + total}"}
         identity = run_identity(
             src,
             frames=total,
+            reader_options=options,
             shape=(k.height, k.width),
             depth_unit_mm=reader.depth_unit_mm,
             fusion=params.to_dict(),

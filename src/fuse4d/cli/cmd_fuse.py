@@ -129,6 +129,14 @@ def run_command(
             "--flow-roi", help="Solve flow only in ROW0,ROW1,COL0,COL1 (px); 0 flow outside."
         ),
     ] = None,
+    frames: Annotated[
+        str | None,
+        typer.Option(
+            "--frames",
+            help="Fuse only frames A:B of the recording (0-based, B excluded; 'A:' to the end),"
+            " as if they were the whole; the output is numbered from 0.",
+        ),
+    ] = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing output.")] = False,
     resume: Annotated[
         bool,
@@ -218,7 +226,7 @@ def run_command(
             fail(str(exc))
         opts = {"chunk_frames": chunk_frames, "scheduler": scheduler, "workers": workers}
         opts["save_flows"] = save_flows
-        opts["reader_options"] = options
+        opts["reader_options"] = options if frames is None else {**options, "frames": frames}
         print_dask_run(inputs, output, fusion, flow, opts, resume, force, warm_start, as_json)
         return
     if engine != "stream" or len(inputs) != 1:
@@ -240,13 +248,20 @@ def run_command(
             reader_options=options,
             resume=resume,
             summary_every=summary_every,
+            frames=frames,
         )
     if report is not None:
         from .cmd_report import make_report
 
         params = {**fusion.to_dict(), "flow_method": summary.flow_method, "preset": preset_name}
         page = make_report(
-            input, output, report, params=params, fusion_seconds=summary.seconds, overwrite=force
+            input,
+            output,
+            report,
+            params=params,
+            fusion_seconds=summary.seconds,
+            overwrite=force,
+            reader_options=options if frames is None else {**options, "frames": frames},
         )
         err_console.print(f"wrote {page}")
     if as_json:

@@ -67,10 +67,23 @@ def report_command(
             "--rerun", help="Also log raw/fused depth to a Rerun .rrd (needs the viz extra)."
         ),
     ] = None,
+    frames: Annotated[
+        str | None,
+        typer.Option(
+            "--frames",
+            help="The part A:B of INPUT that FUSED was made from (fuse4d run --frames; a run"
+            " folder records it).",
+        ),
+    ] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace an existing report.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print metrics.json to stdout.")] = False,
 ) -> None:
-    """Write DIR/report.html (self-contained), DIR/compare.mp4 and DIR/metrics.json."""
+    """Write DIR/report.html (self-contained), DIR/compare.mp4 and DIR/metrics.json.
+
+    A frame folder written by ``fuse4d run`` records how the run read INPUT (streams, camera,
+    frame range); the report reads it the same way.
+    """
+    from ..io.resume import run_reader_options
     from ..report import parse_roi
 
     if rerun is not None:
@@ -80,6 +93,9 @@ def report_command(
         if not have_rerun():
             fail("--rerun needs rerun-sdk: pip install 'fuse4d[viz]'")
         check_output(rerun, overwrite=force, inputs=[input, fused])  # fail before the report
+    options = run_reader_options(fused) if fused.is_dir() else {}
+    if frames is not None:
+        options["frames"] = frames
     page = make_report(
         input,
         fused,
@@ -92,12 +108,20 @@ def report_command(
         frame=frame,
         fps=fps,
         overwrite=force,
+        reader_options=options,
     )
     if rerun is not None:
         from ..report.rerun import write_rerun
 
         with progress_bar("rerun", None) as bar:
-            write_rerun(input, fused, rerun, overwrite=force, progress=progress_callback(bar))
+            write_rerun(
+                input,
+                fused,
+                rerun,
+                overwrite=force,
+                progress=progress_callback(bar),
+                reader_options=options,
+            )
         err_console.print(f"wrote {rerun} (open it with: rerun {rerun})")
     print_report_summary(page, as_json=as_json)
 

@@ -107,6 +107,9 @@ class FrameReader(ABC):
     #: The kind of depth camera, where the file says so (``"tof"`` for an Azure Kinect
     #: recording; :attr:`fuse4d.Sequence.sensor`), else None.
     sensor: str | None = None
+    #: Index in the file of the reader's frame 0 (nonzero for a part of a recording opened
+    #: with ``open_frames(..., frames="A:B")``).
+    first_frame: int = 0
 
     @abstractmethod
     def __len__(self) -> int:

@@ -13,6 +13,7 @@ from ..sequence import Sequence
 from ._base import Frame, FrameReader, FrameSelection, IntrinsicsLike, ProgressCallback
 from .cv2xml import Cv2XmlReader, is_cv2_xml_folder
 from .folder import FolderReader, write_frame_folder
+from .frame_range import FrameRange
 from .framesjson import FramesJsonReader
 from .mkv import MkvReader
 from .npz import NpzReader, write_npz
@@ -105,6 +106,7 @@ def open_frames(
     intensity_topic: str | None = None,
     intensity: str | None = None,
     undistort: bool | None = None,
+    frames: FrameSelection = None,
 ) -> FrameReader:
     """Open a recording for lazy, frame-by-frame reading (memory independent of its length).
 
@@ -126,6 +128,10 @@ def open_frames(
         depth). See :class:`~fuse4d.io.RosbagReader`.
     undistort : bool, optional
         ``mkv`` (Azure Kinect) only: remove lens distortion (default True).
+    frames : slice, range, (start, stop) or "A:B", optional
+        Read only this contiguous part, as a recording of its own: frame A of the file is
+        the reader's frame 0 (:class:`~fuse4d.io.frame_range.FrameRange`, whose
+        ``first_frame`` is A). Default: all frames.
 
     Returns
     -------
@@ -147,6 +153,18 @@ def open_frames(
         {"depth_topic": depth_topic, "intensity_topic": intensity_topic,
          "intensity": intensity, "undistort": undistort},
     )  # fmt: skip
+    reader = _open_whole(fmt, path, depth_unit_mm, intrinsics, options)
+    if frames is None:
+        return reader
+    try:
+        return FrameRange(reader, frames)
+    except BaseException:
+        reader.close()
+        raise
+
+
+def _open_whole(fmt, path, depth_unit_mm, intrinsics, options) -> FrameReader:
+    """The reader of the whole recording (:func:`open_frames` without ``frames``)."""
     if options or fmt in ("rosbag", "mkv"):
         cls = READ_FORMATS[fmt]
         return cls(path, depth_unit_mm=depth_unit_mm, intrinsics=intrinsics, **options)

@@ -50,6 +50,7 @@ __all__ = [
     "partial_path",
     "run_identity",
     "run_parameters",
+    "run_reader_options",
     "unfinished_run_message",
 ]
 
@@ -104,25 +105,32 @@ def run_identity(
     depth_unit_mm: float | None,
     fusion: dict[str, Any],
     flow: dict[str, Any],
+    reader_options: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Everything a resumed run must share with the run it continues."""
+    """Everything a resumed run must share with the run it continues.
+
+    ``reader_options`` (the :func:`fuse4d.io.open_frames` options that chose the streams,
+    camera and frame range, e.g. ``{"frames": "200:300"}``) are recorded where any was given,
+    so that ``fuse4d report`` reads the input as the run did (:func:`run_reader_options`).
+    """
     from .. import __version__
 
     versions = {"fuse4d": __version__, "python": sys.version.split()[0]}
     for name in ("numpy", "numba", "cv2"):
         module = sys.modules.get(name)
         versions[name] = getattr(module, "__version__", None) if module else None
-    return _canonical(
-        {
-            "input_fingerprint": fingerprint_input(input),
-            "frames": int(frames),
-            "shape": list(shape),
-            "depth_unit_mm": depth_unit_mm,
-            "fusion": fusion,
-            "flow": flow,
-            "versions": versions,
-        }
-    )
+    identity = {
+        "input_fingerprint": fingerprint_input(input),
+        "frames": int(frames),
+        "shape": list(shape),
+        "depth_unit_mm": depth_unit_mm,
+        "fusion": fusion,
+        "flow": flow,
+        "versions": versions,
+    }
+    if reader_options:
+        identity["reader_options"] = dict(reader_options)
+    return _canonical(identity)
 
 
 def _canonical(value: Any) -> Any:
@@ -155,6 +163,17 @@ def run_parameters(folder: str | PathLike[str]) -> dict[str, Any] | None:
     if not isinstance(fusion, dict):
         return None
     return {**fusion, "flow_method": flow.get("method", "")}
+
+
+def run_reader_options(folder: str | PathLike[str]) -> dict[str, Any]:
+    """The reader options (streams, camera, frame range) with which a finished ``fuse4d run``
+    read its input, from the manifest of its output folder; ``{}`` where none was given or
+    the folder holds no finished run."""
+    data = _read_manifest(Path(folder))
+    if data is None or not data.get("complete"):
+        return {}
+    options = (data.get("identity") or {}).get("reader_options")
+    return dict(options) if isinstance(options, dict) else {}
 
 
 def unfinished_run_message(folder: Path) -> str:

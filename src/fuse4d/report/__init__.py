@@ -120,7 +120,8 @@ class _GroundTruth:
         self._from_raw = False
         self.available = True
         if isinstance(given, str | PathLike | Sequence):
-            self._source = open_raw(given)
+            part = {"frames": raw.frames} if raw.frames and not isinstance(given, Sequence) else {}
+            self._source = open_raw(given, part)
             self.name = str(given) if not isinstance(given, Sequence) else "given sequence"
             if self._source.num_frames != raw.num_frames or self._source.shape != raw.shape:
                 raise ShapeError(
@@ -306,6 +307,7 @@ def write_report(
     chunk_frames: int = 16,
     overwrite: bool = False,
     progress: Callable[[int, int], None] | None = None,
+    reader_options: dict[str, Any] | None = None,
 ) -> Path:
     """Write the HTML report of a fusion run (see the module docstring for the files).
 
@@ -350,6 +352,10 @@ def write_report(
         Replace an existing ``out_dir``.
     progress : callable, optional
         ``progress(done, total)`` after each frame of the main pass.
+    reader_options : dict, optional
+        :func:`fuse4d.io.open_frames` options with which the run read ``input`` (streams,
+        camera, ``frames`` range: those of ``fuse4d run``); a ``frames`` range also applies
+        to a ``ground_truth`` recording.
 
     Returns
     -------
@@ -387,7 +393,7 @@ def write_report(
     roi_box = parse_roi(roi) if isinstance(roi, str) else roi
     inputs = [p for p in (input, fused, ground_truth) if isinstance(p, str | PathLike)]
     check_output(out_dir, overwrite=overwrite, inputs=inputs)
-    raw = open_raw(input)
+    raw = open_raw(input, reader_options)
     try:
         fres = open_fused(fused, raw, support=support, filled=filled)
     except BaseException:

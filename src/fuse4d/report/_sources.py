@@ -34,10 +34,17 @@ def _quiet_chunks():
 class RawSource:
     """The raw recording, read in chunks of frames (with ground truth where stored)."""
 
-    def __init__(self, data: PathOrSequence) -> None:
+    def __init__(self, data: PathOrSequence, reader_options: dict[str, Any] | None = None) -> None:
         self._seq: Sequence | None = None
         self._reader: Any = None
+        #: "A:B" where only frames A..B-1 of the recording are read (``frames`` option)
+        self.frames: str | None = None
         if isinstance(data, Sequence):
+            if reader_options:
+                raise ParameterError(
+                    "reader options (frames, topics, camera) apply to a recording on disk, "
+                    "not to an in-memory Sequence: slice the Sequence instead"
+                )
             self._seq = data
             self.intrinsics: Intrinsics = data.intrinsics
             self.num_frames = data.num_frames
@@ -49,7 +56,10 @@ class RawSource:
         else:
             from ..io import open_frames
 
-            self._reader = open_frames(data)
+            self._reader = open_frames(data, **(reader_options or {}))
+            first = self._reader.first_frame
+            if "frames" in (reader_options or {}):  # the same part of a ground-truth recording
+                self.frames = f"{first}:{first + len(self._reader)}"
             self.intrinsics = self._reader.intrinsics
             self.num_frames = len(self._reader)
             self.fps = self._reader.fps
@@ -191,14 +201,15 @@ class FusedSource:
             self._reader.close()
 
 
-def open_raw(data: PathOrSequence) -> RawSource:
-    """Open the raw input (see :class:`RawSource`)."""
+def open_raw(data: PathOrSequence, reader_options: dict[str, Any] | None = None) -> RawSource:
+    """Open the raw input (see :class:`RawSource`), a recording with the
+    :func:`fuse4d.io.open_frames` options ``reader_options``."""
     if not isinstance(data, Sequence | str | PathLike):
         raise TypeError(
             f"input must be a path or a fuse4d.Sequence, got {type(data).__name__}; wrap arrays "
             "as Sequence(depth, intensity, intrinsics)"
         )
-    return RawSource(data)
+    return RawSource(data, reader_options)
 
 
 def open_fused(
@@ -211,7 +222,8 @@ def open_fused(
         problem = (
             f"fused result has {fused.num_frames} frames of {fused.shape[0]}x{fused.shape[1]} "
             f"but the input {raw.name} has {raw.num_frames} of {raw.shape[0]}x{raw.shape[1]}; "
-            "give the output of fusing exactly this input"
+            "give the output of fusing exactly this input (for a run of part of it, the same "
+            "--frames)"
         )
         fused.close()
         if isinstance(data, str | PathLike):

@@ -43,6 +43,7 @@ def write_rerun(
     chunk_frames: int = 16,
     overwrite: bool = False,
     progress: Callable[[int, int], None] | None = None,
+    reader_options: dict[str, Any] | None = None,
 ) -> Path:
     """Write raw and fused depth (and the intensity) of every frame into a Rerun recording.
 
@@ -77,7 +78,7 @@ def write_rerun(
         raise ImportError(
             "writing a Rerun recording needs rerun-sdk: pip install 'fuse4d[viz]'"
         ) from None
-    raw = open_raw(input)
+    raw = open_raw(input, reader_options)
     try:
         fres = open_fused(fused, raw, support=None, filled=None)
     except BaseException:

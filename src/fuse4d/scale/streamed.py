@@ -597,9 +597,13 @@ def recording_tasks(
     return results
 
 
-def source_of(path: str | Path, fmt: str, frames: int, **reader_options: Any) -> RecordingSource:
-    """The :class:`RecordingSource` of a recording opened by :func:`fuse4d.scale.open_lazy`."""
+def source_of(
+    path: str | Path, fmt: str, num_frames: int, **reader_options: Any
+) -> RecordingSource:
+    """The :class:`RecordingSource` of a recording opened by :func:`fuse4d.scale.open_lazy`
+    (``num_frames`` frames, read with the :func:`fuse4d.io.open_frames` options
+    ``reader_options``, a ``frames`` range among them)."""
     src = Path(path).resolve()
     return RecordingSource(
-        str(src), fmt, src.stat().st_mtime_ns, tuple(sorted(reader_options.items())), frames
+        str(src), fmt, src.stat().st_mtime_ns, tuple(sorted(reader_options.items())), num_frames
     )
