@@ -119,6 +119,8 @@ def test_run_frames_then_report_reads_the_same_part(recording, tmp_path, capsys)
     assert load_sequence(out).num_frames == b - a
     metrics = json.loads((rep / "metrics.json").read_text())
     assert metrics["frames"] == b - a
+    assert metrics["input_frames"] == f"{a}:{b}"
+    assert f"frames {a}-{b - 1} of the input" in (rep / "report.html").read_text()
     assert main(["report", str(recording), str(out), "-o", str(tmp_path / "rep2")]) == 0
     again = json.loads((tmp_path / "rep2" / "metrics.json").read_text())
     assert again["metrics"] == metrics["metrics"]

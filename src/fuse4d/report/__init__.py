@@ -429,6 +429,14 @@ def write_report(
             gt.close()
 
 
+def _part(frames: str | None) -> str:
+    """`` (frames A-(B-1) of the input)`` for a run of part of a recording, else ``""``."""
+    if not frames:
+        return ""
+    a, b = (int(x) for x in frames.split(":"))
+    return f" (frames {a}-{b - 1} of the input)"
+
+
 def _write(
     raw,
     fres,
@@ -785,6 +793,7 @@ def _write(
         }
         metrics = {
             "input": raw.name,
+            "input_frames": raw.frames,  # "A:B" where the run fused only part of the input
             "fused": fres.name,
             "frames": total,
             "size": [h, w],
@@ -826,7 +835,7 @@ def _write(
         (tmp / "metrics.json").write_text(json.dumps(_clean(metrics), indent=2) + "\n")
         page = render_page(
             title=f"fuse4d report: {Path(raw.name).name}",
-            subtitle=f"{total} frames, {h}×{w} px; fused: {fres.name}",
+            subtitle=f"{total} frames{_part(raw.frames)}, {h}×{w} px; fused: {fres.name}",
             video_file="compare.mp4",
             video_note=_video_note(video.codec, diff_max, lo, hi),
             figures=figs,
@@ -837,7 +846,7 @@ def _write(
                 "input": raw.name,
                 "fused": fres.name,
                 "ground truth": gt.name if gt.available else "none",
-                "frames": total,
+                "frames": f"{total}{_part(raw.frames)}",
                 "size (H×W px)": f"{h}×{w}",
                 "intrinsics (fx, fy, cx, cy px)": ", ".join(
                     f"{v:.2f}" for v in (k.fx, k.fy, k.cx, k.cy)
