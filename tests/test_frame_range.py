@@ -124,6 +124,9 @@ def test_run_frames_then_report_reads_the_same_part(recording, tmp_path, capsys)
     assert main(["report", str(recording), str(out), "-o", str(tmp_path / "rep2")]) == 0
     again = json.loads((tmp_path / "rep2" / "metrics.json").read_text())
     assert again["metrics"] == metrics["metrics"]
+    # the run's own time, from its manifest (the report of a run folder used to say n/a)
+    seconds = json.loads((out / MANIFEST_NAME).read_text())["seconds"]
+    assert again["timing"]["fusion_ms_per_frame"] == pytest.approx(1000 * seconds / (b - a))
     store = tmp_path / "out.zarr"
     zargs = ["run", str(recording), "-o", str(store), *RUN_ARGS, "--frames", f"{a}:{b}"]
     assert main([*zargs, "--no-summary"]) == 0
@@ -146,8 +149,11 @@ def test_a_killed_run_of_a_part_resumes_to_the_uninterrupted_result(recording, t
     other = ["run", str(recording), "-o", str(out), *RUN_ARGS, "--frames", f"{a + 1}:{b}"]
     assert main([*other, "--resume"]) == 2  # another part: refused
     assert partial_path(out).exists()
+    before = json.loads((partial_path(out) / MANIFEST_NAME).read_text())["seconds"]
     assert main(["run", str(recording), "-o", str(out), *args, "--resume"]) == 0
     assert _contents(out) == _contents(ref)
+    # the manifest's run time adds up the killed part and the resumed one
+    assert json.loads((out / MANIFEST_NAME).read_text())["seconds"] > before > 0
 
 
 def test_dask_engine_fuses_the_same_part(recording, tmp_path):

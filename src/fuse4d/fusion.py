@@ -769,11 +769,14 @@ class FusionEngine:
         if rejected is not None and rejected.any():  # A36: kept empty
             source[rejected] = SOURCE_REJECTED
             holes &= ~rejected
+        fill_time = p.fill_from_time and last > first
+        if not (fill_time or p.fill_max_hole_px > 0):  # both sensor-hole fills off
+            return source, confidence
         _, quad, _ = self._noise[slot]
         sides = _hole_sides(
             self._depth[slot], focal_px=self.intrinsics.fx, max_step=p.max_depth_step, quad=quad
         )
-        if p.fill_from_time and last > first:
+        if fill_time:
             targets = holes & inside
             filled_points, count = _fill_from_time(
                 self._fwd,

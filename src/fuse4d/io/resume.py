@@ -51,6 +51,7 @@ __all__ = [
     "run_identity",
     "run_parameters",
     "run_reader_options",
+    "run_seconds",
     "unfinished_run_message",
 ]
 
@@ -151,14 +152,18 @@ def _read_manifest(folder: Path) -> dict[str, Any] | None:
     return data
 
 
+def _finished_run(folder: str | PathLike[str]) -> dict[str, Any]:
+    """The manifest of the finished ``fuse4d run`` in ``folder``; ``{}`` for a folder without
+    one (not a run's output, or an unfinished run)."""
+    data = _read_manifest(Path(folder))
+    return data if data is not None and data.get("complete") else {}
+
+
 def run_parameters(folder: str | PathLike[str]) -> dict[str, Any] | None:
     """The fusion parameters (and ``flow_method``) that a finished ``fuse4d run`` wrote into
     the manifest of its output folder, for ``fuse4d report``; None for a folder without a
     finished run's manifest."""
-    data = _read_manifest(Path(folder))
-    if data is None or not data.get("complete"):
-        return None
-    identity = data.get("identity") or {}
+    identity = _finished_run(folder).get("identity") or {}
     fusion, flow = identity.get("fusion"), identity.get("flow") or {}
     if not isinstance(fusion, dict):
         return None
@@ -169,11 +174,16 @@ def run_reader_options(folder: str | PathLike[str]) -> dict[str, Any]:
     """The reader options (streams, camera, frame range) with which a finished ``fuse4d run``
     read its input, from the manifest of its output folder; ``{}`` where none was given or
     the folder holds no finished run."""
-    data = _read_manifest(Path(folder))
-    if data is None or not data.get("complete"):
-        return {}
-    options = (data.get("identity") or {}).get("reader_options")
+    options = (_finished_run(folder).get("identity") or {}).get("reader_options")
     return dict(options) if isinstance(options, dict) else {}
+
+
+def run_seconds(folder: str | PathLike[str]) -> float | None:
+    """Wall time (s) of the finished ``fuse4d run`` whose output is ``folder`` (I/O included;
+    the parts of a resumed run added up), for the report's time per frame; None where the
+    manifest does not say (no finished run, or written by an older fuse4d)."""
+    seconds = _finished_run(folder).get("seconds")
+    return float(seconds) if isinstance(seconds, int | float) else None
 
 
 def unfinished_run_message(folder: Path) -> str:
@@ -287,6 +297,9 @@ class ResumableFolderWriter:
         self._checkpoint: dict[str, Any] | None = None
         self._report = QuantizationReport(self.depth_unit_mm)
         self._open = False
+        # wall time of the run: the parts of a resumed run before this one, and since open()
+        self._seconds_before = 0.0
+        self._opened_at: float | None = None
 
     # ------------------------------------------------------------------ life cycle
     def __enter__(self) -> Self:
@@ -308,6 +321,7 @@ class ResumableFolderWriter:
 
     def open(self) -> None:
         """Start a new run in ``path.partial`` or pick up the unfinished one (``resume``)."""
+        self._opened_at = time.perf_counter()
         with write_errors(self.partial):
             if self.partial.exists() and not self.resume:
                 if not self.overwrite:
@@ -349,6 +363,8 @@ class ResumableFolderWriter:
         if not isinstance(done, int) or not 0 <= done <= self.identity["frames"]:
             raise InputFileError(self.partial / MANIFEST_NAME, f"bad frames_done {done!r}")
         self.frames_done = done
+        seconds = data.get("seconds")
+        self._seconds_before = float(seconds) if isinstance(seconds, int | float) else 0.0
         self._has_mask = data.get("has_mask")
         self._checkpoint = checkpoint if isinstance(checkpoint, dict) else None
         if self._checkpoint is not None:
@@ -389,6 +405,8 @@ class ResumableFolderWriter:
                 "tool": "fuse4d run",
                 "complete": complete,
                 "frames_done": self.frames_done,
+                "seconds": self._seconds_before
+                + (0.0 if self._opened_at is None else time.perf_counter() - self._opened_at),
                 "has_mask": self._has_mask,
                 "checkpoint": self._checkpoint,
                 "identity": self.identity,

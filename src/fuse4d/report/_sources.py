@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..camera import Intrinsics
 from ..errors import InputFileError, ParameterError, ShapeError
 from ..fusion import FusionResult
-from ..io.resume import run_parameters
+from ..io.resume import run_parameters, run_seconds
 from ..sequence import Sequence
 
 __all__ = ["FusedChunk", "FusedSource", "RawSource", "open_fused", "open_raw"]
@@ -145,6 +145,7 @@ class FusedSource:
             self._keys: set[str] = set()
             if Path(data).is_dir():  # a `fuse4d run` output folder records its parameters
                 self.params = run_parameters(data)
+                self.seconds = run_seconds(data)
             members = getattr(self._reader, "_members", None)
             if isinstance(members, dict):  # NpzReader: support/filled are memory-mapped members
                 self._keys = {k for k in ("support", "filled") if k in members}
