@@ -165,7 +165,9 @@ def test_dask_engine_fuses_the_same_part(recording, tmp_path):
     assert main(["run", str(recording), "-o", str(tmp_path / "s"), *args]) == 0
     store = tmp_path / "d.zarr"
     assert main(["run", str(recording), "-o", str(store), "--engine", "dask", *args]) == 0
-    dask_depth = np.asarray(zarr.open(str(store), mode="r")["depth"][:])
+    root = zarr.open(str(store), mode="r")
+    assert root.attrs["fuse4d"]["reader_options"] == {"frames": f"{a}:{b}"}  # checked on resume
+    dask_depth = np.asarray(root["depth"][:])
     stream = load_sequence(tmp_path / "s").depth  # a folder: 0.1 mm PNG steps
     assert dask_depth.shape == stream.shape == (b - a, *stream.shape[1:])
     np.testing.assert_allclose(np.where(dask_depth > 0, dask_depth, np.nan), stream, atol=0.051)

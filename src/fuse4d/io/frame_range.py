@@ -65,8 +65,9 @@ class FrameRange(FrameReader):
         return len(self._range)
 
     def __getattr__(self, name: str) -> Any:
-        # layout-specific attributes (a bag's topics, an npz's members) of the whole recording
-        if name.startswith("__") or name == "_reader":
+        # the public layout-specific attributes of the recording (a bag's streams); never its
+        # private state (an npz's members, a decoder's pass), which covers the whole file
+        if name.startswith("_"):
             raise AttributeError(name)
         return getattr(self._reader, name)
 

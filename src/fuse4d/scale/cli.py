@@ -83,6 +83,11 @@ def output_paths(inputs: list[Path], output: Path) -> list[Path]:
     return paths
 
 
+def _reader_meta(options: dict[str, Any]) -> dict[str, str]:
+    """The reader options as the JSON strings stored in the zarr's metadata."""
+    return {k: str(v) for k, v in sorted(options.items())}
+
+
 def _worker_pool(scheduler: str, workers: int | None) -> tuple[int, int]:
     """(processes, threads) that run tasks: one process of ``workers`` (or the CPU count)
     threads for ``threads``/``sync``, that many single-threaded processes for ``processes``,
@@ -191,6 +196,8 @@ def run_dask(
                 "params": params.to_dict(),
                 "flow": flow_meta,
                 "source": {**_source(rec.path), "format": rec.format, "fps": rec.fps},
+                # streams, camera, frame range: a resume must read the input the same way
+                **({"reader_options": _reader_meta(reader_options)} if reader_options else {}),
             },
             resume=resume,
             overwrite=overwrite,
