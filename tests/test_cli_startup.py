@@ -30,6 +30,7 @@ COMMANDS = (
     "synth",
     "metrics",
     "info",
+    "convert",
     "export-ply",
     "report",
     "live",

@@ -516,7 +516,8 @@ def _fuse_streaming(
     --input``)."""
     if params.iterations != 1:
         raise ParameterError(
-            "iterations > 1 needs the whole sequence in memory; convert the input to .npz first"
+            "iterations > 1 needs the whole sequence in memory; convert the input to .npz first "
+            "(fuse4d convert INPUT INPUT.npz)"
         )
     timings = dict.fromkeys(STAGES + IO_STAGES, 0.0)
     writer_cls, out_fmt = _writer_for(dst)

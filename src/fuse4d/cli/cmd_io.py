@@ -1,4 +1,5 @@
-"""CLI commands ``info`` (describe a recording) and ``export-ply`` (one frame as a point cloud)."""
+"""CLI commands ``info`` (describe a recording), ``convert`` (another layout, or a part) and
+``export-ply`` (one frame as a point cloud)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from typing import Annotated, Any
 
 import typer
 
-from ._app import app, fail, out_console, track
+from ._app import app, fail, out_console, progress_bar, progress_callback, track
 from ._recording_opts import (
     DepthTopicOpt,
     IntensityOpt,
@@ -18,7 +19,7 @@ from ._recording_opts import (
     reader_options,
 )
 
-__all__ = ["export_ply_command", "info_command"]
+__all__ = ["convert_command", "export_ply_command", "info_command"]
 
 #: The names of :data:`fuse4d.io.CAMERA_PRESETS`, written out so that ``--help`` does not
 #: import the readers (``tests/test_cli_startup.py`` checks that they agree).
@@ -195,6 +196,72 @@ def _field_of_view_row(inside: Any, summary: dict[str, Any]) -> str:
         f"{rows[0]}-{rows[-1]}, columns {cols[0]}-{cols[-1]}: the depth camera's field of view, "
         f"where fuse4d run fills holes); {100.0 * summary['valid_fraction_inside']:.1f} % of its "
         "pixels valid"
+    )
+
+
+@app.command("convert")
+def convert_command(
+    input_path: InputArg,
+    output: Annotated[
+        Path,
+        typer.Argument(
+            metavar="OUTPUT",
+            help="A .npz (keeps ground truth), an FFV1 .mkv, a .zarr store, else a frame folder.",
+            show_default=False,
+        ),
+    ],
+    frames: Annotated[
+        str | None,
+        typer.Option("--frames", help="Only frames A:B (0-based, B excluded; 'A:' to the end)."),
+    ] = None,
+    out_depth_unit_mm: Annotated[
+        float | None,
+        typer.Option(
+            "--out-depth-unit-mm",
+            help="Folder / .mkv output: mm per stored depth unit (default: the input's own, "
+            "or 1 mm for float depth).",
+        ),
+    ] = None,
+    force: Annotated[bool, typer.Option("--force", help="Overwrite an existing output.")] = False,
+    intrinsics: IntrinsicsOpt = None,
+    depth_unit_mm: UnitOpt = None,
+    input_format: FormatOpt = None,
+    depth_topic: DepthTopicOpt = None,
+    intensity_topic: IntensityTopicOpt = None,
+    intensity: IntensityOpt = None,
+    no_undistort: NoUndistortOpt = False,
+) -> None:
+    """Write a recording, or frames A:B of it, in another layout (streamed frame by frame).
+
+    E.g. a RealSense .bag into a frame folder to share, a part of a long recording into a
+    small .npz, or any input into the .npz that --set iterations=2 needs.
+    """
+    from ..io import convert_recording, open_frames
+
+    options = {
+        "format": input_format,
+        "depth_unit_mm": depth_unit_mm,
+        "intrinsics": intrinsics,
+        **reader_options(depth_topic, intensity_topic, intensity, no_undistort),
+    }
+    with progress_bar("converting", None) as bar:
+        path = convert_recording(
+            input_path,
+            output,
+            frames=frames,
+            out_depth_unit_mm=out_depth_unit_mm,
+            overwrite=force,
+            progress=progress_callback(bar),
+            **options,
+        )
+    with open_frames(path) as written:
+        n, (h, w), fmt = len(written), written.shape, written.format
+    part = "" if frames is None else f" (frames {frames} of {input_path})"
+    out_console.print(
+        f"wrote {path}: {fmt}, {n} frames{part}, {h}x{w}",
+        highlight=False,
+        markup=False,
+        soft_wrap=True,
     )
 
 

@@ -198,8 +198,7 @@ def benchmark_recording(
         raise ParameterError(
             f"{src}: bench --input times the streaming path of `fuse4d run`, and an .npz is "
             "read whole into memory, not streamed; give a recording (frame folder, .zarr, "
-            ".mkv, ROS bag, ...), e.g. fuse4d.io.write_zarr(fuse4d.io.load_sequence(REC), "
-            "'rec.zarr')"
+            f".mkv, ROS bag, ...), e.g. `fuse4d convert {src} {src.with_suffix('.zarr')}`"
         )
     common = {
         "src": src,

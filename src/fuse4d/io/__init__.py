@@ -18,6 +18,7 @@ from ._images import read_depth_png, read_intensity_image, read_mask_image
 from .api import (
     READ_FORMATS,
     WRITE_FORMATS,
+    convert_recording,
     count_frames,
     detect_format,
     iter_frames,
@@ -57,6 +58,7 @@ __all__ = [
     "ZarrWriter",
     "associate_timestamps",
     "check_output",
+    "convert_recording",
     "count_frames",
     "detect_format",
     "iter_frames",

@@ -418,18 +418,35 @@ def _number(value: Any, key: str, path: Path) -> float:
     return float(value)
 
 
+#: The camera kinds a recording may state (:attr:`FrameReader.sensor`; the values of
+#: :data:`fuse4d.sensors.SensorKind`, written out so that the readers do not import the models).
+SENSOR_KINDS = ("structured-light", "active-stereo", "tof")
+
+
+def check_sensor_kind(value: object, path: Path, where: str) -> str | None:
+    """The camera kind ``value`` stored in ``where`` of file ``path`` (None: absent)."""
+    if value is None or value == "":
+        return None
+    if value not in SENSOR_KINDS:
+        raise InputFileError(
+            path, f"{where} must be one of {', '.join(SENSOR_KINDS)}, got {value!r}"
+        )
+    return str(value)
+
+
 def read_camera_json(
     path: str | PathLike[str], *, require_unit: bool = True
 ) -> dict[str, float | None]:
     """Read a ``camera.json``: ``fx, fy, cx, cy`` (px), ``depth_unit_mm``, optional ``fps``.
 
-    Optional ``width``/``height`` (px) are returned too (and checked by the readers).
+    Optional ``width``/``height`` (px) are returned too (and checked by the readers), and the
+    camera kind ``sensor`` (one of :data:`SENSOR_KINDS`).
 
     Returns
     -------
     dict
-        Keys ``fx, fy, cx, cy, depth_unit_mm, fps, width, height`` (absent optional values are
-        None; ``depth_unit_mm`` is None when absent and ``require_unit`` is False).
+        Keys ``fx, fy, cx, cy, depth_unit_mm, fps, width, height, sensor`` (absent optional
+        values are None; ``depth_unit_mm`` is None when absent and ``require_unit`` is False).
 
     Raises
     ------
@@ -458,6 +475,7 @@ def read_camera_json(
         value = out[key]
         if value is not None and value <= 0:
             raise InputFileError(p, f"key '{key}' must be > 0, got {value:g}")
+    out["sensor"] = check_sensor_kind(data.get("sensor"), p, "key 'sensor'")  # type: ignore[assignment]
     return out
 
 

@@ -10,9 +10,10 @@ from typing import Any
 from ..camera import Intrinsics
 from ..errors import InputFileError, ParameterError
 from ..sequence import Sequence
+from ._atomic import check_output
 from ._base import Frame, FrameReader, FrameSelection, IntrinsicsLike, ProgressCallback
 from .cv2xml import Cv2XmlReader, is_cv2_xml_folder
-from .folder import FolderReader, write_frame_folder
+from .folder import FolderReader, FrameFolderWriter, write_frame_folder
 from .frame_range import FrameRange
 from .framesjson import FramesJsonReader
 from .mkv import MkvReader
@@ -20,8 +21,8 @@ from .npz import NpzReader, write_npz
 from .rosbag import RosbagReader
 from .sensors import check_sensor_options, detect_sensor_format
 from .tum import TumReader
-from .video import write_depth_video
-from .zarrstore import ZarrReader, write_zarr
+from .video import DepthVideoWriter, write_depth_video
+from .zarrstore import ZarrReader, ZarrWriter, write_zarr
 
 __all__ = [
     "READ_FORMATS",
@@ -309,3 +310,79 @@ def save_sequence(
             seq, path, depth_unit_mm=depth_unit_mm, overwrite=overwrite, progress=progress
         )
     raise ParameterError(f"format must be one of {', '.join(WRITE_FORMATS)}, got {fmt!r}")
+
+
+def convert_recording(
+    input: str | PathLike[str],
+    output: str | PathLike[str],
+    *,
+    frames: FrameSelection = None,
+    out_depth_unit_mm: float | None = None,
+    overwrite: bool = False,
+    progress: ProgressCallback | None = None,
+    **reader_options: Any,
+) -> Path:
+    """Write a recording, or a part of it, in another layout (``fuse4d convert``).
+
+    Frames are read and written one at a time (memory independent of the length), except
+    for an ``.npz`` output, which is written from memory. The output is written under a
+    temporary name and renamed into place, so a failed or interrupted conversion leaves
+    nothing; the input is never touched.
+
+    Parameters
+    ----------
+    input : str or PathLike
+        Any layout :func:`open_frames` reads (a camera recording included).
+    output : str or PathLike
+        ``.npz`` (lossless; keeps ground truth), ``.mkv`` (FFV1, 16-bit depth), ``.zarr``
+        (float, lossless), else a frame folder (16-bit PNGs). Depth, intensity, timestamps,
+        frame rate, the camera kind (``sensor``, which decides A36's flying-pixel removal)
+        and the object masks of a layout that stores them (folder output) are carried over.
+    frames : slice, range, (start, stop) or "A:B", optional
+        Only this contiguous part (numbered from 0 in the output). Default: all frames.
+    out_depth_unit_mm : float, optional
+        Folder and ``.mkv`` outputs: millimetres per stored unit. Default: the input's own
+        unit (lossless from 16-bit depth), or 1 mm for float depth (``.npz``, ``.zarr``, a
+        32-bit float depth topic; a warning says where that rounding is coarse).
+    overwrite : bool, optional
+        Replace an existing ``output``.
+    progress : callable, optional
+        ``callback(done, total)`` after each frame.
+    **reader_options
+        :func:`open_frames` options for the input (``format``, ``depth_unit_mm``,
+        ``intrinsics``, ``depth_topic``, ``intensity_topic``, ``intensity``, ``undistort``).
+
+    Returns
+    -------
+    Path
+        The written file or folder.
+
+    Examples
+    --------
+    >>> convert_recording("rec.bag", "rec_part.zarr", frames="200:300")  # doctest: +SKIP
+    PosixPath('rec_part.zarr')
+    """
+    src, dst = Path(input), Path(output)
+    check_output(dst, overwrite=overwrite, inputs=[src])
+    suffix = dst.suffix.lower()
+    with open_frames(src, frames=frames, **reader_options) as reader:
+        if suffix == ".npz":
+            return write_npz(reader.read_sequence(progress=progress), dst, overwrite=overwrite)
+        writer_cls = {".mkv": DepthVideoWriter, ".zarr": ZarrWriter}.get(suffix, FrameFolderWriter)
+        unit = out_depth_unit_mm or reader.depth_unit_mm or 1.0
+        total = len(reader)
+        with writer_cls(
+            dst,
+            reader.intrinsics,
+            depth_unit_mm=unit,
+            fps=reader.fps,
+            overwrite=overwrite,
+            sensor=reader.sensor,  # a ToF recording stays one (A36)
+        ) as writer:
+            for k, frame in enumerate(reader):
+                writer.write(
+                    frame.depth, frame.intensity, mask=frame.mask, timestamp=frame.timestamp
+                )
+                if progress is not None:
+                    progress(k + 1, total)
+    return dst

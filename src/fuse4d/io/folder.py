@@ -176,6 +176,7 @@ class FolderReader(FrameReader):
                 cam["fx"], cam["fy"], cam["cx"], cam["cy"], width=w, height=h
             )
         self.fps = cam.get("fps")
+        self.sensor = cam.get("sensor")  # type: ignore[assignment]
         ts_path = root / "timestamps.txt"
         if ts_path.exists():
             self.timestamps = _read_timestamps(ts_path, n)
@@ -286,6 +287,9 @@ class FrameFolderWriter:
         representable in 8 bits and 16 otherwise.
     overwrite : bool, optional
         Replace an existing ``path``. Default False (raises :class:`OutputExistsError`).
+    sensor : str, optional
+        The camera kind (``"tof"``, ``"structured-light"``, ``"active-stereo"``), stored in
+        ``camera.json`` so that the folder is fused as its camera's recording was (A36).
 
     Examples
     --------
@@ -306,6 +310,7 @@ class FrameFolderWriter:
         fps: float | None = None,
         intensity_bits: int | None = None,
         overwrite: bool = False,
+        sensor: str | None = None,
     ) -> None:
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics)}")
@@ -321,6 +326,7 @@ class FrameFolderWriter:
         self.fps = fps
         self.intensity_bits = intensity_bits
         self.overwrite = overwrite
+        self.sensor = sensor
         self.num_written = 0
         self._timestamps: list[float | None] = []
         self._has_mask: bool | None = None
@@ -414,7 +420,7 @@ class FrameFolderWriter:
         try:
             if self.num_written == 0:
                 raise ValueError(f"{self.path}: no frame was written")
-            text = camera_json_text(self.intrinsics, self.depth_unit_mm, self.fps)
+            text = camera_json_text(self.intrinsics, self.depth_unit_mm, self.fps, self.sensor)
             (self._tmp / "camera.json").write_text(text)
             stamps = self._timestamps
             if any(t is not None for t in stamps):
@@ -474,9 +480,11 @@ def intensity_image(intensity: np.ndarray, bits: int | None) -> np.ndarray:
     return intensity_to_uint(intensity, bits)
 
 
-def camera_json_text(intrinsics: Intrinsics, depth_unit_mm: float, fps: float | None) -> str:
-    """The ``camera.json`` of a frame folder."""
-    cam: dict[str, float | int] = {
+def camera_json_text(
+    intrinsics: Intrinsics, depth_unit_mm: float, fps: float | None, sensor: str | None = None
+) -> str:
+    """The ``camera.json`` of a frame folder (``sensor``: the camera kind, where known)."""
+    cam: dict[str, float | int | str] = {
         "fx": intrinsics.fx,
         "fy": intrinsics.fy,
         "cx": intrinsics.cx,
@@ -487,6 +495,8 @@ def camera_json_text(intrinsics: Intrinsics, depth_unit_mm: float, fps: float | 
     }
     if fps is not None:
         cam["fps"] = float(fps)
+    if sensor:
+        cam["sensor"] = sensor
     return json.dumps(cam, indent=2) + "\n"
 
 
@@ -529,6 +539,7 @@ def write_frame_folder(
         fps=seq.fps,
         intensity_bits=intensity_bits,
         overwrite=overwrite,
+        sensor=seq.sensor,
     )
     with writer:
         for t in range(seq.num_frames):

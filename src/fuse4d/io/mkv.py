@@ -29,6 +29,7 @@ from ._base import (
     Frame,
     IntrinsicsLike,
     SequentialReader,
+    check_sensor_kind,
     resolve_intrinsics,
 )
 from ._extras import require
@@ -249,6 +250,7 @@ class MkvReader(SequentialReader):
             fps = float(meta["FUSE4D_FPS"]) if meta.get("FUSE4D_FPS") else None
         except ValueError as exc:
             raise InputFileError(self.path, f"bad FUSE4D_* tag ({exc})") from None
+        self.sensor = check_sensor_kind(meta.get("FUSE4D_SENSOR"), self.path, "tag FUSE4D_SENSOR")
         self.depth_unit_mm = stored_unit if unit is None else float(unit)
         self.intrinsics = (
             Intrinsics.from_array(vals, width=w, height=h)

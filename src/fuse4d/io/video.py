@@ -53,6 +53,9 @@ class DepthVideoWriter(StagedWriter):
         Frame rate used for pts when frames have no timestamps (default 30).
     overwrite : bool, optional
         Replace an existing output.
+    sensor : str, optional
+        The camera kind (``"tof"``, ``"structured-light"``, ``"active-stereo"``), stored so
+        that the output is fused as its camera's recording was (A36).
     """
 
     #: A depth video holds depth and intensity only (no per-pixel fusion flags).
@@ -66,6 +69,7 @@ class DepthVideoWriter(StagedWriter):
         depth_unit_mm: float = 1.0,
         fps: float | None = None,
         overwrite: bool = False,
+        sensor: str | None = None,
     ) -> None:
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics)}")
@@ -78,6 +82,7 @@ class DepthVideoWriter(StagedWriter):
         self.intrinsics = intrinsics
         self.depth_unit_mm = float(depth_unit_mm)
         self.fps = fps
+        self.sensor = sensor
         self.overwrite = overwrite
         self.num_written = 0
         self._report = QuantizationReport(self.depth_unit_mm)
@@ -112,6 +117,8 @@ class DepthVideoWriter(StagedWriter):
         meta["FUSE4D_DEPTH_UNIT_MM"] = repr(self.depth_unit_mm)
         if self.fps:
             meta["FUSE4D_FPS"] = repr(float(self.fps))
+        if self.sensor:
+            meta["FUSE4D_SENSOR"] = self.sensor
 
     def write(
         self,
@@ -186,7 +193,12 @@ def write_depth_video(
 ) -> Path:
     """Write a :class:`~fuse4d.Sequence` as FFV1 ``.mkv`` (see :class:`DepthVideoWriter`)."""
     with DepthVideoWriter(
-        path, seq.intrinsics, depth_unit_mm=depth_unit_mm, fps=seq.fps, overwrite=overwrite
+        path,
+        seq.intrinsics,
+        depth_unit_mm=depth_unit_mm,
+        fps=seq.fps,
+        overwrite=overwrite,
+        sensor=seq.sensor,
     ) as writer:
         ts = seq.timestamps
         for t in range(seq.num_frames):

@@ -34,6 +34,7 @@ from ._base import (
     IntrinsicsLike,
     check_flags,
     check_frame_shapes,
+    check_sensor_kind,
     resolve_intrinsics,
 )
 from ._extras import require
@@ -74,6 +75,9 @@ class ZarrWriter(StagedWriter):
         Stored as an attribute.
     overwrite : bool, optional
         Replace an existing output.
+    sensor : str, optional
+        The camera kind (``"tof"``, ``"structured-light"``, ``"active-stereo"``), stored so
+        that the output is fused as its camera's recording was (A36).
     """
 
     #: :meth:`write` stores a fused frame's per-pixel ``source`` and ``confidence``.
@@ -88,6 +92,7 @@ class ZarrWriter(StagedWriter):
         fps: float | None = None,
         overwrite: bool = False,
         source: str = "",
+        sensor: str | None = None,
     ) -> None:
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics)}")
@@ -99,6 +104,7 @@ class ZarrWriter(StagedWriter):
         self.fps = fps
         self.overwrite = overwrite
         self.source = source
+        self.sensor = sensor
         self.num_written = 0
         self._stack: ExitStack | None = None
         self._arrays: dict[str, Any] = {}
@@ -187,6 +193,8 @@ class ZarrWriter(StagedWriter):
                 attrs["fps"] = float(self.fps)
             if self.source:
                 attrs["source"] = self.source
+            if self.sensor:
+                attrs["sensor"] = self.sensor
             self._group.attrs.update(attrs)
         except BaseException:
             self.abort()
@@ -249,6 +257,7 @@ class ZarrReader(FrameReader):
         except (KeyError, TypeError, ValueError) as exc:
             raise InputFileError(self.path, f"bad 'intrinsics' attribute ({exc})") from None
         self.fps = float(attrs["fps"]) if attrs.get("fps") else None
+        self.sensor = check_sensor_kind(attrs.get("sensor"), self.path, "attribute 'sensor'")
         if "timestamps" in group:
             self.timestamps = np.asarray(group["timestamps"][:], dtype=np.float64)
         source = group.get("source")  # a fused output's per-pixel flags
@@ -289,7 +298,9 @@ class ZarrReader(FrameReader):
 
 def write_zarr(seq: Sequence, path: str | PathLike[str], *, overwrite: bool = False) -> Path:
     """Write a :class:`~fuse4d.Sequence` as a zarr v3 store (see :class:`ZarrWriter`)."""
-    with ZarrWriter(path, seq.intrinsics, fps=seq.fps, overwrite=overwrite) as writer:
+    with ZarrWriter(
+        path, seq.intrinsics, fps=seq.fps, overwrite=overwrite, sensor=seq.sensor
+    ) as writer:
         ts = seq.timestamps
         for t in range(seq.num_frames):
             writer.write(

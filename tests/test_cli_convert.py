@@ -1,0 +1,112 @@
+"""``fuse4d convert`` / ``fuse4d.io.convert_recording``: any input, or a part of it, in another
+layout, with everything the output layout can hold carried over (the camera kind included)."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fuse4d import Intrinsics, Sequence
+from fuse4d.cli import main
+from fuse4d.io import convert_recording, load_sequence, open_frames, write_frame_folder, write_npz
+from fuse4d.sequence import GroundTruth
+
+SENSORS = Path(__file__).resolve().parents[2] / "shared" / "data" / "sensor_recordings"
+
+
+def _sequence(frames: int = 7) -> Sequence:
+    rng = np.random.default_rng(5)
+    h, w = 20, 28
+    depth = (1500.0 + rng.normal(0, 3, (frames, h, w))).astype(np.float32)
+    depth[:, 3:6, 4:9] = np.nan
+    intensity = rng.random((frames, h, w)).astype(np.float32)
+    mask = np.zeros((frames, h, w), bool)
+    mask[:, 8:12, 10:20] = True
+    return Sequence(
+        depth,
+        intensity,
+        Intrinsics(40.0, 41.0, 13.5, 9.5, width=w, height=h),
+        timestamps=np.arange(frames) / 15.0,
+        fps=15.0,
+        ground_truth=GroundTruth(mask=mask),
+        sensor="tof",
+    )
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory) -> Path:
+    return write_frame_folder(
+        _sequence(), tmp_path_factory.mktemp("conv") / "in", depth_unit_mm=0.1
+    )
+
+
+@pytest.mark.parametrize("suffix", [".npz", "", ".zarr", ".mkv"])
+def test_a_part_converts_losslessly_to_every_layout(folder, tmp_path, suffix):
+    if suffix == ".mkv" and importlib.util.find_spec("av") is None:
+        pytest.skip("PyAV not installed (the sensors extra)")
+    out = tmp_path / f"part{suffix}"
+    assert main(["convert", str(folder), str(out), "--frames", "2:6"]) == 0
+    want = load_sequence(folder, frames="2:6")
+    got = load_sequence(out)
+    np.testing.assert_array_equal(got.depth, want.depth)  # 0.1 mm units kept: exact
+    atol = 1e-4 if suffix == ".mkv" else 0.0  # 16-bit intensity in a depth video
+    np.testing.assert_allclose(got.intensity, want.intensity, atol=atol)
+    np.testing.assert_allclose(got.timestamps, want.timestamps, atol=1e-3)
+    assert got.intrinsics == want.intrinsics
+    assert got.fps == want.fps
+    with open_frames(out) as reader:
+        assert reader.sensor == "tof"  # A36 still applies to the converted recording
+    if suffix in (".npz", ""):
+        np.testing.assert_array_equal(got.ground_truth.mask, want.ground_truth.mask)
+
+
+def test_npz_ground_truth_survives_conversion_to_npz(tmp_path):
+    from fuse4d.synthetic import make_falling_ball
+
+    seq = make_falling_ball(small=True, num_frames=6)
+    src = write_npz(seq, tmp_path / "ball.npz")
+    out = convert_recording(src, tmp_path / "cut.npz", frames=(1, 4))
+    got = load_sequence(out)
+    np.testing.assert_array_equal(got.ground_truth.depth, seq.ground_truth.depth[1:4])
+    np.testing.assert_array_equal(got.depth, seq.depth[1:4])
+
+
+def test_float_depth_to_a_folder_uses_the_unit_asked_for(tmp_path):
+    seq = _sequence()
+    src = write_npz(seq, tmp_path / "s.npz")
+    out = tmp_path / "f"
+    assert main(["convert", str(src), str(out), "--out-depth-unit-mm", "0.05"]) == 0
+    with open_frames(out) as reader:
+        assert reader.depth_unit_mm == 0.05
+    np.testing.assert_allclose(load_sequence(out).depth, seq.depth, atol=0.025)
+
+
+def test_bad_requests_are_one_clear_error_and_write_nothing(folder, tmp_path, capsys):
+    out = tmp_path / "o.npz"
+    assert main(["convert", str(folder), str(out), "--frames", "9:12"]) == 2
+    err = capsys.readouterr().err
+    assert "selects no frame" in err
+    assert "Traceback" not in err
+    assert not out.exists()
+    assert main(["convert", str(folder), str(folder)]) == 2  # never onto the input
+    out.write_bytes(b"keep")
+    assert main(["convert", str(folder), str(out)]) == 2  # exists: --force needed
+    assert out.read_bytes() == b"keep"
+    assert main(["convert", str(folder), str(out), "--force"]) == 0
+
+
+def test_a_realsense_bag_converts_to_a_folder_that_reads_the_same(tmp_path):
+    bag = SENSORS / "rs2551_swdev_5f.bag"
+    if not bag.exists():
+        pytest.skip(f"{bag} not found (../shared/data absent)")
+    out = tmp_path / "bag_folder"
+    assert main(["convert", str(bag), str(out)]) == 0
+    want, got = load_sequence(bag), load_sequence(out)
+    np.testing.assert_array_equal(got.depth, want.depth)
+    np.testing.assert_allclose(got.intensity, want.intensity, atol=1 / 255)
+    with open_frames(bag) as a, open_frames(out) as b:
+        assert a.depth_unit_mm == b.depth_unit_mm
+        assert a.sensor == b.sensor
