@@ -296,7 +296,7 @@ def test_bench_input_npz_is_refused_with_one_clear_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("fuse4d: error:") == 1
     assert "internal error" not in err
-    assert "write_zarr" in err
+    assert "fuse4d convert" in err
 
 
 def test_bench_input_causal_runs_the_causal_streaming_path(tmp_path, monkeypatch, capsys):

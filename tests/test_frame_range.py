@@ -171,3 +171,32 @@ def test_dask_engine_fuses_the_same_part(recording, tmp_path):
     stream = load_sequence(tmp_path / "s").depth  # a folder: 0.1 mm PNG steps
     assert dask_depth.shape == stream.shape == (b - a, *stream.shape[1:])
     np.testing.assert_allclose(np.where(dask_depth > 0, dask_depth, np.nan), stream, atol=0.051)
+
+
+def test_dask_run_writes_its_report_and_report_reads_a_dask_store(recording, tmp_path, capsys):
+    """``--report`` with ``--engine dask`` used to be ignored without a word; the report of a
+    dask output (fused depth and flags, no intensity) could not be read at all."""
+    pytest.importorskip("dask")
+    a, b = PART
+    store, rep = tmp_path / "d.zarr", tmp_path / "rep"
+    args = [*RUN_ARGS, "--frames", f"{a}:{b}", "--no-summary", "--engine", "dask"]
+    assert main(["run", str(recording), "-o", str(store), *args, "--report", str(rep)]) == 0
+    metrics = json.loads((rep / "metrics.json").read_text())
+    assert metrics["frames"] == b - a
+    assert metrics["input_frames"] == f"{a}:{b}"
+    assert metrics["params"]["spatial_radius"] == 2
+    assert metrics["fusion"]["support_fraction"] > 0.5  # the store's support maps
+    assert metrics["fusion"]["rejected_fraction"] == 0.0  # its source codes (else None)
+    rep2 = tmp_path / "rep2"
+    report = ["report", str(recording), str(store), "-o", str(rep2), "--frames", f"{a}:{b}"]
+    assert main(report) == 0
+    again = json.loads((rep2 / "metrics.json").read_text())
+    assert again["metrics"] == metrics["metrics"]
+    assert again["params"]["spatial_radius"] == 2  # from the store's metadata
+    capsys.readouterr()
+    assert main(["info", str(store)]) == 2  # not a recording: says what it is
+    assert "a fused output of `fuse4d run --engine dask`" in capsys.readouterr().err
+    several = ["run", str(recording), str(recording), "-o", str(tmp_path / "many"), *args]
+    assert main([*several, "--report", str(tmp_path / "rep3")]) == 2  # before any work
+    assert "--report writes the report of one input" in capsys.readouterr().err
+    assert not (tmp_path / "many").exists()

@@ -219,6 +219,18 @@ def run_command(
         flow_cache,
         flow_roi,
     )
+    if engine not in ("stream", "dask") or (engine == "stream" and len(inputs) != 1):
+        fail("--engine must be stream or dask; several inputs need --engine dask")
+    all_options = options if frames is None else {**options, "frames": frames}
+    if report is not None:
+        from ..io import check_output
+
+        if len(inputs) != 1:
+            fail(
+                "--report writes the report of one input; for several, run "
+                "`fuse4d report INPUT OUTPUT.zarr -o DIR` for each after this run"
+            )
+        check_output(report, overwrite=force, inputs=[inputs[0], output])  # fail before fusing
     if engine == "dask":
         try:
             from ..scale.cli import print_dask_run
@@ -226,16 +238,26 @@ def run_command(
             fail(str(exc))
         opts = {"chunk_frames": chunk_frames, "scheduler": scheduler, "workers": workers}
         opts["save_flows"] = save_flows
-        opts["reader_options"] = options if frames is None else {**options, "frames": frames}
-        print_dask_run(inputs, output, fusion, flow, opts, resume, force, warm_start, as_json)
-        return
-    if engine != "stream" or len(inputs) != 1:
-        fail("--engine must be stream or dask; several inputs need --engine dask")
-    input = inputs[0]
-    if report is not None:
-        from ..io import check_output
+        opts["reader_options"] = all_options
+        done = print_dask_run(
+            inputs, output, fusion, flow, opts, resume, force, warm_start, as_json
+        )
+        if report is not None:
+            from .cmd_report import make_report
 
-        check_output(report, overwrite=force, inputs=[input, output])  # fail before fusing
+            params = {**fusion.to_dict(), "flow_method": flow.method, "preset": preset_name}
+            page = make_report(
+                inputs[0],
+                done[0].output,
+                report,
+                params=params,
+                fusion_seconds=done[0].seconds,
+                overwrite=force,
+                reader_options=all_options,
+            )
+            err_console.print(f"wrote {page}")
+        return
+    input = inputs[0]
     with progress_bar("fusing", None) as progress:
         summary = fuse_file(
             input,
@@ -261,7 +283,7 @@ def run_command(
             params=params,
             fusion_seconds=summary.seconds,
             overwrite=force,
-            reader_options=options if frames is None else {**options, "frames": frames},
+            reader_options=all_options,
         )
         err_console.print(f"wrote {page}")
     if as_json:

@@ -229,6 +229,13 @@ class ZarrReader(FrameReader):
             self._inten = group["intensity"]
             attrs = dict(group.attrs)
         except KeyError as exc:
+            if "depth" in group and "intensity" not in group:  # `fuse4d run --engine dask`
+                raise InputFileError(
+                    self.path,
+                    "a fused output of `fuse4d run --engine dask` (fused depth and per-pixel "
+                    "flags, no intensity) is not a recording to read or fuse again; see it with "
+                    "`fuse4d report INPUT OUTPUT.zarr -o DIR`, or read its arrays with zarr",
+                ) from None
             raise InputFileError(self.path, f"zarr store has no array {exc}") from None
         except (OSError, ValueError, TypeError, LookupError) as exc:
             raise InputFileError(self.path, f"cannot open the zarr store ({exc})") from None

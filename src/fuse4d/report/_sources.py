@@ -136,6 +136,18 @@ class FusedSource:
         elif isinstance(data, Sequence):
             self._depth = data.depth
             self.name = data.name or self.name
+        elif isinstance(data, str | PathLike) and (store := _dask_output(Path(data))) is not None:
+            # `fuse4d run --engine dask` output: fused depth and flags, no intensity; the
+            # arrays are read chunk by chunk (zarr slices), like the other layouts
+            self.name = str(data)
+            self._depth = store["depth"]
+            self._support = store.get("support", None)
+            self._filled = store.get("filled", None)
+            self._source = store.get("source", None)
+            meta = dict(store.attrs).get("fuse4d") or {}
+            if isinstance(meta.get("params"), dict):
+                flow = meta.get("flow") or {}
+                self.params = {**meta["params"], "flow_method": flow.get("method", "")}
         elif isinstance(data, str | PathLike):
             from ..io import open_frames
 
@@ -200,6 +212,20 @@ class FusedSource:
         """Close the file reader (if any)."""
         if self._reader is not None:
             self._reader.close()
+
+
+def _dask_output(path: Path) -> Any:
+    """The zarr group of a ``fuse4d run --engine dask`` output (fused ``depth`` and the
+    per-pixel flags, no ``intensity``), else None."""
+    if not (path / "zarr.json").is_file():
+        return None
+    try:
+        import zarr
+
+        group = zarr.open_group(str(path), mode="r")
+    except (ImportError, OSError, ValueError, TypeError, LookupError):
+        return None
+    return group if "depth" in group and "intensity" not in group else None
 
 
 def open_raw(data: PathOrSequence, reader_options: dict[str, Any] | None = None) -> RawSource:

@@ -261,8 +261,9 @@ def print_dask_run(
     overwrite: bool,
     warm_start: bool,
     as_json: bool,
-) -> None:
-    """The CLI face of :func:`run_dask`: run, then print a table (or JSON) per recording."""
+) -> list[DaskRunSummary]:
+    """The CLI face of :func:`run_dask`: run, then print a table (or JSON) per recording;
+    returns the summaries."""
     import json
 
     from rich.table import Table
@@ -281,7 +282,7 @@ def print_dask_run(
     )
     if as_json:
         print(json.dumps([s.to_dict() for s in summaries], indent=2))
-        return
+        return summaries
     table = Table(title=f"fuse4d run --engine dask ({options.get('scheduler', 'threads')})")
     for col in ("input", "output", "frames", "chunks x frames (resumed)"):
         table.add_column(col)
@@ -296,3 +297,4 @@ def print_dask_run(
     seconds = summaries[0].seconds if summaries else 0.0
     frames = sum(s.frames for s in summaries)
     out_console.print(f"time {seconds:.1f} s ({1000 * seconds / max(frames, 1):.0f} ms/frame)")
+    return summaries
