@@ -110,3 +110,19 @@ def test_a_realsense_bag_converts_to_a_folder_that_reads_the_same(tmp_path):
     with open_frames(bag) as a, open_frames(out) as b:
         assert a.depth_unit_mm == b.depth_unit_mm
         assert a.sensor == b.sensor
+
+
+def test_run_report_lists_the_parameters_as_run(folder, tmp_path):
+    """The folder says its camera is ToF: flying_pixels "auto" runs as "on" (A36), and the
+    report of the run lists that, with either engine (it used to list "auto")."""
+    import json
+
+    rep = tmp_path / "rep"
+    args = ["run", str(folder), "-o", str(tmp_path / "out"), "--window", "3", "--no-summary"]
+    assert main([*args, "--report", str(rep)]) == 0
+    assert json.loads((rep / "metrics.json").read_text())["params"]["flying_pixels"] == "on"
+    pytest.importorskip("dask")
+    rep2 = tmp_path / "rep2"
+    dask = ["run", str(folder), "-o", str(tmp_path / "o.zarr"), "--window", "3", "--engine", "dask"]
+    assert main([*dask, "--report", str(rep2)]) == 0
+    assert json.loads((rep2 / "metrics.json").read_text())["params"]["flying_pixels"] == "on"

@@ -245,12 +245,12 @@ def run_command(
         if report is not None:
             from .cmd_report import make_report
 
-            params = {**fusion.to_dict(), "flow_method": flow.method, "preset": preset_name}
+            # the parameters as run (A36 resolved for the camera) come from the store's metadata
             page = make_report(
                 inputs[0],
                 done[0].output,
                 report,
-                params=params,
+                params=None,
                 fusion_seconds=done[0].seconds,
                 overwrite=force,
                 reader_options=all_options,
@@ -275,7 +275,12 @@ def run_command(
     if report is not None:
         from .cmd_report import make_report
 
-        params = {**fusion.to_dict(), "flow_method": summary.flow_method, "preset": preset_name}
+        # as run: flying_pixels "auto" resolved for the camera (A36)
+        params = {
+            **summary.params.to_dict(),
+            "flow_method": summary.flow_method,
+            "preset": preset_name,
+        }
         page = make_report(
             input,
             output,
