@@ -29,6 +29,7 @@ from .holes import _SourceTally
 from .io import check_output, detect_format, open_frames, read_npz_extra
 from .io import write_npz as _write_npz
 from .io._base import FrameSelection
+from .io.api import stream_writer
 from .io.resume import ResumableFolderWriter, partial_path, run_identity
 from .metrics import RunningEvaluation
 
@@ -520,7 +521,7 @@ def _fuse_streaming(
             "(fuse4d convert INPUT INPUT.npz)"
         )
     timings = dict.fromkeys(STAGES + IO_STAGES, 0.0)
-    writer_cls, out_fmt = _writer_for(dst)
+    writer_cls, out_fmt = stream_writer(dst)
     with open_frames(src, **options) as reader:
         params = resolve_flying_pixels(params, reader.sensor)  # A36
         total = len(reader) if limit is None else min(limit, len(reader))
@@ -642,18 +643,6 @@ def _fuse_streaming(
             tally.fill(summary)
             timings["summary"] += time.perf_counter() - t0
     return summary
-
-
-def _writer_for(dst: Path) -> tuple[type, str]:
-    """Streaming writer by output suffix: ``.mkv`` FFV1 video, ``.zarr`` store, else folder."""
-    from .io import DepthVideoWriter, FrameFolderWriter, ZarrWriter
-
-    suffix = dst.suffix.lower()
-    if suffix == ".mkv":
-        return DepthVideoWriter, "mkv"
-    if suffix == ".zarr":
-        return ZarrWriter, "zarr"
-    return FrameFolderWriter, "folder"
 
 
 def _flow_config(flow: FlowConfig | str | None) -> FlowConfig:

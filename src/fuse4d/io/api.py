@@ -297,8 +297,7 @@ def save_sequence(
     Path
         The written file or folder.
     """
-    suffix = Path(path).suffix.lower()
-    fmt = format or {".npz": "npz", ".mkv": "mkv", ".zarr": "zarr"}.get(suffix, "folder")
+    fmt = format or output_layout(path)
     if fmt == "npz":
         return write_npz(seq, path, overwrite=overwrite)
     if fmt == "mkv":
@@ -310,6 +309,23 @@ def save_sequence(
             seq, path, depth_unit_mm=depth_unit_mm, overwrite=overwrite, progress=progress
         )
     raise ParameterError(f"format must be one of {', '.join(WRITE_FORMATS)}, got {fmt!r}")
+
+
+def output_layout(path: str | PathLike[str]) -> str:
+    """The layout (one of :data:`WRITE_FORMATS`) an output ``path`` is written in, by its
+    suffix: ``.npz``, ``.mkv`` (FFV1 depth video), ``.zarr``, else a frame folder."""
+    suffix = Path(path).suffix.lower()
+    return {".npz": "npz", ".mkv": "mkv", ".zarr": "zarr"}.get(suffix, "folder")
+
+
+def stream_writer(path: str | PathLike[str]) -> tuple[type, str]:
+    """The frame-by-frame writer class of an output ``path`` and its layout (``fuse4d run``,
+    :func:`convert_recording`); ``.npz`` is written from memory and has none."""
+    fmt = output_layout(path)
+    writers = {"folder": FrameFolderWriter, "mkv": DepthVideoWriter, "zarr": ZarrWriter}
+    if fmt not in writers:
+        raise ParameterError(f"{path}: an .npz is written from memory, not frame by frame")
+    return writers[fmt], fmt
 
 
 def convert_recording(
@@ -364,11 +380,10 @@ def convert_recording(
     """
     src, dst = Path(input), Path(output)
     check_output(dst, overwrite=overwrite, inputs=[src])
-    suffix = dst.suffix.lower()
     with open_frames(src, frames=frames, **reader_options) as reader:
-        if suffix == ".npz":
+        if output_layout(dst) == "npz":
             return write_npz(reader.read_sequence(progress=progress), dst, overwrite=overwrite)
-        writer_cls = {".mkv": DepthVideoWriter, ".zarr": ZarrWriter}.get(suffix, FrameFolderWriter)
+        writer_cls, _ = stream_writer(dst)
         unit = out_depth_unit_mm or reader.depth_unit_mm or 1.0
         total = len(reader)
         with writer_cls(

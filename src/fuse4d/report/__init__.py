@@ -120,8 +120,8 @@ class _GroundTruth:
         self._from_raw = False
         self.available = True
         if isinstance(given, str | PathLike | Sequence):
-            part = {"frames": raw.frames} if raw.frames and not isinstance(given, Sequence) else {}
-            self._source = open_raw(given, part)
+            same = raw.part is not None and not isinstance(given, Sequence)
+            self._source = open_raw(given, {"frames": raw.part} if same else None)
             self.name = str(given) if not isinstance(given, Sequence) else "given sequence"
             if self._source.num_frames != raw.num_frames or self._source.shape != raw.shape:
                 raise ShapeError(
@@ -429,12 +429,9 @@ def write_report(
             gt.close()
 
 
-def _part(frames: str | None) -> str:
+def _part(part: range | None) -> str:
     """`` (frames A-(B-1) of the input)`` for a run of part of a recording, else ``""``."""
-    if not frames:
-        return ""
-    a, b = (int(x) for x in frames.split(":"))
-    return f" (frames {a}-{b - 1} of the input)"
+    return "" if part is None else f" (frames {part.start}-{part.stop - 1} of the input)"
 
 
 def _write(
@@ -793,7 +790,8 @@ def _write(
         }
         metrics = {
             "input": raw.name,
-            "input_frames": raw.frames,  # "A:B" where the run fused only part of the input
+            # "A:B" where the run fused only part of the input
+            "input_frames": None if raw.part is None else f"{raw.part.start}:{raw.part.stop}",
             "fused": fres.name,
             "frames": total,
             "size": [h, w],
@@ -835,7 +833,7 @@ def _write(
         (tmp / "metrics.json").write_text(json.dumps(_clean(metrics), indent=2) + "\n")
         page = render_page(
             title=f"fuse4d report: {Path(raw.name).name}",
-            subtitle=f"{total} frames{_part(raw.frames)}, {h}×{w} px; fused: {fres.name}",
+            subtitle=f"{total} frames{_part(raw.part)}, {h}×{w} px; fused: {fres.name}",
             video_file="compare.mp4",
             video_note=_video_note(video.codec, diff_max, lo, hi),
             figures=figs,
@@ -846,7 +844,7 @@ def _write(
                 "input": raw.name,
                 "fused": fres.name,
                 "ground truth": gt.name if gt.available else "none",
-                "frames": f"{total}{_part(raw.frames)}",
+                "frames": f"{total}{_part(raw.part)}",
                 "size (H×W px)": f"{h}×{w}",
                 "intrinsics (fx, fy, cx, cy px)": ", ".join(
                     f"{v:.2f}" for v in (k.fx, k.fy, k.cx, k.cy)

@@ -37,8 +37,8 @@ class RawSource:
     def __init__(self, data: PathOrSequence, reader_options: dict[str, Any] | None = None) -> None:
         self._seq: Sequence | None = None
         self._reader: Any = None
-        #: "A:B" where only frames A..B-1 of the recording are read (``frames`` option)
-        self.frames: str | None = None
+        #: the frames of the file that are read where only a part is (``frames`` option)
+        self.part: range | None = None
         if isinstance(data, Sequence):
             if reader_options:
                 raise ParameterError(
@@ -57,9 +57,9 @@ class RawSource:
             from ..io import open_frames
 
             self._reader = open_frames(data, **(reader_options or {}))
-            first = self._reader.first_frame
-            if "frames" in (reader_options or {}):  # the same part of a ground-truth recording
-                self.frames = f"{first}:{first + len(self._reader)}"
+            if "frames" in (reader_options or {}):  # also read from a ground-truth recording
+                first = self._reader.first_frame
+                self.part = range(first, first + len(self._reader))
             self.intrinsics = self._reader.intrinsics
             self.num_frames = len(self._reader)
             self.fps = self._reader.fps
