@@ -69,6 +69,19 @@ def test_backprojection_eq2_and_roundtrip(rng):
     np.testing.assert_array_equal(np.isnan(z), ~(np.isfinite(depth) & (depth > 0)))
 
 
+def test_backprojection_kernel_equals_the_formula_everywhere(rng):
+    """Every pixel, invalid values (NaN, 0, negative, +-inf) and a strided input included."""
+    k = Intrinsics(fx=300.0, fy=310.0, cx=9.7, cy=6.2, width=20, height=12)
+    depth = rng.uniform(400, 900, (2, 12, 40)).astype(np.float32)[:, :, ::2]  # not contiguous
+    depth[0, 1, :5] = [np.nan, 0.0, -3.0, np.inf, -np.inf]
+    d = np.where(np.isfinite(depth) & (depth > 0), depth, np.float32(np.nan))
+    u = (np.arange(20, dtype=np.float32) - np.float32(k.cx)) / np.float32(k.fx)
+    v = (np.arange(12, dtype=np.float32) - np.float32(k.cy)) / np.float32(k.fy)
+    expected = np.stack([d * u[None, :], d * v[:, None], d], axis=-1)
+    np.testing.assert_array_equal(depth_to_points(depth, k), expected)  # the same float32 bits
+    np.testing.assert_array_equal(depth_to_points(depth[1], k), expected[1])
+
+
 def test_backprojection_shape_mismatch_message():
     k = Intrinsics(fx=300.0, fy=300.0, cx=1, cy=1, width=5, height=4)
     with pytest.raises(ShapeError, match=r"depth must have shape \(\*, 4, 5\), got \(4, 6\)"):

@@ -81,16 +81,18 @@ def _zero_flow(n):
 
 
 # ----------------------------------------------------------------------------- kernels vs oracles
-def test_bilateral_kernel_matches_oracle(rng):
+@pytest.mark.parametrize("radius", [2, 3])  # 3: the seven-column unrolled path away from borders
+def test_bilateral_kernel_matches_oracle(rng, radius):
     pts = depth_to_points(_plane_depth(1)[0] + rng.normal(0, 0.3, (H, W)), K)[:12, :14]
     pts[3, 4] = np.nan
+    pts[6, 1] = np.nan  # a NaN among the border columns
     inten = _texture(12, 14)
     ref = pts + np.float32(0.1)
     for reference in (None, ref):
         fast = bilateral_filter_points(
-            pts, inten, radius=2, sigma_distance=2.0, sigma_intensity=0.1, reference=reference
+            pts, inten, radius=radius, sigma_distance=2.0, sigma_intensity=0.1, reference=reference
         )
-        slow = naive.bilateral3d(pts, inten, 2, 2.0, 0.1, reference=reference)
+        slow = naive.bilateral3d(pts, inten, radius, 2.0, 0.1, reference=reference)
         np.testing.assert_allclose(fast, slow, rtol=0, atol=2e-4)
         assert np.isnan(fast[3, 4]).all()
         assert np.isfinite(fast[3, 5]).all()  # NaN does not spread

@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
 from fuse4d._kernels.holes import (
     _hole_runs_kernel,
+    _spatial_fill_kernel,
     _temporal_fill_kernel,
     _temporal_fill_reference,
 )
-from fuse4d.holes import _hole_sides, fill_small_holes, small_hole_mask
+from fuse4d.holes import _hole_sides, _side_consistent, fill_small_holes, small_hole_mask
 
 
 def _ring(depth, flow_u):
@@ -150,6 +152,17 @@ def test_small_hole_mask_keeps_small_inner_components_only():
     assert small_hole_mask(holes, 0).sum() == 0
 
 
+def test_small_hole_mask_matches_opencv_component_statistics(rng):
+    """The one-pass area/border kernel against OpenCV's own component statistics."""
+    for density in (0.2, 0.45, 0.6):
+        holes = rng.random((40, 57)) < density
+        _, labels, stats, _ = cv2.connectedComponentsWithStats(holes.astype(np.uint8), 8)
+        x, y, w, h, area = stats.T
+        keep = (x > 0) & (y > 0) & (x + w < 57) & (y + h < 40) & (area <= 6)
+        keep[0] = False
+        np.testing.assert_array_equal(small_hole_mask(holes, 6), keep[labels] & holes)
+
+
 def test_spatial_fill_takes_one_side_and_never_blends_across_an_edge():
     """A shadow band on the wall (it looks like the wall in the intensity image) takes the
     wall's depth; a dropout on the foreground's rim (it looks like the foreground) takes the
@@ -270,6 +283,30 @@ def test_projector_shadow_never_takes_the_foreground():
     d2[2:38, 18:27] = np.nan
     kind = _hole_sides(d2, focal_px=100.0, max_step=10.0, quad=0.0).kind
     assert not kind[2:38, 18:30].any()
+
+
+def test_time_fill_side_check_matches_its_definition(rng):
+    """_side_consistent's one pass: at the hole pixels, the fill is within the step limit (A22)
+    of the side's spatial value (or there is none), and not on a rim's or shadow's wrong side."""
+    d, inten = _shadow_scene()
+    d[20:23, 5:8] = np.nan  # a hole in the wall too
+    sides = _hole_sides(d, focal_px=100.0, max_step=10.0, quad=2e-6)
+    holes = np.isnan(d)
+    filled = rng.choice([1500.0, 1508.0, 2990.0, 3000.0, 3030.0], d.shape).astype(np.float32)
+    filled[0, 28] = np.nan
+    got = _side_consistent(
+        filled, d, inten, holes, sides, radius=4, sigma_intensity=0.1, max_step=10.0, quad=2e-6
+    )
+    side = np.empty_like(d)
+    _spatial_fill_kernel(d, inten, holes, 4, 1.0 / (2 * 0.1**2), 1.0 / 8.0, 10.0, 2e-6, side)
+    z = side.astype(np.float64)
+    limit = np.maximum(10.0, 2.5 * 2e-6 * z * z)
+    with np.errstate(invalid="ignore"):
+        near = np.isnan(z) | (np.abs(filled - z) < limit)
+    expected = holes & near & sides.agrees(filled)
+    np.testing.assert_array_equal(got, expected)
+    assert got.any()
+    assert (holes & ~got).any()  # both outcomes occur
 
 
 def test_thin_hole_beside_a_receding_foreground_never_takes_the_background():

@@ -161,7 +161,8 @@ def depth_to_points(depth: ArrayLike, intrinsics: Intrinsics) -> NDArray[np.floa
         name="depth",
         hint=f"the intrinsics say the image is {intrinsics.height}x{intrinsics.width} (HxW)",
     )
-    d = np.where(np.isfinite(d) & (d > 0), d, np.float32(np.nan))
+    from ._kernels.camera import _back_project_kernel  # numba loads on first use, not import
+
     u = (np.arange(intrinsics.width, dtype=np.float32) - np.float32(intrinsics.cx)) / np.float32(
         intrinsics.fx
     )
@@ -169,9 +170,12 @@ def depth_to_points(depth: ArrayLike, intrinsics: Intrinsics) -> NDArray[np.floa
         intrinsics.fy
     )
     points = np.empty((*d.shape, 3), dtype=np.float32)
-    points[..., 0] = d * u[None, :]
-    points[..., 1] = d * v[:, None]
-    points[..., 2] = d
+    _back_project_kernel(
+        d.reshape(-1, intrinsics.height, intrinsics.width),
+        u,
+        v,
+        points.reshape(-1, intrinsics.height, intrinsics.width * 3),
+    )
     return points
 
 

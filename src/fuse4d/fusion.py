@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._kernels.fusion import _fuse_kernel, _project_to_rays_kernel
-from ._kernels.holes import _source_confidence_kernel
+from ._kernels.holes import _put_on_rays_kernel, _source_confidence_kernel
 from ._kernels.noise import _finite_median32
 from ._kernels.smooth_base import _smooth_base_cols_kernel, _smooth_base_rows_kernel
 from ._validation import as_float32, check_shape
@@ -811,10 +811,12 @@ class FusionEngine:
             )
             if got.any():
                 if p.output == "ray":  # the trajectory's depth on the pixel's own ray
-                    points[got] = self._rays[got] * filled_points[got][:, 2:3]
+                    _put_on_rays_kernel(
+                        got, filled_points[..., 2], self._rays, points, source, SOURCE_TIME
+                    )
                 else:
                     points[got] = filled_points[got]
-                source[got] = SOURCE_TIME
+                    source[got] = SOURCE_TIME
                 confidence[got] = count[got] / n
                 holes &= ~got
         if p.fill_max_hole_px > 0 and holes.any():
@@ -831,8 +833,7 @@ class FusionEngine:
             )
             got &= inside  # (a hole outside joins the image border: A27 leaves it anyway)
             if got.any():
-                points[got] = self._rays[got] * depth[got][:, None]
-                source[got] = SOURCE_SPACE
+                _put_on_rays_kernel(got, depth, self._rays, points, source, SOURCE_SPACE)
         return source, confidence
 
 

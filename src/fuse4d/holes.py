@@ -65,9 +65,12 @@ from ._kernels.fusion import _fill_holes_kernel
 from ._kernels.holes import (
     _grazing_rims_kernel,
     _hole_runs_kernel,
+    _side_agrees_kernel,
     _side_bounds_kernel,
+    _small_components_kernel,
     _spatial_fill_kernel,
     _temporal_fill_kernel,
+    _time_fill_agrees_kernel,
 )
 from ._validation import as_float32, check_shape
 from .config import FusionParams
@@ -153,15 +156,12 @@ def small_hole_mask(holes: ArrayLike, max_area_px: int) -> NDArray[np.bool_]:
     np.int64(4)
     """
     mask = np.asarray(holes, dtype=bool)
+    out = np.zeros(mask.shape, bool)
     if max_area_px <= 0 or not mask.any():
-        return np.zeros(mask.shape, bool)
-    _, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
-    x, y, w, h, area = (stats[:, i] for i in range(5))
-    height, width = mask.shape
-    inside = (x > 0) & (y > 0) & (x + w < width) & (y + h < height)
-    keep = inside & (area <= max_area_px)
-    keep[0] = False  # label 0 is the background (pixels with depth)
-    return keep[labels] & mask
+        return out
+    n_labels, labels = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
+    _small_components_kernel(labels, n_labels, int(max_area_px), out)
+    return out
 
 
 #: A frame's shadow side is decided when the hole runs on one side of the depth edges outnumber
@@ -211,12 +211,9 @@ class _HoleSides:
     def agrees(self, filled_depth: NDArray[np.float32]) -> NDArray[np.bool_]:
         """False where a fill (mm) lies on the wrong surface: a rim (kind 1 or 3) farther than
         ``bound``, a shadow (kind 2) nearer."""
-        rim = (self.kind == 1) | (self.kind == 3)
-        with np.errstate(invalid="ignore"):
-            wrong = (rim & (filled_depth > self.bound)) | (
-                (self.kind == 2) & (filled_depth < self.bound)
-            )
-        return ~wrong
+        out = np.empty(self.kind.shape, np.bool_)
+        _side_agrees_kernel(self.kind, self.bound, filled_depth, out)
+        return out
 
 
 def _hole_sides(
@@ -387,17 +384,10 @@ def _side_consistent(
         float(quad),
         side,
     )
-    # the comparison on the hole pixels only (elementwise: the same values as on the image)
-    at = np.flatnonzero(holes)
-    side_at = side.ravel()[at]
-    no_side = np.isnan(side_at)
-    z = np.where(no_side, np.float32(1.0), side_at)
-    limit = np.maximum(max_step, 2.5 * quad * z * z)
-    with np.errstate(invalid="ignore"):
-        agrees = np.abs(filled_depth.ravel()[at] - side_at) < limit
-    out = np.zeros(holes.shape, np.bool_)
-    out.ravel()[at] = no_side | agrees
-    out &= sides.agrees(filled_depth)
+    out = np.empty(holes.shape, np.bool_)
+    _time_fill_agrees_kernel(
+        filled_depth, side, holes, float(max_step), float(quad), sides.kind, sides.bound, out
+    )
     return out
 
 

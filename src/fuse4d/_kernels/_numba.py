@@ -16,7 +16,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numba
 
-__all__ = ["FASTMATH", "njit", "njit_parallel", "prange"]
+__all__ = ["FASTMATH", "literal_unroll", "njit", "njit_parallel", "prange"]
 
 #: fastmath flags allowed in kernels (no 'nnan', 'ninf': NaN = invalid depth).
 FASTMATH = frozenset({"contract", "arcp", "nsz"})
@@ -25,6 +25,8 @@ FASTMATH = frozenset({"contract", "arcp", "nsz"})
 PARALLEL = os.environ.get("FUSE4D_NUMBA_PARALLEL", "1") != "0"
 
 prange = numba.prange
+#: unrolls a loop over a tuple at compile time (numba.literal_unroll)
+literal_unroll = numba.literal_unroll
 
 
 def njit(func=None, **kwargs):
