@@ -358,7 +358,15 @@ def _track_kernel(
                     # sample (branch-free, short independent iterations), then the checks;
                     # the same arithmetic, so the same bits as chaining pixel by pixel.
                     # A dead track keeps an in-image position, so sampling it is safe.
-                    for u in range(w):
+                    if step == 1:
+                        # every track starts on its pixel centre, where the bilinear stencil's
+                        # weights are 1 and 0: the sample is the pixel's flow (the same value,
+                        # up to the sign of a zero, which no later step can see)
+                        flow_row = step_flow[v]
+                        for u in range(w):
+                            su[u] = float(flow_row[u, 0])
+                            sv[u] = float(flow_row[u, 1])
+                    for u in range(w if step > 1 else 0):
                         if per_step:
                             iu = _round_half_up(xs[u])
                             iv = _round_half_up(ys[u])
