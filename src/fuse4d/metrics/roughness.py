@@ -67,10 +67,15 @@ def roughness_maps(
     out_sum = np.empty((t, h, w), dtype=np.float32)
     out_rms = np.empty((t, h, w), dtype=np.float32)
     min_count = max(1, math.ceil(min_valid_fraction * window * window - 1e-9))
-    _roughness_kernel(p, window // 2, min_count, out_sum, out_rms)
+    _roughness_kernel(_planes(p), window // 2, min_count, out_sum, out_rms)
     if single:
         return out_sum[0], out_rms[0]
     return out_sum, out_rms
+
+
+def _planes(points: NDArray[np.float32]) -> NDArray[np.float32]:
+    """(T, H, W, 3) points as (T, 3, H, W) contiguous x, y, z planes (the kernels' layout)."""
+    return np.ascontiguousarray(np.moveaxis(points, -1, 1), dtype=np.float32)
 
 
 def _roughness_maps_on(
@@ -87,7 +92,7 @@ def _roughness_maps_on(
     out_sum = np.empty((t, h, w), dtype=np.float32)
     out_rms = np.empty((t, h, w), dtype=np.float32)
     min_count = max(1, math.ceil(0.8 * window * window - 1e-9))
-    _roughness_masked_kernel(p, m, window // 2, min_count, out_sum, out_rms)
+    _roughness_masked_kernel(_planes(p), m, window // 2, min_count, out_sum, out_rms)
     return out_sum, out_rms
 
 
