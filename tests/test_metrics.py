@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from fuse4d import Intrinsics, ShapeError, depth_to_points
+from fuse4d._kernels.roughness import _smallest_eigvec_newton
 from fuse4d._kernels.sphere_fit import _mlesac_score_kernel
 from fuse4d.cli import main
 from fuse4d.metrics import (
@@ -57,7 +58,44 @@ def test_roughness_matches_naive_oracle(rng, window):
     np.testing.assert_allclose(rms, rms_ref, rtol=1e-3, atol=2e-5, equal_nan=True)
 
 
-def test_roughness_sequence_axis_and_wrappers(rng):
+def test_plane_normal_by_newton_matches_eigh_and_falls_back_for_lines(rng):
+    """The roughness maps' smallest eigenvector (Newton's cosine, A = q I and line-like
+    scatters included) against numpy's eigh; line-like scatters ask for the closed form."""
+    cases = []
+    for scales, exact in (((9.0, 7.0, 0.01), True), ((1e4, 2.0, 1.0), False), ((5.0,) * 3, True)):
+        basis, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        cases.append((basis @ np.diag(scales) @ basis.T, exact))
+    cases.append((np.diag([4.0, 4.0, 4.0]), True))  # A = q I: any normal, Z by convention
+    for a, exact in cases:
+        nx, ny, nz, lam, ok = _smallest_eigvec_newton(
+            a[0, 0], a[0, 1], a[0, 2], a[1, 1], a[1, 2], a[2, 2]
+        )
+        assert ok == exact
+        if not ok:
+            continue
+        values, vectors = np.linalg.eigh(a)
+        assert lam == pytest.approx(values[0], abs=1e-9 * values[-1])
+        if values[1] - values[0] > 1e-6 * values[-1]:  # a unique normal (up to sign)
+            assert abs(np.dot([nx, ny, nz], vectors[:, 0])) == pytest.approx(1.0, abs=1e-9)
+        else:
+            assert [nx, ny, nz] == [0.0, 0.0, 1.0] or abs(np.linalg.norm([nx, ny, nz]) - 1) < 1e-9
+
+
+def test_roughness_of_a_steep_ramp_matches_the_oracle(rng):
+    """Windows on a surface seen nearly edge-on are line-like (the closed-form fallback)."""
+    _, xx = np.mgrid[0:24, 0:32]
+    depth = 600.0 + 300.0 * xx + rng.normal(0, 0.3, xx.shape)
+    pts = depth_to_points(depth, K)
+    window = pts[8:13, 8:13].reshape(-1, 3).astype(np.float64)
+    d = window - window.mean(axis=0)
+    a = d.T @ d
+    *_, exact = _smallest_eigvec_newton(a[0, 0], a[0, 1], a[0, 2], a[1, 1], a[1, 2], a[2, 2])
+    assert not exact  # the fallback is what this case tests
+    pi, rms = roughness_maps(pts)
+    pi_ref, rms_ref = naive_roughness(pts)
+    assert np.isfinite(pi).sum() > 50
+    np.testing.assert_allclose(pi, pi_ref, rtol=1e-3, atol=2e-4, equal_nan=True)
+    np.testing.assert_allclose(rms, rms_ref, rtol=1e-3, atol=2e-5, equal_nan=True)
     pts = np.stack([_bumpy_points(rng), _bumpy_points(rng)])
     pi = roughness(pts)
     assert pi.shape == (2, 24, 32)

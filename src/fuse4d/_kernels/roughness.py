@@ -12,24 +12,28 @@ import numpy as np
 from ._common import ROW_CHUNKS
 from ._numba import njit, njit_parallel, prange
 
+#: Newton steps from c = -1 on 4 c^3 - 3 c = r, whose smallest root c = cos(acos(r) / 3 +
+#: 2 pi / 3) gives the smallest eigenvalue (trigonometric method): g is increasing and concave
+#: on [-1, -1/2], so the steps rise to the root without overshooting. Six steps reach float64
+#: precision (<= 4.5e-16 from the trigonometric value on a 1e-4 grid of r) for r <= 0.8, i.e.
+#: wherever the two smallest eigenvalues are not close (a plane-like window: r near -1); above
+#: (a line-like window, a double root at r = 1) the trigonometric formula is used.
+_NEWTON_STEPS = 6
+_NEWTON_MAX_R = 0.8
 
-@njit
-def _smallest_eigvec_kernel(a00, a01, a02, a11, a12, a22):
-    """Unit eigenvector of the smallest eigenvalue of a symmetric PSD 3x3 matrix.
 
-    Closed form: eigenvalues by the trigonometric method, the eigenvector as the largest
-    cross product of two rows of ``A - lambda_min I``. Returns ``(nx, ny, nz, lambda_min)``.
-    """
+@njit(inline="always", error_model="numpy")
+def _eig_setup(a00, a01, a02, a11, a12, a22):
+    """``(q, p, p2, r)`` of the trigonometric method: the eigenvalues are
+    q + 2 p c_k with c_k the roots of 4 c^3 - 3 c = r (p2 = 6 p^2; p2 <= 0: A = q I)."""
     p1 = a01 * a01 + a02 * a02 + a12 * a12
     q = (a00 + a11 + a22) / 3.0
     b00 = a00 - q
     b11 = a11 - q
     b22 = a22 - q
     p2 = b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * p1
-    if p2 <= 0.0:  # A = q I: any direction; take Z
-        return 0.0, 0.0, 1.0, q
-    p = math.sqrt(p2 / 6.0)
-    inv = 1.0 / p
+    p = math.sqrt(max(p2, 0.0) / 6.0)
+    inv = 1.0 / p if p > 0.0 else 0.0
     c00 = b00 * inv
     c11 = b11 * inv
     c22 = b22 * inv
@@ -41,11 +45,15 @@ def _smallest_eigvec_kernel(a00, a01, a02, a11, a12, a22):
         - c01 * (c01 * c22 - c12 * c02)
         + c02 * (c01 * c12 - c11 * c02)
     )
-    r = det / 2.0
-    r = min(1.0, max(-1.0, r))
-    phi = math.acos(r) / 3.0
-    lam = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)  # smallest eigenvalue
-    # rows of M = A - lam I
+    r = min(1.0, max(-1.0, det / 2.0))
+    return q, p, p2, r
+
+
+@njit(inline="always", error_model="numpy")
+def _eigvec_of(a00, a01, a02, a11, a12, a22, q, p2, lam):
+    """Unit eigenvector of eigenvalue ``lam``: the largest cross product of two rows of
+    ``A - lam I``; Z where A = q I (``p2`` <= 0) or the rows are degenerate. Branch-free
+    (selects), so that a loop over pixels vectorises. Returns ``(nx, ny, nz, lam)``."""
     m00 = a00 - lam
     m11 = a11 - lam
     m22 = a22 - lam
@@ -62,24 +70,53 @@ def _smallest_eigvec_kernel(a00, a01, a02, a11, a12, a22):
     n0 = x0 * x0 + y0 * y0 + z0 * z0
     n1 = x1 * x1 + y1 * y1 + z1 * z1
     n2 = x2 * x2 + y2 * y2 + z2 * z2
-    if n0 >= n1 and n0 >= n2:
-        nx, ny, nz, nn = x0, y0, z0, n0
-    elif n1 >= n2:
-        nx, ny, nz, nn = x1, y1, z1, n1
-    else:
-        nx, ny, nz, nn = x2, y2, z2, n2
-    if nn <= 0.0:  # two or three equal smallest eigenvalues: degenerate, pick Z
-        return 0.0, 0.0, 1.0, lam
-    s = 1.0 / math.sqrt(nn)
-    return nx * s, ny * s, nz * s, lam
+    first = (n0 >= n1) & (n0 >= n2)
+    second = (not first) & (n1 >= n2)
+    nx = x0 if first else (x1 if second else x2)
+    ny = y0 if first else (y1 if second else y2)
+    nz = z0 if first else (z1 if second else z2)
+    nn = n0 if first else (n1 if second else n2)
+    ok = (nn > 0.0) & (p2 > 0.0)
+    s = 1.0 / math.sqrt(nn) if ok else 0.0
+    return (nx * s if ok else 0.0), (ny * s if ok else 0.0), (nz * s if ok else 1.0), lam
 
 
-@njit(inline="always")
-def _plane_fit_values(cnt, mx, my, mz, a00, a01, a02, a11, a12, a22):
+@njit
+def _smallest_eigvec_kernel(a00, a01, a02, a11, a12, a22):
+    """Unit eigenvector of the smallest eigenvalue of a symmetric PSD 3x3 matrix.
+
+    Closed form: eigenvalues by the trigonometric method, the eigenvector as the largest
+    cross product of two rows of ``A - lambda_min I``. Returns ``(nx, ny, nz, lambda_min)``.
+    """
+    q, p, p2, r = _eig_setup(a00, a01, a02, a11, a12, a22)
+    if p2 <= 0.0:  # A = q I: any direction; take Z
+        return 0.0, 0.0, 1.0, q
+    phi = math.acos(r) / 3.0
+    lam = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)  # smallest eigenvalue
+    return _eigvec_of(a00, a01, a02, a11, a12, a22, q, p2, lam)
+
+
+@njit(inline="always", error_model="numpy")
+def _smallest_eigvec_newton(a00, a01, a02, a11, a12, a22):
+    """:func:`_smallest_eigvec_kernel` with the cosine found by :data:`_NEWTON_STEPS` Newton
+    steps instead of ``acos`` and ``cos`` (library calls, which keep a loop scalar). Returns
+    ``(nx, ny, nz, lambda_min, exact)``; ``exact`` False (r > :data:`_NEWTON_MAX_R`): use
+    :func:`_smallest_eigvec_kernel`."""
+    q, p, p2, r = _eig_setup(a00, a01, a02, a11, a12, a22)
+    c = -1.0
+    for _ in range(_NEWTON_STEPS):
+        # g' > 0 left of the root (r <= 0.8); the floor only keeps an r near 1 finite
+        c -= (4.0 * c * c * c - 3.0 * c - r) / max(12.0 * c * c - 3.0, 1e-300)
+    lam = q + 2.0 * p * c if p2 > 0.0 else q
+    nx, ny, nz, lam = _eigvec_of(a00, a01, a02, a11, a12, a22, q, p2, lam)
+    return nx, ny, nz, lam, (r <= _NEWTON_MAX_R) | (p2 <= 0.0)
+
+
+@njit(inline="always", error_model="numpy")
+def _plane_fit_from_normal(cnt, mx, my, mz, a00, a01, a02, a11, a12, a22, nx, ny, nz):
     """``(N |(p_i - c) . n|, sqrt(n^T S n / N))`` (mm) of one window from its count ``cnt``,
-    the centroid relative to the centre point (mx, my, mz) and the scatter matrix S about the
-    centroid (a00 .. a22), float64."""
-    nx, ny, nz, _ = _smallest_eigvec_kernel(a00, a01, a02, a11, a12, a22)
+    the centroid relative to the centre point (mx, my, mz), the scatter matrix S about the
+    centroid (a00 .. a22) and the plane's unit normal n, float64."""
     # centre minus centroid is (-mx, -my, -mz)
     dist = -(mx * nx + my * ny + mz * nz)
     quad = (
@@ -88,7 +125,7 @@ def _plane_fit_values(cnt, mx, my, mz, a00, a01, a02, a11, a12, a22):
         + a22 * nz * nz
         + 2.0 * (a01 * nx * ny + a02 * nx * nz + a12 * ny * nz)
     )
-    return cnt * abs(dist), math.sqrt(max(quad, 0.0) / cnt)
+    return cnt * abs(dist), math.sqrt(max(quad, 0.0) / max(cnt, 1.0))  # cnt 0: not scored
 
 
 @njit
@@ -128,10 +165,12 @@ def _scatter_offset(
         a22[u] += (dz * dz) if ok else 0.0
 
 
-@njit
+#: ``error_model="numpy"``: a division by zero gives inf / NaN instead of raising, so the plane
+#: fits of the pixels that are not scored (count 0) cost no test and the loop vectorises
+@njit(error_model="numpy")
 def _roughness_row(planes, t, i, radius, min_count, mask, masked, sums, out_sum, out_rms):
     """Row ``i`` of frame ``t`` of :func:`_roughness_kernel` (``planes``: (T, 3, H, W) float32
-    x, y, z planes; ``sums``: (13, W) float64 scratch).
+    x, y, z planes; ``sums``: (14, W) float64 scratch).
 
     Offset-major: for each window offset (di, dj) a loop over the row's columns
     (:func:`_centroid_offset`, :func:`_scatter_offset`), so that it vectorises; each pixel
@@ -145,7 +184,7 @@ def _roughness_row(planes, t, i, radius, min_count, mask, masked, sums, out_sum,
     sums[:10] = 0.0
     cnt, sx, sy, sz = sums[0], sums[1], sums[2], sums[3]
     a00, a01, a02, a11, a12, a22 = sums[4], sums[5], sums[6], sums[7], sums[8], sums[9]
-    mx, my, mz = sums[10], sums[11], sums[12]
+    mx, my, mz, again = sums[10], sums[11], sums[12], sums[13]
     px, py, pz = planes[t, 0, i], planes[t, 1, i], planes[t, 2, i]
     rows = range(max(0, i - radius), min(h, i + radius + 1))
     for di in rows:
@@ -192,16 +231,41 @@ def _roughness_row(planes, t, i, radius, min_count, mask, masked, sums, out_sum,
                     a12[u0:u1],
                     a22[u0:u1],
                 )
+    # the plane fits: a vectorised pass (Newton's cosine), then the few line-like windows
+    # again with the trigonometric formula (``exact`` False, marked in ``again``)
+    nan = np.nan
     for u in range(w):
-        x, y, z = float(px[u]), float(py[u]), float(pz[u])
-        centre_ok = not (math.isnan(x) or math.isnan(y) or math.isnan(z))
-        if not centre_ok or cnt[u] < min_count or (masked and not mask[t, i, u]):
-            out_sum[t, i, u] = np.nan
-            out_rms[t, i, u] = np.nan
-            continue
-        out_sum[t, i, u], out_rms[t, i, u] = _plane_fit_values(
-            cnt[u], mx[u], my[u], mz[u], a00[u], a01[u], a02[u], a11[u], a12[u], a22[u]
+        x, y, z = px[u], py[u], pz[u]
+        use = (not (math.isnan(x) | math.isnan(y) | math.isnan(z))) & (cnt[u] >= min_count)
+        if masked:
+            use &= mask[t, i, u]
+        nx, ny, nz, _, exact = _smallest_eigvec_newton(
+            a00[u], a01[u], a02[u], a11[u], a12[u], a22[u]
         )
+        pi, rms = _plane_fit_from_normal(
+            cnt[u], mx[u], my[u], mz[u], a00[u], a01[u], a02[u], a11[u], a12[u], a22[u], nx, ny, nz
+        )
+        out_sum[t, i, u] = pi if use else nan
+        out_rms[t, i, u] = rms if use else nan
+        again[u] = 1.0 if (use & (not exact)) else 0.0
+    for u in range(w):
+        if again[u] != 0.0:
+            nx, ny, nz, _ = _smallest_eigvec_kernel(a00[u], a01[u], a02[u], a11[u], a12[u], a22[u])
+            out_sum[t, i, u], out_rms[t, i, u] = _plane_fit_from_normal(
+                cnt[u],
+                mx[u],
+                my[u],
+                mz[u],
+                a00[u],
+                a01[u],
+                a02[u],
+                a11[u],
+                a12[u],
+                a22[u],
+                nx,
+                ny,
+                nz,
+            )
 
 
 @njit_parallel
@@ -224,7 +288,7 @@ def _roughness_kernel(planes, radius, min_count, out_sum, out_rms):
     no_mask = np.zeros((1, 1, 1), np.bool_)
     n_chunks = min(num_t * h, ROW_CHUNKS)
     for ci in prange(n_chunks):  # scratch allocated once per chunk, not per row
-        sums = np.empty((13, w), np.float64)
+        sums = np.empty((14, w), np.float64)
         for tr in range(ci * num_t * h // n_chunks, (ci + 1) * num_t * h // n_chunks):
             _roughness_row(
                 planes, tr // h, tr % h, radius, min_count, no_mask, False, sums, out_sum, out_rms
@@ -238,7 +302,7 @@ def _roughness_masked_kernel(planes, mask, radius, min_count, out_sum, out_rms):
     num_t, h, w = planes.shape[0], planes.shape[2], planes.shape[3]
     n_chunks = min(num_t * h, ROW_CHUNKS)
     for ci in prange(n_chunks):
-        sums = np.empty((13, w), np.float64)
+        sums = np.empty((14, w), np.float64)
         for tr in range(ci * num_t * h // n_chunks, (ci + 1) * num_t * h // n_chunks):
             _roughness_row(
                 planes, tr // h, tr % h, radius, min_count, mask, True, sums, out_sum, out_rms

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._kernels.flicker import _temporal_tally_kernel
 from ..camera import Intrinsics, depth_to_points
 from ..errors import ShapeError
 from ..sequence import BallTruth, GroundTruth, Sequence
@@ -451,33 +452,32 @@ class RunningEvaluation:
                 self._out_rms.append(float(os_.frame_rms_means[0]))
                 self._pixels += int(scored.sum())
         self._quads.append(quad)
-        self._add_temporal(rd[0].astype(np.float64), od[0].astype(np.float64))
+        self._add_temporal(rd[0], od[0])
         self.frames += 1
 
-    def _add_temporal(self, rd: NDArray[np.float64], od: NDArray[np.float64]) -> None:
-        st = self._state
-        both = np.isfinite(rd) & np.isfinite(od)
-        if st is None:
-            zeros = np.zeros(rd.shape)
-            self._state = {
-                "valid": both.copy(),
-                "zmin": np.where(both, rd, np.inf),
-                "zmax": np.where(both, rd, -np.inf),
-                "zsum": np.where(both, rd, 0.0),
-                "raw_step": zeros.copy(),
-                "out_step": zeros.copy(),
-                "prev_raw": rd,
-                "prev_out": od,
+    def _add_temporal(self, rd: NDArray[np.floating], od: NDArray[np.floating]) -> None:
+        """Add one frame's raw and output depth (H, W) mm to the flicker state (float64)."""
+        first = self._state is None
+        if first:
+            shape = rd.shape
+            self._state = {"valid": np.empty(shape, np.bool_)} | {
+                name: np.empty(shape, np.float64)
+                for name in ("zmin", "zmax", "zsum", "raw_step", "out_step", "prev_raw", "prev_out")
             }
-            return
-        st["valid"] &= both
-        st["zmin"] = np.fmin(st["zmin"], np.where(both, rd, np.inf))
-        st["zmax"] = np.fmax(st["zmax"], np.where(both, rd, -np.inf))
-        st["zsum"] += np.where(both, rd, 0.0)
-        with np.errstate(invalid="ignore"):
-            st["raw_step"] += np.where(st["valid"], np.abs(rd - st["prev_raw"]), 0.0)
-            st["out_step"] += np.where(st["valid"], np.abs(od - st["prev_out"]), 0.0)
-        st["prev_raw"], st["prev_out"] = rd, od
+        st = self._state
+        _temporal_tally_kernel(
+            rd,
+            od,
+            first,
+            st["valid"],
+            st["zmin"],
+            st["zmax"],
+            st["zsum"],
+            st["raw_step"],
+            st["out_step"],
+            st["prev_raw"],
+            st["prev_out"],
+        )
 
     def result(self) -> dict[str, Any]:
         """The scores so far (mm): roughness raw/output on the same pixels, flicker |Δ|.
