@@ -96,6 +96,9 @@ def test_roughness_of_a_steep_ramp_matches_the_oracle(rng):
     assert np.isfinite(pi).sum() > 50
     np.testing.assert_allclose(pi, pi_ref, rtol=1e-3, atol=2e-4, equal_nan=True)
     np.testing.assert_allclose(rms, rms_ref, rtol=1e-3, atol=2e-5, equal_nan=True)
+
+
+def test_roughness_sequence_axis_and_wrappers(rng):
     pts = np.stack([_bumpy_points(rng), _bumpy_points(rng)])
     pi = roughness(pts)
     assert pi.shape == (2, 24, 32)
