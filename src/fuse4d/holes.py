@@ -159,7 +159,9 @@ def small_hole_mask(holes: ArrayLike, max_area_px: int) -> NDArray[np.bool_]:
     out = np.zeros(mask.shape, bool)
     if max_area_px <= 0 or not mask.any():
         return out
-    n_labels, labels = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
+    n_labels, labels = cv2.connectedComponents(
+        np.ascontiguousarray(mask).view(np.uint8), connectivity=8
+    )
     _small_components_kernel(labels, n_labels, int(max_area_px), out)
     return out
 
