@@ -95,10 +95,11 @@ def info_command(
     reader = open_frames(
         input_path,
         format=input_format,
-        depth_unit_mm=depth_unit_mm,
-        intrinsics=intrinsics,
-        **reader_options(depth_topic, intensity_topic, intensity, no_undistort),
-    )
+        **reader_options(
+            depth_topic, intensity_topic, intensity, no_undistort,
+            depth_unit_mm=depth_unit_mm, intrinsics=intrinsics,
+        ),
+    )  # fmt: skip
     with reader:
         n_valid = 0
         lo, hi = math.inf, -math.inf
@@ -238,17 +239,16 @@ def convert_command(
     """
     from ..io import convert_recording, open_frames
 
-    options = {
-        "format": input_format,
-        "depth_unit_mm": depth_unit_mm,
-        "intrinsics": intrinsics,
-        **reader_options(depth_topic, intensity_topic, intensity, no_undistort),
-    }
+    options = reader_options(
+        depth_topic, intensity_topic, intensity, no_undistort,
+        depth_unit_mm=depth_unit_mm, intrinsics=intrinsics,
+    )  # fmt: skip
     with progress_bar("converting", None) as bar:
         path = convert_recording(
             input_path,
             output,
             frames=frames,
+            format=input_format,
             out_depth_unit_mm=out_depth_unit_mm,
             overwrite=force,
             progress=progress_callback(bar),
@@ -294,10 +294,11 @@ def export_ply_command(
     with open_frames(
         input_path,
         format=input_format,
-        depth_unit_mm=depth_unit_mm,
-        intrinsics=intrinsics,
-        **reader_options(depth_topic, intensity_topic, intensity, no_undistort),
-    ) as reader:
+        **reader_options(
+            depth_topic, intensity_topic, intensity, no_undistort,
+            depth_unit_mm=depth_unit_mm, intrinsics=intrinsics,
+        ),
+    ) as reader:  # fmt: skip
         n = len(reader)
         if not -n <= frame < n:
             fail(f"--frame {frame} is out of range: {input_path} has {n} frames (0..{n - 1})")
