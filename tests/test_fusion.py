@@ -1238,6 +1238,51 @@ def test_overlap_flow_failed_push_is_retried_as_by_the_serial_engine(rng):
     np.testing.assert_array_equal(np.stack(got), np.stack(want))
 
 
+@pytest.mark.parametrize(
+    ("params", "overlap_flow"),
+    [
+        (FusionParams(num_frames=3, causal=True), True),
+        (FusionParams(num_frames=5), False),
+        (FusionParams(num_frames=4, flying_pixels="on", tracks="composed"), False),
+    ],
+)
+def test_reset_engine_equals_a_new_engine_bit_for_bit(rng, params, overlap_flow):
+    """issue 13: ``reset`` starts a new stream on the same buffers (``fuse4d live`` restarts
+    at every gap); what the buffers held from the previous stream must not matter."""
+    n = 7
+    depth = _plane_depth(n) + rng.normal(0, 0.3, (n, H, W)).astype(np.float32)
+    depth[2, 5:9, 5:9] = np.nan
+    inten = _moving_texture(n)
+    other = _plane_depth(9, base=800.0) + rng.normal(0, 2.0, (9, H, W)).astype(np.float32)
+    other[:, :, :6] = np.nan  # holes where the new stream has depth
+    other[4, 10:30, 10:30] = np.nan
+    fresh = FusionEngine(K, fusion=params, flow="dis", overlap_flow=overlap_flow)
+    want = [f for d, i in zip(depth, inten, strict=True) for f in fresh.push(d, i)]
+    want += fresh.flush()
+    fresh.close()
+    with FusionEngine(K, fusion=params, flow="dis", overlap_flow=overlap_flow) as engine:
+        # a previous stream, stopped without a flush, that ends on the new stream's first
+        # image (a tracker still warm would start the first pair from its last flow)
+        other_inten = _moving_texture(9, shift=2.0)[::-1].copy()
+        other_inten[-1] = inten[0]
+        for d, i in zip(other, other_inten, strict=True):
+            engine.push(d, i)
+        rings = [id(b) for b in (engine._fwd, engine._depth, engine._bilateral)]
+        engine.reset()
+        got = [f for d, i in zip(depth, inten, strict=True) for f in engine.push(d, i)]
+        got += engine.flush()
+        if params.num_frames > 1:  # the tracker began again: warm starts as in a new engine
+            assert engine._flow_estimator.warm_starts == n - 2
+        assert rings == [id(b) for b in (engine._fwd, engine._depth, engine._bilateral)]
+        engine.reset()  # after a flush too
+        again = [f for d, i in zip(depth[:3], inten[:3], strict=True) for f in engine.push(d, i)]
+    assert [f.index for f in got] == [f.index for f in want] == list(range(n))
+    for a, b in zip(got, want, strict=True):
+        for field in ("points", "support", "filled", "unfilled", "source", "confidence"):
+            np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    assert [f.index for f in again] == [f.index for f in want if f.index + engine.latency < 3]
+
+
 def test_shortcuts_without_fused_pixels_change_nothing(rng):
     """issue 13: the first frame of a causal window has no fused pixel (every valid pixel is
     an Eq. 6 hole); the Eq. 6 fill and the A29 base smoothing are skipped there, with the

@@ -23,6 +23,7 @@ from ._kernels.fusion import _fuse_kernel, _project_to_rays_kernel
 from ._kernels.holes import _put_on_rays_kernel, _source_confidence_kernel
 from ._kernels.noise import _finite_median32
 from ._kernels.smooth_base import _smooth_base_cols_kernel, _smooth_base_rows_kernel
+from ._memory import committed
 from ._validation import as_float32, check_shape
 from .bilateral import bilateral_filter_points
 from .camera import Intrinsics, depth_to_points
@@ -251,19 +252,20 @@ class FusionEngine:
         self.ring = max(ring_size or 0, p.num_frames)
         h, w = intrinsics.height, intrinsics.width
         s = self.ring
+        # every ring buffer is written now (np.full, committed), not during the first frames
         self._depth = np.full((s, h, w), np.nan, np.float32)
         # A36: the flying pixels removed from each frame's raw depth (None: "off" / "auto")
-        self._rejected = np.zeros((s, h, w), np.bool_) if p.flying_pixels == "on" else None
+        self._rejected = committed((s, h, w), np.bool_, False) if p.flying_pixels == "on" else None
         # A38: first and last valid pixel of each row / column of each frame (its part of the
         # sensor's field of view), computed once per frame
-        self._row_extent = np.empty((s, h, 2), np.int32)
-        self._col_extent = np.empty((s, w, 2), np.int32)
+        self._row_extent = committed((s, h, 2), np.int32, 0)
+        self._col_extent = committed((s, w, 2), np.int32, 0)
         # (x_n, y_n, 1) of every pixel: depth z on the pixel's ray is z * ray (filled holes)
         self._rays = depth_to_points(np.ones((h, w), np.float32), intrinsics)
         # per-frame depth-noise model sigma(z) = max(sigma0, quad z^2) (A22) and median depth z_med
         # (mm, for the gate and delta_d): (sigma0, quad, z_med)
         self._noise = np.zeros((s, 3), np.float64)
-        self._intensity = np.zeros((s, h, w), np.float32)
+        self._intensity = committed((s, h, w), np.float32, 0.0)
         self._bilateral = np.full((s, h, w, 3), np.nan, np.float32)
         # local reference surface (A17, A18) and motion reference P~ (A3)
         self._smooth = np.full((s, h, w, 3), np.nan, np.float32)
@@ -275,8 +277,8 @@ class FusionEngine:
         self._reference = (
             self._smooth if self._shared_reference else np.full((s, h, w, 3), np.nan, np.float32)
         )
-        self._fwd = np.zeros((s, h, w, 2), np.float32)
-        self._bwd = np.zeros((s, h, w, 2), np.float32)
+        self._fwd = committed((s, h, w, 2), np.float32, 0.0)
+        self._bwd = committed((s, h, w, 2), np.float32, 0.0)
         # the tracks of the frame being emitted (landing row, column, validity per other
         # frame of the window): one set of buffers, refilled for every output frame
         k = self.past + self.future
@@ -285,9 +287,9 @@ class FusionEngine:
         self._composed = _ComposedTracks(h, w, self.past, self.future) if composed else None
         kt = 0 if composed else k
         self._tracks = (
-            np.empty((kt, h, w), np.int32),
-            np.empty((kt, h, w), np.int32),
-            np.empty((kt, h, w), np.bool_),
+            committed((kt, h, w), np.int32, 0),
+            committed((kt, h, w), np.int32, 0),
+            committed((kt, h, w), np.bool_, False),
         )
         tw = np.arange(max(self.past, self.future) + 1, dtype=np.float64)
         if math.isinf(p.sigma_temporal):
@@ -326,6 +328,31 @@ class FusionEngine:
         worker, self._flow_worker = self._flow_worker, None
         if worker is not None:
             worker.shutdown(wait=True)
+
+    def reset(self, *, initial_flow: np.ndarray | None = None) -> None:
+        """Start a new stream with the same camera and parameters, keeping the buffers.
+
+        What a new engine would do from here on, bit for bit (frame indices, windows and the
+        tracker's warm start begin again), without allocating and writing its ring buffers
+        again (about 45 MB at 640x480 and a window of 3; ``fuse4d live`` restarts at every
+        gap). Also undoes :meth:`flush`. ``initial_flow``: as in the constructor.
+        """
+        if self._pending_flow is not None:  # (a failed push leaves none; be safe)
+            self._pending_flow.exception()
+            self._pending_flow = None
+        self._flow_state = None
+        self._flow_estimator = None
+        self._initial_flow = (
+            None if initial_flow is None else as_float32(initial_flow, name="initial_flow")
+        )
+        if self._composed is not None:
+            h, w = self.intrinsics.height, self.intrinsics.width
+            self._composed = _ComposedTracks(h, w, self.past, self.future)
+        self._pushed = 0
+        self._emitted = 0
+        self._emit_stop = None
+        self._closed = False
+        self._last_points = None
 
     # ------------------------------------------------------------------ public
     @property

@@ -572,13 +572,10 @@ def run_live(
         finally:
             queue.close()
 
-    def new_engine() -> FusionEngine:
-        return FusionEngine(source.intrinsics, fusion=params, flow=flow, overlap_flow=overlap_flow)
-
     if warmup:
         _warm_up(source.intrinsics, params, flow, overlap_flow)
     thread = threading.Thread(target=capture, name="fuse4d-live-capture", daemon=True)
-    engine = new_engine()
+    engine = FusionEngine(source.intrinsics, fusion=params, flow=flow, overlap_flow=overlap_flow)
     last_index: int | None = None
     history = 0
     last_output = first_output = time.perf_counter()
@@ -590,9 +587,8 @@ def run_live(
                 break
             if last_index is not None and frame.index != last_index + 1:
                 stats.gaps += 1
-                if on_gap == "restart":
-                    engine.close()
-                    engine = new_engine()
+                if on_gap == "restart":  # a new stream on the same buffers
+                    engine.reset()
                     stats.restarts += 1
                     history = 0
                 else:

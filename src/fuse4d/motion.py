@@ -29,6 +29,7 @@ from ._kernels.fusion import (
 )
 from ._kernels.noise import _noise_quad_ratios
 from ._kernels.tracks import _compose_kernel, _one_step_kernel
+from ._memory import committed
 from ._validation import as_float32, check_shape
 from .camera import Intrinsics, depth_to_points
 from .config import FusionParams
@@ -293,13 +294,18 @@ class _ComposedTracks:
         self._slots = future + 1  # frames whose tracks are kept (not yet emitted)
         # landing pixels as int16 where the image allows (half the memory and traffic)
         index = np.int16 if max(height, width) <= np.iinfo(np.int16).max else np.int32
-        self._rows = np.zeros((self._slots, k, height, width), index)
-        self._cols = np.zeros((self._slots, k, height, width), index)
-        self._ok = np.zeros((self._slots, k, height, width), np.bool_)
+        # every buffer written now, not during the first frames (fuse4d._memory)
+        self._rows = committed((self._slots, k, height, width), index)
+        self._cols = committed((self._slots, k, height, width), index)
+        self._ok = committed((self._slots, k, height, width), np.bool_)
 
         def maps(n: int) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.bool_]]:
             shape = (n, height, width)
-            return np.empty(shape, np.float32), np.empty(shape, np.float32), np.empty(shape, bool)
+            return (
+                committed(shape, np.float32),
+                committed(shape, np.float32),
+                committed(shape, bool),
+            )
 
         # forward: pair (s, s+1) from s's pixels in slot s % future, and the chains s -> N of
         # the newest N while composing; backward: the chains of frames N and N - 1
