@@ -98,6 +98,32 @@ def test_bilateral_kernel_matches_oracle(rng, radius):
         assert np.isfinite(fast[3, 5]).all()  # NaN does not spread
 
 
+@pytest.mark.parametrize("radius", [2, 3])
+def test_bilateral_kernel_sums_each_row_over_its_valid_span(rng, radius):
+    """issue 13: each row is summed only between its first and last valid centre (the band
+    a registered depth image leaves empty); rows that start or end inside the border columns
+    of the radius-3 path, rows without or with one valid pixel, still match the oracle."""
+    full = depth_to_points(_plane_depth(1)[0] + rng.normal(0, 0.3, (H, W)), K)[:14, :20]
+    pts = full.copy()
+    pts[:2] = np.nan  # rows without depth
+    pts[2:, :5] = np.nan  # a left band wider than the border columns
+    pts[2:, 17:] = np.nan  # a right band ending inside them
+    pts[6, :] = np.nan
+    pts[6:8, 19] = full[6:8, 19]  # one valid pixel in the last column (and below it)
+    pts[8, :] = np.nan
+    pts[8, 1] = full[8, 1]  # one in the second column
+    pts[10, :] = np.nan
+    pts[10, 5:14] = full[10, 5:14]  # a row within the seven-column middle only
+    pts[11, :3] = full[11, :3]  # a row reaching into the left border columns again
+    inten = _texture(14, 20)
+    fast = bilateral_filter_points(
+        pts, inten, radius=radius, sigma_distance=2.0, sigma_intensity=0.1, reference=pts + 0.1
+    )
+    slow = naive.bilateral3d(pts, inten, radius, 2.0, 0.1, reference=pts + 0.1)
+    np.testing.assert_allclose(fast, slow, rtol=0, atol=2e-4)
+    np.testing.assert_array_equal(np.isnan(fast), np.isnan(pts))
+
+
 def test_weight_function_is_close_to_exp():
     x = np.linspace(0, 4, 41)
     approx = np.array([naive.approx_exp_neg(v) for v in x])
