@@ -179,7 +179,7 @@ class FusionEngine:
 
     Push frames in order with :meth:`push`; each call returns the frames that became complete.
     Call :meth:`flush` at the end of the stream for the last ``h_future`` frames (truncated
-    windows, A13). In ``causal`` mode (``FusionParams(causal=True)``) every frame is emitted
+    windows, A13), and :meth:`reset` to start another stream on the same buffers. In ``causal`` mode (``FusionParams(causal=True)``) every frame is emitted
     as soon as it is pushed, fused with the n - 1 previous frames only.
 
     Parameters
