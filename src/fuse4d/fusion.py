@@ -179,8 +179,9 @@ class FusionEngine:
 
     Push frames in order with :meth:`push`; each call returns the frames that became complete.
     Call :meth:`flush` at the end of the stream for the last ``h_future`` frames (truncated
-    windows, A13), and :meth:`reset` to start another stream on the same buffers. In ``causal`` mode (``FusionParams(causal=True)``) every frame is emitted
-    as soon as it is pushed, fused with the n - 1 previous frames only.
+    windows, A13), and :meth:`reset` to start another stream on the same buffers. In
+    ``causal`` mode (``FusionParams(causal=True)``) every frame is emitted as soon as it is
+    pushed, fused with the n - 1 previous frames only.
 
     Parameters
     ----------
@@ -252,8 +253,8 @@ class FusionEngine:
         self.ring = max(ring_size or 0, p.num_frames)
         h, w = intrinsics.height, intrinsics.width
         s = self.ring
-        # every ring buffer is written now (np.full, committed), not during the first frames
-        self._depth = np.full((s, h, w), np.nan, np.float32)
+        # every ring buffer is written now (committed), not during the first frames
+        self._depth = committed((s, h, w), np.float32, np.nan)
         # A36: the flying pixels removed from each frame's raw depth (None: "off" / "auto")
         self._rejected = committed((s, h, w), np.bool_, False) if p.flying_pixels == "on" else None
         # A38: first and last valid pixel of each row / column of each frame (its part of the
@@ -266,16 +267,16 @@ class FusionEngine:
         # (mm, for the gate and delta_d): (sigma0, quad, z_med)
         self._noise = np.zeros((s, 3), np.float64)
         self._intensity = committed((s, h, w), np.float32, 0.0)
-        self._bilateral = np.full((s, h, w, 3), np.nan, np.float32)
+        self._bilateral = committed((s, h, w, 3), np.float32, np.nan)
         # local reference surface (A17, A18) and motion reference P~ (A3)
-        self._smooth = np.full((s, h, w, 3), np.nan, np.float32)
+        self._smooth = committed((s, h, w, 3), np.float32, np.nan)
         # with motion_sigma == reference_sigma (the default) D~ and the local reference are the
         # same surface: one buffer, computed once per frame
         self._shared_reference = p.motion_depth == "smoothed" and (
             p.motion_sigma == p.reference_sigma
         )
         self._reference = (
-            self._smooth if self._shared_reference else np.full((s, h, w, 3), np.nan, np.float32)
+            self._smooth if self._shared_reference else committed((s, h, w, 3), np.float32, np.nan)
         )
         self._fwd = committed((s, h, w, 2), np.float32, 0.0)
         self._bwd = committed((s, h, w, 2), np.float32, 0.0)
@@ -337,17 +338,11 @@ class FusionEngine:
         again (about 45 MB at 640x480 and a window of 3; ``fuse4d live`` restarts at every
         gap). Also undoes :meth:`flush`. ``initial_flow``: as in the constructor.
         """
-        if self._pending_flow is not None:  # (a failed push leaves none; be safe)
-            self._pending_flow.exception()
-            self._pending_flow = None
-        self._flow_state = None
+        # (no flow is pending between pushes: a push collects its pair's flow or drops it)
         self._flow_estimator = None
         self._initial_flow = (
             None if initial_flow is None else as_float32(initial_flow, name="initial_flow")
         )
-        if self._composed is not None:
-            h, w = self.intrinsics.height, self.intrinsics.width
-            self._composed = _ComposedTracks(h, w, self.past, self.future)
         self._pushed = 0
         self._emitted = 0
         self._emit_stop = None
