@@ -57,7 +57,9 @@ def field_of_view(depth: ArrayLike) -> NDArray[np.bool_]:
 def _valid_extents(depth: NDArray[np.float32]) -> tuple[NDArray[np.int32], NDArray[np.int32]]:
     """First and last pixel with valid (non-NaN) depth of every row and column of one frame:
     (H, 2) int32 [first, last] column per row ((W, -1) where a row has none) and (W, 2) int32
-    [first, last] row per column ((H, -1)). Once per frame in the engine (0.5 ms at 640×480)."""
+    [first, last] row per column ((H, -1)). The fusion engine computes the same values once
+    per frame with ``_kernels.fov._valid_extents_kernel`` (0.5 -> 0.2 ms at 640×480); this numpy
+    form is its oracle and serves ``fuse4d info``, which loads no numba."""
     valid = ~np.isnan(depth)
     h, w = valid.shape
     in_row, in_col = valid.any(axis=1), valid.any(axis=0)
@@ -74,7 +76,8 @@ def _inside_extents(
     row_extent: NDArray[np.int32], col_extent: NDArray[np.int32]
 ) -> NDArray[np.bool_]:
     """Unvalidated :func:`field_of_view` from per-frame extents ((K, H, 2), (K, W, 2) int32
-    of :func:`_valid_extents`): the hull of their union."""
+    of :func:`_valid_extents`): the hull of their union. The engine's per-output-frame form
+    is ``_kernels.fov._inside_extents_kernel`` (0.4 -> 0.12 ms at 640×480), tested against this."""
     h, w = row_extent.shape[1], col_extent.shape[1]
     row_lo = row_extent[:, :, 0].min(axis=0)[:, None]
     row_hi = row_extent[:, :, 1].max(axis=0)[:, None]

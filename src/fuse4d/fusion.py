@@ -27,7 +27,7 @@ from ._kernels.noise import _finite_median32
 from ._kernels.smooth_base import _smooth_base_cols_kernel, _smooth_base_rows_kernel
 from ._memory import committed
 from ._validation import as_float32, check_shape
-from .bilateral import bilateral_filter_points
+from .bilateral import _residual_bilateral, bilateral_filter_points
 from .camera import Intrinsics, depth_to_points
 from .config import FlowConfig, FusionParams, preset
 from .errors import ShapeError
@@ -269,6 +269,8 @@ class FusionEngine:
         self._noise = np.zeros((s, 3), np.float64)
         self._intensity = committed((s, h, w), np.float32, 0.0)
         self._bilateral = committed((s, h, w, 3), np.float32, np.nan)
+        # the residual bilateral's planar inputs, rebuilt every frame (_residual_bilateral)
+        self._bilateral_scratch = committed((2, 3, h, w), np.float32, 0.0)
         # local reference surface (A17, A18) and motion reference P~ (A3)
         self._smooth = committed((s, h, w, 3), np.float32, np.nan)
         # with motion_sigma == reference_sigma (the default) D~ and the local reference are the
@@ -488,15 +490,27 @@ class FusionEngine:
             )
         smooth = self._smooth[slot]
         t1 = time.perf_counter()
-        bilateral_filter_points(
-            pts,
-            inten,
-            radius=p.spatial_radius,
-            sigma_distance=self._frame_sigma_distance(z_med, quad),
-            sigma_intensity=p.sigma_intensity,
-            reference=smooth if p.bilateral == "residual" else None,
-            out=self._bilateral[slot],
-        )
+        sigma_distance = self._frame_sigma_distance(z_med, quad)
+        if p.bilateral == "residual":
+            _residual_bilateral(
+                pts,
+                inten,
+                smooth,
+                p.spatial_radius,
+                sigma_distance,
+                p.sigma_intensity,
+                scratch=self._bilateral_scratch,
+                out=self._bilateral[slot],
+            )
+        else:
+            bilateral_filter_points(
+                pts,
+                inten,
+                radius=p.spatial_radius,
+                sigma_distance=sigma_distance,
+                sigma_intensity=p.sigma_intensity,
+                out=self._bilateral[slot],
+            )
         t2 = time.perf_counter()
         self.timings["motion_reference"] += t1 - t0
         self.timings["bilateral"] += t2 - t1

@@ -369,6 +369,9 @@ def _track_kernel(
             # step-major order: all pixels of the row advance one step at a time, so the
             # independent per-pixel chains overlap in the CPU (a per-pixel chain is latency-bound)
             for direction in (1, -1):
+                n_steps = last - t if direction == 1 else t - first
+                if n_steps == 0:  # (a causal window has no frame after t)
+                    continue
                 d0 = depth_ring[st, v]
                 for u in range(w):
                     xs[u] = u
@@ -377,7 +380,6 @@ def _track_kernel(
                     pc[u] = u
                     prev_depth[u] = d0[u]
                     alive[u] = not np.isnan(d0[u])
-                n_steps = last - t if direction == 1 else t - first
                 for step in range(1, n_steps + 1):
                     T = t + direction * step
                     k = T - first - 1 if direction == 1 else T - first
