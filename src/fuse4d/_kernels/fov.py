@@ -40,6 +40,18 @@ def _valid_extents_kernel(depth, rows, cols):
         rows[v, 1] = last
 
 
+@njit(inline="always")
+def _union_extent(extent, frame_slot, i):
+    """(first, last) of line ``i`` over the frames ``frame_slot`` of the ring ``extent``
+    (S, N, 2) int32: the smallest first and the largest last."""
+    lo = extent[frame_slot[0], i, 0]
+    hi = extent[frame_slot[0], i, 1]
+    for k in range(1, frame_slot.shape[0]):
+        lo = min(lo, extent[frame_slot[k], i, 0])
+        hi = max(hi, extent[frame_slot[k], i, 1])
+    return lo, hi
+
+
 @njit
 def _inside_extents_kernel(row_extent, col_extent, frame_slot, out):
     """The hull of the union of the extents of the frames ``frame_slot`` (K,) of the rings
@@ -49,18 +61,8 @@ def _inside_extents_kernel(row_extent, col_extent, frame_slot, out):
     col_lo = np.empty(w, np.int32)
     col_hi = np.empty(w, np.int32)
     for u in range(w):
-        lo = col_extent[frame_slot[0], u, 0]
-        hi = col_extent[frame_slot[0], u, 1]
-        for k in range(1, frame_slot.shape[0]):
-            lo = min(lo, col_extent[frame_slot[k], u, 0])
-            hi = max(hi, col_extent[frame_slot[k], u, 1])
-        col_lo[u] = lo
-        col_hi[u] = hi
+        col_lo[u], col_hi[u] = _union_extent(col_extent, frame_slot, u)
     for v in range(h):
-        lo = row_extent[frame_slot[0], v, 0]
-        hi = row_extent[frame_slot[0], v, 1]
-        for k in range(1, frame_slot.shape[0]):
-            lo = min(lo, row_extent[frame_slot[k], v, 0])
-            hi = max(hi, row_extent[frame_slot[k], v, 1])
+        lo, hi = _union_extent(row_extent, frame_slot, v)
         for u in range(w):
             out[v, u] = u >= lo and u <= hi and v >= col_lo[u] and v <= col_hi[u]
