@@ -320,6 +320,18 @@ def test_colour_jpeg_intensity_is_its_luma_plane(tmp_path, rng):
     np.testing.assert_array_equal(read_intensity_image(tmp_path / "c.png"), expected)
 
 
+def test_colour_jpeg_luma_keeps_the_stored_orientation(tmp_path, rng):
+    """A JPEG whose EXIF tag says "rotate 90 degrees" is read as stored, like the colour
+    decode (IMREAD_UNCHANGED), not turned: its pixels must stay registered to the depth."""
+    image = pytest.importorskip("PIL.Image")
+    rgb = cv2.GaussianBlur((rng.random((48, 64, 3)) * 255).astype(np.uint8), (5, 5), 0)
+    exif = image.Exif()
+    exif[0x0112] = 6  # orientation: rotate 90 CW to display
+    image.fromarray(rgb).save(tmp_path / "r.jpg", exif=exif.tobytes())
+    assert cv2.imread(str(tmp_path / "r.jpg"), cv2.IMREAD_GRAYSCALE).shape == (64, 48)
+    assert read_intensity_image(tmp_path / "r.jpg").shape == (48, 64)
+
+
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
 def test_mask_threshold_is_half_the_dtype_range_exactly(tmp_path, dtype):
     """The integer threshold of read_mask_image is "gray / max >= 0.5" in float32 for every

@@ -83,7 +83,8 @@ def decode_image(
     )
     flags = cv2.IMREAD_UNCHANGED
     if jpeg_luma and kind == "JPEG":
-        flags = cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH
+        # (any flag but IMREAD_UNCHANGED turns the image by its EXIF orientation: not here)
+        flags = cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH | cv2.IMREAD_IGNORE_ORIENTATION
     image = None if truncated else cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     if image is None:
         what = kind or "image"
