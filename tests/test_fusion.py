@@ -1261,6 +1261,60 @@ def test_overlap_flow_equals_the_serial_engine_bit_for_bit(rng, params):
             np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
 
 
+def test_kernels_beside_a_running_flow_use_one_thread_and_the_same_values(rng, monkeypatch):
+    """issue 13: while the flow worker computes the new pair, push's motion reference and
+    bilateral run on one numba thread (the worker holds a core); the output is the serial
+    engine's, bit for bit, and numba's thread count is restored afterwards."""
+    import time
+
+    import numba
+
+    from fuse4d._kernels._numba import kernel_threads
+
+    params = FusionParams(num_frames=3, causal=True)
+    n = 5
+    depth = _plane_depth(n) + rng.normal(0, 0.3, (n, H, W)).astype(np.float32)
+    inten = _moving_texture(n)
+    serial = FusionEngine(K, fusion=params, flow="dis")
+    want = [f for d, i in zip(depth, inten, strict=True) for f in serial.push(d, i)]
+    flow_pair = FusionEngine._flow_pair
+
+    def slow_flow_pair(self, *args, **kwargs):  # a flow that is still running during push
+        time.sleep(0.05)
+        return flow_pair(self, *args, **kwargs)
+
+    seen = []
+    smoothed = FusionEngine._smoothed_points
+
+    def smoothed_points(self, *args, **kwargs):
+        seen.append(numba.get_num_threads())
+        return smoothed(self, *args, **kwargs)
+
+    monkeypatch.setattr(FusionEngine, "_flow_pair", slow_flow_pair)
+    monkeypatch.setattr(FusionEngine, "_smoothed_points", smoothed_points)
+    before = numba.get_num_threads()
+    with FusionEngine(K, fusion=params, flow="dis", overlap_flow=True) as eng:
+        got = [f for d, i in zip(depth, inten, strict=True) for f in eng.push(d, i)]
+    assert seen == [before] + [1] * (n - 1)  # frame 0 has no pair, so no flow beside it
+    assert numba.get_num_threads() == before
+    for a, b in zip(got, want, strict=True):
+        for field in ("points", "support", "filled", "unfilled", "source", "confidence"):
+            np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    inside = []
+
+    def fail_on_one_thread():
+        with kernel_threads(1):
+            inside.append(numba.get_num_threads())
+            raise RuntimeError
+
+    with pytest.raises(RuntimeError):
+        fail_on_one_thread()
+    assert inside == [1]
+    assert numba.get_num_threads() == before  # restored when the block raises
+    with kernel_threads(None), kernel_threads(before + 1):  # no change asked for
+        assert numba.get_num_threads() == before
+
+
 def test_overlap_flow_failed_push_is_retried_as_by_the_serial_engine(rng):
     n = 5
     depth = _plane_depth(n) + rng.normal(0, 0.3, (n, H, W)).astype(np.float32)

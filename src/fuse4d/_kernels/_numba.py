@@ -8,6 +8,8 @@ depth throughout fuse4d; ``nnan``/``ninf`` would silently break ``np.isnan`` tes
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 # OpenMP threads that spin after each parallel region steal the CPU from the main thread's
 # numpy/OpenCV work in between (measured at 600x600 on 2 busy cores: the motion-reference stage
@@ -16,7 +18,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numba
 
-__all__ = ["FASTMATH", "literal_unroll", "njit", "njit_parallel", "prange"]
+__all__ = ["FASTMATH", "kernel_threads", "literal_unroll", "njit", "njit_parallel", "prange"]
 
 #: fastmath flags allowed in kernels (no 'nnan', 'ninf': NaN = invalid depth).
 FASTMATH = frozenset({"contract", "arcp", "nsz"})
@@ -45,3 +47,20 @@ def njit_parallel(func=None, **kwargs):
     if func is None:
         return numba.njit(**opts)
     return numba.njit(**opts)(func)
+
+
+@contextmanager
+def kernel_threads(n: int | None) -> Iterator[None]:
+    """Run the parallel kernels that the calling thread launches inside the block on at most
+    ``n`` threads (numba's thread count is per calling thread: other threads, e.g. dask
+    workers, keep theirs); ``None``: unchanged. The results do not depend on it (no kernel
+    reduces across threads)."""
+    prev = numba.get_num_threads()
+    if n is None or n >= prev:
+        yield
+        return
+    numba.set_num_threads(n)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(prev)
