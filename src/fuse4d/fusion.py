@@ -212,7 +212,8 @@ class FusionEngine:
     overlap_flow : bool
         Compute each pair's flow in a worker thread while :meth:`push` computes the new
         frame's motion reference and bilateral filter (OpenCV and the numba kernels release
-        the GIL), instead of after them. The same flows and output bit for bit; the ``flow``
+        the GIL), instead of after them; while the worker runs, those kernels use one numba
+        thread (the worker holds a core). The same flows and output bit for bit; the ``flow``
         timing is then only the wait for the worker. For latency-bound use (``fuse4d live``);
         call :meth:`close` (or use the engine as a context manager) to stop the worker.
     """
