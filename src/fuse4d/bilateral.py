@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -81,16 +83,7 @@ def bilateral_filter_points(
     finite = p[np.isfinite(p[..., 2])]
     centre = np.median(finite, axis=0) if finite.size else np.zeros(3, np.float32)
     values = [np.ascontiguousarray(p[..., c] - np.float32(centre[c])) for c in range(3)]
-    _bilateral3d_kernel(
-        *planes,
-        i,
-        *values,
-        int(radius),
-        1.0 / (2.0 * sigma_distance**2),
-        1.0 / (2.0 * sigma_intensity**2),
-        out,
-    )
-    return out
+    return _planar_bilateral(planes, i, values, radius, sigma_distance, sigma_intensity, out)
 
 
 def _residual_bilateral(
@@ -110,6 +103,22 @@ def _residual_bilateral(
     (2 ms) on this kind of VM, ten times the work of filling them."""
     planes, values = scratch[0], scratch[1]
     _bilateral_planes_kernel(points, reference, planes, values)
+    return _planar_bilateral(
+        planes, intensity, values, radius, sigma_distance, sigma_intensity, out
+    )
+
+
+def _planar_bilateral(
+    planes: Sequence[NDArray[np.float32]],
+    intensity: NDArray[np.float32],
+    values: Sequence[NDArray[np.float32]],
+    radius: int,
+    sigma_distance: float,
+    sigma_intensity: float,
+    out: NDArray[np.float32],
+) -> NDArray[np.float32]:
+    """:func:`_bilateral3d_kernel` on the three (H, W) coordinate ``planes`` and the three
+    ``values`` averaged, with the weights' exponent factors 1 / (2 sigma^2); returns ``out``."""
     _bilateral3d_kernel(
         *planes,
         intensity,

@@ -272,7 +272,9 @@ class FusionEngine:
         self._intensity = committed((s, h, w), np.float32, 0.0)
         self._bilateral = committed((s, h, w, 3), np.float32, np.nan)
         # the residual bilateral's planar inputs, rebuilt every frame (_residual_bilateral)
-        self._bilateral_scratch = committed((2, 3, h, w), np.float32, 0.0)
+        self._bilateral_scratch = (
+            committed((2, 3, h, w), np.float32, 0.0) if p.bilateral == "residual" else None
+        )
         # local reference surface (A17, A18) and motion reference P~ (A3)
         self._smooth = committed((s, h, w, 3), np.float32, np.nan)
         # with motion_sigma == reference_sigma (the default) D~ and the local reference are the
@@ -394,8 +396,9 @@ class FusionEngine:
         index = self._pushed
         d = as_float32(depth, name="depth")
         check_shape(d, (h, w), name=f"depth (frame {index})")
-        d, raw = np.empty((h, w), np.float32), d
-        _valid_depth_kernel(raw, d)  # NaN = invalid; the caller's array is not written to
+        valid = np.empty((h, w), np.float32)  # (the caller's array is not written to)
+        _valid_depth_kernel(d, valid)  # NaN = invalid
+        d = valid
         slot = index % self.ring
         if self._rejected is not None:  # A36, before anything sees the depth
             t0 = time.perf_counter()
