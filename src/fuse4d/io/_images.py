@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputFileError
+from ._png import png_bytes
 
 __all__ = [
     "QuantizationReport",
@@ -366,29 +367,10 @@ def intensity_to_uint(intensity: np.ndarray, bits: int) -> np.ndarray:
     return np.clip(np.round(i * top), 0, top).astype(dtype)
 
 
-#: zlib level 1 with the Paeth row filter and run-length matching: lossless like every PNG,
-#: and on 640 x 480 frames of ``uva_cv2_person_turning`` and ``static_room_rgbd`` 35-45 %
-#: faster to encode than OpenCV's default filters at level 1 (depth 7.1-7.7 -> 4.5-4.9 ms,
-#: 8-bit intensity 6.9-8.3 -> 4.8-5.8 ms, 16-bit intensity 11-13 -> 8-10 ms) and 15-20 %
-#: smaller for depth and 8-bit intensity (16-bit intensity +16 %). The write-behind thread of
-#: ``fuse4d run`` shares the cores with the fusion (issue 13).
-_PNG_PARAMS = [
-    cv2.IMWRITE_PNG_COMPRESSION,
-    1,
-    cv2.IMWRITE_PNG_FILTER,
-    cv2.IMWRITE_PNG_FILTER_PAETH,
-    cv2.IMWRITE_PNG_STRATEGY,
-    cv2.IMWRITE_PNG_STRATEGY_RLE,
-]
-
-
 def encode_png(image: np.ndarray, path: str | PathLike[str]) -> None:
-    """Write ``image`` (uint8/uint16, 2-D or BGR) as PNG to exactly ``path`` (no atomicity
-    here; settings :data:`_PNG_PARAMS`)."""
-    ok, buf = cv2.imencode(".png", image, _PNG_PARAMS)
-    if not ok:  # pragma: no cover - OpenCV only fails on unsupported dtypes
-        raise ValueError(f"{path}: OpenCV could not encode the image as PNG")
-    Path(path).write_bytes(buf.tobytes())
+    """Write ``image`` (uint8/uint16, 2-D, BGR or BGRA) as PNG to exactly ``path`` (no
+    atomicity here; ISA-L's deflate, :mod:`fuse4d.io._png`)."""
+    Path(path).write_bytes(png_bytes(image))
 
 
 def read_checked_intensity(
