@@ -118,7 +118,10 @@ def test_masked_roughness_maps_equal_the_full_maps_on_the_mask(plane):
     pts = raw.points()[:2].astype(np.float32)
     pts[0, 5:9, 7:12] = np.nan  # a hole: windows near it are undefined in both
     mask = np.zeros(pts.shape[:3], bool)
-    mask[:, ::3] = True
+    mask[:, ::3] = True  # whole rows
+    mask[0, 1, 4:9] = True  # rows with a part of their columns (each row's sums are formed
+    mask[1, 2, [0, -1]] = True  # between its first and last mask pixel only)
+    mask[1, 4, 6] = True
     full = roughness_maps(pts)
     part = _roughness_maps_on(pts, mask)
     for f, q in zip(full, part, strict=True):

@@ -32,7 +32,7 @@ from fuse4d.metrics import (
     temporal_flicker,
 )
 from fuse4d.synthetic import make_deforming_sheet, make_falling_ball, make_static_plane
-from naive.metrics import naive_mlesac_score, naive_roughness
+from naive.metrics import naive_default_roi, naive_mlesac_score, naive_roughness
 
 K = Intrinsics(fx=500.0, fy=500.0, cx=15.5, cy=11.5, width=32, height=24)
 
@@ -201,6 +201,25 @@ def test_default_roi_excludes_edges_borders_and_holes():
     assert not roi[1:4, 1:4].any()
     assert roi[5, 4]
     assert default_roi(d, window=3, max_step=30.0, noise_quad=0.0)[5, 6]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_default_roi_kernel_equals_the_scipy_filters(seed):
+    """Random quantised slopes, steps, holes and infinities; windows 1-7, one frame and a
+    stack with a noise coefficient per frame; images narrower than the window."""
+    rng = np.random.default_rng(seed)
+    for shape in ((31, 43), (3, 29, 17), (4, 3), (2, 9)):
+        d = 2000.0 + 8.0 * np.floor(rng.uniform(0, 40, shape)).astype(np.float32)
+        d += np.where(rng.random(shape) < 0.05, 300.0, 0.0)
+        d[rng.random(shape) < 0.08] = np.nan
+        d[rng.random(shape) < 0.01] = np.inf
+        quads = rng.uniform(0.0, 3e-6, shape[:-2])
+        for window in (1, 3, 5, 7):
+            for max_step in (0.0, 10.0):
+                got = default_roi(d, window=window, max_step=max_step, noise_quad=quads)
+                want = naive_default_roi(d, window, max_step, quads)
+                assert got.any() or not want.any()
+                np.testing.assert_array_equal(got, want)
 
 
 def test_default_roi_follows_the_noise_model_on_quantised_slopes():

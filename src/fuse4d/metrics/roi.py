@@ -8,6 +8,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
+from .._kernels.roi import _default_roi_kernel
 from .._validation import as_float32
 from ..camera import Intrinsics
 from ..errors import ShapeError
@@ -129,45 +130,15 @@ def default_roi(
     if not (math.isfinite(max_step) and max_step >= 0):
         raise ValueError(f"max_step must be a finite number >= 0 (mm), got {max_step!r}")
     _check_odd_window(window)
-    quads = _frame_quads(d, noise_quad)[..., None, None]
-    valid = np.isfinite(d)
-    full = _window_inside(valid, window)
-    z = d.astype(np.float64)
-    limit = np.maximum(float(max_step), STEP_NOISE_LEVELS * quads * z * z)
-    with np.errstate(invalid="ignore"):
-        jump_c = np.abs(z[..., :, 1:] - z[..., :, :-1]) > np.fmax(
-            limit[..., :, 1:], limit[..., :, :-1]
+    quads = np.asarray(_frame_quads(d, noise_quad), np.float64).reshape(-1)
+    frames = d.reshape(-1, *d.shape[-2:])
+    out = np.empty(frames.shape, np.bool_)
+    counts = np.empty((2, *frames.shape[1:]), np.int32)
+    for k, frame in enumerate(frames):
+        _default_roi_kernel(
+            frame, float(quads[k]), STEP_NOISE_LEVELS, float(max_step), window // 2, counts, out[k]
         )
-        jump_r = np.abs(z[..., 1:, :] - z[..., :-1, :]) > np.fmax(
-            limit[..., 1:, :], limit[..., :-1, :]
-        )
-    # ok_*[p] = the link from pixel p to its right/lower neighbour is no depth edge; a window
-    # is edge-free when every link inside it is
-    ok_c = np.ones(d.shape, dtype=bool)
-    ok_c[..., :, :-1] = ~jump_c
-    ok_r = np.ones(d.shape, dtype=bool)
-    ok_r[..., :-1, :] = ~jump_r
-    size = _window_size(d.ndim, window)
-    half = window // 2
-    # links inside a window centred at (v, u): columns u-half .. u+half-1, rows v-half .. v+half
-    edge_free_c = _shifted_window_all(ok_c, size, col_shift=True, half=half)
-    edge_free_r = _shifted_window_all(ok_r, size, col_shift=False, half=half)
-    return full & edge_free_c & edge_free_r
-
-
-def _shifted_window_all(
-    ok: NDArray[np.bool_], size: tuple[int, ...], *, col_shift: bool, half: int
-) -> NDArray[np.bool_]:
-    """All links (right links if ``col_shift`` else lower links) inside each window are ok.
-
-    A window of half size ``half`` centred at u holds the right links of columns
-    u-half .. u+half-1: a window of width 2*half whose first column is u-half.
-    """
-    if half == 0:
-        return np.ones(ok.shape, dtype=bool)
-    shape = list(size)
-    shape[-1 if col_shift else -2] = 2 * half  # scipy: width 2h covers x - h .. x + h - 1
-    return ndimage.minimum_filter(ok, size=tuple(shape), mode="constant", cval=True)
+    return out.reshape(d.shape)
 
 
 def _ground_truth(seq_or_gt: Sequence | GroundTruth) -> GroundTruth:
