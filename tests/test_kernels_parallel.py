@@ -16,7 +16,7 @@ from fuse4d._kernels._common import (
 )
 from fuse4d._kernels._numba import njit
 from fuse4d._kernels.fusion import _track_kernel, _track_step
-from fuse4d.motion import _track_window
+from fuse4d.motion import _NO_FILL, _TimeFill, _track_window
 
 
 @njit
@@ -83,12 +83,52 @@ def test_track_kernel_equals_serial_reference(rng, per_step, t, first, last):
     got = [np.zeros((k, 37, 53), dt) for dt in (np.int32, np.int32, np.bool_)]
     exp = [np.zeros((k, 37, 53), dt) for dt in (np.int32, np.int32, np.bool_)]
     args = (fwd, bwd, depth, slots, t, first, last, 1.0, 5.0, 1e-5, per_step)
-    _track_kernel(*args, *got)
+    _track_kernel(*args, *got, *_NO_FILL)
     _serial_track(*args, *exp)
     for a, b in zip(got, exp, strict=True):
         np.testing.assert_array_equal(a, b)
     if last > first:
         assert 0.05 < got[2].mean() < 0.95  # both outcomes exercised
+
+
+@pytest.mark.parametrize("per_step", [False, True])
+@pytest.mark.parametrize(("t", "first", "last"), [(13, 9, 17), (4, 0, 8), (5, 0, 5), (0, 0, 3)])
+def test_holes_chained_beside_the_tracks_equal_the_time_fill_kernel(rng, per_step, t, first, last):
+    """The A26 fill that the tracking pass does beside the tracks (the engine's) gives the
+    points and counts of the separate kernel and of its per-pixel reference, bit for bit, and
+    leaves the tracks as they are without it."""
+    from fuse4d._kernels.holes import _temporal_fill_kernel, _temporal_fill_reference
+
+    fwd, bwd, depth = _window_case(rng)
+    s, h, w = depth.shape
+    depth[rng.random((s, h, w)) < 0.2] = np.nan  # more holes: some tracks run through several
+    v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+    noisy = depth + rng.normal(0, 1, depth.shape)
+    ref = np.stack([np.broadcast_to(u, depth.shape), np.broadcast_to(v, depth.shape), noisy], -1)
+    ref = ref.astype(np.float32)
+    ref[rng.random((s, h, w)) < 0.02] = np.nan  # depth without a reference point
+    slots = np.arange(first, last + 1, dtype=np.int64) % s
+    target = np.isnan(depth[t % s]) & (rng.random((h, w)) < 0.9)  # holes, as the engine's
+    weight = rng.uniform(0.2, 1.0, s)
+    k = last - first
+    args = (fwd, bwd, depth, slots, t, first, last, 1.0, 5.0, 1e-5, per_step)
+    plain = [np.zeros((k, h, w), dt) for dt in (np.int32, np.int32, np.bool_)]
+    _track_kernel(*args, *plain, *_NO_FILL)
+    got = [np.zeros((k, h, w), dt) for dt in (np.int32, np.int32, np.bool_)]
+    pts, cnt = np.full((h, w, 3), -1.0, np.float32), np.full((h, w), 99, np.uint8)
+    _track_kernel(*args, *got, *_TimeFill(target, ref, weight, 1, pts, cnt))
+    for a, b in zip(got, plain, strict=True):
+        np.testing.assert_array_equal(a, b)
+    for fill in (_temporal_fill_kernel, _temporal_fill_reference):
+        want_pts = np.full((h, w, 3), -1.0, np.float32)
+        want_cnt = np.full((h, w), 99, np.uint8)
+        fill(fwd, bwd, depth, ref, slots, t, first, last, 1.0, 5.0, 1e-5, weight, 1, target,
+             want_pts, want_cnt, per_step)  # fmt: skip
+        np.testing.assert_array_equal(cnt, want_cnt)
+        np.testing.assert_array_equal(pts.view(np.uint32), want_pts.view(np.uint32))
+    assert (cnt[target] > 1).any()  # multi-frame fills ...
+    assert (cnt[target] == 0).any()  # ... and targets left unfilled
+    assert (pts[~target] == -1.0).all()  # only the targets are written
 
 
 def test_track_window_reuses_buffers(rng):
@@ -137,7 +177,7 @@ def test_one_step_kernel_is_the_first_tracking_step(rng):
     _s, h, w = depth.shape
     slots = np.arange(3, 6, dtype=np.int64)  # frames 3..5 in slots 3..5
     exp = [np.zeros((2, h, w), dt) for dt in (np.int32, np.int32, np.bool_)]
-    _track_kernel(fwd, bwd, depth, slots, 4, 3, 5, 1.0, 5.0, 1e-5, False, *exp)
+    _track_kernel(fwd, bwd, depth, slots, 4, 3, 5, 1.0, 5.0, 1e-5, False, *exp, *_NO_FILL)
     x, y = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
     ok, r, c = np.empty((h, w), bool), np.empty((h, w), np.int32), np.empty((h, w), np.int32)
     # pair (4, 5) lives in slot 5: forward from frame 4, backward from frame 5 to 4

@@ -51,6 +51,7 @@ from .motion import (
     _box_radius,
     _ComposedTracks,
     _pair_motion,
+    _TimeFill,
     _track_window,
     _window,
     estimate_depth_noise,
@@ -298,6 +299,16 @@ class FusionEngine:
             committed((kt, h, w), np.int32, 0),
             committed((kt, h, w), np.int32, 0),
             committed((kt, h, w), np.bool_, False),
+        )
+        # the holes that the tracking pass fills from time (A26, :meth:`_time_fill`) and its
+        # output, refilled for every output frame
+        # (its chains take bilinear flow samples: with quantize="per_step" the tracks do not)
+        chained_fill = p.fill_from_time and not composed and k > 0 and p.quantize == "final"
+        hf, wf = (h, w) if chained_fill else (0, 0)
+        self._fill_target = committed((hf, wf), np.bool_, False)
+        self._fill_samples = (
+            committed((hf, wf, 3), np.float32, np.nan),
+            committed((hf, wf), np.uint8, 0),
         )
         tw = np.arange(max(self.past, self.future) + 1, dtype=np.float64)
         if math.isinf(p.sigma_temporal):
@@ -684,8 +695,12 @@ class FusionEngine:
         first, last = _window(t, self.past, self.future, self._pushed)
         t0 = time.perf_counter()
         sigma0, quad, z_med = self._noise[t % self.ring]
+        frame_slot = np.arange(first, last + 1, dtype=np.int64) % self.ring
+        # A38: nothing is filled outside the field of view that the window's frames show
+        inside = np.empty((h, w), np.bool_)
+        _inside_extents_kernel(self._row_extent, self._col_extent, frame_slot, inside)
+        time_fill = self._time_fill(t, first, last, inside)
         if self._composed is not None:  # A31: built as the pairs arrived
-            frame_slot = np.arange(first, last + 1, dtype=np.int64) % self.ring
             rows, cols, ok = self._composed.window(t, first, last)
         else:
             frame_slot, rows, cols, ok = _track_window(
@@ -700,6 +715,7 @@ class FusionEngine:
                 quad=quad,
                 per_step=p.quantize == "per_step",
                 out=self._tracks,
+                fill=time_fill,
             )
         if p.static_tracks and last > first:  # A33: static pixels keep still
             static = static_pixels(
@@ -787,7 +803,9 @@ class FusionEngine:
                 on_ray,
             )
             points = on_ray
-        source, confidence = self._fill_sensor_holes(t, first, last, frame_slot, points, support)
+        source, confidence = self._fill_sensor_holes(
+            t, first, last, frame_slot, points, support, inside, time_fill
+        )
         t3 = time.perf_counter()
         self.timings["tracking"] += t1 - t0
         self.timings["fusion"] += t2 - t1
@@ -803,9 +821,27 @@ class FusionEngine:
             confidence=confidence,
         )
 
-    def _fill_sensor_holes(self, t, first, last, frame_slot, points, support):
+    def _time_fill(self, t, first, last, inside) -> _TimeFill | None:
+        """The A26 fill of frame t's holes that the tracking pass does beside the tracks
+        (None: no fill from time; or composed tracks, whose window chains no pixel, or
+        ``quantize="per_step"``, whose tracks round every step where the fill's chains do
+        not: then :meth:`_fill_sensor_holes` runs the separate kernel). The targets are the
+        holes inside the field of view (``inside``) that are not flying pixels (A36)."""
+        if self._fill_target.size == 0 or last == first:
+            return None
+        slot = t % self.ring
+        target = self._fill_target
+        np.isnan(self._depth[slot], out=target)
+        target &= inside
+        if self._rejected is not None:
+            target &= ~self._rejected[slot]
+        return _TimeFill(target, self._reference, self._temporal_weight, 1, *self._fill_samples)
+
+    def _fill_sensor_holes(self, t, first, last, frame_slot, points, support, inside, time_fill):
         """Fill frame t's sensor holes in place (A26 from time, then A27 in space); returns
-        the per-pixel source codes and confidence (see :class:`FusedFrame`)."""
+        the per-pixel source codes and confidence (see :class:`FusedFrame`). ``inside``: the
+        window's field of view (A38); ``time_fill``: the A26 fill done by the tracking pass
+        (None: computed here)."""
         p = self.params
         n = float(p.num_frames)
         slot = t % self.ring
@@ -816,9 +852,6 @@ class FusionEngine:
         holes = np.empty(shape, np.bool_)
         if not _source_confidence_kernel(self._depth[slot], support, n, source, confidence, holes):
             return source, confidence
-        # A38: nothing is filled outside the field of view that the window's frames show
-        inside = np.empty(shape, np.bool_)
-        _inside_extents_kernel(self._row_extent, self._col_extent, frame_slot, inside)
         source[~inside] = SOURCE_OUTSIDE
         rejected = None if self._rejected is None else self._rejected[slot]
         if rejected is not None and rejected.any():  # A36: kept empty
@@ -833,21 +866,24 @@ class FusionEngine:
         )
         if fill_time:
             targets = holes & inside
-            filled_points, count = _fill_from_time(
-                self._fwd,
-                self._bwd,
-                self._depth,
-                self._reference,
-                frame_slot,
-                t,
-                first,
-                last,
-                targets,
-                fb_threshold=p.fb_threshold,
-                max_step=p.max_depth_step,
-                quad=quad,
-                temporal_weight=self._temporal_weight,
-            )
+            if time_fill is not None:  # chained by the tracking pass, on the same targets
+                filled_points, count = time_fill.points, time_fill.count
+            else:
+                filled_points, count = _fill_from_time(
+                    self._fwd,
+                    self._bwd,
+                    self._depth,
+                    self._reference,
+                    frame_slot,
+                    t,
+                    first,
+                    last,
+                    targets,
+                    fb_threshold=p.fb_threshold,
+                    max_step=p.max_depth_step,
+                    quad=quad,
+                    temporal_weight=self._temporal_weight,
+                )
             # the side check only for the holes the time fill reached (exact: the kernel's
             # value at a pixel does not depend on the other targets); most sensor holes of a
             # real recording (glass, range, shadows of static objects) are never reached

@@ -17,6 +17,7 @@ rings (forward s^{T-1,T} on frame T-1's grid, backward s^{T,T-1} on frame T's gr
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -212,6 +213,34 @@ def _window(t: int, past: int, future: int, available: int) -> tuple[int, int]:
     return max(0, t - past), min(available - 1, t + future)
 
 
+class _TimeFill(NamedTuple):
+    """The A26 fill that :func:`_track_window` does beside the tracks (private).
+
+    ``target`` (H, W) bool: frame t's holes to fill ((0, 0): none); ``ref_ring`` (S, H, W, 3)
+    the motion-reference points P~ (mm) of the ring; ``temporal_weight`` f(t, T) by |T - t|;
+    ``min_samples``: samples a fill needs; ``points`` (H, W, 3) float32 and ``count`` (H, W)
+    uint8: the outputs of :func:`fuse4d._kernels.holes._temporal_fill_kernel`.
+    """
+
+    target: NDArray[np.bool_]
+    ref_ring: NDArray[np.float32]
+    temporal_weight: NDArray[np.float64]
+    min_samples: int
+    points: NDArray[np.float32]
+    count: NDArray[np.uint8]
+
+
+#: :func:`_track_window` without a fill: empty arrays of the kernel's types
+_NO_FILL = _TimeFill(
+    np.zeros((0, 0), np.bool_),
+    np.zeros((1, 1, 1, 3), np.float32),
+    np.ones(1, np.float64),
+    1,
+    np.zeros((1, 1, 3), np.float32),
+    np.zeros((1, 1), np.uint8),
+)
+
+
 def _track_window(
     fwd_ring: NDArray[np.float32],
     bwd_ring: NDArray[np.float32],
@@ -225,6 +254,7 @@ def _track_window(
     quad: float,
     per_step: bool,
     out: tuple[NDArray[np.int32], NDArray[np.int32], NDArray[np.bool_]] | None = None,
+    fill: _TimeFill | None = None,
 ) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int32], NDArray[np.bool_]]:
     """Tracks of every pixel of frame ``t`` through frames ``first..last`` (Eq. 4 per step).
 
@@ -233,6 +263,8 @@ def _track_window(
     ``quad`` is frame t's depth-noise coefficient (mm^-1) of the step rule (A22).
     ``out``: (rows, cols, ok) buffers of at least K = last - first frames, reused between
     calls (the streaming engine's; the results are views of their first K frames).
+    ``fill``: the holes of frame t to fill from the other frames in the same pass (A26,
+    :class:`_TimeFill`; its ``points`` and ``count`` are written at the targets).
 
     Returns
     -------
@@ -254,6 +286,7 @@ def _track_window(
         rows, cols, ok = out[0][:k], out[1][:k], out[2][:k]
     if k == 0:  # a window of frame t alone: nothing to track
         return frame_slot, rows, cols, ok
+    f = _NO_FILL if fill is None else fill
     _track_kernel(
         fwd_ring,
         bwd_ring,
@@ -269,6 +302,12 @@ def _track_window(
         rows,
         cols,
         ok,
+        f.target,
+        f.ref_ring,
+        f.temporal_weight,
+        int(f.min_samples),
+        f.points,
+        f.count,
     )
     return frame_slot, rows, cols, ok
 

@@ -66,6 +66,45 @@ def _track_step(step_ring, check_ring, slot, x, y, theta, per_step):
     return True, nx, ny
 
 
+@njit(inline="always")
+def _add_trajectory_sample(acc, j, wt, tau, px, py, pz):
+    """Add a tracked sample P~^T (mm) at tau = T - t with weight ``wt`` to column ``j`` of the
+    weighted least-squares sums ``acc`` (9, n): s0, s1, s2, then x, y, z and tau times them."""
+    acc[0, j] += wt
+    acc[1, j] += wt * tau
+    acc[2, j] += wt * tau * tau
+    acc[3, j] += wt * px
+    acc[4, j] += wt * py
+    acc[5, j] += wt * pz
+    acc[6, j] += wt * tau * px
+    acc[7, j] += wt * tau * py
+    acc[8, j] += wt * tau * pz
+
+
+@njit(inline="always")
+def _put_trajectory_value(acc, j, n, min_samples, out_points, out_count, v, u):
+    """A26's output at pixel (v, u) from the sums of column ``j`` and its ``n`` samples: the
+    weighted least-squares line through them at tau = 0 (their weighted mean when they do not
+    determine a line), ``out_count`` = n (0 and NaN below ``min_samples``)."""
+    if n < min_samples or n == 0:
+        for q in range(3):
+            out_points[v, u, q] = np.nan
+        return
+    out_count[v, u] = min(n, 255)
+    s0 = acc[0, j]
+    s1 = acc[1, j]
+    s2 = acc[2, j]
+    det = s0 * s2 - s1 * s1
+    if det > 1e-9 * s0 * s0:  # line through the samples, evaluated at tau = 0
+        out_points[v, u, 0] = (acc[3, j] * s2 - acc[6, j] * s1) / det
+        out_points[v, u, 1] = (acc[4, j] * s2 - acc[7, j] * s1) / det
+        out_points[v, u, 2] = (acc[5, j] * s2 - acc[8, j] * s1) / det
+    else:  # one frame only (or all at one tau): their mean
+        out_points[v, u, 0] = acc[3, j] / s0
+        out_points[v, u, 1] = acc[4, j] / s0
+        out_points[v, u, 2] = acc[5, j] / s0
+
+
 # --------------------------------------------------------------------------- per-frame stages
 #: column offsets (0..6, i.e. -3..3 about the centre) of a radius-3 bilateral window: a tuple so
 #: that ``literal_unroll`` spells the seven terms out at compile time (see
@@ -340,6 +379,12 @@ def _track_kernel(
     land_row,
     land_col,
     land_ok,
+    fill_target,
+    ref_ring,
+    temporal_weight,
+    min_samples,
+    fill_points,
+    fill_count,
 ):
     """Chain tracks from every valid pixel of frame t through the window [first, last].
 
@@ -348,11 +393,21 @@ def _track_kernel(
     (k = T - first for T < t, T - first - 1 for T > t). ``land_row/col`` (K,H,W) int32 hold
     the rounded landing pixel x^_i^T; ``land_ok`` (K,H,W) bool the validity nu^{t,T} (AND of
     per-step checks: in image, FB < theta, valid depth, depth step < max_step).
+
+    With a (H, W) ``fill_target`` (a (0, 0) array: none) the same pass also fills those
+    pixels, holes of frame t, from the other frames along their tracks (A26; a target with
+    depth at t is tracked, not filled: count 0, NaN); the
+    chains of :func:`._kernels.holes._temporal_fill_kernel` (the same arithmetic, so the same
+    ``fill_points`` (H, W, 3) and ``fill_count`` (H, W) uint8, written at the targets only;
+    tested). Every step samples the flow at every pixel's position anyway, alive or not, so
+    a hole's chain costs only its checks here, where the separate kernel paid 4.6 of 12 ms
+    of the fill stage on ``uva_cv2_person_turning`` (issue 13).
     """
     h = depth_ring.shape[1]
     w = depth_ring.shape[2]
     st = frame_slot[t - first]
     theta2 = theta * theta
+    has_fill = fill_target.shape[0] > 0
     n_chunks = min(h, ROW_CHUNKS)
     for ci in prange(n_chunks):  # scratch allocated once per chunk, not per row
         xs = np.empty(w, dtype=np.float64)
@@ -365,7 +420,21 @@ def _track_kernel(
         pc = np.empty(w, dtype=np.int32)
         prev_depth = np.empty(w, dtype=np.float32)
         alive = np.empty(w, dtype=np.bool_)
+        # A26 fill chains: following the intensity, the last depth landed on, the sums
+        follow = np.zeros(w, dtype=np.bool_)
+        fill_prev = np.empty(w, dtype=np.float64)
+        acc = np.empty((9, w), dtype=np.float64)
+        count = np.empty(w, dtype=np.int64)
         for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
+            fill_row = False
+            if has_fill:
+                for u in range(w):
+                    fill_count[v, u] = 0
+                    if fill_target[v, u]:
+                        fill_row = True
+                        count[u] = 0
+                        for q in range(9):
+                            acc[q, u] = 0.0
             # step-major order: all pixels of the row advance one step at a time, so the
             # independent per-pixel chains overlap in the CPU (a per-pixel chain is latency-bound)
             for direction in (1, -1):
@@ -380,6 +449,8 @@ def _track_kernel(
                     pc[u] = u
                     prev_depth[u] = d0[u]
                     alive[u] = not np.isnan(d0[u])
+                    follow[u] = fill_row and fill_target[v, u]
+                    fill_prev[u] = np.nan
                 for step in range(1, n_steps + 1):
                     T = t + direction * step
                     k = T - first - 1 if direction == 1 else T - first
@@ -389,6 +460,9 @@ def _track_kernel(
                     step_flow = fwd_ring[flow_slot] if direction == 1 else bwd_ring[flow_slot]
                     check_flow = bwd_ring[flow_slot] if direction == 1 else fwd_ring[flow_slot]
                     depth_T = depth_ring[slot]
+                    ref_T = ref_ring[slot]
+                    wt = temporal_weight[abs(T - t)]
+                    tau = float(T - t)
                     # one step of _track_step in two passes over the row: first every flow
                     # sample (branch-free, short independent iterations), then the checks;
                     # the same arithmetic, so the same bits as chaining pixel by pixel.
@@ -449,6 +523,39 @@ def _track_kernel(
                                     prev_depth[u] = d1
                             if not ok:
                                 alive[u] = False
+                        elif follow[u]:  # A26: a hole's chain, through holes until depth
+                            nx = xs[u] + su[u]
+                            ny = ys[u] + sv[u]
+                            ok = nx >= 0.0 and nx <= w - 1.0 and ny >= 0.0 and ny <= h - 1.0
+                            if ok:
+                                cu = cu_row[u]
+                                cv = cv_row[u]
+                                e2 = (su[u] + cu) * (su[u] + cu) + (sv[u] + cv) * (sv[u] + cv)
+                                ok = e2 < theta2
+                            if not ok:
+                                follow[u] = False
+                                continue
+                            if per_step:
+                                nx = float(_round_half_up(nx))
+                                ny = float(_round_half_up(ny))
+                            xs[u] = nx
+                            ys[u] = ny
+                            r = _round_half_up(ny)
+                            c = _round_half_up(nx)
+                            d1 = depth_T[r, c]
+                            if np.isnan(d1) or np.isnan(ref_T[r, c, 2]):
+                                continue  # still no depth here: keep following the intensity
+                            p0 = fill_prev[u]
+                            if not np.isnan(p0) and not (
+                                abs(d1 - p0) < _step_limit(p0, max_step, quad)
+                            ):
+                                follow[u] = False
+                                continue
+                            fill_prev[u] = d1
+                            _add_trajectory_sample(
+                                acc, u, wt, tau, ref_T[r, c, 0], ref_T[r, c, 1], ref_T[r, c, 2]
+                            )
+                            count[u] += 1
                     ok_row = land_ok[k, v]
                     row_row = land_row[k, v]
                     col_row = land_col[k, v]
@@ -456,6 +563,12 @@ def _track_kernel(
                         ok_row[u] = alive[u]
                         row_row[u] = pr[u]
                         col_row[u] = pc[u]
+            if fill_row:
+                for u in range(w):
+                    if fill_target[v, u]:
+                        _put_trajectory_value(
+                            acc, u, count[u], min_samples, fill_points, fill_count, v, u
+                        )
 
 
 # --------------------------------------------------------------------------- fusion (Eq. 5)

@@ -20,7 +20,7 @@ import numpy as np
 
 from ._common import ROW_CHUNKS, _round_half_up, _step_limit
 from ._numba import njit, njit_parallel, prange
-from .fusion import _track_step
+from .fusion import _add_trajectory_sample, _put_trajectory_value, _track_step
 
 
 @njit_parallel
@@ -41,6 +41,7 @@ def _temporal_fill_kernel(
     target,
     out_points,
     out_count,
+    per_step=False,
 ):
     """Fill ``target`` pixels of frame t from the other frames along their tracks.
 
@@ -54,11 +55,15 @@ def _temporal_fill_kernel(
     determine a line); ``out_count`` gets the number of samples (0 = not filled, point NaN).
     ``frame_slot[T - first]`` is the ring slot of frame T (see :mod:`._kernels.fusion`).
 
+    ``per_step``: the literal per-step rounding of the tracks (``quantize="per_step"``, A6).
+
     Step-major, like the tracking kernel: the target pixels of a row are gathered and advance
     one step at a time, so their independent chains overlap in the CPU (one chain is a series
     of dependent flow gathers, latency-bound). Each pixel sees the same arithmetic in the same
     order as :func:`_temporal_fill_reference` (the per-pixel loop), so the output is
-    bit-identical to it (tested).
+    bit-identical to it (tested). The streaming engine has the tracking kernel
+    (:func:`._kernels.fusion._track_kernel`) chain the holes in the same pass instead; this
+    kernel serves the composed tracks (A31), which chain no pixel per output frame.
     """
     h = depth_ring.shape[1]
     w = depth_ring.shape[2]
@@ -104,7 +109,7 @@ def _temporal_fill_kernel(
                         if not alive[j]:
                             continue
                         ok, nx, ny = _track_step(
-                            step_ring, check_ring, flow_slot, xs[j], ys[j], theta, False
+                            step_ring, check_ring, flow_slot, xs[j], ys[j], theta, per_step
                         )
                         if not ok:
                             alive[j] = False
@@ -124,41 +129,22 @@ def _temporal_fill_kernel(
                             alive[j] = False
                             continue
                         prev[j] = d1
-                        px = ref_ring[slot, r, c, 0]
-                        py = ref_ring[slot, r, c, 1]
-                        pz = ref_ring[slot, r, c, 2]
-                        acc[0, j] += wt
-                        acc[1, j] += wt * tau
-                        acc[2, j] += wt * tau * tau
-                        acc[3, j] += wt * px
-                        acc[4, j] += wt * py
-                        acc[5, j] += wt * pz
-                        acc[6, j] += wt * tau * px
-                        acc[7, j] += wt * tau * py
-                        acc[8, j] += wt * tau * pz
+                        _add_trajectory_sample(
+                            acc,
+                            j,
+                            wt,
+                            tau,
+                            ref_ring[slot, r, c, 0],
+                            ref_ring[slot, r, c, 1],
+                            ref_ring[slot, r, c, 2],
+                        )
                         count[j] += 1
                     if not any_alive:
                         break
             for j in range(m):
-                u = cols[j]
-                n = count[j]
-                if n < min_samples or n == 0:
-                    for q in range(3):
-                        out_points[v, u, q] = np.nan
-                    continue
-                out_count[v, u] = min(n, 255)
-                s0 = acc[0, j]
-                s1 = acc[1, j]
-                s2 = acc[2, j]
-                det = s0 * s2 - s1 * s1
-                if det > 1e-9 * s0 * s0:  # line through the samples, evaluated at tau = 0
-                    out_points[v, u, 0] = (acc[3, j] * s2 - acc[6, j] * s1) / det
-                    out_points[v, u, 1] = (acc[4, j] * s2 - acc[7, j] * s1) / det
-                    out_points[v, u, 2] = (acc[5, j] * s2 - acc[8, j] * s1) / det
-                else:  # one frame only (or all at one tau): their mean
-                    out_points[v, u, 0] = acc[3, j] / s0
-                    out_points[v, u, 1] = acc[4, j] / s0
-                    out_points[v, u, 2] = acc[5, j] / s0
+                _put_trajectory_value(
+                    acc, j, count[j], min_samples, out_points, out_count, v, cols[j]
+                )
 
 
 @njit
@@ -179,6 +165,7 @@ def _temporal_fill_reference(
     target,
     out_points,
     out_count,
+    per_step=False,
 ):
     """:func:`_temporal_fill_kernel` pixel by pixel (each chain to its end before the next
     pixel's): the oracle of the step-major kernel, same arguments and outputs."""
@@ -211,7 +198,9 @@ def _temporal_fill_reference(
                     flow_slot = slot if direction == 1 else frame_slot[T + 1 - first]
                     step_ring = fwd_ring if direction == 1 else bwd_ring
                     check_ring = bwd_ring if direction == 1 else fwd_ring
-                    ok, nx, ny = _track_step(step_ring, check_ring, flow_slot, x, y, theta, False)
+                    ok, nx, ny = _track_step(
+                        step_ring, check_ring, flow_slot, x, y, theta, per_step
+                    )
                     if not ok:
                         break
                     x = nx
