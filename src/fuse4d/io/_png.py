@@ -1,19 +1,20 @@
-"""PNG encoding with ISA-L's deflate: the frames that ``fuse4d run`` writes, 4x faster.
+"""PNG encoding with ISA-L's deflate: the frames that ``fuse4d run`` writes, 5x faster.
 
 A PNG is a signature and three chunks (IHDR: size and pixel format, IDAT: the zlib stream of
 the filtered rows, IEND), each with its CRC-32 (PNG specification, W3C 2003/2022). What costs
 time is the deflate of the IDAT. OpenCV's and Pillow's PNG writers call the zlib they were
 built with (zlib 1.2.11 for this machine's OpenCV); no PNG library can be told to use another
 deflate. ISA-L (Intel's storage acceleration library, through ``isal``) writes the same zlib
-format 3.5-4x faster than zlib at level 1 and as small, so fuse4d assembles the chunks itself
+format 4x faster than zlib at level 1 and as small, so fuse4d assembles the chunks itself
 (about twenty lines) around ``isal_zlib.compress``. Decoding stays with OpenCV.
 
 Measured on 640 x 480 frames of ``uva_cv2_person_turning`` fused by ``fuse4d run`` (one
-sitting, best of 3, stop 38): depth 4.7 -> 1.1 ms, 8-bit intensity 3.7 -> 0.8 ms, confidence
-1.4 -> 0.3 ms, source 0.9 -> 0.15 ms, against OpenCV with zlib level 1, Paeth filter and RLE
-(the settings stops 33-37 used); the files are 10-17 % larger (depth 119 -> 131 kB,
-intensity 114 -> 134 kB). Every row takes the Up filter (the byte minus the one above it):
-one numpy subtraction, and within 2 % of the size Paeth gives with ISA-L.
+sitting, best of 5, stop 38), against OpenCV with zlib level 1, the Paeth filter and RLE (the
+settings of stops 33-37): depth 4.67 -> 1.03 ms, 8-bit intensity 3.69 -> 0.70 ms, mask
+0.68 -> 0.06 ms, source 0.92 -> 0.16 ms, confidence 1.37 -> 0.29 ms, i.e. 11.3 -> 2.2 ms a
+frame; the files are 17 % larger (274 -> 321 kB a frame; depth 119 -> 131 kB, intensity
+114 -> 134 kB). Every row takes the Up filter (the byte minus the one above it): one numpy
+subtraction, and within 2 % of the size Paeth gives with ISA-L.
 """
 
 from __future__ import annotations
