@@ -301,8 +301,8 @@ class FusionEngine:
             committed((kt, h, w), np.bool_, False),
         )
         # the holes that the tracking pass fills from time (A26, :meth:`_time_fill`) and its
-        # output, refilled for every output frame
-        # (its chains take bilinear flow samples: with quantize="per_step" the tracks do not)
+        # output, refilled for every output frame; not with quantize="per_step" (the fill's
+        # chains take bilinear flow samples where those tracks round every step)
         chained_fill = p.fill_from_time and not composed and k > 0 and p.quantize == "final"
         hf, wf = (h, w) if chained_fill else (0, 0)
         self._fill_target = committed((hf, wf), np.bool_, False)
