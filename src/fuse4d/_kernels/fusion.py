@@ -67,6 +67,35 @@ def _track_step(step_ring, check_ring, slot, x, y, theta, per_step):
 
 
 @njit(inline="always")
+def _checked_landing(x, y, su, sv, cu, cv, w, h, theta2):
+    """One tracking step from (x, y) by the flow sample (su, sv): ``(ok, nx, ny)``, ok when
+    the landing lies in the W x H image and the forward-backward error with the reverse
+    flow (cu, cv) sampled there is below theta (``theta2`` = theta^2; Eq. 4). The arithmetic
+    of :func:`_track_step`."""
+    nx = x + su
+    ny = y + sv
+    ok = nx >= 0.0 and nx <= w - 1.0 and ny >= 0.0 and ny <= h - 1.0
+    if ok:
+        e2 = (su + cu) * (su + cu) + (sv + cv) * (sv + cv)
+        ok = e2 < theta2
+    return ok, nx, ny
+
+
+@njit(inline="always")
+def _fill_landing(depth_T, ref_T, r, c, prev, max_step, quad):
+    """A26 at a fill chain's landing pixel (r, c) of frame T: ``(state, d)`` with d the depth
+    there and state 0 (no depth or no reference point: the chain follows the intensity on),
+    1 (a sample: within the depth-step limit of the previous sample ``prev``, NaN: none yet)
+    or -1 (a depth step: the chain ends)."""
+    d1 = depth_T[r, c]
+    if np.isnan(d1) or np.isnan(ref_T[r, c, 2]):
+        return 0, d1
+    if not np.isnan(prev) and not (abs(d1 - prev) < _step_limit(prev, max_step, quad)):
+        return -1, d1
+    return 1, d1
+
+
+@njit(inline="always")
 def _add_trajectory_sample(acc, j, wt, tau, px, py, pz):
     """Add a tracked sample P~^T (mm) at tau = T - t with weight ``wt`` to column ``j`` of the
     weighted least-squares sums ``acc`` (9, n): s0, s1, s2, then x, y, z and tau times them."""
@@ -497,14 +526,9 @@ def _track_kernel(
                             cu_row[u], cv_row[u] = _bilinear2_plane(check_flow, nx, ny)
                     for u in range(w):
                         if alive[u]:
-                            nx = xs[u] + su[u]
-                            ny = ys[u] + sv[u]
-                            ok = nx >= 0.0 and nx <= w - 1.0 and ny >= 0.0 and ny <= h - 1.0
-                            if ok:
-                                cu = cu_row[u]
-                                cv = cv_row[u]
-                                e2 = (su[u] + cu) * (su[u] + cu) + (sv[u] + cv) * (sv[u] + cv)
-                                ok = e2 < theta2
+                            ok, nx, ny = _checked_landing(
+                                xs[u], ys[u], su[u], sv[u], cu_row[u], cv_row[u], w, h, theta2
+                            )
                             if ok:
                                 if per_step:
                                     nx = float(_round_half_up(nx))
@@ -524,14 +548,9 @@ def _track_kernel(
                             if not ok:
                                 alive[u] = False
                         elif follow[u]:  # A26: a hole's chain, through holes until depth
-                            nx = xs[u] + su[u]
-                            ny = ys[u] + sv[u]
-                            ok = nx >= 0.0 and nx <= w - 1.0 and ny >= 0.0 and ny <= h - 1.0
-                            if ok:
-                                cu = cu_row[u]
-                                cv = cv_row[u]
-                                e2 = (su[u] + cu) * (su[u] + cu) + (sv[u] + cv) * (sv[u] + cv)
-                                ok = e2 < theta2
+                            ok, nx, ny = _checked_landing(
+                                xs[u], ys[u], su[u], sv[u], cu_row[u], cv_row[u], w, h, theta2
+                            )
                             if not ok:
                                 follow[u] = False
                                 continue
@@ -542,14 +561,11 @@ def _track_kernel(
                             ys[u] = ny
                             r = _round_half_up(ny)
                             c = _round_half_up(nx)
-                            d1 = depth_T[r, c]
-                            if np.isnan(d1) or np.isnan(ref_T[r, c, 2]):
-                                continue  # still no depth here: keep following the intensity
-                            p0 = fill_prev[u]
-                            if not np.isnan(p0) and not (
-                                abs(d1 - p0) < _step_limit(p0, max_step, quad)
-                            ):
-                                follow[u] = False
+                            state, d1 = _fill_landing(
+                                depth_T, ref_T, r, c, fill_prev[u], max_step, quad
+                            )
+                            if state <= 0:
+                                follow[u] = state == 0  # (no depth here: follow on)
                                 continue
                             fill_prev[u] = d1
                             _add_trajectory_sample(

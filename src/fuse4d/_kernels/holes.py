@@ -20,7 +20,7 @@ import numpy as np
 
 from ._common import ROW_CHUNKS, _round_half_up, _step_limit
 from ._numba import njit, njit_parallel, prange
-from .fusion import _add_trajectory_sample, _put_trajectory_value, _track_step
+from .fusion import _add_trajectory_sample, _fill_landing, _put_trajectory_value, _track_step
 
 
 @njit_parallel
@@ -119,14 +119,11 @@ def _temporal_fill_kernel(
                         ys[j] = ny
                         r = _round_half_up(ny)
                         c = _round_half_up(nx)
-                        d1 = depth_ring[slot, r, c]
-                        if np.isnan(d1) or np.isnan(ref_ring[slot, r, c, 2]):
-                            continue  # still no depth here: keep following the intensity
-                        p0 = prev[j]
-                        if not np.isnan(p0) and not (
-                            abs(d1 - p0) < _step_limit(p0, max_step, quad)
-                        ):
-                            alive[j] = False
+                        state, d1 = _fill_landing(
+                            depth_ring[slot], ref_ring[slot], r, c, prev[j], max_step, quad
+                        )
+                        if state <= 0:
+                            alive[j] = state == 0  # (no depth here: follow the intensity on)
                             continue
                         prev[j] = d1
                         _add_trajectory_sample(
