@@ -865,10 +865,11 @@ class FusionEngine:
             self._depth[slot], focal_px=self.intrinsics.fx, max_step=p.max_depth_step, quad=quad
         )
         if fill_time:
-            targets = holes & inside
-            if time_fill is not None:  # chained by the tracking pass, on the same targets
+            if time_fill is not None:  # chained by the tracking pass (its targets: these holes)
+                targets = time_fill.target
                 filled_points, count = time_fill.points, time_fill.count
             else:
+                targets = holes & inside
                 filled_points, count = _fill_from_time(
                     self._fwd,
                     self._bwd,

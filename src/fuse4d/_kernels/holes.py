@@ -63,7 +63,9 @@ def _temporal_fill_kernel(
     order as :func:`_temporal_fill_reference` (the per-pixel loop), so the output is
     bit-identical to it (tested). The streaming engine has the tracking kernel
     (:func:`._kernels.fusion._track_kernel`) chain the holes in the same pass instead; this
-    kernel serves the composed tracks (A31), which chain no pixel per output frame.
+    kernel serves the composed tracks (A31), which chain no pixel per output frame, and
+    ``quantize="per_step"``, whose fill chains the engine runs here without the per-step
+    rounding (as before stop 38; ``per_step`` True is the tracking kernel's oracle).
     """
     h = depth_ring.shape[1]
     w = depth_ring.shape[2]

@@ -4,22 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import ROW_CHUNKS
-from ._numba import njit, njit_parallel, prange
-
-
-@njit(inline="always")
-def _limit(z, quad, step_levels, max_step):
-    """The step limit max(max_step, step_levels q z^2) (mm) in numpy's order of operations."""
-    return max(max_step, step_levels * quad * z * z)
+from ._common import ROW_CHUNKS, _step_limit
+from ._numba import njit_parallel, prange
 
 
 @njit_parallel
-def _default_roi_kernel(depth, quad, step_levels, max_step, half, counts, out):
+def _default_roi_kernel(depth, quad, max_step, half, counts, out):
     """``out[v, u]`` = the (2 half + 1)^2 window at (v, u) lies inside the image, holds valid
     (finite) ``depth`` only, and no two horizontally or vertically neighbouring pixels in it
-    differ by more than the larger of their step limits ``max(max_step, step_levels q z^2)``
-    (mm; one (H, W) frame, q = ``quad``).
+    differ by more than the larger of their step limits (the fusion's rule
+    :func:`._common._step_limit`, max(max_step, 2.5 q z^2) mm; one (H, W) frame, q = ``quad``).
 
     Two passes of window sums. Along each row, from prefix sums, into ``counts`` ((2, H, W)
     int32): ``counts[0]`` the invalid pixels of columns u-half .. u+half plus the right links
@@ -42,11 +36,11 @@ def _default_roi_kernel(depth, quad, step_levels, max_step, half, counts, out):
         for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
             row = depth[v]
             for u in range(w):
-                lim[u] = _limit(float(row[u]), quad, step_levels, max_step)
+                lim[u] = _step_limit(float(row[u]), max_step, quad)
             if v + 1 < h:
                 below = depth[v + 1]
                 for u in range(w):
-                    lim_next[u] = _limit(float(below[u]), quad, step_levels, max_step)
+                    lim_next[u] = _step_limit(float(below[u]), max_step, quad)
             for u in range(w):
                 z = float(row[u])
                 pre0[u + 1] = pre0[u] + (0 if np.isfinite(z) else 1)

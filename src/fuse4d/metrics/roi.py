@@ -135,9 +135,7 @@ def default_roi(
     out = np.empty(frames.shape, np.bool_)
     counts = np.empty((2, *frames.shape[1:]), np.int32)
     for k, frame in enumerate(frames):
-        _default_roi_kernel(
-            frame, float(quads[k]), STEP_NOISE_LEVELS, float(max_step), window // 2, counts, out[k]
-        )
+        _default_roi_kernel(frame, float(quads[k]), float(max_step), window // 2, counts, out[k])
     return out.reshape(d.shape)
 
 
