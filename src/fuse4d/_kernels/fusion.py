@@ -454,6 +454,9 @@ def _track_kernel(
         fill_prev = np.empty(w, dtype=np.float64)
         acc = np.empty((9, w), dtype=np.float64)
         count = np.empty(w, dtype=np.int64)
+        # the row's chains still going (alive, or an A26 hole being followed): the passes
+        # of a step visit only these (a dead chain's samples were never used)
+        act = np.empty(w, dtype=np.int64)
         for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
             fill_row = False
             if has_fill:
@@ -471,6 +474,7 @@ def _track_kernel(
                 if n_steps == 0:  # (a causal window has no frame after t)
                     continue
                 d0 = depth_ring[st, v]
+                n_act = 0
                 for u in range(w):
                     xs[u] = u
                     ys[u] = v
@@ -480,6 +484,8 @@ def _track_kernel(
                     alive[u] = not np.isnan(d0[u])
                     follow[u] = fill_row and fill_target[v, u]
                     fill_prev[u] = np.nan
+                    act[n_act] = u
+                    n_act += 1 if (alive[u] or follow[u]) else 0
                 for step in range(1, n_steps + 1):
                     T = t + direction * step
                     k = T - first - 1 if direction == 1 else T - first
@@ -504,7 +510,8 @@ def _track_kernel(
                         for u in range(w):
                             su[u] = float(flow_row[u, 0])
                             sv[u] = float(flow_row[u, 1])
-                    for u in range(w if step > 1 else 0):
+                    for j in range(n_act if step > 1 else 0):
+                        u = act[j]
                         if per_step:
                             iu = _round_half_up(xs[u])
                             iv = _round_half_up(ys[u])
@@ -514,7 +521,8 @@ def _track_kernel(
                             su[u], sv[u] = _bilinear2_plane(step_flow, xs[u], ys[u])
                     # the reverse flow at the landing point, clamped into the image (a landing
                     # outside fails below, whatever the sample)
-                    for u in range(w):
+                    for j in range(n_act):
+                        u = act[j]
                         nx = min(max(xs[u] + su[u], 0.0), w - 1.0)
                         ny = min(max(ys[u] + sv[u], 0.0), h - 1.0)
                         if per_step:
@@ -524,7 +532,9 @@ def _track_kernel(
                             cv_row[u] = float(check_flow[iy, ix, 1])
                         else:
                             cu_row[u], cv_row[u] = _bilinear2_plane(check_flow, nx, ny)
-                    for u in range(w):
+                    n_keep = 0
+                    for j in range(n_act):
+                        u = act[j]
                         if alive[u]:
                             ok, nx, ny = _checked_landing(
                                 xs[u], ys[u], su[u], sv[u], cu_row[u], cv_row[u], w, h, theta2
@@ -547,31 +557,33 @@ def _track_kernel(
                                     prev_depth[u] = d1
                             if not ok:
                                 alive[u] = False
-                        elif follow[u]:  # A26: a hole's chain, through holes until depth
+                        else:  # A26: a hole's chain (follow[u]), through holes until depth
                             ok, nx, ny = _checked_landing(
                                 xs[u], ys[u], su[u], sv[u], cu_row[u], cv_row[u], w, h, theta2
                             )
-                            if not ok:
-                                follow[u] = False
-                                continue
-                            if per_step:
-                                nx = float(_round_half_up(nx))
-                                ny = float(_round_half_up(ny))
-                            xs[u] = nx
-                            ys[u] = ny
-                            r = _round_half_up(ny)
-                            c = _round_half_up(nx)
-                            state, d1 = _fill_landing(
-                                depth_T, ref_T, r, c, fill_prev[u], max_step, quad
-                            )
-                            if state <= 0:
-                                follow[u] = state == 0  # (no depth here: follow on)
-                                continue
-                            fill_prev[u] = d1
-                            _add_trajectory_sample(
-                                acc, u, wt, tau, ref_T[r, c, 0], ref_T[r, c, 1], ref_T[r, c, 2]
-                            )
-                            count[u] += 1
+                            if ok:
+                                if per_step:
+                                    nx = float(_round_half_up(nx))
+                                    ny = float(_round_half_up(ny))
+                                xs[u] = nx
+                                ys[u] = ny
+                                r = _round_half_up(ny)
+                                c = _round_half_up(nx)
+                                state, d1 = _fill_landing(
+                                    depth_T, ref_T, r, c, fill_prev[u], max_step, quad
+                                )
+                                ok = state >= 0  # (0: no depth here, follow on)
+                                if state > 0:
+                                    fill_prev[u] = d1
+                                    _add_trajectory_sample(
+                                        acc, u, wt, tau, ref_T[r, c, 0], ref_T[r, c, 1],
+                                        ref_T[r, c, 2],
+                                    )  # fmt: skip
+                                    count[u] += 1
+                            follow[u] = ok
+                        act[n_keep] = u
+                        n_keep += 1 if (alive[u] or follow[u]) else 0
+                    n_act = n_keep
                     ok_row = land_ok[k, v]
                     row_row = land_row[k, v]
                     col_row = land_col[k, v]
