@@ -2,7 +2,10 @@
 
 Files are read into memory by Python (so a missing file gives a clear error) and decoded with
 ``cv2.imdecode`` (``IMREAD_UNCHANGED`` keeps 16-bit PNGs); ``None`` from OpenCV, a missing PNG
-end chunk or a missing JPEG end marker is reported as a truncated or corrupt file.
+end chunk or a missing JPEG end marker is reported as a truncated or corrupt file. Gray 8- and
+16-bit PNGs (depth, and the flag images fuse4d writes) are decoded with ISA-L's inflate
+(:func:`fuse4d.io._png.decode_gray_png`, the same array OpenCV returns); any PNG that decoder
+does not take goes to OpenCV.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputFileError
-from ._png import png_bytes
+from ._png import decode_gray_png, png_bytes
 
 __all__ = [
     "QuantizationReport",
@@ -82,6 +85,10 @@ def decode_image(
     truncated = (kind == "PNG" and _PNG_END not in data[-64:]) or (
         kind == "JPEG" and _JPEG_END not in data[-64:]
     )
+    if kind == "PNG" and not truncated:
+        gray = decode_gray_png(data)  # gray 8/16-bit (depth): ISA-L's inflate
+        if gray is not None:
+            return gray
     flags = cv2.IMREAD_UNCHANGED
     if jpeg_luma and kind == "JPEG":
         # (any flag but IMREAD_UNCHANGED turns the image by its EXIF orientation: not here)

@@ -13,6 +13,7 @@ import struct
 import cv2
 import numpy as np
 
+from ._png import decode_gray_png
 from .rvl import decode_rvl
 
 __all__ = [
@@ -135,7 +136,9 @@ def _decode_compressed_depth(fmt: str, raw: bytes) -> tuple[np.ndarray, str]:
             raise ValueError(f"compressedDepth rvl message has an invalid size {w}x{h}")
         img = decode_rvl(body[8:], w, h)
     else:
-        img = cv2.imdecode(np.frombuffer(body, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+        img = decode_gray_png(body)  # ISA-L's inflate; None: OpenCV decodes (or reports)
+        if img is None:
+            img = cv2.imdecode(np.frombuffer(body, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
         if img is None:
             raise ValueError("cannot decode the compressedDepth PNG (truncated or corrupt)")
         if img.dtype != np.uint16 or img.ndim != 2:
