@@ -247,6 +247,39 @@ def test_run_read_ahead_and_write_behind_match_the_inline_run(tmp_path, capsys):
     assert load_sequence(out).num_frames == 5
 
 
+def test_run_summary_counts_equal_the_numpy_tallies():
+    """The summary's per-frame counts (one kernel) are numpy's: raw-valid pixels, of them
+    supported and filled, pixels per source code (codes past the tally ignored), with and
+    without source codes."""
+    from fuse4d.fusion import FusedFrame
+    from fuse4d.holes import _SOURCE_CODES
+    from fuse4d.run import _QualityTally
+
+    rng = np.random.default_rng(5)
+    shape = (23, 31)
+    raw = rng.normal(1000.0, 5.0, (*shape, 3)).astype(np.float32)
+    raw[rng.random(shape) < 0.3, 2] = np.nan
+    raw[0, 0, 2] = np.inf  # not finite: not valid
+    support = rng.integers(0, 4, shape).astype(np.uint8)
+    filled = rng.random(shape) < 0.2
+    source = rng.integers(0, _SOURCE_CODES + 2, shape).astype(np.uint8)
+    no_holes = np.zeros(shape, bool)
+    with_codes = FusedFrame(0, raw, support, filled, no_holes, source=source)
+    without = FusedFrame(1, raw, support, filled, no_holes)
+    tally = _QualityTally(every=10**6)
+    tally.add(raw, with_codes)
+    tally.add(raw, without)
+    valid = np.isfinite(raw[..., 2])
+    assert tally.valid == 2 * valid.sum()
+    assert tally.supported == 2 * (support[valid] > 0).sum()
+    assert tally.filled == 2 * filled[valid].sum()
+    assert tally.pixels == 2 * valid.size
+    expected = np.bincount(source.ravel(), minlength=_SOURCE_CODES + 2)[:_SOURCE_CODES]
+    np.testing.assert_array_equal(tally.sources.counts, expected)
+    assert tally.sources.pixels == valid.size  # one frame had codes
+    assert tally.sources.raw_valid == valid.sum()
+
+
 def test_run_reader_and_writer_errors_reach_the_caller(tmp_path, monkeypatch):
     from fuse4d import run as run_module
 

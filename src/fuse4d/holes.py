@@ -113,8 +113,14 @@ class _SourceTally:
     def add(self, source: NDArray[np.uint8], raw_valid: int) -> None:
         """One frame's source codes and its number of raw-valid pixels."""
         codes = np.asarray(source).ravel()
-        self.counts += np.bincount(codes, minlength=_SOURCE_CODES)[:_SOURCE_CODES]
-        self.pixels += codes.size
+        counts = np.bincount(codes, minlength=_SOURCE_CODES)[:_SOURCE_CODES]
+        self.add_counts(counts, codes.size, raw_valid)
+
+    def add_counts(self, counts: NDArray[np.int64], pixels: int, raw_valid: int) -> None:
+        """One frame's pixels per source code (``counts``, one per code), its number of
+        pixels and of raw-valid pixels (what :meth:`add` counts)."""
+        self.counts += np.asarray(counts, np.int64)[:_SOURCE_CODES]
+        self.pixels += int(pixels)
         self.raw_valid += int(raw_valid)
 
     def shares(self) -> dict[str, float | None]:

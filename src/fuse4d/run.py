@@ -174,14 +174,19 @@ class _QualityTally:
         self.sources = _SourceTally()
 
     def add(self, raw_points: np.ndarray, frame: FusedFrame) -> None:
+        from ._kernels.tally import FILLED, SOURCES, SUPPORTED, VALID, _frame_counts_kernel
+
         self.scores.add(raw_points, frame.points)
-        valid = np.isfinite(raw_points[..., 2])
-        self.valid += int(valid.sum())
-        self.supported += int((frame.support[valid] > 0).sum())
-        self.filled += int(frame.filled[valid].sum())
-        self.pixels += valid.size
+        raw_depth = raw_points[..., 2]
+        counts = np.zeros(SOURCES + len(self.sources.counts), np.int64)
+        codes = frame.source if frame.source is not None else np.zeros((0, 0), np.uint8)
+        _frame_counts_kernel(raw_depth, frame.support, frame.filled, codes, counts)
+        self.valid += int(counts[VALID])
+        self.supported += int(counts[SUPPORTED])
+        self.filled += int(counts[FILLED])
+        self.pixels += raw_depth.size
         if frame.source is not None:
-            self.sources.add(frame.source, int(valid.sum()))
+            self.sources.add_counts(counts[SOURCES:], raw_depth.size, int(counts[VALID]))
 
     def fill(self, summary: RunSummary) -> None:
         res = self.scores.result()
