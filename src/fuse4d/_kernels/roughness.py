@@ -128,10 +128,13 @@ def _plane_fit_from_normal(cnt, mx, my, mz, a00, a01, a02, a11, a12, a22, nx, ny
     return cnt * abs(dist), math.sqrt(max(quad, 0.0) / max(cnt, 1.0))  # cnt 0: not scored
 
 
-@njit
+@njit(inline="always")
 def _centroid_offset(qx, qy, qz, px, py, pz, cnt, sx, sy, sz):  # pragma: no cover - compiled
     """First pass, one window offset over a row (1D slices; this loop vectorises): the count
-    and the sums of the valid neighbours ``q`` relative to the centres ``p`` (float64)."""
+    and the sums of the valid neighbours ``q`` relative to the centres ``p`` (float64).
+    Inlined, as :func:`_scatter_offset` (2 n^2 calls a row, each with ten or more array
+    arguments): the kernel is a fifth faster (640 x 480, one thread: 20-21 ms called,
+    15-17 ms inlined) and its values the same bits (stop 39)."""
     for u in range(px.shape[0]):
         x = float(qx[u])
         y = float(qy[u])
@@ -143,7 +146,7 @@ def _centroid_offset(qx, qy, qz, px, py, pz, cnt, sx, sy, sz):  # pragma: no cov
         sz[u] += (z - float(pz[u])) if ok else 0.0
 
 
-@njit
+@njit(inline="always")
 def _scatter_offset(
     qx, qy, qz, px, py, pz, mx, my, mz, a00, a01, a02, a11, a12, a22
 ):  # pragma: no cover - compiled
