@@ -935,6 +935,36 @@ def test_streaming_equals_in_memory_bit_for_bit(rng):
         np.testing.assert_array_equal(np.stack([f.points for f in big]), memory.points)
 
 
+def test_in_memory_and_stream_apis_stop_their_flow_worker():
+    """fuse_sequence and fuse_stream compute the flows in a worker thread (overlap_flow):
+    gone when they return, when a stream is abandoned and when the caller fails."""
+    import threading
+
+    def workers():
+        return [t for t in threading.enumerate() if t.name.startswith("fuse4d-flow")]
+
+    n = 6
+    depth = _plane_depth(n)
+    inten = _moving_texture(n)
+    params = FusionParams(num_frames=3)
+    fuse_sequence(depth, inten, K, fusion=params, flow="dis")
+    assert not workers()
+    stream = fuse_stream(zip(depth, inten, strict=True), K, fusion=params, flow="dis")
+    next(stream)
+    next(stream)
+    assert workers()  # the stream's engine is running its worker
+    stream.close()  # abandoned half way
+    assert not workers()
+
+    def failing(done, total):
+        if done == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        fuse_sequence(depth, inten, K, fusion=params, flow="dis", progress=failing)
+    assert not workers()
+
+
 def test_engine_emits_with_latency_and_bounded_ring():
     n = 8
     engine = FusionEngine(K, fusion=FusionParams(num_frames=5), flow="dis")
