@@ -67,17 +67,21 @@ def _track_step(step_ring, check_ring, slot, x, y, theta, per_step):
 
 
 @njit(inline="always")
-def _checked_landing(x, y, su, sv, cu, cv, w, h, theta2):
+def _checked_landing(x, y, su, sv, cu, cv, w, h, theta2, per_step):
     """One tracking step from (x, y) by the flow sample (su, sv): ``(ok, nx, ny)``, ok when
     the landing lies in the W x H image and the forward-backward error with the reverse
-    flow (cu, cv) sampled there is below theta (``theta2`` = theta^2; Eq. 4). The arithmetic
-    of :func:`_track_step`."""
+    flow (cu, cv) sampled there is below theta (``theta2`` = theta^2; Eq. 4); with
+    ``per_step`` the landing of an ok step is rounded to its pixel (``quantize="per_step"``).
+    The arithmetic of :func:`_track_step`."""
     nx = x + su
     ny = y + sv
     ok = nx >= 0.0 and nx <= w - 1.0 and ny >= 0.0 and ny <= h - 1.0
     if ok:
         e2 = (su + cu) * (su + cu) + (sv + cv) * (sv + cv)
         ok = e2 < theta2
+    if ok and per_step:
+        nx = float(_round_half_up(nx))
+        ny = float(_round_half_up(ny))
     return ok, nx, ny
 
 
@@ -542,12 +546,10 @@ def _track_kernel(
                         u = act[j]
                         if alive[u]:
                             ok, nx, ny = _checked_landing(
-                                xs[u], ys[u], su[u], sv[u], cu_row[u], cv_row[u], w, h, theta2
-                            )
+                                xs[u], ys[u], su[u], sv[u], cu_row[u], cv_row[u], w, h, theta2,
+                                per_step,
+                            )  # fmt: skip
                             if ok:
-                                if per_step:
-                                    nx = float(_round_half_up(nx))
-                                    ny = float(_round_half_up(ny))
                                 r = _round_half_up(ny)
                                 c = _round_half_up(nx)
                                 d1 = depth_T[r, c]
@@ -564,12 +566,10 @@ def _track_kernel(
                                 alive[u] = False
                         else:  # A26: a hole's chain (follow[u]), through holes until depth
                             ok, nx, ny = _checked_landing(
-                                xs[u], ys[u], su[u], sv[u], cu_row[u], cv_row[u], w, h, theta2
-                            )
+                                xs[u], ys[u], su[u], sv[u], cu_row[u], cv_row[u], w, h, theta2,
+                                per_step,
+                            )  # fmt: skip
                             if ok:
-                                if per_step:
-                                    nx = float(_round_half_up(nx))
-                                    ny = float(_round_half_up(ny))
                                 xs[u] = nx
                                 ys[u] = ny
                                 r = _round_half_up(ny)
