@@ -111,6 +111,24 @@ def test_running_evaluation_matches_evaluate_per_frame(plane):
     assert res["output_flicker"] == pytest.approx(rep.output.flicker.step_mean, rel=1e-9)
 
 
+def test_running_evaluation_with_the_callers_noise_quad(plane):
+    """Given each frame's q (what ``fuse4d run`` takes from the engine), the scores are those
+    of the q it estimates itself; a coarser q (larger steps allowed) widens the ROI."""
+    from fuse4d.motion import estimate_noise_quad
+
+    truth, raw = plane
+    out_pts = depth_to_points(truth.ground_truth.depth, raw.intrinsics)
+    raw_pts = raw.points()
+    own, given, other = RunningEvaluation(), RunningEvaluation(), RunningEvaluation()
+    for t in range(raw.num_frames):
+        own.add(raw_pts[t], out_pts[t])
+        q = estimate_noise_quad(raw.depth[t])
+        given.add(raw_pts[t], out_pts[t], noise_quad=q)
+        other.add(raw_pts[t], out_pts[t], noise_quad=0.01)
+    assert given.result() == own.result()
+    assert other.result()["roughness_pixels"] > own.result()["roughness_pixels"]
+
+
 def test_masked_roughness_maps_equal_the_full_maps_on_the_mask(plane):
     from fuse4d.metrics.roughness import _roughness_maps_on
 

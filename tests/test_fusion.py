@@ -979,6 +979,24 @@ def test_engine_emits_with_latency_and_bounded_ring():
         engine.push(depth[0], inten)
 
 
+def test_input_noise_quad_is_the_estimate_on_the_pushed_depth(rng):
+    """The q that ``fuse4d run``'s summary reuses is estimate_noise_quad of the depth as
+    pushed, while the frame is in the ring; None where A36 removed flying pixels first."""
+    depth = _plane_depth(6) + rng.normal(0, 0.5, (6, H, W)).astype(np.float32)
+    depth[:, 3:6, 4:9] = np.nan
+    inten = _texture(H, W)
+    engine = FusionEngine(K, fusion=FusionParams(num_frames=3), flow="dis")
+    for t, d in enumerate(depth):
+        for fr in engine.push(d, inten):
+            assert engine.input_noise_quad(fr.index) == estimate_noise_quad(depth[fr.index])
+        assert engine.input_noise_quad(t) == estimate_noise_quad(d) > 0
+    with pytest.raises(IndexError, match="frame 0 is not in the ring buffer"):
+        engine.input_noise_quad(0)
+    rejecting = FusionEngine(K, fusion=FusionParams(num_frames=3, flying_pixels="on"), flow="dis")
+    rejecting.push(depth[0], inten)
+    assert rejecting.input_noise_quad(0) is None
+
+
 def test_iterations_reduce_roughness_further(rng):
     n = 5
     depth = _plane_depth(n) + rng.normal(0, 0.3, (n, H, W)).astype(np.float32)

@@ -576,6 +576,18 @@ class FusionEngine:
             raise IndexError(f"pair ({index - 1}, {index}) is not in the ring buffer")
         return self._fwd[index % self.ring].copy()
 
+    def input_noise_quad(self, index: int) -> float | None:
+        """The depth-noise coefficient q (1/mm, A22) the engine estimated on frame ``index``'s
+        depth as pushed, while the frame is in the ring buffer; None where it estimated q on
+        other depth (the ToF flying pixels removed first, A36). ``fuse4d run``'s summary scores
+        the raw depth with it instead of estimating it a second time (issue 13).
+        """
+        if not max(0, self._pushed - self.ring) <= index < self._pushed:
+            raise IndexError(f"frame {index} is not in the ring buffer")
+        if self._rejected is not None:
+            return None
+        return float(self._noise[index % self.ring, 1])
+
     def flush(self) -> list[FusedFrame]:
         """End of stream: emit the remaining frames with truncated windows."""
         out = []

@@ -432,12 +432,17 @@ class RunningEvaluation:
         self._quads: list[float] = []
         self._state: dict[str, NDArray[Any]] | None = None
 
-    def add(self, raw_points: ArrayLike, output_points: ArrayLike) -> None:
-        """Score one frame: raw and output ``(H, W, 3)`` point maps (mm)."""
+    def add(
+        self, raw_points: ArrayLike, output_points: ArrayLike, *, noise_quad: float | None = None
+    ) -> None:
+        """Score one frame: raw and output ``(H, W, 3)`` point maps (mm). ``noise_quad``: the
+        raw depth's noise coefficient q (1/mm) where the caller has it
+        (:meth:`~fuse4d.fusion.FusionEngine.input_noise_quad`); None: estimated here with
+        :func:`~fuse4d.motion.estimate_noise_quad`, the engine's estimator."""
         rp = np.asarray(raw_points, dtype=np.float32)[None]
         op = np.asarray(output_points, dtype=np.float32)[None]
         rd, od = rp[..., 2], op[..., 2]
-        quad = float(_frame_quads(rd, None)[0])
+        quad = float(_frame_quads(rd, noise_quad)[0])
         if self.frames % self.every == 0:
             self.roughness_frames += 1
             region = default_roi(rd, window=self.window, max_step=self.max_step, noise_quad=quad)
