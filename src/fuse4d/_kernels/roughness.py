@@ -184,6 +184,16 @@ def _roughness_row(planes, t, i, radius, min_count, mask, masked, sums, out_sum,
     640 x 480: its branches and gathers kept every loop scalar).
     """
     h, w = planes.shape[2], planes.shape[3]
+    lo, hi = 0, w
+    if masked:  # the row's span of scored pixels
+        while lo < w and not mask[t, i, lo]:
+            lo += 1
+        while hi > lo and not mask[t, i, hi - 1]:
+            hi -= 1
+        if hi == lo:
+            out_sum[t, i] = np.nan
+            out_rms[t, i] = np.nan
+            return
     sums[:10] = 0.0
     cnt, sx, sy, sz = sums[0], sums[1], sums[2], sums[3]
     a00, a01, a02, a11, a12, a22 = sums[4], sums[5], sums[6], sums[7], sums[8], sums[9]
@@ -193,7 +203,7 @@ def _roughness_row(planes, t, i, radius, min_count, mask, masked, sums, out_sum,
     for di in rows:
         qx, qy, qz = planes[t, 0, di], planes[t, 1, di], planes[t, 2, di]
         for dj in range(-radius, radius + 1):
-            u0, u1 = max(0, -dj), min(w, w - dj)
+            u0, u1 = max(lo, -dj), min(hi, w - dj)
             if u1 > u0:
                 _centroid_offset(
                     qx[u0 + dj : u1 + dj],
@@ -215,7 +225,7 @@ def _roughness_row(planes, t, i, radius, min_count, mask, masked, sums, out_sum,
     for di in rows:
         qx, qy, qz = planes[t, 0, di], planes[t, 1, di], planes[t, 2, di]
         for dj in range(-radius, radius + 1):
-            u0, u1 = max(0, -dj), min(w, w - dj)
+            u0, u1 = max(lo, -dj), min(hi, w - dj)
             if u1 > u0:
                 _scatter_offset(
                     qx[u0 + dj : u1 + dj],
@@ -237,24 +247,74 @@ def _roughness_row(planes, t, i, radius, min_count, mask, masked, sums, out_sum,
     # the plane fits: a vectorised pass (Newton's cosine), then the few line-like windows
     # again with the trigonometric formula (``exact`` False, marked in ``again``)
     nan = np.nan
-    for u in range(w):
+    out_sum[t, i, :lo] = nan
+    out_rms[t, i, :lo] = nan
+    out_sum[t, i, hi:] = nan
+    out_rms[t, i, hi:] = nan
+    _fit_span(
+        px[lo:hi],
+        py[lo:hi],
+        pz[lo:hi],
+        cnt[lo:hi],
+        mx[lo:hi],
+        my[lo:hi],
+        mz[lo:hi],
+        a00[lo:hi],
+        a01[lo:hi],
+        a02[lo:hi],
+        a11[lo:hi],
+        a12[lo:hi],
+        a22[lo:hi],
+        again[lo:hi],
+        mask[t, i, lo:hi] if masked else mask[0, 0, :0],
+        masked,
+        min_count,
+        out_sum[t, i, lo:hi],
+        out_rms[t, i, lo:hi],
+    )
+
+
+@njit(inline="always", error_model="numpy")
+def _fit_span(
+    px,
+    py,
+    pz,
+    cnt,
+    mx,
+    my,
+    mz,
+    a00,
+    a01,
+    a02,
+    a11,
+    a12,
+    a22,
+    again,
+    mask,
+    masked,
+    min_count,
+    out_sum,
+    out_rms,
+):  # pragma: no cover - compiled
+    nan = np.nan
+    for u in range(px.shape[0]):
         x, y, z = px[u], py[u], pz[u]
         use = (not (math.isnan(x) | math.isnan(y) | math.isnan(z))) & (cnt[u] >= min_count)
         if masked:
-            use &= mask[t, i, u]
+            use &= mask[u]
         nx, ny, nz, _, exact = _smallest_eigvec_newton(
             a00[u], a01[u], a02[u], a11[u], a12[u], a22[u]
         )
         pi, rms = _plane_fit_from_normal(
             cnt[u], mx[u], my[u], mz[u], a00[u], a01[u], a02[u], a11[u], a12[u], a22[u], nx, ny, nz
         )
-        out_sum[t, i, u] = pi if use else nan
-        out_rms[t, i, u] = rms if use else nan
+        out_sum[u] = pi if use else nan
+        out_rms[u] = rms if use else nan
         again[u] = 1.0 if (use & (not exact)) else 0.0
-    for u in range(w):
+    for u in range(px.shape[0]):
         if again[u] != 0.0:
             nx, ny, nz, _ = _smallest_eigvec_kernel(a00[u], a01[u], a02[u], a11[u], a12[u], a22[u])
-            out_sum[t, i, u], out_rms[t, i, u] = _plane_fit_from_normal(
+            out_sum[u], out_rms[u] = _plane_fit_from_normal(
                 cnt[u],
                 mx[u],
                 my[u],
