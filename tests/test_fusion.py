@@ -981,20 +981,29 @@ def test_engine_emits_with_latency_and_bounded_ring():
 
 def test_input_noise_quad_is_the_estimate_on_the_pushed_depth(rng):
     """The q that ``fuse4d run``'s summary reuses is estimate_noise_quad of the depth as
-    pushed, while the frame is in the ring; None where A36 removed flying pixels first."""
-    depth = _plane_depth(6) + rng.normal(0, 0.5, (6, H, W)).astype(np.float32)
-    depth[:, 3:6, 4:9] = np.nan
-    inten = _texture(H, W)
-    engine = FusionEngine(K, fusion=FusionParams(num_frames=3), flow="dis")
-    for t, d in enumerate(depth):
-        for fr in engine.push(d, inten):
-            assert engine.input_noise_quad(fr.index) == estimate_noise_quad(depth[fr.index])
-        assert engine.input_noise_quad(t) == estimate_noise_quad(d) > 0
-    with pytest.raises(IndexError, match="frame 0 is not in the ring buffer"):
-        engine.input_noise_quad(0)
-    rejecting = FusionEngine(K, fusion=FusionParams(num_frames=3, flying_pixels="on"), flow="dis")
-    rejecting.push(depth[0], inten)
-    assert rejecting.input_noise_quad(0) is None
+    pushed, while the frame is in the ring: with A36 the one taken before the flying pixels
+    were removed (the noise model's is estimated without them); None for pushed points."""
+    from fuse4d.range_scenes import make_range_scene
+
+    plane = _plane_depth(4) + rng.normal(0, 0.5, (4, H, W)).astype(np.float32)
+    plane[:, 3:6, 4:9] = np.nan
+    tof = make_range_scene("body", sensor="tof", small=True, num_frames=4, rng=0)
+    cases = [
+        (K, plane, np.broadcast_to(_texture(H, W), plane.shape), "off"),
+        (tof.intrinsics, tof.depth, tof.intensity, "on"),
+    ]
+    for k, depth, inten, flying in cases:
+        engine = FusionEngine(k, fusion=FusionParams(num_frames=3, flying_pixels=flying))
+        for t, d in enumerate(depth):
+            for fr in engine.push(d, inten[t]):
+                assert engine.input_noise_quad(fr.index) == estimate_noise_quad(depth[fr.index])
+            assert engine.input_noise_quad(t) == estimate_noise_quad(d) > 0
+        with pytest.raises(IndexError, match="frame 0 is not in the ring buffer"):
+            engine.input_noise_quad(0)
+    assert engine._rejected.any()  # the ToF body has flying pixels: A36 was exercised
+    pushed_points = FusionEngine(K, fusion=FusionParams(num_frames=3), flow="dis")
+    pushed_points.push(plane[0], _texture(H, W), points=depth_to_points(plane[0], K))
+    assert pushed_points.input_noise_quad(0) is None
 
 
 def test_iterations_reduce_roughness_further(rng):

@@ -275,6 +275,7 @@ class FusionEngine:
         # per-frame depth-noise model sigma(z) = max(sigma0, quad z^2) (A22) and median depth z_med
         # (mm, for the gate and delta_d): (sigma0, quad, z_med)
         self._noise = np.zeros((s, 3), np.float64)
+        self._input_quad = np.full(s, np.nan)  # q of each frame's depth as pushed
         self._intensity = committed((s, h, w), np.float32, 0.0)
         self._bilateral = committed((s, h, w, 3), np.float32, np.nan)
         # the residual bilateral's planar inputs, rebuilt every frame (_residual_bilateral)
@@ -416,9 +417,11 @@ class FusionEngine:
         _valid_depth_kernel(d, valid)  # NaN = invalid
         d = valid
         slot = index % self.ring
+        input_quad = math.nan  # q of the depth as pushed (input_noise_quad)
         if self._rejected is not None:  # A36, before anything sees the depth
             t0 = time.perf_counter()
-            rejected = flying_pixel_mask(d, self.intrinsics)
+            input_quad = estimate_noise_quad(d)
+            rejected = flying_pixel_mask(d, self.intrinsics, quad=input_quad)
             d[rejected] = np.nan
             self._rejected[slot] = rejected
             self.timings["motion_reference"] += time.perf_counter() - t0
@@ -441,6 +444,9 @@ class FusionEngine:
         except BaseException:
             self._drop_pending_flow()
             raise
+        if self._rejected is None:  # the noise model's q is the input depth's
+            input_quad = self._noise[slot, 1]
+        self._input_quad[slot] = math.nan if points is not None else input_quad
         self._pushed += 1
         out = []
         while self._emitted + self.future < self._pushed:
@@ -577,16 +583,16 @@ class FusionEngine:
         return self._fwd[index % self.ring].copy()
 
     def input_noise_quad(self, index: int) -> float | None:
-        """The depth-noise coefficient q (1/mm, A22) the engine estimated on frame ``index``'s
-        depth as pushed, while the frame is in the ring buffer; None where it estimated q on
-        other depth (the ToF flying pixels removed first, A36). ``fuse4d run``'s summary scores
-        the raw depth with it instead of estimating it a second time (issue 13).
+        """The depth-noise coefficient q (1/mm, A22, :func:`~fuse4d.motion.estimate_noise_quad`)
+        of frame ``index``'s depth as pushed, while the frame is in the ring buffer: the
+        noise model's q, or with A36 the q that found the flying pixels (the noise model's is
+        estimated again without them). None for a frame pushed as ``points``. ``fuse4d run``'s
+        summary scores the raw depth with it instead of estimating it again (issue 13).
         """
         if not max(0, self._pushed - self.ring) <= index < self._pushed:
             raise IndexError(f"frame {index} is not in the ring buffer")
-        if self._rejected is not None:
-            return None
-        return float(self._noise[index % self.ring, 1])
+        quad = float(self._input_quad[index % self.ring])
+        return None if math.isnan(quad) else quad
 
     def flush(self) -> list[FusedFrame]:
         """End of stream: emit the remaining frames with truncated windows."""
