@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -318,6 +319,21 @@ def test_bench_input_times_a_recording_with_io_stages(tmp_path, capsys):
     assert {"flow", "fill", "read", "write", "summary", "io_wait"} <= set(result["stage_ms"])
     assert result["stage_ms"]["read"] > 0
     assert result["us_per_pixel"] > 0
+
+
+def test_bench_input_table_heads_with_width_x_height_and_the_whole_path(tmp_path, capsys):
+    """The heading names the frame size W x H and the recording on one line, however narrow
+    the table (a title wrapped the path mid-word)."""
+    seq = make_falling_ball(small=True, num_frames=5)
+    src = tmp_path / ("a-rather-long-recording-folder-name-" * 3)
+    k = dataclasses.replace(seq.intrinsics, width=120)  # the left 120 columns
+    with FrameFolderWriter(src, k, depth_unit_mm=0.05) as w:
+        for d, i in zip(seq.depth, seq.intensity, strict=True):
+            w.write(d[:, :120], i[:, :120])
+    args = ["bench", "--input", str(src), "--frames", "3", "--window", "3", "--no-summary"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert f"120x150 px, 3-frame window, 3 frames: {src}\n" in out
 
 
 def test_bench_input_npz_is_refused_with_one_clear_line(tmp_path, capsys):

@@ -482,11 +482,15 @@ def bench_command(
         print(json.dumps([r.to_dict() for r in results], indent=2))
         return
     for r in results:
-        table = Table(
-            title=f"preset {r.preset} ({r.flow_method}), {r.size[0]}x{r.size[1]}, "
+        height, width = r.size
+        # a heading line, not the table's title: a title wraps at the (narrow) table's width
+        out_console.print(
+            f"[bold]preset {r.preset}[/bold] ({r.flow_method}), {width}x{height} px, "
             f"{r.window}-frame {'causal ' if r.causal else ''}window, {r.frames} frames"
-            + (f", {r.input}" if r.input else "")
+            + (f": {r.input}" if r.input else ""),
+            soft_wrap=True,
         )
+        table = Table()
         table.add_column("stage")
         table.add_column("ms/frame", justify="right")
         for stage, ms in r.stage_ms.items():
