@@ -42,7 +42,7 @@ __all__ = ["IO_STAGES", "SUMMARY_EVERY", "RunSummary", "fuse_file"]
 IO_STAGES = ("read", "write", "summary", "io_wait")
 
 #: ``fuse4d run``'s summary scores the roughness on one frame in this many (the two Eq. 7 maps
-#: of a 640x480 frame cost more than its fusion); the flicker on every frame.
+#: of a 640x480 frame cost almost as much as its fusion stage); the flicker on every frame.
 SUMMARY_EVERY = 4
 
 

@@ -406,8 +406,9 @@ class RunningEvaluation:
     every : int, optional
         Score the roughness (Eq. 7, the plane-fit residual) on every ``every``-th frame only
         (frames 0, every, 2 every, ...; raw and output on the same frames and pixels); the
-        flicker always uses every frame. 1 = all frames. ``fuse4d run`` uses 4: the roughness
-        maps cost more than the fusion of a frame.
+        flicker always uses every frame. 1 = all frames. ``fuse4d run`` uses 4: the two
+        roughness maps of a frame cost almost as much as its fusion stage (uva 640 x 480: 2 x
+        6.5 ms against 16 ms, stop 40).
 
     Notes
     -----
