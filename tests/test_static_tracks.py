@@ -209,3 +209,68 @@ def test_static_pixels_have_a_constant_trajectory(rng, trajectory):
     )  # fmt: skip
     assert np.abs(line - expected)[fused & static].max() > 0.1
     np.testing.assert_allclose(line[fused & ~static], expected[fused & ~static])
+
+
+def test_static_smoothing_takes_the_staircase_off_a_static_wall(rng):
+    """A42: after fusion the static pixels move along their rays toward the edge-limited
+    spatial mean of the fused depth, by at most ``static_smoothing_limit`` q z^2; the
+    quantised wall comes closer to its true plane and the moving square is untouched."""
+    from fuse4d.motion import estimate_noise_quad
+
+    depth, inten, fwd, bwd, k, square = _scene(rng)
+    flows = SequenceFlow(fwd, bwd)
+    on_params = FusionParams()
+    assert on_params.static_smoothing > 0  # the default
+    on = fuse_sequence(depth, inten, k, fusion=on_params, flow=flows).points
+    off = fuse_sequence(depth, inten, k, fusion=on_params.replace(static_smoothing=0), flow=flows)
+    off = off.points
+    h, w = depth.shape[1:]
+    truth = 2500.0 + 0.8 * np.mgrid[0:h, 0:w][1]
+    wall = ~np.any(square, axis=0)
+    wall[:, :3] = wall[:, -3:] = False
+
+    def rmse(points):
+        return float(np.sqrt(np.mean((points[2:7, ..., 2][:, wall] - truth[wall]) ** 2)))
+
+    assert rmse(on) < 0.8 * rmse(off) < 0.2 * rmse(depth[..., None] * np.ones(3))
+    inner = square & np.roll(square, 2, axis=2) & np.roll(square, -2, axis=2)
+    np.testing.assert_array_equal(on[inner], off[inner])
+    for t in range(depth.shape[0]):
+        z_on, z_off = on[t, ..., 2], off[t, ..., 2]
+        both = np.isfinite(z_on) & np.isfinite(z_off)
+        limit = on_params.static_smoothing_limit * estimate_noise_quad(depth[t]) * z_off**2
+        assert (np.abs(z_on - z_off)[both] <= limit[both] + 1e-3).all()  # float32 at 2.5 m
+        # along the ray: the lateral position scales with the depth
+        ratio = z_on[both] / z_off[both]
+        np.testing.assert_allclose(
+            on[t][both][:, :2], off[t][both][:, :2] * ratio[:, None], rtol=1e-5, atol=1e-3
+        )
+
+
+def test_static_smoothing_kernel_moves_static_points_within_the_limit(rng):
+    from fuse4d._kernels.fusion import _static_smoothing_kernel
+
+    h, w = 9, 11
+    points = np.empty((h, w, 3), np.float32)
+    z = rng.uniform(1000.0, 3000.0, (h, w)).astype(np.float32)
+    points[..., 0] = rng.uniform(-500, 500, (h, w)) * z / 1000.0
+    points[..., 1] = rng.uniform(-400, 400, (h, w)) * z / 1000.0
+    points[..., 2] = z
+    points[0, 0] = np.nan
+    target = (z + rng.normal(0, 30.0, (h, w))).astype(np.float32)
+    target[1, 1] = np.nan
+    static = rng.random((h, w)) < 0.6
+    static[0, 0] = static[1, 1] = True
+    limit_quad = 2.0e-6
+    out = points.copy()
+    _static_smoothing_kernel(out, target, static, limit_quad)
+    for v in range(h):
+        for u in range(w):
+            p, q = points[v, u], out[v, u]
+            if not static[v, u] or not np.isfinite(target[v, u]) or not np.isfinite(p[2]):
+                np.testing.assert_array_equal(q, p)
+                continue
+            lim = limit_quad * float(p[2]) ** 2
+            expected = float(p[2]) + min(max(float(target[v, u]) - float(p[2]), -lim), lim)
+            np.testing.assert_allclose(q[2], expected, rtol=1e-6)
+            np.testing.assert_allclose(q, p * (expected / float(p[2])), rtol=1e-5)

@@ -22,7 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._kernels._numba import kernel_threads
 from ._kernels.camera import _valid_depth_kernel
 from ._kernels.fov import _inside_extents_kernel, _valid_extents_kernel
-from ._kernels.fusion import _fuse_kernel, _project_to_rays_kernel
+from ._kernels.fusion import _fuse_kernel, _project_to_rays_kernel, _static_smoothing_kernel
 from ._kernels.holes import _put_on_rays_kernel, _source_confidence_kernel
 from ._kernels.noise import _finite_median32
 from ._kernels.smooth_base import _smooth_base_cols_kernel, _smooth_base_rows_kernel
@@ -826,13 +826,21 @@ class FusionEngine:
                 on_ray,
             )
             points = on_ray
+        smoothing_s = 0.0
+        if p.static_smoothing > 0 and static is not self._no_static:  # A42
+            t_s = time.perf_counter()
+            smooth_z = motion_reference_depth(
+                points[..., 2], sigma=p.static_smoothing, max_step=p.max_depth_step, noise_quad=quad
+            )
+            _static_smoothing_kernel(points, smooth_z, static, p.static_smoothing_limit * quad)
+            smoothing_s = time.perf_counter() - t_s
         source, confidence = self._fill_sensor_holes(
             t, first, last, frame_slot, points, support, inside, time_fill
         )
         t3 = time.perf_counter()
         self.timings["tracking"] += t1 - t0
-        self.timings["fusion"] += t2 - t1
-        self.timings["fill"] += t3 - t2
+        self.timings["fusion"] += t2 - t1 + smoothing_s
+        self.timings["fill"] += t3 - t2 - smoothing_s
         self._emitted += 1
         return FusedFrame(
             index=t,

@@ -638,4 +638,21 @@ def engine_frame(depth, intensity, fwd, bwd, intrinsics, params, t):
     if p.output == "ray":
         k = intrinsics
         out = project_to_rays(out, smooth, k.fx, k.fy, k.cx, k.cy, p.max_depth_step, quad)
+    if p.static_smoothing > 0 and static is not None:  # A42
+        target = motion_reference_depth(
+            out[..., 2], sigma=p.static_smoothing, max_step=p.max_depth_step, noise_quad=quad
+        )
+        out = smooth_static(out, static, target, p.static_smoothing_limit * quad)
     return out, support
+
+
+def smooth_static(points, static, target, limit_quad):
+    """A42 oracle: each static pixel's point scaled along its ray so that its depth moves
+    toward ``target`` by at most ``limit_quad * z^2`` mm; the others unchanged."""
+    z = points[..., 2].astype(np.float64)
+    ok = static & np.isfinite(z) & (z > 0) & np.isfinite(target)
+    safe = np.where(ok, z, 1.0)
+    limit = limit_quad * safe * safe
+    moved = safe + np.clip(np.where(ok, target, safe) - safe, -limit, limit)
+    scale = np.where(ok, moved / safe, 1.0)
+    return (points * scale[..., None]).astype(points.dtype)

@@ -1047,6 +1047,33 @@ def _project_to_rays_kernel(points, ref, fx, fy, cx, cy, max_step, quad, out):
             out[v, u, 2] = d
 
 
+@njit_parallel
+def _static_smoothing_kernel(points, smooth_z, static, limit_quad):
+    """A42: move each static pixel's fused point along its ray (scaled about the camera
+    centre) so that its depth approaches ``smooth_z``, by at most ``limit_quad * z^2`` mm.
+
+    points (H,W,3) float32, modified in place; smooth_z (H,W) the edge-limited smoothing of
+    the points' depth (NaN = none); static (H,W) bool (A33). Other pixels, and pixels
+    without a finite depth or smoothing, are left as they are.
+    """
+    h = points.shape[0]
+    w = points.shape[1]
+    for v in prange(h):
+        for u in range(w):
+            if not static[v, u]:
+                continue
+            z = points[v, u, 2]
+            target = smooth_z[v, u]
+            if not (z > 0.0 and np.isfinite(target)):
+                continue
+            limit = limit_quad * z * z
+            dz = min(max(target - z, -limit), limit)
+            scale = (z + dz) / z
+            points[v, u, 0] *= scale
+            points[v, u, 1] *= scale
+            points[v, u, 2] *= scale
+
+
 # --------------------------------------------------------------------------- segment-limited smoothing
 @njit_parallel(fastmath=set(SEGMENT_FASTMATH))
 def _segment_box_rows_kernel(values, depth, radius, max_step, quad, out):
