@@ -69,11 +69,7 @@ def test_run_folder_streams_to_folder(tmp_path, capsys):
         for d, i in zip(seq.depth, seq.intensity, strict=True):
             writer.write(d, i)
     out = tmp_path / "rec_fused"
-    # the output keeps the input's 0.05 mm unit, coarser than the static wall's fused depth
-    # after A42's smoothing: the writer says so
-    with pytest.warns(UserWarning, match="depth_unit_mm=0.05 is coarse"):
-        code = main(["run", str(src), "-o", str(out), "--causal", "--set", "spatial_radius=2"])
-    assert code == 0
+    assert main(["run", str(src), "-o", str(out), "--causal", "--set", "spatial_radius=2"]) == 0
     text = capsys.readouterr().out
     assert "roughness (Eq. 7)" in text
     assert "raw -> fused" in text

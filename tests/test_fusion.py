@@ -594,7 +594,7 @@ SWITCHES = {
     "temporal-gate-off": {"temporal_gate": math.inf},
     "tracks-composed": {"tracks": "composed"},  # A31
     "static-off": {"static_tracks": False},  # A33
-    "static-smoothing-off": {"static_smoothing": 0.0},  # A42
+    "static-smoothing-on": {"static_smoothing": 4.0},  # A42 (opt-in)
     "literal": {**LITERAL, "quantize": "per_step", "fill_fallback": "nan"},
 }
 
@@ -799,7 +799,12 @@ def test_literal_motion_is_much_rougher_than_regularised(rng):
     inten = np.broadcast_to(_texture(H, W), (n, H, W)).copy()
     default = fuse_sequence(depth, inten, K, flow=_zero_flow(n))
     literal = fuse_sequence(
-        depth, inten, K, flow=_zero_flow(n), fusion=FusionParams(motion_depth="raw", base="frame")
+        depth,
+        inten,
+        K,
+        flow=_zero_flow(n),
+        # (without A42, which would smooth this static plane after any Eq. 5)
+        fusion=FusionParams(motion_depth="raw", base="frame", static_smoothing=0.0),
     )
     roi = np.zeros((n, H, W), bool)
     roi[:, 6:-6, 6:-6] = True
@@ -1114,7 +1119,8 @@ def test_distance_scale_4_lowers_kinect_error_and_keeps_continuous_depth():
     fast = preset("fast")
 
     def fused(seq, scale: float):
-        fusion = fast.fusion.replace(distance_noise_scale=scale)
+        # A30 alone: A42 takes part of the same staircase off the room's static pixels
+        fusion = fast.fusion.replace(distance_noise_scale=scale, static_smoothing=0.0)
         return fuse_sequence(
             seq.depth, seq.intensity, seq.intrinsics, fusion=fusion, flow=fast.flow
         )
