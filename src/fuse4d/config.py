@@ -201,9 +201,9 @@ class FusionParams:
         ``static_smoothing_limit`` q z^2 (A22). Temporal fusion removes the noise that
         changes from frame to frame; what a structured-light camera gets wrong the same way in
         every frame (its quantisation staircase, and the fixed disparity pattern that stops a
-        real wall's 40-frame mean at 9.7 mm from a plane) only spatial support removes. The
-        default 4 px spans about the 9-px matching window of such a camera, the scale below
-        which its depth holds no detail. Moving pixels and holes are untouched. Default 0 =
+        real wall's 40-frame mean at 9.7 mm from a plane) only spatial support removes. 4 px
+        spans about the 9-px matching window of such a camera, the scale below which its
+        depth holds no detail. Moving pixels and holes are untouched. Default 0 =
         off (opt-in in stop 41; 4 px is the measured candidate, see below); no effect with
         ``static_tracks`` off or a window of one frame. Measured with 4 px
         (``docs/method_notes.md`` A42): Kinect-model RMSE on raw-valid pixels ball / body /
@@ -214,8 +214,8 @@ class FusionParams:
     static_smoothing_limit : float
         The most (in units of the frame's q z^2, A22) that A42 moves a static pixel's depth:
         0.5 q z^2 is less than half a quantisation step (a Kinect step is 1.65 q z^2), enough
-        to take the staircase and the fixed pattern off a plane, not enough to round a crease. Larger limits and sigmas help more where the fixed pattern
-        dominates (Kinect model, sigma 8 / limit 1: ball 6.09 mm) but bias the creases of
+        to take the staircase and the fixed pattern off a plane, not enough to round a
+        crease. Larger limits and sigmas help more where the fixed pattern dominates (Kinect model, sigma 8 / limit 1: ball 6.09 mm) but bias the creases of
         a scene without one (the model without its fixed pattern: room 1.85 -> 3.17 mm).
     flying_pixels : {"auto", "on", "off"}
         Our A36 (issue 10): remove time-of-flight *flying pixels* (a depth between the two
