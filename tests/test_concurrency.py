@@ -116,3 +116,34 @@ def test_concurrent_processes_share_a_flow_cache(tmp_path):
     for p in files:
         array = np.load(p, allow_pickle=False)
         assert array.shape == (2, 40, 48, 2)
+
+
+_SIGNATURES = """
+import sys
+from numba.core.registry import CPUDispatcher
+from fuse4d.cli import main
+assert main(["run", sys.argv[1], "-o", sys.argv[2], "--window", "3"]) == 0
+for name, module in list(sys.modules.items()):
+    for attr, obj in vars(module).items() if name.startswith("fuse4d") else ():
+        if isinstance(obj, CPUDispatcher) and len(obj.signatures) > 1:
+            print("SEVERAL", name, attr, obj.signatures)
+"""
+
+
+@pytest.mark.slow
+def test_a_run_compiles_one_overload_per_kernel(tmp_path):
+    """Every fuse4d numba kernel is called with one signature in a run: two overloads of one
+    cached dispatcher, compiled in different orders by concurrent cold processes, can be
+    paired with the wrong code in numba's cache index (the hazard the test above guards)."""
+    src = _tiny_recording(tmp_path / "in")
+    env = _env(Path(os.environ.get("NUMBA_CACHE_DIR", tmp_path / "numba-cache")))
+    proc = subprocess.run(
+        [sys.executable, "-c", _SIGNATURES, str(src), str(tmp_path / "out")],
+        env=env,
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=1200,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "SEVERAL" not in proc.stdout, proc.stdout[proc.stdout.find("SEVERAL") :]

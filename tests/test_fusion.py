@@ -594,7 +594,7 @@ SWITCHES = {
     "temporal-gate-off": {"temporal_gate": math.inf},
     "tracks-composed": {"tracks": "composed"},  # A31
     "static-off": {"static_tracks": False},  # A33
-    "static-smoothing-on": {"static_smoothing": 4.0},  # A42 (opt-in)
+    "static-smoothing-off": {"static_smoothing": 0.0},  # A42
     "literal": {**LITERAL, "quantize": "per_step", "fill_fallback": "nan"},
 }
 

@@ -281,6 +281,26 @@ def test_folder_warns_on_coarse_unit_and_clipping(tmp_path, small_sequence):
     assert np.all(read_frame_folder(tmp_path / "c").depth == 1.0)  # still valid
 
 
+def test_folder_in_the_inputs_own_unit_warns_of_clipping_only(tmp_path, small_sequence):
+    """warn_coarse_unit=False (the input's own unit, as `fuse4d run` writes): the same data
+    that warns of a coarse unit above writes silently, and clipping is still reported."""
+    from fuse4d.io import FrameFolderWriter
+
+    def write(seq, name):
+        writer = FrameFolderWriter(tmp_path / name, seq.intrinsics, warn_coarse_unit=False)
+        with writer as w:
+            for depth, intensity in zip(seq.depth, seq.intensity, strict=True):
+                w.write(depth, intensity)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        write(small_sequence, "a")
+    far = small_sequence.with_depth(small_sequence.depth + 70000.0)
+    with pytest.warns(UserWarning, match=r"above 65535 mm were clipped") as rec:
+        write(far, "b")
+    assert "coarse" not in str(rec[0].message)
+
+
 def test_folder_no_warning_when_data_on_grid(tmp_path, small_sequence):
     whole = small_sequence.with_depth(np.round(small_sequence.depth))
     with warnings.catch_warnings():

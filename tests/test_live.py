@@ -215,7 +215,11 @@ def test_live_writer_behind_writes_what_the_inline_writer_writes(ball, tmp_path,
     outs = []
     for behind in (0, 2):
         out = tmp_path / f"w{behind}{suffix}"
-        with LiveWriter(out, seq.intrinsics, depth_unit_mm=0.1, fps=30.0, behind=behind) as w:
+        # the recording's own 0.1 mm unit, as `fuse4d live` writes it (no coarse-unit warning)
+        writer = LiveWriter(
+            out, seq.intrinsics, depth_unit_mm=0.1, fps=30.0, behind=behind, warn_coarse_unit=False
+        )
+        with writer as w:
             for t, fr in enumerate(
                 fuse_sequence(
                     seq.depth[:5], seq.intensity[:5], seq.intrinsics, fusion=CAUSAL3

@@ -219,7 +219,8 @@ def test_static_smoothing_takes_the_staircase_off_a_static_wall(rng):
 
     depth, inten, fwd, bwd, k, square = _scene(rng)
     flows = SequenceFlow(fwd, bwd)
-    on_params = FusionParams(static_smoothing=4.0)
+    on_params = FusionParams()
+    assert on_params.static_smoothing == 4.0  # A42 is on by default (stop 42)
     on = fuse_sequence(depth, inten, k, fusion=on_params, flow=flows).points
     off = fuse_sequence(depth, inten, k, fusion=on_params.replace(static_smoothing=0), flow=flows)
     off = off.points

@@ -203,8 +203,8 @@ class FusionParams:
         every frame (its quantisation staircase, and the fixed disparity pattern that stops a
         real wall's 40-frame mean at 9.7 mm from a plane) only spatial support removes. 4 px
         spans about the 9-px matching window of such a camera, the scale below which its
-        depth holds no detail. Moving pixels and holes are untouched. Default 0 =
-        off (opt-in in stop 41; 4 px is the measured candidate, see below); no effect with
+        depth holds no detail. Moving pixels and holes are untouched. Default 4 px
+        (0 = off; opt-in in stop 41, the default since stop 42); no effect with
         ``static_tracks`` off or a window of one frame. Measured with 4 px
         (``docs/method_notes.md`` A42): Kinect-model RMSE on raw-valid pixels ball / body /
         room 11.54 / 12.81 / 13.03 -> 8.14 / 9.58 / 9.41 mm (objects unchanged), D435 model
@@ -297,7 +297,7 @@ class FusionParams:
     quantize: Quantize = "final"
     tracks: Tracks = "exact"
     static_tracks: bool = True
-    static_smoothing: float = param(0.0, ge=0)
+    static_smoothing: float = param(4.0, ge=0)
     static_smoothing_limit: float = param(0.5, ge=0)
     flying_pixels: FlyingPixels = "auto"
     min_temporal_support: int = param(1, ge=0)

@@ -736,6 +736,9 @@ class LiveWriter:
         queued (the fusion thread blocks when the queue is full: no output frame is dropped),
         so PNG/FFV1 encoding overlaps the next fusion step; 0 writes in the caller's thread.
         The latency of :func:`run_live` then ends when the frame is queued for writing.
+    warn_coarse_unit : bool
+        As for :class:`~fuse4d.io.FrameFolderWriter`: False where ``depth_unit_mm`` is the
+        camera's own unit (``fuse4d live``).
     """
 
     def __init__(
@@ -747,6 +750,7 @@ class LiveWriter:
         fps: float | None = None,
         overwrite: bool = False,
         behind: int = 2,
+        warn_coarse_unit: bool = True,
     ) -> None:
         from .io import DepthVideoWriter, FrameFolderWriter, ZarrWriter, check_output
 
@@ -772,6 +776,7 @@ class LiveWriter:
                 depth_unit_mm=depth_unit_mm or 1.0,
                 fps=fps,
                 overwrite=overwrite,
+                warn_coarse_unit=warn_coarse_unit,
             )
 
     def __enter__(self) -> Self:

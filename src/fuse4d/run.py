@@ -559,6 +559,9 @@ def _fuse_streaming(
         )
         tally = _QualityTally(summary_every) if quality else None
         unit = reader.depth_unit_mm or 1.0  # float-depth inputs (32FC1 bags, zarr): 1 mm steps
+        # written back in the input's own unit: no "coarse unit" warning (the input already
+        # had that precision; the smoothed output is less noisy than it on near surfaces)
+        warn_coarse = reader.depth_unit_mm is None
         resumable = out_fmt == "folder"
         if resumable:
             writer = ResumableFolderWriter(
@@ -569,6 +572,7 @@ def _fuse_streaming(
                 fps=reader.fps,
                 overwrite=overwrite,
                 resume=resume,
+                warn_coarse_unit=warn_coarse,
             )
         else:
             if resume:
@@ -576,7 +580,14 @@ def _fuse_streaming(
                     f"{dst}: --resume continues folder outputs (and .zarr with --engine dask); "
                     f"a {out_fmt} output is written in one go"
                 )
-            writer = writer_cls(dst, k, depth_unit_mm=unit, fps=reader.fps, overwrite=overwrite)
+            writer = writer_cls(
+                dst,
+                k,
+                depth_unit_mm=unit,
+                fps=reader.fps,
+                overwrite=overwrite,
+                warn_coarse_unit=warn_coarse,
+            )
         with writer:
             # Resume = restart the (deterministic) engine `past` frames before the checkpoint,
             # warm-started with the flow stored there; frames before it only fill the window.

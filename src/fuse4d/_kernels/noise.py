@@ -115,7 +115,9 @@ def _finite_median32(depth):
             n += 1
     if n == 0:
         return np.nan
-    key_lo, key_hi = _median_keys(bits, n)
+    # np.int64: a plain ``n`` can be typed Literal[int](0) and compile a second overload of
+    # this cached kernel; two cold processes compiling different overloads race on the index
+    key_lo, key_hi = _median_keys(bits, np.int64(n))
     hi = _value(key_hi)
     if n % 2 == 1:
         return np.float64(hi)

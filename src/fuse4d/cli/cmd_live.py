@@ -180,6 +180,8 @@ def live_command(
                 depth_unit_mm=source.depth_unit_mm,
                 fps=source.fps,
                 overwrite=force,
+                # the camera's own unit: no "coarse unit" warning (see QuantizationReport)
+                warn_coarse_unit=source.depth_unit_mm is None,
             )
             sinks.append(stack.enter_context(writer))
         if show and not display_available():

@@ -236,10 +236,23 @@ def _read_gray(path: str | PathLike[str], *, frame: int | None) -> NDArray[np.in
 
 
 class QuantizationReport:
-    """Accumulates what was lost when depth was rounded to integer units (warned once)."""
+    """Accumulates what was lost when depth was rounded to integer units (warned once).
 
-    def __init__(self, unit_mm: float) -> None:
+    Parameters
+    ----------
+    unit_mm : float
+        Millimetres per stored unit.
+    warn_coarse_unit : bool, optional
+        Warn when the unit's rounding error (unit / sqrt 12) exceeds half the data's pixel
+        noise (default True). False where the unit is the input recording's own (what
+        ``fuse4d run`` and ``fuse4d live`` write back): the input was already stored at that
+        precision, and a smoothed output (A42) is less noisy than its unit on any
+        near-range surface, so the warning would fire on every run. Clipping is still reported.
+    """
+
+    def __init__(self, unit_mm: float, *, warn_coarse_unit: bool = True) -> None:
         self.unit_mm = float(unit_mm)
+        self.warn_coarse_unit = bool(warn_coarse_unit)
         self.valid = 0
         self.clipped_high = 0
         self.clipped_low = 0
@@ -290,7 +303,7 @@ class QuantizationReport:
         self.clipped_low += n_low
         if not self.off_grid and worst > 1e-3:
             self.off_grid = True
-        if self.off_grid and len(self.noise_estimates) < 8:
+        if self.warn_coarse_unit and self.off_grid and len(self.noise_estimates) < 8:
             frame = depth()
             diffs = np.abs(np.diff(frame, axis=1))
             diffs = diffs[np.isfinite(diffs)]
@@ -337,6 +350,9 @@ def depth_to_units(
         # frame of boolean indexing in the write-behind thread, taken from the fusion)
         from .._kernels.io import _depth_to_units_kernel
 
+        # contiguous: a strided view (points[..., 2]) would compile a second ('A' layout)
+        # overload of the cached kernel, and concurrent cold runs race on numba's cache index
+        arr = np.ascontiguousarray(arr)
         out = np.empty(arr.shape, dtype=np.uint16)
         counts = _depth_to_units_kernel(arr, float(unit_mm), out)
         if report is not None:

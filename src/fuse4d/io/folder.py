@@ -280,6 +280,9 @@ class FrameFolderWriter:
         Millimetres per stored unit (default 1.0: 1 mm steps, range up to 65.535 m). Depth is
         rounded to the unit and clipped to [1, 65535] units; one ``UserWarning`` at close
         reports clipped values and a unit that is coarse compared with the data's noise.
+    warn_coarse_unit : bool, optional
+        Warn at close when ``depth_unit_mm`` is coarse against the data's pixel noise
+        (default True); False where it is the input recording's own unit (``fuse4d run``).
     fps : float, optional
         Stored in ``camera.json``.
     intensity_bits : {8, 16} or None, optional
@@ -311,6 +314,7 @@ class FrameFolderWriter:
         intensity_bits: int | None = None,
         overwrite: bool = False,
         sensor: str | None = None,
+        warn_coarse_unit: bool = True,
     ) -> None:
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics)}")
@@ -331,7 +335,7 @@ class FrameFolderWriter:
         self._timestamps: list[float | None] = []
         self._has_mask: bool | None = None
         self._has_flags: bool | None = None
-        self._report = QuantizationReport(self.depth_unit_mm)
+        self._report = QuantizationReport(self.depth_unit_mm, warn_coarse_unit=warn_coarse_unit)
         self._stack: ExitStack | None = None
         self._tmp: Path | None = None
 

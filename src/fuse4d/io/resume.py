@@ -243,7 +243,7 @@ class ResumableFolderWriter:
         Camera; frames must be ``(intrinsics.height, intrinsics.width)``.
     identity : dict
         :func:`run_identity` of this run (stored in, and compared with, the manifest).
-    depth_unit_mm, fps
+    depth_unit_mm, fps, warn_coarse_unit
         As for :class:`~fuse4d.io.FrameFolderWriter`.
     overwrite : bool
         Replace an existing ``path`` and discard an existing unfinished run.
@@ -275,6 +275,7 @@ class ResumableFolderWriter:
         overwrite: bool = False,
         resume: bool = False,
         checkpoint_every: int = CHECKPOINT_EVERY,
+        warn_coarse_unit: bool = True,
     ) -> None:
         if not (math.isfinite(depth_unit_mm) and depth_unit_mm > 0):
             raise ParameterError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
@@ -295,7 +296,7 @@ class ResumableFolderWriter:
         self.seed: np.ndarray | None = None
         self._has_mask: bool | None = None
         self._checkpoint: dict[str, Any] | None = None
-        self._report = QuantizationReport(self.depth_unit_mm)
+        self._report = QuantizationReport(self.depth_unit_mm, warn_coarse_unit=warn_coarse_unit)
         self._open = False
         # wall time of the run: the parts of a resumed run before this one, and since open()
         self._seconds_before = 0.0

@@ -56,6 +56,9 @@ class DepthVideoWriter(StagedWriter):
     sensor : str, optional
         The camera kind (``"tof"``, ``"structured-light"``, ``"active-stereo"``), stored so
         that the output is fused as its camera's recording was (A36).
+    warn_coarse_unit : bool, optional
+        Warn at close when ``depth_unit_mm`` is coarse against the data's pixel noise
+        (default True); False where it is the input recording's own unit (``fuse4d run``).
     """
 
     #: A depth video holds depth and intensity only (no per-pixel fusion flags).
@@ -70,6 +73,7 @@ class DepthVideoWriter(StagedWriter):
         fps: float | None = None,
         overwrite: bool = False,
         sensor: str | None = None,
+        warn_coarse_unit: bool = True,
     ) -> None:
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics)}")
@@ -85,7 +89,7 @@ class DepthVideoWriter(StagedWriter):
         self.sensor = sensor
         self.overwrite = overwrite
         self.num_written = 0
-        self._report = QuantizationReport(self.depth_unit_mm)
+        self._report = QuantizationReport(self.depth_unit_mm, warn_coarse_unit=warn_coarse_unit)
         self._stack: ExitStack | None = None
         self._container: Any = None
         self._streams: tuple[Any, Any] | None = None

@@ -71,6 +71,8 @@ class ZarrWriter(StagedWriter):
         Camera (stored as attributes).
     depth_unit_mm : float, optional
         Ignored (depth is stored as float mm); accepted for the writers' common signature.
+    warn_coarse_unit : bool, optional
+        Ignored likewise (nothing is rounded).
     fps : float, optional
         Stored as an attribute.
     overwrite : bool, optional
@@ -93,6 +95,7 @@ class ZarrWriter(StagedWriter):
         overwrite: bool = False,
         source: str = "",
         sensor: str | None = None,
+        warn_coarse_unit: bool = True,
     ) -> None:
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics)}")
