@@ -93,6 +93,30 @@ def test_cli_bad_intrinsics_option_is_a_user_error(npz_path, tmp_path, capsys):
     assert "fx must be > 0" in _one_error_line(capsys.readouterr().err)
 
 
+@pytest.mark.parametrize(
+    ("command", "value", "hint"),
+    [
+        ("run", "12", "':12' is the first 12 frames, '12:13' frame 12 alone"),
+        ("convert", "-3", "'-3:' is the last 3 frames, '-3:-2' frame -3 alone"),
+    ],
+)
+def test_cli_bare_frame_number_is_refused_with_both_readings(
+    npz_path, tmp_path, capsys, command, value, hint
+):
+    """bench / live / synth / demo take --frames as a count; run, convert, metrics and report
+    take a range, where a bare number would silently select one frame."""
+    out = tmp_path / "out.npz"
+    args = [command, str(npz_path)] if command == "run" else [command, str(npz_path), str(out)]
+    if command == "run":
+        args += ["-o", str(out)]
+    assert main([*args, "--frames", value]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert hint in " ".join(err.split())
+    assert "Traceback" not in err
+    assert not out.exists()
+    assert main([*args, "--frames", "1:3"]) == 0  # the range still works
+
+
 def _inject_bug(monkeypatch, exc: BaseException) -> None:
     import fuse4d.io  # the CLI imports its readers when a command runs (fast start-up)
 

@@ -20,6 +20,7 @@ __all__ = [
     "IntensityOpt",
     "IntensityTopicOpt",
     "NoUndistortOpt",
+    "frame_range",
     "reader_options",
 ]
 
@@ -51,6 +52,27 @@ DepthUnitOpt = Annotated[
 CameraOverrideOpt = Annotated[
     str | None, typer.Option("--intrinsics", help="Camera override: 'fx,fy,cx,cy' or file.")
 ]
+
+
+def frame_range(value: str | None) -> str | None:
+    """``--frames`` of run, convert, metrics and report: a range ``A:B``, never a bare number.
+
+    ``bench``, ``live``, ``synth`` and ``demo`` take ``--frames N`` as a count, so ``run
+    --frames 12`` reads as "12 frames", while the range syntax alone (Python indexing) would
+    take frame 12 alone; the bare number is refused with both spellings named.
+    """
+    text = (value or "").strip()
+    if text.lstrip("+-").isdigit():
+        k = int(text)
+        alone = f"{k}:{k + 1}" if k != -1 else "-1:"
+        raise typer.BadParameter(
+            f"expects a range A:B, got {value!r}: ':{abs(k)}' is the first {abs(k)} frames, "
+            f"'{alone}' frame {k} alone"
+            if k >= 0
+            else f"expects a range A:B, got {value!r}: '{k}:' is the last {-k} frames, "
+            f"'{alone}' frame {k} alone"
+        )
+    return value
 
 
 def reader_options(

@@ -13,6 +13,7 @@ import typer
 from rich.table import Table
 
 from ._app import app, err_console, fail, out_console, progress_bar, progress_callback
+from ._recording_opts import frame_range
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -192,7 +193,8 @@ def metrics_command(
         Path | None, typer.Option(help="Ground-truth depth: a sequence (its depth_gt or depth).")
     ] = None,
     frames: Annotated[
-        str | None, typer.Option(help="Frame range A:B (0-based, B excluded).")
+        str | None,
+        typer.Option(help="Frame range A:B (0-based, B excluded).", callback=frame_range),
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="One JSON object on stdout.")] = False,
     roi: Annotated[

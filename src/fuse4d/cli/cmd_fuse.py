@@ -28,6 +28,7 @@ from ._recording_opts import (
     IntensityOpt,
     IntensityTopicOpt,
     NoUndistortOpt,
+    frame_range,
     reader_options,
 )
 
@@ -135,6 +136,7 @@ def run_command(
             "--frames",
             help="Fuse only frames A:B of the recording (0-based, B excluded; 'A:' to the end),"
             " as if they were the whole; the output is numbered from 0.",
+            callback=frame_range,
         ),
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing output.")] = False,

@@ -16,6 +16,7 @@ from ._recording_opts import (
     IntensityOpt,
     IntensityTopicOpt,
     NoUndistortOpt,
+    frame_range,
     reader_options,
 )
 
@@ -213,7 +214,11 @@ def convert_command(
     ],
     frames: Annotated[
         str | None,
-        typer.Option("--frames", help="Only frames A:B (0-based, B excluded; 'A:' to the end)."),
+        typer.Option(
+            "--frames",
+            help="Only frames A:B (0-based, B excluded; 'A:' to the end).",
+            callback=frame_range,
+        ),
     ] = None,
     out_depth_unit_mm: Annotated[
         float | None,

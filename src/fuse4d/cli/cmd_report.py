@@ -10,6 +10,7 @@ import typer
 from rich.table import Table
 
 from ._app import app, err_console, fail, out_console, progress_bar, progress_callback
+from ._recording_opts import frame_range
 
 __all__ = ["make_report", "report_command"]
 
@@ -73,6 +74,7 @@ def report_command(
             "--frames",
             help="The part A:B of INPUT that FUSED was made from (fuse4d run --frames; a run"
             " folder records it).",
+            callback=frame_range,
         ),
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace an existing report.")] = False,
