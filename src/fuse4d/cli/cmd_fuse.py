@@ -98,7 +98,8 @@ def run_command(
         list[Path],
         typer.Argument(
             help="Recording(s): .npz, frame folder, TUM, ROS/RealSense bag, .mkv, ... "
-            "(several only with --engine dask)"
+            "(several only with --engine dask)",
+            metavar="INPUT",
         ),
     ],
     output: Annotated[
