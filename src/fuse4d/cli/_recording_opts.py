@@ -64,13 +64,10 @@ def frame_range(value: str | None) -> str | None:
     text = (value or "").strip()
     if text.lstrip("+-").isdigit():
         k = int(text)
+        count = f"':{k}' is the first {k} frames" if k >= 0 else f"'{k}:' is the last {-k} frames"
         alone = f"{k}:{k + 1}" if k != -1 else "-1:"
         raise typer.BadParameter(
-            f"expects a range A:B, got {value!r}: ':{abs(k)}' is the first {abs(k)} frames, "
-            f"'{alone}' frame {k} alone"
-            if k >= 0
-            else f"expects a range A:B, got {value!r}: '{k}:' is the last {-k} frames, "
-            f"'{alone}' frame {k} alone"
+            f"expects a range A:B, got {value!r}: {count}, '{alone}' frame {k} alone"
         )
     return value
 

@@ -280,9 +280,6 @@ class FrameFolderWriter:
         Millimetres per stored unit (default 1.0: 1 mm steps, range up to 65.535 m). Depth is
         rounded to the unit and clipped to [1, 65535] units; one ``UserWarning`` at close
         reports clipped values and a unit that is coarse compared with the data's noise.
-    warn_coarse_unit : bool, optional
-        Warn at close when ``depth_unit_mm`` is coarse against the data's pixel noise
-        (default True); False where it is the input recording's own unit (``fuse4d run``).
     fps : float, optional
         Stored in ``camera.json``.
     intensity_bits : {8, 16} or None, optional
@@ -293,6 +290,9 @@ class FrameFolderWriter:
     sensor : str, optional
         The camera kind (``"tof"``, ``"structured-light"``, ``"active-stereo"``), stored in
         ``camera.json`` so that the folder is fused as its camera's recording was (A36).
+    warn_coarse_unit : bool, optional
+        Warn at close when ``depth_unit_mm`` is coarse against the data's pixel noise
+        (default True); False where it is the input recording's own unit (``fuse4d run``).
 
     Examples
     --------
