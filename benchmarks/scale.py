@@ -108,14 +108,15 @@ def _crop_k(k: Any) -> Any:
     return Intrinsics(k.fx, k.fy, k.cx, k.cy, 40, 40)
 
 
-def _stream_task(path: str, window: int) -> float:
-    """The streaming engine over the file, frame by frame; returns seconds."""
-    from fuse4d import FusionEngine, FusionParams
+def _stream_task(path: str, fusion: Any) -> float:
+    """The streaming engine (``fusion``: its :class:`fuse4d.FusionParams`) over the file, frame
+    by frame; returns seconds."""
+    from fuse4d import FusionEngine
     from fuse4d.io import open_frames
 
     start = time.perf_counter()
     with open_frames(path) as reader:
-        engine = FusionEngine(reader.intrinsics, fusion=FusionParams(num_frames=window))
+        engine = FusionEngine(reader.intrinsics, fusion=fusion)
         depth = np.empty((len(reader), *reader.shape), np.float32)
         for frame in reader:
             for fr in engine.push(frame.depth, frame.intensity):
@@ -126,7 +127,7 @@ def _stream_task(path: str, window: int) -> float:
 
 
 def _dask_run(
-    client: Any, path: Path, out: Path, chunk: int, window: int, graph: str = "streamed"
+    client: Any, path: Path, out: Path, chunk: int, fusion: Any, graph: str = "streamed"
 ) -> float:
     """``fuse4d run --engine dask`` on the client's cluster; returns seconds.
 
@@ -134,11 +135,9 @@ def _dask_run(
     flows through files); ``"memory"`` is ``fuse4d.dask.fuse`` + ``write_zarr`` (blocks in
     worker memory)."""
     import fuse4d.dask as fd
-    from fuse4d import FusionParams
     from fuse4d.config import preset
     from fuse4d.scale.cli import run_dask
 
-    fusion = FusionParams(num_frames=window)
     shutil.rmtree(out, ignore_errors=True)  # the earlier run's, written back by _settle
     if graph == "streamed":
         start = time.perf_counter()
@@ -203,7 +202,7 @@ def _with_cluster(workers: int, job: Any) -> tuple[Any, list[float], float, int]
     return result, rss, sum(after[k] - before[k] for k in after), taken
 
 
-def _ceiling(rec: Path, workers: int, window: int) -> dict[str, Any]:
+def _ceiling(rec: Path, workers: int, fusion: Any) -> dict[str, Any]:
     """What this machine gives ``workers`` independent jobs: the streaming engine over the
     recording on one worker of a ``workers``-worker LocalCluster alone, then on every worker
     at once (each its own copy of the file). ``2 one / together`` is the speed-up of perfectly
@@ -223,13 +222,13 @@ def _ceiling(rec: Path, workers: int, window: int) -> dict[str, Any]:
         names = list(client.scheduler_info()["workers"])
         _settle()
         start = time.perf_counter()
-        client.submit(_stream_task, str(rec), window, pure=False, workers=names[:1]).result()
+        client.submit(_stream_task, str(rec), fusion, pure=False, workers=names[:1]).result()
         one = time.perf_counter() - start
         _settle()
         start = time.perf_counter()
         client.gather(
             [
-                client.submit(_stream_task, str(path), window, pure=False, workers=[name])
+                client.submit(_stream_task, str(path), fusion, pure=False, workers=[name])
                 for path, name in zip(copies, names, strict=True)
             ]
         )
@@ -243,34 +242,46 @@ def _ceiling(rec: Path, workers: int, window: int) -> dict[str, Any]:
     }
 
 
-def _alternating(rec: Path, folder: Path, args: argparse.Namespace) -> dict[str, Any]:
-    """Streaming and dask runs alternated on one 1-worker cluster: min wall and worker CPU of
-    each side, and the overhead of the minima."""
+def _alternating(
+    rec: Path, folder: Path, args: argparse.Namespace, fusions: list[Any]
+) -> dict[str, Any]:
+    """Streaming and dask runs alternated on one 1-worker cluster (each of ``fusions`` in
+    turn within a round): min wall and worker CPU of each side, and the overhead of the
+    minima (keys suffixed with the tracks setting where several are compared)."""
     from fuse4d.scale.cluster import local_cluster
 
-    sides: dict[str, list[tuple[float, float]]] = {"stream": [], "dask": []}
+    tag = (lambda f: f"_{f.tracks}") if len(fusions) > 1 else (lambda f: "")
+    sides: dict[str, list[tuple[float, float]]] = {}
     with local_cluster(1) as client:
         client.wait_for_workers(1)
         client.run(_warm_up)
         for _ in range(args.repeats):
-            for side, runs in sides.items():
-                _settle()
-                before = client.run(_cpu_seconds)
-                if side == "stream":
-                    wall = client.submit(_stream_task, str(rec), args.window, pure=False).result()
-                else:
-                    out = folder / "alt.zarr"
-                    wall = _dask_run(client, rec, out, args.chunk_frames, args.window, args.graph)
-                after = client.run(_cpu_seconds)
-                runs.append((wall, sum(after[k] - before[k] for k in after)))
-    (sw, sc), (dw, dc) = (tuple(min(v) for v in zip(*sides[k], strict=True)) for k in sides)
-    return {
+            for fusion in fusions:
+                for side in ("stream", "dask"):
+                    _settle()
+                    before = client.run(_cpu_seconds)
+                    if side == "stream":
+                        task = client.submit(_stream_task, str(rec), fusion, pure=False)
+                        wall = task.result()
+                    else:
+                        out = folder / "alt.zarr"
+                        wall = _dask_run(client, rec, out, args.chunk_frames, fusion, args.graph)
+                    after = client.run(_cpu_seconds)
+                    cpu = sum(after[k] - before[k] for k in after)
+                    sides.setdefault(side + tag(fusion), []).append((wall, cpu))
+    report: dict[str, Any] = {
         "alternating_runs": {
             k: [[round(w, 2), round(c, 2)] for w, c in v] for k, v in sides.items()
-        },
-        "alternating_overhead_wall": dw / sw - 1.0,
-        "alternating_overhead_cpu": dc / sc - 1.0,
+        }
     }
+    for fusion in fusions:
+        stream, dask_runs = sides["stream" + tag(fusion)], sides["dask" + tag(fusion)]
+        (sw, sc), (dw, dc) = (
+            tuple(min(v) for v in zip(*r, strict=True)) for r in (stream, dask_runs)
+        )
+        report["alternating_overhead_wall" + tag(fusion)] = dw / sw - 1.0
+        report["alternating_overhead_cpu" + tag(fusion)] = dc / sc - 1.0
+    return report
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -291,6 +302,11 @@ def main(argv: list[str] | None = None) -> int:
         help="most frames per chunk (default: the graph's own, 16 streamed / 32 memory)",
     )
     parser.add_argument("--window", type=int, default=9, help="frames fused per output")
+    parser.add_argument(
+        "--tracks",
+        help="FusionParams.tracks of both engines (default: FusionParams' own); "
+        "'composed,exact' alternates both in the --repeats runs (the first for the others)",
+    )
     parser.add_argument(
         "--length-factor",
         type=int,
@@ -314,6 +330,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     counts = [int(v) for v in args.workers.split(",")]
+    from fuse4d import FusionParams
+
+    fusions = [FusionParams(num_frames=args.window)]
+    if args.tracks is not None:
+        fusions = [FusionParams(num_frames=args.window, tracks=t) for t in args.tracks.split(",")]
+    fusion = fusions[0]
     if args.chunk_frames is None:  # the graph's own default
         import fuse4d.dask as fd
         from fuse4d.scale.cli import run_dask
@@ -328,6 +350,7 @@ def main(argv: list[str] | None = None) -> int:
         "frames": args.frames,
         "chunk_frames": args.chunk_frames,
         "window": args.window,
+        "tracks": fusion.tracks,
         "cpus": os.cpu_count(),
         "load_before": os.getloadavg(),
     }
@@ -336,7 +359,7 @@ def main(argv: list[str] | None = None) -> int:
         rec = folder / "rec.npz"
         _make_recording(rec, args.frames, args.full, args.size)
         seconds, rss, cpu, _ = _with_cluster(
-            1, lambda c: c.submit(_stream_task, str(rec), args.window, pure=False).result()
+            1, lambda c: c.submit(_stream_task, str(rec), fusion, pure=False).result()
         )
         report["stream_s"] = seconds
         report["stream_cpu_s"] = cpu
@@ -345,7 +368,7 @@ def main(argv: list[str] | None = None) -> int:
             seconds, rss, cpu, taken = _with_cluster(
                 n,
                 lambda c: _dask_run(
-                    c, rec, folder / "out.zarr", args.chunk_frames, args.window, args.graph
+                    c, rec, folder / "out.zarr", args.chunk_frames, fusion, args.graph
                 ),
             )
             report[f"dask_{n}_s"] = seconds
@@ -353,9 +376,9 @@ def main(argv: list[str] | None = None) -> int:
             report[f"dask_{n}_rss_mib"] = rss
             report[f"dask_{n}_halo_states_taken"] = taken
         if args.repeats > 1:
-            report.update(_alternating(rec, folder, args))
+            report.update(_alternating(rec, folder, args, fusions))
         if args.ceiling and max(counts) > 1:
-            report.update(_ceiling(rec, max(counts), args.window))
+            report.update(_ceiling(rec, max(counts), fusion))
         if not args.no_length_check:
             longer = folder / "long.npz"
             factor = args.length_factor
@@ -364,7 +387,7 @@ def main(argv: list[str] | None = None) -> int:
             seconds, rss, cpu, _ = _with_cluster(
                 n,
                 lambda c: _dask_run(
-                    c, longer, folder / "o2.zarr", args.chunk_frames, args.window, args.graph
+                    c, longer, folder / "o2.zarr", args.chunk_frames, fusion, args.graph
                 ),
             )
             report["long_frames"] = factor * args.frames

@@ -94,15 +94,42 @@ def test_chunked_equals_in_memory(ball, reference, chunk_frames):
 
 
 @pytest.mark.parametrize("chunk_frames", [3, 7])
-def test_chunked_composed_tracks_equal_in_memory(ball, chunk_frames):
-    """A31: the block graph's chunk engines (front and back halo frames not emitted, so not
-    all of their chains built) fuse as the in-memory engine does, bit for bit."""
-    fusion = FusionParams(tracks="composed")
+def test_chunked_exact_tracks_equal_in_memory(ball, chunk_frames):
+    """A31 off (``tracks="exact"``, METHOD; composed tracks are the default and covered by
+    ``test_chunked_equals_in_memory``): the chunk engines fuse as the in-memory engine does."""
+    fusion = FusionParams(tracks="exact")
     expected = fuse_sequence(ball.depth, ball.intensity, ball.intrinsics, fusion=fusion)
     res = fd.fuse(
         ball.depth, ball.intensity, ball.intrinsics, fusion=fusion, chunk_frames=chunk_frames
     )
     _assert_equal(res, expected, scheduler="threads")
+
+
+def test_chunk_engines_are_reused_and_give_the_same_bits(ball, reference):
+    """A process's fusion tasks hand their engine on (``graph._EnginePool``): the next chunk
+    resets it instead of building one. An engine whose buffers hold another recording's
+    frames (bright noise, depth 300 mm nearer, holes elsewhere) must fuse as a new one; an
+    engine of other parameters is not taken."""
+    rng = np.random.default_rng(5)
+    other_depth = ball.depth[::-1] - 300.0 + rng.normal(0, 3, ball.depth.shape).astype(np.float32)
+    other_depth[:, :8] = np.nan
+    other_inten = rng.random(ball.intensity.shape).astype(np.float32)
+    pool = graph._ENGINES
+    pool.clear()
+    fd.fuse(other_depth, other_inten, ball.intrinsics, chunk_frames=6).depth.compute(
+        scheduler="synchronous"
+    )
+    built, reused = pool.built, pool.reused
+    assert pool._idle is not None
+    res = fd.fuse(ball.depth, ball.intensity, ball.intrinsics, chunk_frames=6)
+    _assert_equal(res, reference, scheduler="synchronous")
+    assert pool.built == built  # every chunk (4 of them, computed once) took the idle engine
+    assert pool.reused >= reused + 4
+    fusion = FusionParams(num_frames=5)
+    expected = fuse_sequence(ball.depth, ball.intensity, ball.intrinsics, fusion=fusion)
+    res = fd.fuse(ball.depth, ball.intensity, ball.intrinsics, fusion=fusion, chunk_frames=20)
+    _assert_equal(res, expected, scheduler="synchronous")
+    assert pool.built > built  # other parameters: a new engine
 
 
 def test_fewer_frames_than_window(ball):

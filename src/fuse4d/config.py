@@ -165,19 +165,18 @@ class FusionParams:
         "final": sub-pixel accumulation, round only for lookup (A6). "per_step": literal
         rounding after every step.
     tracks : {"exact", "composed"}
-        Our A31 (issue 13). "exact" (default, METHOD): every pixel of frame t is chained
-        through each flow of its window. "composed" (opt-in): a chain takes its exact first
+        Our A31 (issue 13). "composed" (default since stop 43): a chain takes its exact first
         step and then follows the chain of the pixel it landed on, computed once for that
-        frame, shifted by the landing's sub-pixel offset (:mod:`fuse4d._kernels.tracks`):
-        two exact steps and n - 3 gathers per frame instead of n - 1 bilinear steps per output
-        frame (tracking 48-50 -> 30-34 ms/frame on the 600x600 ball, end to end -7 to -11 %).
+        frame as the pairs arrive, shifted by the landing's sub-pixel offset
+        (:mod:`fuse4d._kernels.tracks`): two exact steps and n - 3 gathers per frame instead
+        of n - 1 bilinear steps per output frame (tracking 48-50 -> 30-34 ms/frame on the
+        600x600 ball, end to end -7 to -16 %, streaming and dask alike). "exact" (METHOD, and
+        ``LITERAL_PAPER``): every pixel of frame t is chained through each flow of its window.
         Against the exact tracks (window of 9): the same landing pixel for 99.2-100 % of the
         ball's valid tracks and 96-100 % of the real uva clip's, validity different for
         0-0.25 % (ball) and 0-3.1 % (uva, most at the window's ends); ``fuse4d bench
-        --quality`` and the uva person's roughness, flicker and trail within 0.2 %. Not the
-        default yet: in the dask graph it gains less than in the streaming engine (dask
-        1-worker overhead vs streaming +25 % against +7 % with "exact", 300 frames; see
-        docs/method_notes.md, A31). With ``quantize="per_step"`` the exact chains are used
+        --quality`` and the uva person's roughness, flicker and trail within 0.2 %; see
+        docs/method_notes.md, A31. With ``quantize="per_step"`` the exact chains are used
         (per-step rounding is an ablation of the chain itself).
     static_tracks : bool
         Our A33 (issue 10): a pixel whose motion-reference depth stays within two
@@ -295,7 +294,7 @@ class FusionParams:
     base_fine_limit: float = param(0.075, ge=0)
     motion_depth: MotionDepth = "smoothed"
     quantize: Quantize = "final"
-    tracks: Tracks = "exact"
+    tracks: Tracks = "composed"
     static_tracks: bool = True
     static_smoothing: float = param(4.0, ge=0)
     static_smoothing_limit: float = param(0.5, ge=0)

@@ -28,10 +28,11 @@ tasks pass only tokens and the frames travel through files:
   are done (only the last forward flow stays, to seed a resumed run), so the scratch space is
   a few chunks, not the recording.
 
-A worker holds one engine (≈ 0.2 GB at 600 x 600), one chunk of outputs (6 bytes/px/frame),
-a few frames and at most ``2 (past + future)`` handed-over frame states (24 bytes/px each):
-flat in the recording's length. The bits are those of the in-memory graph
-(same reader, same flow calls in the same order, same engine per chunk).
+A worker holds one engine (≈ 0.3 GB at 600 x 600 and n = 9 with the default composed tracks,
+A31; kept between its tasks and reset, :func:`fuse4d.scale.graph.chunk_engine`), one chunk of
+outputs (6 bytes/px/frame), a few frames and at most ``2 (past + future)`` handed-over frame
+states (24 bytes/px each): flat in the recording's length. The bits are those of the in-memory
+graph (same reader, same flow calls in the same order, same engine per chunk).
 """
 
 from __future__ import annotations
@@ -53,8 +54,8 @@ from numpy.typing import NDArray
 from ..camera import Intrinsics
 from ..config import FlowConfig, FusionParams
 from ..flow import FlowCache, estimate_flow, get_flow_method
-from ..fusion import FrameState, FusionEngine
-from .graph import _flow_chain, _intensity_frame, chunk_bounds
+from ..fusion import FrameState
+from .graph import _flow_chain, _intensity_frame, chunk_bounds, chunk_engine
 from .inputs import read_frame, read_intensity
 from .zarr_out import ZarrOutput, _marker, write_chunk
 
@@ -377,12 +378,7 @@ def _fuse_task(
     filled = np.empty((e - s, h, w), np.bool_)
     source_codes = np.empty((e - s, h, w), np.uint8)
     confidence = np.empty((e - s, h, w), np.float32)
-    engine = FusionEngine(intrinsics, fusion=params, warm_start=False)
     a, b = s - lo, e - lo
-    if a > 0 and isinstance(getattr(engine, "_emitted", None), int):
-        engine._emitted = a  # halo frames are sources only (see graph._fuse_block)
-    if b < hi - lo:
-        engine._emit_stop = b  # the back halo too: no composed tracks built for it (A31)
     state_key = _state_key(source, intrinsics, params)
     key = (scratch, state_key)
     limit = 2 * (params.past_frames + params.future_frames)
@@ -400,29 +396,30 @@ def _fuse_task(
                 source_codes[fr.index - a] = fr.source
                 confidence[fr.index - a] = fr.confidence
 
-    for t in range(lo, hi):
-        depth_t, intensity_t = source.frame(t)
-        pair = None
-        if t > lo:
-            forward_file, backward_file = _pair_files(scratch, t - 1)
-            pair = (
-                np.load(forward_file, allow_pickle=False),
-                np.load(backward_file, allow_pickle=False),
-            )
-        state = None
-        if t in left or t in right:
-            state = _MEMO.take((*key, t))
-            if state is None and on_disk:
-                state = _load_state(_state_file(scratch, t), state_key)
-                _MEMO.loaded += state is not None
-        take(engine.push(depth_t, intensity_t, pair_flow=pair, state=state))
-        if state is None and ((save_left and t in left) or (save_right and t in right)):
-            kept = engine.frame_state(t - lo)
-            _MEMO.put((*key, t), kept, limit)
-            if on_disk and not _state_file(scratch, t).exists():
-                _save_state(_state_file(scratch, t), kept, state_key)
-    if hi == source.frames:
-        take(engine.flush())
+    with chunk_engine(intrinsics, params, (a, b), hi - lo) as engine:
+        for t in range(lo, hi):
+            depth_t, intensity_t = source.frame(t)
+            pair = None
+            if t > lo:
+                forward_file, backward_file = _pair_files(scratch, t - 1)
+                pair = (
+                    np.load(forward_file, allow_pickle=False),
+                    np.load(backward_file, allow_pickle=False),
+                )
+            state = None
+            if t in left or t in right:
+                state = _MEMO.take((*key, t))
+                if state is None and on_disk:
+                    state = _load_state(_state_file(scratch, t), state_key)
+                    _MEMO.loaded += state is not None
+            take(engine.push(depth_t, intensity_t, pair_flow=pair, state=state))
+            if state is None and ((save_left and t in left) or (save_right and t in right)):
+                kept = engine.frame_state(t - lo)
+                _MEMO.put((*key, t), kept, limit)
+                if on_disk and not _state_file(scratch, t).exists():
+                    _save_state(_state_file(scratch, t), kept, state_key)
+        if hi == source.frames:
+            take(engine.flush())
     return write_chunk(
         staging, k, s, depth, support, filled, source=source_codes, confidence=confidence
     )
