@@ -250,7 +250,9 @@ def _alternating(
     minima (keys suffixed with the tracks setting where several are compared)."""
     from fuse4d.scale.cluster import local_cluster
 
-    tag = (lambda f: f"_{f.tracks}") if len(fusions) > 1 else (lambda f: "")
+    def tag(fusion: Any) -> str:  # the key suffix of a setting, where several are compared
+        return f"_{fusion.tracks}" if len(fusions) > 1 else ""
+
     sides: dict[str, list[tuple[float, float]]] = {}
     with local_cluster(1) as client:
         client.wait_for_workers(1)
@@ -332,9 +334,8 @@ def main(argv: list[str] | None = None) -> int:
     counts = [int(v) for v in args.workers.split(",")]
     from fuse4d import FusionParams
 
-    fusions = [FusionParams(num_frames=args.window)]
-    if args.tracks is not None:
-        fusions = [FusionParams(num_frames=args.window, tracks=t) for t in args.tracks.split(",")]
+    settings = [{}] if args.tracks is None else [{"tracks": t} for t in args.tracks.split(",")]
+    fusions = [FusionParams(num_frames=args.window, **kw) for kw in settings]
     fusion = fusions[0]
     if args.chunk_frames is None:  # the graph's own default
         import fuse4d.dask as fd
