@@ -1447,6 +1447,39 @@ def test_reset_engine_equals_a_new_engine_bit_for_bit(rng, params, overlap_flow)
     assert [f.index for f in again] == [f.index for f in want if f.index + engine.latency < 3]
 
 
+@pytest.mark.parametrize(
+    "params", [FusionParams(num_frames=5), FusionParams(num_frames=3, causal=True)]
+)
+def test_output_range_emits_only_its_frames_with_the_same_bits(rng, params):
+    """``set_output_range`` (a time chunk with its halo): only the frames of the range come out,
+    each equal to the frame an engine that emits everything gives; misuse is refused."""
+    n = 9
+    depth = _plane_depth(n) + rng.normal(0, 0.3, (n, H, W)).astype(np.float32)
+    depth[4, 5:9, 5:9] = np.nan
+    inten = _moving_texture(n)
+    full = FusionEngine(K, fusion=params, flow="dis")
+    want = [f for d, i in zip(depth, inten, strict=True) for f in full.push(d, i)]
+    want += full.flush()
+    engine = FusionEngine(K, fusion=params, flow="dis")
+    for first, stop in ((2, 6), (3, None)):
+        engine.reset()
+        engine.set_output_range(first, stop)
+        got = [f for d, i in zip(depth, inten, strict=True) for f in engine.push(d, i)]
+        got += engine.flush()
+        assert [f.index for f in got] == list(range(first, n if stop is None else stop))
+        for f in got:
+            ref = want[f.index]
+            for field in ("points", "support", "filled", "unfilled", "source", "confidence"):
+                np.testing.assert_array_equal(getattr(f, field), getattr(ref, field))
+    engine.reset()
+    engine.push(depth[0], inten[0])
+    with pytest.raises(RuntimeError, match="before the first push"):
+        engine.set_output_range(1, 4)
+    engine.reset()
+    with pytest.raises(ValueError, match="first < stop"):
+        engine.set_output_range(4, 4)
+
+
 def test_shortcuts_without_fused_pixels_change_nothing(rng):
     """issue 13: the first frame of a causal window has no fused pixel (every valid pixel is
     an Eq. 6 hole); the Eq. 6 fill and the A29 base smoothing are skipped there, with the

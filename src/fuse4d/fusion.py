@@ -182,7 +182,8 @@ class FusionEngine:
 
     Push frames in order with :meth:`push`; each call returns the frames that became complete.
     Call :meth:`flush` at the end of the stream for the last ``h_future`` frames (truncated
-    windows, A13), and :meth:`reset` to start another stream on the same buffers. In
+    windows, A13), and :meth:`reset` to start another stream on the same buffers;
+    :meth:`set_output_range` emits only part of a stream (a time chunk with its halo). In
     ``causal`` mode (``FusionParams(causal=True)``) every frame is emitted as soon as it is
     pushed, fused with the n - 1 previous frames only.
 
@@ -330,8 +331,8 @@ class FusionEngine:
         self._no_static = np.zeros((h, w), np.bool_)  # A33 off, or a window of one frame
         self._pushed = 0  # frames received
         self._emitted = 0  # frames emitted
-        # frames from this one on are never emitted (a dask chunk's back halo; None: all are):
-        # their composed tracks (A31) are not built
+        # frames from this one on are never emitted (set_output_range; None: all are): their
+        # composed tracks (A31) are not built
         self._emit_stop: int | None = None
         self._closed = False
         # overlap_flow: one worker thread, created on the first pair
@@ -372,6 +373,38 @@ class FusionEngine:
         self._emit_stop = None
         self._closed = False
         self._last_points = None
+
+    def set_output_range(self, first: int = 0, stop: int | None = None) -> None:
+        """Emit only the frames ``first <= t < stop`` of this stream (None: to its end).
+
+        The other frames are sources only: they are pushed as usual (their depth, intensity
+        and flows feed the windows of the emitted frames) but never fused, never returned by
+        :meth:`push` or :meth:`flush`, and the composed tracks (A31) that only they would use
+        are not built. The emitted frames are those of an engine that emits every frame, bit
+        for bit. A time chunk of a longer recording with its halo (the dask graphs,
+        :func:`fuse4d.scale.graph.chunk_engine`) is pushed this way. Call before the first
+        :meth:`push` (after :meth:`reset` for a new stream, which emits every frame again).
+
+        Raises
+        ------
+        RuntimeError
+            Frames were already pushed to this stream.
+        ValueError
+            ``first`` < 0 or ``stop`` <= ``first``.
+        """
+        if self._pushed:
+            raise RuntimeError(
+                f"set_output_range must come before the first push ({self._pushed} frames "
+                "pushed); call reset() to start a new stream"
+            )
+        if first < 0 or (stop is not None and stop <= first):
+            raise ValueError(f"output range needs 0 <= first < stop, got [{first}, {stop})")
+        self._emitted = int(first)
+        self._emit_stop = None if stop is None else int(stop)
+
+    def _emit_end(self) -> int:
+        """Frames before this index may be emitted (pushed ones, within the output range)."""
+        return self._pushed if self._emit_stop is None else min(self._pushed, self._emit_stop)
 
     # ------------------------------------------------------------------ public
     @property
@@ -449,7 +482,7 @@ class FusionEngine:
         self._input_quad[slot] = math.nan if points is not None else input_quad
         self._pushed += 1
         out = []
-        while self._emitted + self.future < self._pushed:
+        while self._emitted + self.future < self._pushed and self._emitted < self._emit_end():
             out.append(self._emit(self._emitted))
         return out
 
@@ -597,7 +630,7 @@ class FusionEngine:
     def flush(self) -> list[FusedFrame]:
         """End of stream: emit the remaining frames with truncated windows."""
         out = []
-        while self._emitted < self._pushed:
+        while self._emitted < self._emit_end():
             out.append(self._emit(self._emitted))
         self._closed = True
         return out

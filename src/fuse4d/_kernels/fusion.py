@@ -707,13 +707,15 @@ def _fuse_kernel(
     w0 = temporal_weight[0]
     n_chunks = min(h, ROW_CHUNKS)
     for ci in prange(n_chunks):  # scratch allocated once per chunk, not per row
-        acc = np.empty((25, w), dtype=np.float64)
+        acc = np.empty((w, 25), dtype=np.float64)
         lines = np.empty(3)
         parabolas = np.empty(3)
         for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
             acc[:] = 0.0
-            # sample-major order over the row (independent per-pixel work overlaps in the CPU).
-            # acc rows: 0-2 own detail e, 3-5 detail sum, 6 weight sum, 7 count, 8 s1, 9 s2,
+            # sample-major order over the row (independent per-pixel work overlaps in the CPU);
+            # a pixel's 25 sums are contiguous (acc[u]: 4 cache lines touched per sample, not
+            # 25 rows of a (25, W) table that outgrows L1: the kernel took 21 % less, stop 44).
+            # acc[u, i]: 0-2 own detail e, 3-5 detail sum, 6 weight sum, 7 count, 8 s1, 9 s2,
             # 10 s3, 11 s4, 12 gate^2, per coordinate q: 13+q y0 (sum w m), 16+q y1
             # (sum w tau m), 19+q y2 (sum w tau^2 m), 22+q sum w m^2 (A32 only)
             for u in range(w):
@@ -721,12 +723,12 @@ def _fuse_kernel(
                 if np.isnan(zt):
                     continue
                 gate = max(gate_factor * max(sigma0, quad * zt * zt), min_gate)
-                acc[12, u] = gate * gate
+                acc[u, 12] = gate * gate
                 for c in range(3):
                     e = bil_ring[st, v, u, c] - ref_ring[st, v, u, c]  # detail of frame t
-                    acc[c, u] = e
-                    acc[3 + c, u] = w0 * e
-                acc[6, u] = w0
+                    acc[u, c] = e
+                    acc[u, 3 + c] = w0 * e
+                acc[u, 6] = w0
             for k in range(kmax):
                 T = first + k if first + k < t else first + k + 1
                 sT = frame_slot[T - first]
@@ -747,28 +749,28 @@ def _fuse_kernel(
                     dx = bil_ring[sT, r, c, 0] - ref_ring[sT, r, c, 0]
                     dy = bil_ring[sT, r, c, 1] - ref_ring[sT, r, c, 1]
                     dz = bil_ring[sT, r, c, 2] - ref_ring[sT, r, c, 2]
-                    dist2 = (dx - acc[0, u]) ** 2 + (dy - acc[1, u]) ** 2 + (dz - acc[2, u]) ** 2
-                    if not (dist2 < acc[12, u]):
+                    dist2 = (dx - acc[u, 0]) ** 2 + (dy - acc[u, 1]) ** 2 + (dz - acc[u, 2]) ** 2
+                    if not (dist2 < acc[u, 12]):
                         continue
-                    acc[3, u] += wt * dx
-                    acc[4, u] += wt * dy
-                    acc[5, u] += wt * dz
-                    acc[6, u] += wt
-                    acc[7, u] += 1.0
-                    acc[8, u] += wt * tau
-                    acc[9, u] += wt * tau * tau
+                    acc[u, 3] += wt * dx
+                    acc[u, 4] += wt * dy
+                    acc[u, 5] += wt * dz
+                    acc[u, 6] += wt
+                    acc[u, 7] += 1.0
+                    acc[u, 8] += wt * tau
+                    acc[u, 9] += wt * tau * tau
                     if trajectory >= 2:
-                        acc[10, u] += wt * tau * tau * tau
-                        acc[11, u] += wt * tau * tau * tau * tau
+                        acc[u, 10] += wt * tau * tau * tau
+                        acc[u, 11] += wt * tau * tau * tau * tau
                     if trajectory:  # the trajectory's sums (A21, A28, A32)
                         for q in range(3):
                             m = ref_ring[sT, r, c, q] - ref_ring[st, v, u, q]
-                            acc[13 + q, u] += wt * m
-                            acc[16 + q, u] += wt * tau * m
+                            acc[u, 13 + q] += wt * m
+                            acc[u, 16 + q] += wt * tau * m
                             if trajectory >= 2:  # the parabola's sums, unused by the line
-                                acc[19 + q, u] += wt * tau * tau * m
+                                acc[u, 19 + q] += wt * tau * tau * m
                             if trajectory == 3:  # the F test's sum
-                                acc[22 + q, u] += wt * m * m
+                                acc[u, 22 + q] += wt * m * m
             for u in range(w):
                 zt = ref_ring[st, v, u, 2]
                 if np.isnan(zt):
@@ -778,7 +780,7 @@ def _fuse_kernel(
                     support[v, u] = 0
                     hole[v, u] = False
                     continue
-                count = int(acc[7, u])
+                count = int(acc[u, 7])
                 support[v, u] = min(count, 255)
                 if count < min_support:
                     hole[v, u] = True
@@ -787,14 +789,14 @@ def _fuse_kernel(
                         base_out[v, u, c] = 0.0
                     continue
                 hole[v, u] = False
-                wsum = acc[6, u]
+                wsum = acc[u, 6]
                 if trajectory and static[v, u]:
                     # A34: a static pixel's trajectory is constant, its base the weighted
                     # mean of the motion vectors (t's own 0 included); a line's slope would
                     # be fitted noise, extrapolated at the end of a causal window
                     for c in range(3):
-                        base = acc[13 + c, u] / wsum
-                        out_points[v, u, c] = ref_ring[st, v, u, c] + base + acc[3 + c, u] / wsum
+                        base = acc[u, 13 + c] / wsum
+                        out_points[v, u, c] = ref_ring[st, v, u, c] + base + acc[u, 3 + c] / wsum
                         base_out[v, u, c] = base
                     continue
                 # A21 line, A28 parabola, A32 the parabola for all three coordinates where
@@ -802,37 +804,37 @@ def _fuse_kernel(
                 # min_bias sigma(z): one model for the point, so that the lateral and depth
                 # offsets of a sample landing beside x stay consistent
                 n = count + 1
-                s1 = acc[8, u]
-                s2 = acc[9, u]
+                s1 = acc[u, 8]
+                s2 = acc[u, 9]
                 det = wsum * s2 - s1 * s1  # the line's, shared by the coordinates
                 basis = (False, 0.0, 0.0, 0.0, 0.0)
                 if trajectory >= 2:
-                    basis = _parabola_basis(wsum, s1, s2, acc[10, u], acc[11, u], det)
+                    basis = _parabola_basis(wsum, s1, s2, acc[u, 10], acc[u, 11], det)
                 curved = trajectory == 2 and basis[0]
                 test = trajectory == 3 and basis[0] and n > 3
                 crit = f_crit[min(max(n - 3, 0), f_crit.size - 1)]
                 floor = min_bias * max(sigma0, quad * zt * zt)
                 for c in range(3):
-                    y0 = acc[13 + c, u]
-                    y1 = acc[16 + c, u]
+                    y0 = acc[u, 13 + c]
+                    y1 = acc[u, 16 + c]
                     lines[c] = _line_value(wsum, s1, s2, y0, y1, det) if trajectory else 0.0
                     parabolas[c] = lines[c]
                     if basis[0]:
                         _, inv_det, lin_g, lin_h, inv_d = basis  # (h is the height)
-                        num = acc[19 + c, u] - lin_g * y0 - lin_h * y1
+                        num = acc[u, 19 + c] - lin_g * y0 - lin_h * y1
                         curvature = num * inv_d
                         parabolas[c] = lines[c] - curvature * lin_g
                         if test and not curved and abs(curvature * lin_g) > floor:
                             # F test: (RSS_line - RSS_par) (n - 3) / RSS_par > crit
                             gain = num * curvature
                             slope = (wsum * y1 - s1 * y0) * inv_det
-                            syy = acc[22 + c, u]
+                            syy = acc[u, 22 + c]
                             rss_line = syy - lines[c] * y0 - slope * y1
                             if rss_line > 1e-12 * syy and gain > 0.0:
                                 curved = gain * (n - 3) > crit * (rss_line - gain)
                 for c in range(3):
                     base = parabolas[c] if curved else lines[c]
-                    out_points[v, u, c] = ref_ring[st, v, u, c] + base + acc[3 + c, u] / wsum
+                    out_points[v, u, c] = ref_ring[st, v, u, c] + base + acc[u, 3 + c] / wsum
                     base_out[v, u, c] = base
 
 

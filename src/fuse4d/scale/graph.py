@@ -452,12 +452,7 @@ def chunk_engine(
     back to the pool when the block ends without an exception."""
     a, b = keep
     engine = _ENGINES.take(intrinsics, params)
-    # FusionEngine has no public switch for the halo yet; if the attributes go away the halo
-    # frames are fused and discarded: same bits, slower
-    if a > 0 and isinstance(getattr(engine, "_emitted", None), int):
-        engine._emitted = a
-    if b < frames:
-        engine._emit_stop = b
+    engine.set_output_range(a, b if b < frames else None)
     yield engine  # an exception leaves the engine to the garbage collector
     _ENGINES.give_back(intrinsics, params, engine)
 
