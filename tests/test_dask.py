@@ -132,6 +132,26 @@ def test_chunk_engines_are_reused_and_give_the_same_bits(ball, reference):
     assert pool.built > built  # other parameters: a new engine
 
 
+def test_release_engines_here_and_on_a_clients_workers(ball):
+    """``fuse4d.dask.release_engines`` drops the idle chunk engine of this process and, given a
+    client, of each of its workers (one worker process here)."""
+    pytest.importorskip("distributed")
+    from fuse4d.scale.cluster import local_cluster
+
+    pool = graph._ENGINES
+    res = fd.fuse(ball.depth, ball.intensity, ball.intrinsics, chunk_frames=12)
+    res.depth.compute(scheduler="synchronous")
+    assert pool._idle is not None
+    assert fd.release_engines() == 1
+    assert pool._idle is None
+    assert fd.release_engines() == 0
+    with local_cluster(1) as client:  # (the project's: no allocator warning in later tests)
+        res.depth.compute()  # in the worker process: this process's pool stays empty
+        assert pool._idle is None
+        assert fd.release_engines(client) == 1
+        assert fd.release_engines(client) == 0
+
+
 def test_fewer_frames_than_window(ball):
     seq = _crop(make_falling_ball(small=True, num_frames=5), 5)
     ref = fuse_sequence(seq.depth, seq.intensity, seq.intrinsics)  # 9-frame window, T = 5

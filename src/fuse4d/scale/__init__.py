@@ -22,7 +22,7 @@ from ._deps import require_scale_extra
 
 require_scale_extra()
 
-from .graph import DaskFlows, DaskFusion, flows, fuse
+from .graph import DaskFlows, DaskFusion, flows, fuse, release_engines
 from .inputs import LazyRecording, open_lazy
 from .zarr_out import ZarrOutput, write_zarr
 
@@ -34,5 +34,6 @@ __all__ = [
     "flows",
     "fuse",
     "open_lazy",
+    "release_engines",
     "write_zarr",
 ]

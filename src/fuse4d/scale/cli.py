@@ -17,7 +17,7 @@ from typing import Any
 from ..config import FlowConfig, FusionParams
 from ..flying_pixels import resolve_flying_pixels
 from .cluster import open_compute
-from .graph import even_chunk_frames, fuse
+from .graph import even_chunk_frames, fuse, release_engines
 from .inputs import open_lazy
 from .streamed import recording_tasks, source_of
 from .zarr_out import ZarrOutput
@@ -241,7 +241,9 @@ def run_dask(
         )
         jobs.append((out, summary))
     if tasks:
-        with open_compute(scheduler, workers, progress=progress) as compute:
+        with open_compute(
+            scheduler, workers, progress=progress, on_exit=release_engines
+        ) as compute:
             compute(*tasks)
     for out, _ in jobs:
         out.finalize()

@@ -188,7 +188,11 @@ def _compute_with(client: Any, show: bool) -> Callable[..., tuple[Any, ...]]:
 
 @contextlib.contextmanager
 def open_compute(
-    scheduler: str = "threads", workers: int | None = None, *, progress: bool = True
+    scheduler: str = "threads",
+    workers: int | None = None,
+    *,
+    progress: bool = True,
+    on_exit: Callable[[Any], object] | None = None,
 ) -> Iterator[Callable[..., tuple[Any, ...]]]:
     """A ``compute(*delayed)`` function for the chosen scheduler, with dask's progress bar.
 
@@ -200,6 +204,12 @@ def open_compute(
         Threads or worker processes of a local scheduler (default: the CPU count).
     progress : bool
         Show dask's progress bar on stderr.
+    on_exit : callable, optional
+        Called when the block ends (also after an exception) with the ``distributed.Client``
+        of a ``tcp://`` scheduler or of the local cluster, else with None; e.g.
+        :func:`fuse4d.scale.graph.release_engines`, so that long-lived workers (and this
+        process, which runs the tasks of the threads and sync schedulers) do not keep an
+        idle chunk engine.
 
     Yields
     ------
@@ -213,11 +223,19 @@ def open_compute(
 
         with Client(scheduler) as client:
             warn_if_slow_allocator(client)
-            yield _compute_with(client, progress)
+            try:
+                yield _compute_with(client, progress)
+            finally:
+                if on_exit is not None:
+                    on_exit(client)
         return
     if scheduler == "processes" and importlib.util.find_spec("distributed") is not None:
         with local_cluster(n) as client:
-            yield _compute_with(client, progress)
+            try:
+                yield _compute_with(client, progress)
+            finally:
+                if on_exit is not None:
+                    on_exit(client)
         return
     # (no distributed: "processes" is dask's multiprocessing pool)
     if scheduler not in ("threads", "processes", "sync"):
@@ -231,4 +249,8 @@ def open_compute(
         with bar:
             return dask.compute(*tasks, scheduler=scheduler, num_workers=n)
 
-    yield compute
+    try:
+        yield compute
+    finally:
+        if on_exit is not None:
+            on_exit(None)
