@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from scipy import ndimage as ndi
 
-from fuse4d import FusionParams, load_config, load_sequence, preset
+from fuse4d import FusionParams, Sequence, load_config, load_sequence, preset
 from fuse4d.cli import main
-from fuse4d.errors import InputFileError
+from fuse4d.errors import InputFileError, ParameterError
 from fuse4d.holes import SOURCE_FUSED, SOURCE_MEASURED, SOURCE_NONE
 from fuse4d.io import FrameFolderWriter, read_npz_extra, write_npz
 from fuse4d.synthetic import make_falling_ball, make_scene
@@ -192,6 +192,22 @@ def test_bench_causal_times_the_causal_engine_stage_by_stage(monkeypatch, capsys
     centred = _bench_small(capsys)
     assert centred["causal"] is False
     assert seen[-1] == (False, 1, 1)
+
+
+def test_bench_pipeline_times_a_given_sequence_in_memory():
+    """``sequence=``: the engine on those frames (their size, their first ``num_frames``), not
+    on the ball; no frame to time is refused."""
+    from fuse4d.experiments.speed import benchmark_pipeline
+
+    seq = make_falling_ball(small=True, num_frames=6)
+    k = dataclasses.replace(seq.intrinsics, width=120)
+    crop = Sequence(seq.depth[:, :, :120].copy(), seq.intensity[:, :, :120].copy(), k)
+    result = benchmark_pipeline("fast", num_frames=4, window=3, sequence=crop)
+    assert result.size == (150, 120)
+    assert result.frames == 4
+    assert result.stage_ms["tracking"] > 0
+    with pytest.raises(ParameterError, match="no frame"):
+        benchmark_pipeline("fast", num_frames=0, sequence=crop)
 
 
 def test_bench_causal_refuses_quality():

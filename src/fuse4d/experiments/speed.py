@@ -1,7 +1,8 @@
 """Speed and memory benchmark of the fusion pipeline (``fuse4d bench``).
 
-Measures, on the synthetic falling ball, the wall time per output frame of each stage (flow,
-bilateral, motion reference, tracking, fusion, fill) in the streaming engine, after a warm-up
+Measures, on the synthetic falling ball (or any :class:`~fuse4d.Sequence` in memory), the wall
+time per output frame of each stage (flow, bilateral, motion reference, tracking, fusion, fill)
+in the streaming engine, after a warm-up
 run that compiles the numba kernels, and the peak resident memory of the process; or
 (:func:`benchmark_recording`, ``fuse4d bench --input``) a real recording end to end through
 ``fuse4d run``'s streaming path, reading, writing and the summary included as stages. Both
@@ -22,6 +23,7 @@ from typing import Any
 from ..config import preset as get_preset
 from ..errors import ParameterError
 from ..fusion import STAGES, FusionEngine
+from ..sequence import Sequence
 from ..synthetic import make_falling_ball
 
 __all__ = ["BenchResult", "benchmark_pipeline", "benchmark_recording"]
@@ -102,8 +104,9 @@ def benchmark_pipeline(
     num_frames: int = 18,
     window: int = 9,
     causal: bool = False,
+    sequence: Sequence | None = None,
 ) -> BenchResult:
-    """Time the streaming engine on the synthetic ball.
+    """Time the streaming engine on the synthetic ball (or on ``sequence``, in memory).
 
     Parameters
     ----------
@@ -117,11 +120,17 @@ def benchmark_pipeline(
     causal : bool
         Time the causal engine (``FusionParams(causal=True)``: each frame fused with the
         ``window - 1`` previous ones, emitted as soon as it is pushed).
+    sequence : Sequence, optional
+        Frames to time instead of the ball (its first ``num_frames``; ``small`` is ignored):
+        a loaded recording's compute alone, without the reading and writing of
+        :func:`benchmark_recording`.
     """
     chosen = get_preset(preset)
     fusion = chosen.fusion.replace(num_frames=window, causal=causal)
-    seq = make_falling_ball(small=small, num_frames=num_frames)
-    frames = list(zip(seq.depth, seq.intensity, strict=True))
+    seq = make_falling_ball(small=small, num_frames=num_frames) if sequence is None else sequence
+    frames = list(zip(seq.depth[:num_frames], seq.intensity[:num_frames], strict=True))
+    if not frames:
+        raise ParameterError("benchmark_pipeline: the sequence has no frame to time")
 
     def run_once() -> tuple[float, dict[str, float]]:
         timings = dict.fromkeys(STAGES, 0.0)
