@@ -194,20 +194,33 @@ def test_bench_causal_times_the_causal_engine_stage_by_stage(monkeypatch, capsys
     assert seen[-1] == (False, 1, 1)
 
 
-def test_bench_pipeline_times_a_given_sequence_in_memory():
+def test_bench_pipeline_times_a_given_sequence_in_memory(monkeypatch):
     """``sequence=``: the engine on those frames (their size, their first ``num_frames``), not
-    on the ball; no frame to time is refused."""
-    from fuse4d.experiments.speed import benchmark_pipeline
+    on the ball, with A36 decided for the sequence's camera as ``fuse4d run`` does; no frame
+    to time is refused."""
+    from fuse4d.experiments import speed
 
+    flying = []
+
+    class Spy(speed.FusionEngine):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            flying.append(self.params.flying_pixels)
+
+    monkeypatch.setattr(speed, "FusionEngine", Spy)
     seq = make_falling_ball(small=True, num_frames=6)
     k = dataclasses.replace(seq.intrinsics, width=120)
     crop = Sequence(seq.depth[:, :, :120].copy(), seq.intensity[:, :, :120].copy(), k)
-    result = benchmark_pipeline("fast", num_frames=4, window=3, sequence=crop)
+    result = speed.benchmark_pipeline("fast", num_frames=4, window=3, sequence=crop)
     assert result.size == (150, 120)
     assert result.frames == 4
     assert result.stage_ms["tracking"] > 0
+    assert set(flying) == {"off"}
+    tof = Sequence(crop.depth, crop.intensity, k, sensor="tof")
+    speed.benchmark_pipeline("fast", num_frames=3, window=3, sequence=tof)
+    assert flying[-1] == "on"
     with pytest.raises(ParameterError, match="no frame"):
-        benchmark_pipeline("fast", num_frames=0, sequence=crop)
+        speed.benchmark_pipeline("fast", num_frames=0, sequence=crop)
 
 
 def test_bench_causal_refuses_quality():

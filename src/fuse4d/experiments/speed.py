@@ -22,6 +22,7 @@ from typing import Any
 
 from ..config import preset as get_preset
 from ..errors import ParameterError
+from ..flying_pixels import resolve_flying_pixels
 from ..fusion import STAGES, FusionEngine
 from ..sequence import Sequence
 from ..synthetic import make_falling_ball
@@ -126,8 +127,11 @@ def benchmark_pipeline(
         :func:`benchmark_recording`.
     """
     chosen = get_preset(preset)
-    fusion = chosen.fusion.replace(num_frames=window, causal=causal)
     seq = make_falling_ball(small=small, num_frames=num_frames) if sequence is None else sequence
+    # A36 as `fuse4d run` decides it for the recording's camera (the ball: none, "off")
+    fusion = resolve_flying_pixels(
+        chosen.fusion.replace(num_frames=window, causal=causal), seq.sensor
+    )
     frames = list(zip(seq.depth[:num_frames], seq.intensity[:num_frames], strict=True))
     if not frames:
         raise ParameterError("benchmark_pipeline: the sequence has no frame to time")
