@@ -21,29 +21,22 @@ Usage::
     python benchmarks/input_ratio.py [--input REC] [--frames 18] [--window 9] [--causal]
         [--repeats 3] [--json]
 
-REC defaults to ``$FUSE4D_DATA/uva_cv2_person_turning``, else
-``../shared/data/uva_cv2_person_turning``.
+REC defaults to the person recording of the ``real`` experiment in its data folder
+(:func:`fuse4d.experiments.paper.real.data_dir`: ``$FUSE4D_DATA``, else ``../shared/data``).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
 from pathlib import Path
 
 from fuse4d import load_sequence
+from fuse4d.experiments.paper.real import RECORDINGS, data_dir
 from fuse4d.experiments.speed import BenchResult, benchmark_pipeline, benchmark_recording
 
 KINDS = ("synthetic", "stream", "engine")
-
-
-def _default_input() -> Path:
-    root = os.environ.get("FUSE4D_DATA") or str(
-        Path(__file__).resolve().parents[2] / "shared" / "data"
-    )
-    return Path(root) / "uva_cv2_person_turning"
 
 
 def _round(rec: Path, sequence, args) -> dict[str, BenchResult]:
@@ -55,6 +48,11 @@ def _round(rec: Path, sequence, args) -> dict[str, BenchResult]:
     }
 
 
+def _over_synthetic(runs: dict[str, BenchResult], kind: str) -> float:
+    """µs per pixel of ``kind`` relative to the synthetic bench of the same round."""
+    return runs[kind].us_per_pixel / runs["synthetic"].us_per_pixel
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--input", type=Path, default=None, help="recording (default: uva)")
@@ -64,33 +62,33 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="rounds of the three runs")
     parser.add_argument("--json", action="store_true", help="print JSON")
     args = parser.parse_args()
-    rec = args.input or _default_input()
+    rec = args.input or data_dir() / RECORDINGS["person"]
     if not rec.exists():
         raise SystemExit(f"{rec}: no such recording (give --input or set FUSE4D_DATA)")
     sequence = load_sequence(rec, frames=slice(0, args.frames))
     rounds = []
     for i in range(args.repeats):
         runs = _round(rec, sequence, args)
-        us = {k: r.us_per_pixel for k, r in runs.items()}
-        rounds.append({"runs": runs, "us": us})
+        rounds.append(runs)
         if not args.json:
+            us = {k: r.us_per_pixel for k, r in runs.items()}
             print(
                 f"round {i + 1}: µs/px synthetic {us['synthetic']:.3f}, stream "
                 f"{us['stream']:.3f}, engine {us['engine']:.3f}; stream / synthetic "
-                f"{us['stream'] / us['synthetic']:.2f}, engine / synthetic "
-                f"{us['engine'] / us['synthetic']:.2f}",
+                f"{_over_synthetic(runs, 'stream'):.2f}, engine / synthetic "
+                f"{_over_synthetic(runs, 'engine'):.2f}",
                 flush=True,
             )
-    stream_ratio = [r["us"]["stream"] / r["us"]["synthetic"] for r in rounds]
-    engine_ratio = [r["us"]["engine"] / r["us"]["synthetic"] for r in rounds]
+    stream_ratio = [_over_synthetic(runs, "stream") for runs in rounds]
+    engine_ratio = [_over_synthetic(runs, "engine") for runs in rounds]
     stages = {
         kind: {
-            stage: statistics.median(r["runs"][kind].stage_ms[stage] for r in rounds)
-            for stage in rounds[0]["runs"][kind].stage_ms
+            stage: statistics.median(runs[kind].stage_ms[stage] for runs in rounds)
+            for stage in rounds[0][kind].stage_ms
         }
         for kind in KINDS
     }
-    ms = {kind: statistics.median(r["runs"][kind].ms_per_frame for r in rounds) for kind in KINDS}
+    ms = {kind: statistics.median(runs[kind].ms_per_frame for runs in rounds) for kind in KINDS}
     if args.json:
         print(
             json.dumps(
@@ -99,7 +97,7 @@ def main() -> None:
                     "frames": args.frames,
                     "window": args.window,
                     "causal": args.causal,
-                    "rounds": [{k: r.to_dict() for k, r in rd["runs"].items()} for rd in rounds],
+                    "rounds": [{k: r.to_dict() for k, r in runs.items()} for runs in rounds],
                     "stream_over_synthetic": stream_ratio,
                     "engine_over_synthetic": engine_ratio,
                     "median_ms_per_frame": ms,

@@ -2,8 +2,8 @@
 
 Measures, on the synthetic falling ball (or any :class:`~fuse4d.Sequence` in memory), the wall
 time per output frame of each stage (flow, bilateral, motion reference, tracking, fusion, fill)
-in the streaming engine, after a warm-up
-run that compiles the numba kernels, and the peak resident memory of the process; or
+in the streaming engine, after a warm-up run that compiles the numba kernels, and the peak
+resident memory of the process; or
 (:func:`benchmark_recording`, ``fuse4d bench --input``) a real recording end to end through
 ``fuse4d run``'s streaming path, reading, writing and the summary included as stages. Both
 time the centred engine or, with ``causal=True`` (``fuse4d bench --causal``), the causal one
