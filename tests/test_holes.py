@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
+from fuse4d._kernels._common import _balanced_row_bounds
 from fuse4d._kernels.holes import (
     _hole_runs_kernel,
     _spatial_fill_kernel,
@@ -307,6 +308,43 @@ def test_time_fill_side_check_matches_its_definition(rng):
     np.testing.assert_array_equal(got, expected)
     assert got.any()
     assert (holes & ~got).any()  # both outcomes occur
+
+
+def test_balanced_row_bounds_give_each_chunk_an_equal_share(rng):
+    """The hole kernels' row chunks: in order, covering every row, each within one row's
+    work of its share (most of the work in a few rows, as a recording's holes are)."""
+    work = np.full(480, 2.0)
+    work[300:340] += rng.integers(100, 600, 40)
+    work[100:110] += 900.0
+    for n in (1, 2, 7, 64):
+        b = _balanced_row_bounds(work, n)
+        assert b[0] == 0
+        assert b[-1] == work.size
+        assert (np.diff(b) >= 0).all()
+        share = work.sum() / n
+        cum = np.concatenate([[0.0], np.cumsum(work)])
+        for i in range(1, n):  # each boundary within one row of its share
+            assert cum[b[i]] <= share * i + 1e-9 < cum[b[i]] + work[b[i]]
+    # the two threads' halves of 64 chunks: equal rows would give them 10 % / 90 % here
+    b = _balanced_row_bounds(work, 64)
+    assert abs(work[: b[32]].sum() - work.sum() / 2) <= work.max()
+
+
+def test_spatial_fill_of_a_pixel_does_not_depend_on_the_other_targets():
+    """Row chunks follow the targets; a target's value and every other pixel's copy do not
+    depend on where the chunks fall (holes in the bottom rows only, then also at the top)."""
+    d, inten = _shadow_scene()
+    d, inten = np.tile(d, (4, 1)), np.tile(inten, (4, 1))  # 160 rows: 64 chunks of 2-3
+    holes = np.isnan(d)
+    bottom = holes.copy()
+    bottom[: d.shape[0] - 20] = False
+    few = np.full_like(d, -1.0)
+    _spatial_fill_kernel(d, inten, bottom, 4, 50.0, 1.0 / 8.0, 10.0, 2e-6, few)
+    all_ = np.full_like(d, -1.0)
+    _spatial_fill_kernel(d, inten, holes, 4, 50.0, 1.0 / 8.0, 10.0, 2e-6, all_)
+    np.testing.assert_array_equal(few[bottom], all_[bottom])
+    np.testing.assert_array_equal(few[~bottom], d[~bottom])  # every other row copied
+    assert np.isfinite(few[bottom]).any()
 
 
 def test_thin_hole_beside_a_receding_foreground_never_takes_the_background():

@@ -1,6 +1,7 @@
 """Numeric primitives shared by the kernels (private; compiled through ``_numba``).
 
 * :data:`ROW_CHUNKS`: parallel loops run over this many row chunks.
+* :func:`_balanced_row_bounds`: row chunks of about equal work where few pixels have any.
 * :func:`_exp_neg_fast`: the bilateral weight function exp(-x) ~ (1 - x/1024)^1024.
 * :func:`_bilinear_stencil`: the clamped 2x2 stencil (indices, weights) of a bilinear sample.
 * :func:`_bilinear2`: bilinear sample of a two-component (flow) field, stencil clamped.
@@ -22,6 +23,7 @@ from ._numba import njit
 __all__ = [
     "EXP_POWER",
     "ROW_CHUNKS",
+    "_balanced_row_bounds",
     "_bilinear2",
     "_bilinear2_plane",
     "_bilinear_stencil",
@@ -39,6 +41,36 @@ ROW_CHUNKS = 64
 #: 0.05 % at x = 1 and 0.8 % at x = 4; exactly 0 beyond x = EXP_POWER. Pure arithmetic, so the
 #: bilateral loops vectorise (a table lookup or a libm call would not).
 EXP_POWER = 1024.0
+
+
+@njit
+def _balanced_row_bounds(row_work, n_chunks):
+    """Row bounds ``b`` (n_chunks + 1,) int64 of chunks ``b[i] <= v < b[i + 1]`` that cover
+    the rows in order with about equal total ``row_work`` (float64 (H,), >= 0) each.
+
+    For the kernels whose work is a sparse set of target pixels (the sensor-hole fills): the
+    parallel runtime hands each thread an equal share of the chunks in order, so chunks of
+    equal rows leave one thread idle while the other fills the rows that hold most of the
+    holes (measured on ``uva_cv2_person_turning``: 58 % / 42 % of a frame's time-fill targets
+    in the two halves of the image). A chunk ends at the first row whose cumulative work
+    reaches its share; chunks may be empty.
+    """
+    h = row_work.size
+    total = 0.0
+    for v in range(h):
+        total += row_work[v]
+    bounds = np.empty(n_chunks + 1, np.int64)
+    bounds[0] = 0
+    v = 0
+    cum = 0.0
+    for i in range(1, n_chunks):
+        goal = total * i / n_chunks
+        while v < h and cum + row_work[v] <= goal:
+            cum += row_work[v]
+            v += 1
+        bounds[i] = v
+    bounds[n_chunks] = h
+    return bounds
 
 
 @njit(inline="always")

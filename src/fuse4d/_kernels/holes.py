@@ -18,9 +18,29 @@ import math
 
 import numpy as np
 
-from ._common import ROW_CHUNKS, _round_half_up, _step_limit
+from ._common import ROW_CHUNKS, _balanced_row_bounds, _round_half_up, _step_limit
 from ._numba import njit, njit_parallel, prange
 from .fusion import _add_trajectory_sample, _fill_landing, _put_trajectory_value, _track_step
+
+#: a row's own cost (scanning it for targets, copying its other pixels) in target pixels, for
+#: the chunks of :func:`_balanced_row_bounds`
+ROW_SCAN_WORK = 2.0
+
+
+@njit_parallel
+def _target_row_bounds(target, n_chunks):
+    """Row chunks (:func:`._common._balanced_row_bounds`) of about equal work for a kernel
+    over the ``target`` pixels of an (H, W) bool mask: a row's work is its targets plus
+    :data:`ROW_SCAN_WORK`."""
+    h, w = target.shape
+    work = np.empty(h, np.float64)
+    for v in prange(h):
+        m = 0
+        for u in range(w):
+            if target[v, u]:
+                m += 1
+        work[v] = m + ROW_SCAN_WORK
+    return _balanced_row_bounds(work, n_chunks)
 
 
 @njit_parallel
@@ -70,6 +90,7 @@ def _temporal_fill_kernel(
     h = depth_ring.shape[1]
     w = depth_ring.shape[2]
     n_chunks = min(h, ROW_CHUNKS)
+    bounds = _target_row_bounds(target, n_chunks)  # the holes cluster in a few rows
     for ci in prange(n_chunks):  # scratch allocated once per chunk, not per row
         cols = np.empty(w, np.int64)
         xs = np.empty(w, np.float64)
@@ -78,7 +99,7 @@ def _temporal_fill_kernel(
         alive = np.empty(w, np.bool_)
         acc = np.empty((9, w), np.float64)  # s0, s1, s2, ax, ay, az, bx, by, bz
         count = np.empty(w, np.int64)
-        for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
+        for v in range(bounds[ci], bounds[ci + 1]):
             m = 0
             for u in range(w):
                 out_count[v, u] = 0
@@ -377,6 +398,7 @@ def _spatial_fill_kernel(
     h, w = depth.shape
     n_max = (2 * radius + 1) ** 2
     n_chunks = min(h, ROW_CHUNKS)
+    bounds = _target_row_bounds(target, n_chunks)  # the holes cluster in a few rows
     for ci in prange(n_chunks):  # scratch allocated once per chunk, not per pixel
         zs = np.empty(n_max, np.float64)
         ws = np.empty(n_max, np.float64)
@@ -385,7 +407,7 @@ def _spatial_fill_kernel(
         srt = np.empty(n_max, np.float64)
         bucket_lo = np.empty(4 * n_max, np.float64)
         bucket_hi = np.empty(4 * n_max, np.float64)
-        for v in range(ci * h // n_chunks, (ci + 1) * h // n_chunks):
+        for v in range(bounds[ci], bounds[ci + 1]):
             for u in range(w):
                 if not target[v, u]:
                     out_depth[v, u] = depth[v, u]
