@@ -1253,6 +1253,40 @@ def test_smooth_base_row_sweep_is_two_box_passes_per_channel(rng, sigma):
         np.testing.assert_array_equal(rows_t[:, c, :].T[ok], a[ok])
 
 
+def _four_box_passes(values, depth, radius, quad):
+    """The edge-limited smoothing as four ``_segment_box_rows_kernel`` passes (two along the
+    rows, two along the rows of the transposed maps): what ``_segment_smooth`` computed
+    before stop 48, its oracle."""
+    a, b = values.copy(), np.empty_like(values)
+    for _ in range(2):
+        _segment_box_rows_kernel(a, depth, radius, 10.0, quad, b)
+        a, b = b, a
+    at, dt = np.ascontiguousarray(a.T), np.ascontiguousarray(depth.T)
+    bt = np.empty_like(at)
+    for _ in range(2):
+        _segment_box_rows_kernel(at, dt, radius, 10.0, quad, bt)
+        at, bt = bt, at
+    return at.T
+
+
+@pytest.mark.parametrize("sigma", [1.0, 3.0, 4.0])
+@pytest.mark.parametrize("shape", [(41, 67), (1, 40), (40, 1), (17, 16)])
+def test_segment_smooth_sweeps_are_four_box_passes(rng, sigma, shape):
+    """``_segment_smooth`` (two sweeps, segments found once per line) gives, bit for bit, the
+    four single passes; on quantised far depth with holes, for the depth itself (the motion
+    reference) and for another map, on sizes that are not whole blocks."""
+    from fuse4d.motion import _box_radius, _segment_smooth
+
+    depth, hole, _ = _kinect_like(rng)
+    d = np.where(hole, np.float32(np.nan), depth)[: shape[0], : shape[1]].copy()
+    other = rng.normal(0, 3.0, d.shape).astype(np.float32)
+    quad, radius = 1.7e-6, _box_radius(sigma)
+    for values in (d, other):
+        got = _segment_smooth(values, d, sigma=sigma, max_step=10.0, noise_quad=quad)
+        np.testing.assert_array_equal(got, _four_box_passes(values, d, radius, quad))
+    assert np.isnan(got[np.isnan(d)]).all()
+
+
 @pytest.mark.parametrize("sigma", [1.0, 2.0, 3.5])
 def test_smooth_base_matches_three_segment_smooths_on_kinect_like_depth(rng, sigma):
     """As above on quantised far depth with short segments and an inf offset; a frame whose

@@ -19,16 +19,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import NamedTuple
 
-import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._kernels.fusion import (
-    _pair_diagnostics_kernel,
-    _segment_box_rows_kernel,
-    _track_kernel,
-)
+from ._kernels.fusion import _pair_diagnostics_kernel, _track_kernel
 from ._kernels.noise import _noise_quad_ratios
+from ._kernels.segment_smooth import _segment_smooth_cols_kernel, _segment_smooth_rows_kernel
 from ._kernels.tracks import _compose_kernel, _one_step_kernel
 from ._memory import committed
 from ._validation import as_float32, check_shape
@@ -116,22 +112,19 @@ def _segment_smooth(
     of A29 are smoothed with it too.
     """
     d = np.ascontiguousarray(depth, dtype=np.float32)
+    h, w = d.shape
     radius = _box_radius(sigma)
-    step = float(max_step)
-    a = np.ascontiguousarray(values, dtype=np.float32).copy()
-    b = np.empty_like(d)
-    for _ in range(2):
-        _segment_box_rows_kernel(a, d, radius, step, float(noise_quad), b)
-        a, b = b, a
-    # the column passes run on transposed copies (cv2.transpose: 0.04 ms per 640x480 plane,
-    # numpy's strided copy 0.24)
-    at = cv2.transpose(a)
-    dt = cv2.transpose(d)
-    bt = np.empty_like(at)
-    for _ in range(2):
-        _segment_box_rows_kernel(at, dt, radius, step, float(noise_quad), bt)
-        at, bt = bt, at
-    return cv2.transpose(at)
+    step, quad = float(max_step), float(noise_quad)
+    # two sweeps (rows, then columns through a transposed layout), each finding a line's
+    # segments once for both of its passes: the values of four _segment_box_rows_kernel
+    # passes, bit for bit (_kernels/segment_smooth.py)
+    rows_t = np.empty((w, h), np.float32)
+    depth_t = np.empty((w, h), np.float32)
+    values32 = np.ascontiguousarray(values, dtype=np.float32)
+    _segment_smooth_rows_kernel(values32, d, radius, step, quad, rows_t, depth_t)
+    out = np.empty((h, w), np.float32)
+    _segment_smooth_cols_kernel(rows_t, depth_t, radius, step, quad, out)
+    return out
 
 
 def _box_radius(sigma: float) -> int:

@@ -1088,6 +1088,9 @@ def _segment_box_rows_kernel(values, depth, radius, max_step, quad, out):
     window this is the plain box mean; on a truncated one (image border, depth edge) it has no
     slope bias. O(1) per pixel (prefix sums; :func:`._segments._box_line`). values, depth,
     out: (H, W) float32; out is NaN where depth is NaN.
+
+    The engine runs the two-sweep kernels (:mod:`._kernels.segment_smooth`,
+    :mod:`._kernels.smooth_base`), which equal passes of this one bit for bit (tested).
     """
     h, w = depth.shape
     n_chunks = min(h, ROW_CHUNKS)

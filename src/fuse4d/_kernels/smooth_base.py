@@ -23,18 +23,9 @@ from __future__ import annotations
 import numpy as np
 
 from ._numba import njit, njit_parallel, prange
-from ._segments import SEGMENT_FASTMATH, _box_line3, _line_segments
+from ._segments import BLOCK, BLOCK_CHUNKS, SEGMENT_FASTMATH, _box_line3, _line_segments
 
 __all__ = ["_smooth_base_cols_kernel", "_smooth_base_rows_kernel"]
-
-#: rows (columns) per block of a sweep: the transposed writes are runs of this many float32
-BLOCK = 16
-#: parallel chunks of blocks of the row sweep, each allocating its scratch (eight arrays, a
-#: 16 x 3 x 640 float32 tile of 123 kB among them) once instead of per block: the row sweep
-#: of a 640 x 480 frame went 2.9 -> 2.2 ms on two threads (stop 48; glibc's trim and mmap
-#: thresholds raised did not give the old kernel that, so the cause is not the memory being
-#: returned to the system). The column sweep, changed alike, did not move.
-BLOCK_CHUNKS = 8
 
 
 #: largest finite float32
