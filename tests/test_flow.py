@@ -633,3 +633,24 @@ def test_middlebury_pairs_mask_unknown(shared_data):
     assert venus.mask.all()  # Venus has no unknown GT
     assert 0.9 < pairs[0].mask.mean() < 0.99  # Dimetrodon: 4.8 % unknown
     assert np.abs(pairs[0].flow_true).max() < 10
+
+
+def test_to_uint8_kernel_gives_the_numpy_expressions_bytes():
+    """The flow methods' 8-bit input (one numba pass since stop 48) equals
+    ``clip(image * 255 + 0.5, 0, 255)`` in float32, truncated: every level's centre and both
+    rounding edges, the ends of [0, 1] and beyond, random values, a non-contiguous view."""
+    from fuse4d.flow._checks import to_uint8
+
+    levels = np.arange(256, dtype=np.float32)
+    edges = np.concatenate([levels / 255, (levels + 0.5) / 255, (levels - 0.5) / 255])
+    values = np.concatenate(
+        [edges, np.nextafter(edges, np.float32(2)), np.nextafter(edges, np.float32(-1))]
+    )
+    values = np.concatenate([values, [-0.3, 0.0, 1.0, 1.2, 1e6, -1e6]]).astype(np.float32)
+    rng = np.random.default_rng(3)
+    image = np.concatenate([values, rng.random(2 * 96 * 96 - values.size, np.float32)])
+    image = image.reshape(96, 192)
+    for a in (image, image[:, ::2]):
+        expected = np.empty(a.shape, np.uint8)
+        np.clip(a * np.float32(255) + np.float32(0.5), 0, 255, out=expected, casting="unsafe")
+        np.testing.assert_array_equal(to_uint8(a), expected)

@@ -1,5 +1,6 @@
 """Kernels of the frame writers (issue 13: a real run's write-behind thread spent ~22 ms of
-CPU per 640x480 frame in numpy boolean indexing, taken from the fusion on 2 cores).
+CPU per 640x480 frame in numpy boolean indexing, taken from the fusion on 2 cores), and the
+conversion of the flow methods' input images to 8 bits.
 
 Each computes, in one pass and without temporaries, the very values of the numpy code it
 replaces in :mod:`fuse4d.io._images` (``fastmath`` off: divisions stay divisions, so the
@@ -73,3 +74,16 @@ def _intensity_to_uint8_kernel(intensity, tol, out):
             if exact and not (abs(np.float64(k) / 255.0 - x) <= tol):
                 exact = False
     return exact, False
+
+
+@njit(fastmath=False)
+def _unit_to_uint8_kernel(image, out):
+    """Intensity (H, W) float32 in [0, 1] -> ``out`` (H, W) uint8: ``image * 255 + 0.5`` in
+    float32 (no fused multiply-add), clipped to [0, 255] and truncated: the bytes of the
+    numpy expression in :func:`fuse4d.flow._checks.to_uint8`."""
+    h, w = image.shape
+    for v in range(h):
+        for u in range(w):
+            x = image[v, u] * np.float32(255.0) + np.float32(0.5)
+            x = min(max(x, np.float32(0.0)), np.float32(255.0))
+            out[v, u] = np.uint8(x)

@@ -52,7 +52,18 @@ def check_roi(roi: Any, shape: tuple[int, int]) -> Roi | None:
 
 
 def to_uint8(image: NDArray[np.float32]) -> NDArray[np.uint8]:
-    """[0, 1] float → uint8 with rounding and saturation (like ``Mat.convertTo(CV_8U, 255)``)."""
+    """[0, 1] float → uint8 with rounding and saturation (like ``Mat.convertTo(CV_8U, 255)``):
+    ``clip(image * 255 + 0.5, 0, 255)`` in float32, truncated.
+
+    A 2-D float32 image goes through one numba pass (0.09 -> 0.015 ms at 640 x 480, the same
+    bytes; DIS converts both images of each of the pair's two solves, stop 48); the kernel
+    module is imported on first use, so that importing the flow methods loads no kernel.
+    """
     out = np.empty(image.shape, np.uint8)
+    if image.ndim == 2 and image.dtype == np.float32:
+        from .._kernels.io import _unit_to_uint8_kernel
+
+        _unit_to_uint8_kernel(image, out)
+        return out
     np.clip(image * np.float32(255.0) + np.float32(0.5), 0.0, 255.0, out=out, casting="unsafe")
     return out
