@@ -13,6 +13,21 @@ from fuse4d import Intrinsics, Sequence
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
+def file_contents(path: Path) -> bytes:
+    """What two runs' output files are compared by: a PNG's decoded samples (dtype, shape and
+    bytes), any other file's bytes. ISA-L's deflate, which writes fuse4d's PNGs
+    (``fuse4d.io._png``), is not byte-reproducible from one process to another: in one CI run
+    (stop 48) a child process wrote the same 40 x 56 image, the same filtered rows, as a
+    different 181-byte stream."""
+    data = path.read_bytes()
+    if path.suffix != ".png":
+        return data
+    import cv2
+
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    return repr((image.dtype.str, image.shape)).encode() + image.tobytes()
+
+
 def shared_data_dir() -> Path:
     """``$FUSE4D_DATA`` or ``<repo>/../shared/data`` (read in place, never copied)."""
     env = os.environ.get("FUSE4D_DATA")

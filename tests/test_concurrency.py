@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import file_contents
 from fuse4d import Intrinsics, Sequence
 from fuse4d.io import write_frame_folder
 
@@ -43,8 +44,9 @@ def _start(args: list[str], env: dict[str, str]) -> subprocess.Popen:
 
 
 def _outputs(folder: Path) -> dict[str, bytes]:
+    """The images (decoded, :func:`conftest.file_contents`) and the camera, by path."""
     return {
-        p.relative_to(folder).as_posix(): p.read_bytes()
+        p.relative_to(folder).as_posix(): file_contents(p)
         for p in [*sorted(folder.rglob("*.png")), folder / "camera.json"]
     }
 

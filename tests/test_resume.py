@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import file_contents
 from fuse4d import InputFileError, Intrinsics, Sequence
 from fuse4d.cli import main
 from fuse4d.io import load_sequence, open_frames, write_frame_folder
@@ -98,8 +99,10 @@ def _child(kill_at: int, where: str, sig: str, args: list[str]) -> subprocess.Co
 
 
 def _contents(folder: Path) -> dict[str, bytes]:
+    """Every output file but the manifest, by path (:func:`conftest.file_contents`: PNGs by
+    their decoded samples)."""
     return {
-        p.relative_to(folder).as_posix(): p.read_bytes()
+        p.relative_to(folder).as_posix(): file_contents(p)
         for p in sorted(folder.rglob("*"))
         if p.is_file() and p.name != MANIFEST_NAME
     }
@@ -152,7 +155,7 @@ def test_killed_runs_resume_to_the_uninterrupted_result(recording, reference, tm
             _check_partial(partial_path(out), done)
     assert main([*args, "--resume"]) == 0
     assert not partial_path(out).exists()
-    assert _contents(out) == _contents(reference)  # bit for bit
+    assert _contents(out) == _contents(reference)  # every sample, bit for bit
     manifest = json.loads((out / MANIFEST_NAME).read_text())
     assert manifest["complete"] is True
     assert manifest["frames_done"] == FRAMES

@@ -8,7 +8,9 @@ While ``fuse4d run IN -o OUT`` writes a frame folder, the frames go to ``OUT.par
   Ctrl-C, and by the next ``--resume`` after a hard kill);
 * every :data:`CHECKPOINT_EVERY` frames the manifest records a *checkpoint*: the frame to
   restart from and the warm-start flow the fusion engine needs there (``resume/seed-*.npy``),
-  so the resumed run equals an uninterrupted one bit for bit;
+  so the resumed run equals an uninterrupted one bit for bit (every decoded sample; the PNGs'
+  compressed bytes may differ, as ISA-L's deflate output is not byte-reproducible from one
+  process to another);
 * ``camera.json`` (which makes the folder readable) is written last, then ``OUT.partial`` is
   renamed to ``OUT``. The manifest stays in ``OUT`` with ``"complete": true``.
 
