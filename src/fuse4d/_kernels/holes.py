@@ -450,7 +450,7 @@ def _spatial_fill_kernel(
                 out_depth[v, u] = _side_plane_value(zs, ws, dus, dvs, n, z_lo, z_hi)
 
 
-@njit(fastmath=False)
+@njit_parallel(fastmath=False)
 def _source_confidence_kernel(depth, support, n, source, confidence, holes):
     """Per-pixel source codes and confidence before the sensor-hole fills, in one pass.
 
@@ -461,20 +461,20 @@ def _source_confidence_kernel(depth, support, n, source, confidence, holes):
     :meth:`fuse4d.FusionEngine._fill_sensor_holes` (issue 13: 6 ms per 640x480 frame there).
     """
     h, w = depth.shape
-    any_hole = False
-    for v in range(h):
+    row_hole = np.zeros(h, np.bool_)  # per row: no reduction across threads
+    for v in prange(h):
         for u in range(w):
             if np.isnan(depth[v, u]):
                 source[v, u] = 0
                 confidence[v, u] = 0.0
                 holes[v, u] = True
-                any_hole = True
+                row_hole[v] = True
             else:
                 s = support[v, u]
                 source[v, u] = 2 if s > 0 else 1
                 confidence[v, u] = np.float32((1.0 + np.float64(s)) / n)
                 holes[v, u] = False
-    return any_hole
+    return row_hole.any()
 
 
 @njit
@@ -596,16 +596,16 @@ def _on_wrong_side(kind, bound, z):
     return False
 
 
-@njit
+@njit_parallel
 def _side_agrees_kernel(kind, bound, filled, out):  # pragma: no cover - compiled
     """``out`` (H, W) bool: not :func:`_on_wrong_side` at every pixel."""
     h, w = kind.shape
-    for v in range(h):
+    for v in prange(h):
         for u in range(w):
             out[v, u] = not _on_wrong_side(kind[v, u], bound[v, u], filled[v, u])
 
 
-@njit
+@njit_parallel
 def _time_fill_agrees_kernel(
     filled, side, holes, max_step, quad, kind, bound, out
 ):  # pragma: no cover - compiled
@@ -617,7 +617,7 @@ def _time_fill_agrees_kernel(
     elsewhere.
     """
     h, w = holes.shape
-    for v in range(h):
+    for v in prange(h):
         for u in range(w):
             if not holes[v, u]:
                 out[v, u] = False
@@ -651,12 +651,12 @@ def _small_components_kernel(labels, n_labels, max_area, out):  # pragma: no cov
             out[v, u] = lab > 0 and area[lab] <= max_area and not border[lab]
 
 
-@njit
+@njit_parallel
 def _put_on_rays_kernel(got, z, rays, points, source, code):  # pragma: no cover - compiled
     """Where ``got``: ``points`` (H, W, 3) = ``rays`` (H, W, 3) times the fill's depth ``z``
     (H, W) mm, and ``source`` = ``code``."""
     h, w = got.shape
-    for v in range(h):
+    for v in prange(h):
         for u in range(w):
             if got[v, u]:
                 zz = z[v, u]
