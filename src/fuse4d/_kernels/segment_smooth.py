@@ -21,10 +21,35 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._numba import njit_parallel, prange
+from ._numba import njit, njit_parallel, prange
 from ._segments import BLOCK, BLOCK_CHUNKS, SEGMENT_FASTMATH, _box_line, _line_segments
 
 __all__ = ["_segment_smooth_cols_kernel", "_segment_smooth_rows_kernel"]
+
+
+@njit(inline="always")
+def _line_scratch(n):
+    """Scratch of :func:`_smooth_line` for lines of ``n`` pixels."""
+    y = np.empty(n, np.float32)
+    starts = np.empty(n, np.int64)
+    ends = np.empty(n, np.int64)
+    s_val = np.empty(n + 1, np.float64)
+    s_kv = np.empty(n + 1, np.float64)
+    return y, starts, ends, s_val, s_kv
+
+
+@njit(inline="always")
+def _smooth_line(values, depth, radius, max_step, quad, scratch, line):
+    """Both box passes of one line ``values`` within the segments of ``depth`` (float32,
+    NaN = excluded) into ``line``, NaN where the depth is NaN (``scratch``:
+    :func:`_line_scratch`)."""
+    y, starts, ends, s_val, s_kv = scratch
+    m = _line_segments(depth, max_step, quad, starts, ends)
+    _box_line(values, y, starts, ends, m, radius, s_val, s_kv)
+    _box_line(y, line, starts, ends, m, radius, s_val, s_kv)
+    for k in range(depth.shape[0]):
+        if np.isnan(depth[k]):
+            line[k] = np.float32(np.nan)
 
 
 @njit_parallel(fastmath=set(SEGMENT_FASTMATH))
@@ -36,27 +61,16 @@ def _segment_smooth_rows_kernel(values, depth, radius, max_step, quad, rows_t, d
     ``depth`` is NaN) and ``depth_t`` (W, H) float32 ``depth``.
     """
     h, w = depth.shape
-    nan32 = np.float32(np.nan)
     n_blocks = (h + BLOCK - 1) // BLOCK
     n_chunks = min(n_blocks, BLOCK_CHUNKS)
     for ci in prange(n_chunks):  # scratch allocated once per chunk of blocks
-        y = np.empty(w, np.float32)
-        starts = np.empty(w, np.int64)
-        ends = np.empty(w, np.int64)
-        s_val = np.empty(w + 1, np.float64)
-        s_kv = np.empty(w + 1, np.float64)
+        scratch = _line_scratch(w)
         tile = np.empty((BLOCK, w), np.float32)
         for bi in range(ci * n_blocks // n_chunks, (ci + 1) * n_blocks // n_chunks):
             v0 = bi * BLOCK
             v1 = min(h, v0 + BLOCK)
             for v in range(v0, v1):
-                line = tile[v - v0]
-                m = _line_segments(depth[v], max_step, quad, starts, ends)
-                _box_line(values[v], y, starts, ends, m, radius, s_val, s_kv)
-                _box_line(y, line, starts, ends, m, radius, s_val, s_kv)
-                for u in range(w):
-                    if np.isnan(depth[v, u]):
-                        line[u] = nan32
+                _smooth_line(values[v], depth[v], radius, max_step, quad, scratch, tile[v - v0])
             for u in range(w):
                 for v in range(v0, v1):
                     rows_t[u, v] = tile[v - v0, u]
@@ -69,27 +83,16 @@ def _segment_smooth_cols_kernel(rows_t, depth_t, radius, max_step, quad, out):
     columns) within the segments of ``depth_t`` (W, H); ``out`` (H, W) float32 gets the
     result in the image's layout, NaN where the depth is NaN."""
     w, h = depth_t.shape
-    nan32 = np.float32(np.nan)
     n_blocks = (w + BLOCK - 1) // BLOCK
     n_chunks = min(n_blocks, BLOCK_CHUNKS)
     for ci in prange(n_chunks):  # scratch allocated once per chunk of blocks
-        y = np.empty(h, np.float32)
-        starts = np.empty(h, np.int64)
-        ends = np.empty(h, np.int64)
-        s_val = np.empty(h + 1, np.float64)
-        s_kv = np.empty(h + 1, np.float64)
+        scratch = _line_scratch(h)
         tile = np.empty((BLOCK, h), np.float32)
         for bi in range(ci * n_blocks // n_chunks, (ci + 1) * n_blocks // n_chunks):
             u0 = bi * BLOCK
             u1 = min(w, u0 + BLOCK)
             for u in range(u0, u1):
-                line = tile[u - u0]
-                m = _line_segments(depth_t[u], max_step, quad, starts, ends)
-                _box_line(rows_t[u], y, starts, ends, m, radius, s_val, s_kv)
-                _box_line(y, line, starts, ends, m, radius, s_val, s_kv)
-                for v in range(h):
-                    if np.isnan(depth_t[u, v]):
-                        line[v] = nan32
+                _smooth_line(rows_t[u], depth_t[u], radius, max_step, quad, scratch, tile[u - u0])
             for v in range(h):
                 for u in range(u0, u1):
                     out[v, u] = tile[u - u0, v]
