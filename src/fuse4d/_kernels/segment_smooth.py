@@ -2,12 +2,10 @@
 motion-reference depth D~, A3', and A42's smoothing of the fused depth). Private.
 
 The values, bit for bit, of four :func:`._kernels.fusion._segment_box_rows_kernel` passes
-(two along rows, two along the columns of the transposed maps), in two sweeps:
-
-* :func:`_segment_smooth_rows_kernel`: per row, the depth-continuous segments are found once
-  and both row passes run on line buffers; the result and the depth go out transposed (the
-  column sweep's layout).
-* :func:`_segment_smooth_cols_kernel`: per column likewise, the result transposed back.
+(two along rows, two along the columns of the transposed maps), in two sweeps of
+:func:`_segment_smooth_sweep_kernel`: per line, the depth-continuous segments are found once
+and both passes run on line buffers, and the result goes out transposed. The row sweep's
+output is the column sweep's input; the column sweep's output is in the image's layout.
 
 Four passes found every line's segments four times and the column passes needed three
 transposed copies: one smoothing of a 640 x 480 frame of ``uva_cv2_person_turning`` took
@@ -24,7 +22,7 @@ import numpy as np
 from ._numba import njit, njit_parallel, prange
 from ._segments import BLOCK, BLOCK_CHUNKS, SEGMENT_FASTMATH, _box_line, _line_segments
 
-__all__ = ["_segment_smooth_cols_kernel", "_segment_smooth_rows_kernel"]
+__all__ = ["_segment_smooth_sweep_kernel"]
 
 
 @njit(inline="always")
@@ -53,46 +51,23 @@ def _smooth_line(values, depth, radius, max_step, quad, scratch, line):
 
 
 @njit_parallel(fastmath=set(SEGMENT_FASTMATH))
-def _segment_smooth_rows_kernel(values, depth, radius, max_step, quad, rows_t, depth_t):
-    """Row sweep: both local-linear box passes of ``values`` along the rows, within the
-    depth-continuous segments of ``depth`` (both (H, W) float32; NaN depth = excluded).
-
-    Out, transposed: ``rows_t`` (W, H) float32 the values after the two passes (NaN where
-    ``depth`` is NaN) and ``depth_t`` (W, H) float32 ``depth``.
-    """
-    h, w = depth.shape
-    n_blocks = (h + BLOCK - 1) // BLOCK
+def _segment_smooth_sweep_kernel(values, depth, radius, max_step, quad, out_t):
+    """One sweep: both local-linear box passes of each line of ``values`` (N, L) float32
+    within the depth-continuous segments of the same line of ``depth`` (N, L) float32, NaN =
+    excluded; ``out_t`` (L, N) float32 gets the result transposed, NaN where the depth is NaN.
+    The row sweep takes the image's maps, the column sweep the row sweep's output and the
+    transposed depth."""
+    n, length = depth.shape
+    n_blocks = (n + BLOCK - 1) // BLOCK
     n_chunks = min(n_blocks, BLOCK_CHUNKS)
     for ci in prange(n_chunks):  # scratch allocated once per chunk of blocks
-        scratch = _line_scratch(w)
-        tile = np.empty((BLOCK, w), np.float32)
+        scratch = _line_scratch(length)
+        tile = np.empty((BLOCK, length), np.float32)
         for bi in range(ci * n_blocks // n_chunks, (ci + 1) * n_blocks // n_chunks):
-            v0 = bi * BLOCK
-            v1 = min(h, v0 + BLOCK)
-            for v in range(v0, v1):
-                _smooth_line(values[v], depth[v], radius, max_step, quad, scratch, tile[v - v0])
-            for u in range(w):
-                for v in range(v0, v1):
-                    rows_t[u, v] = tile[v - v0, u]
-                    depth_t[u, v] = depth[v, u]
-
-
-@njit_parallel(fastmath=set(SEGMENT_FASTMATH))
-def _segment_smooth_cols_kernel(rows_t, depth_t, radius, max_step, quad, out):
-    """Column sweep: both box passes of ``rows_t`` (W, H) along its lines (the image's
-    columns) within the segments of ``depth_t`` (W, H); ``out`` (H, W) float32 gets the
-    result in the image's layout, NaN where the depth is NaN."""
-    w, h = depth_t.shape
-    n_blocks = (w + BLOCK - 1) // BLOCK
-    n_chunks = min(n_blocks, BLOCK_CHUNKS)
-    for ci in prange(n_chunks):  # scratch allocated once per chunk of blocks
-        scratch = _line_scratch(h)
-        tile = np.empty((BLOCK, h), np.float32)
-        for bi in range(ci * n_blocks // n_chunks, (ci + 1) * n_blocks // n_chunks):
-            u0 = bi * BLOCK
-            u1 = min(w, u0 + BLOCK)
-            for u in range(u0, u1):
-                _smooth_line(rows_t[u], depth_t[u], radius, max_step, quad, scratch, tile[u - u0])
-            for v in range(h):
-                for u in range(u0, u1):
-                    out[v, u] = tile[u - u0, v]
+            i0 = bi * BLOCK
+            i1 = min(n, i0 + BLOCK)
+            for i in range(i0, i1):
+                _smooth_line(values[i], depth[i], radius, max_step, quad, scratch, tile[i - i0])
+            for k in range(length):  # runs of BLOCK float32 in each output line
+                for i in range(i0, i1):
+                    out_t[k, i] = tile[i - i0, k]
