@@ -77,6 +77,35 @@ def test_intensity_image_matches_numpy(dtype):
             np.testing.assert_array_equal(got, expected)
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_flag_images_give_the_numpy_expressions_bytes(dtype):
+    """The confidence image: the bytes of rint(clip(nan_to_num(c), 0, 1) * 255) in float32,
+    at every level's rounding edges (±1 ulp), out of range, NaN, ±inf, a strided view."""
+    from fuse4d.io._base import flag_images
+
+    edges = (np.arange(256) + 0.5) / 255.0
+    c = np.concatenate(
+        [
+            np.arange(256) / 255.0,
+            edges,
+            np.nextafter(edges.astype(np.float32), np.float32(0)),
+            np.nextafter(edges.astype(np.float32), np.float32(2)),
+            [np.nan, np.inf, -np.inf, -0.0, -1e-9, 1.5, 1.0 + 1e-7],
+        ]
+    )
+    c = np.resize(c, (31, 40)).astype(dtype)
+    source = np.arange(c.size, dtype=np.uint8).reshape(c.shape) % 5
+    for conf in (c, c[::2, 1::3]):
+        with np.errstate(invalid="ignore"):
+            expected = np.rint(
+                np.clip(np.nan_to_num(np.asarray(conf, np.float32)), 0.0, 1.0) * 255.0
+            ).astype(np.uint8)
+        images = dict(flag_images(source[: conf.shape[0], : conf.shape[1]], conf))
+        assert images["confidence"].dtype == np.uint8
+        np.testing.assert_array_equal(images["confidence"], expected)
+        np.testing.assert_array_equal(images["source"], source[: conf.shape[0], : conf.shape[1]])
+
+
 @pytest.mark.parametrize("unit_mm", [1.0, 0.5])
 def test_read_depth_png_holes(tmp_path, unit_mm):
     image = np.array([[0, 1, 2905], [65535, 0, 7]], np.uint16)

@@ -57,7 +57,9 @@ def _intensity_to_uint8_kernel(intensity, tol, out):
     """Intensity (H, W) in [0, 1] → ``out`` (H, W) uint8 = clip(rint(i * 255), 0, 255), NaN
     as 0. Returns (exact, special): exact when every |out / 255 - i| <= ``tol`` (NaN read as
     0; ``np.allclose``'s test), special when the input holds an infinity (the caller then
-    uses numpy)."""
+    uses numpy; ``out`` is then not defined). The 256 quotients k / 255 come from a table
+    (the same float64 values), not a division per pixel."""
+    levels = np.arange(256).astype(np.float64) / 255.0
     h, w = intensity.shape
     exact = True
     for v in range(h):
@@ -67,13 +69,25 @@ def _intensity_to_uint8_kernel(intensity, tol, out):
                 return False, True
             if math.isnan(x):
                 x = 0.0
-            r = np.rint(x * 255.0)
-            r = min(max(r, 0.0), 255.0)
-            k = np.uint8(r)
+            k = np.uint8(min(max(np.rint(x * 255.0), 0.0), 255.0))
             out[v, u] = k
-            if exact and not (abs(np.float64(k) / 255.0 - x) <= tol):
-                exact = False
+            exact &= abs(levels[k] - x) <= tol
     return exact, False
+
+
+@njit(fastmath=False)
+def _confidence_to_uint8_kernel(confidence, out):
+    """Confidence (H, W) float32 → ``out`` (H, W) uint8 = rint(clip(c, 0, 1) * 255) in
+    float32, NaN as 0: the bytes of ``np.rint(np.clip(np.nan_to_num(c), 0, 1) * 255.0)
+    .astype(np.uint8)`` (:func:`fuse4d.io._base.flag_images`; 1.6 ms there, one pass here)."""
+    h, w = confidence.shape
+    for v in range(h):
+        for u in range(w):
+            c = confidence[v, u]
+            if math.isnan(c):
+                c = np.float32(0.0)
+            c = min(max(c, np.float32(0.0)), np.float32(1.0))
+            out[v, u] = np.uint8(np.rint(c * np.float32(255.0)))
 
 
 @njit(fastmath=False)
