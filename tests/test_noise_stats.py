@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fuse4d._kernels.noise import _finite_median32
+from fuse4d._kernels.noise import _finite_median32, _median64
 from fuse4d.motion import estimate_noise_quad
 
 
@@ -61,3 +61,27 @@ def test_finite_median_equals_numpy(rng, kind):
             assert got == float(np.median(finite))
         else:
             assert np.isnan(got)
+
+
+@pytest.mark.parametrize(
+    "kind", ["normal", "positive", "quantised", "signed", "constant", "close", "split", "wide"]
+)
+def test_median64_equals_numpy(rng, kind):
+    """Odd and even counts; values that share their top 16, 32 or 48 key bits (every digit
+    level), the two middle values in different top bins, infinities; values past ``n`` are
+    not read."""
+    for n in (1, 2, 3, 4, 10, 11, 1000, 1001, 4096):
+        a = {
+            "normal": rng.normal(0.0, 1.0, n),
+            "positive": np.exp(rng.normal(-12.0, 2.0, n)),  # like the noise samples
+            "quantised": np.round(rng.normal(5.0, 3.0, n)),
+            "signed": rng.choice([-np.inf, -3.0, -1e-300, 2e-300, 7.0, np.inf], n),
+            "constant": np.full(n, 0.125),
+            "close": 1.0 + rng.integers(0, 40, n) * np.finfo(np.float64).eps,  # low digit only
+            "split": np.where(np.arange(n) < n // 2, 1.0, 1e6),  # middle ranks in two top bins
+            "wide": rng.uniform(-1e300, 1e300, n),
+        }[kind]
+        buffer = np.concatenate([a, rng.normal(0.0, 1.0, 5)])
+        with np.errstate(invalid="ignore"):  # numpy's mean of -inf and inf
+            expected = np.median(a)
+        np.testing.assert_equal(_median64(buffer, n), expected)  # (NaN equals NaN)

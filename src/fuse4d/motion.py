@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._kernels.fusion import _pair_diagnostics_kernel, _track_kernel
-from ._kernels.noise import _noise_quad_ratios
+from ._kernels.noise import _median64, _noise_quad_ratios
 from ._kernels.segment_smooth import _segment_smooth_sweep_kernel
 from ._kernels.tracks import _compose_kernel, _one_step_kernel
 from ._memory import committed
@@ -148,7 +148,7 @@ def estimate_noise_quad(depth: ArrayLike) -> float:
     h, w = d.shape
     ratios = np.empty(((h + 1) // 2) * max(w - 2, 0), np.float64)
     n = _noise_quad_ratios(d, ratios)  # one pass (issue 13), numpy's values and order
-    return float(np.median(ratios[:n]) / 1.65) if n else 0.0
+    return _median64(ratios, n) / 1.65 if n else 0.0  # np.median(ratios[:n]), bit for bit
 
 
 def estimate_depth_noise(depth: ArrayLike, *, reference: ArrayLike | None = None) -> float:
