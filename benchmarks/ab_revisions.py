@@ -12,7 +12,9 @@ interval: the machine's drift cancels within a pair.
 * ``--new``: the same; default this checkout (uncommitted edits included).
 
 Each side keeps its own numba cache (beside its sources); each process warms up on a few
-frames first and reports the best of ``--runs`` timed runs.
+frames first and reports the best of ``--runs`` timed runs, with that run's stage split
+(``fuse4d bench``'s stages): below the summary, each stage's medians and the median of its
+per-pair ratios, which shows a change confined to one stage that the total's noise hides.
 
 Usage::
 
@@ -50,7 +52,8 @@ rec, window, causal, frames, runs = sys.argv[1], int(sys.argv[2]), sys.argv[3] =
 seq = None if rec == "-" else load_sequence(Path(rec), frames=slice(0, frames))
 kw = {"sequence": seq, "window": window, "causal": causal}
 benchmark_pipeline("fast", num_frames=min(frames, 6), **kw)
-print(json.dumps([benchmark_pipeline("fast", num_frames=frames, **kw).ms_per_frame for _ in range(runs)]))
+runs = [benchmark_pipeline("fast", num_frames=frames, **kw) for _ in range(runs)]
+print(json.dumps([[r.ms_per_frame, getattr(r, "stage_ms", {})] for r in runs]))
 """
 
 
@@ -79,8 +82,9 @@ def source_tree(spec: str | None) -> Iterator[Path]:
             )
 
 
-def time_side(src: Path, args: argparse.Namespace, rec: str) -> float:
-    """Best ms per frame of one fresh process running ``src``'s engine."""
+def time_side(src: Path, args: argparse.Namespace, rec: str) -> tuple[float, dict[str, float]]:
+    """Best ms per frame of one fresh process running ``src``'s engine, and the stage split
+    (ms per frame) of that run."""
     env = {**os.environ, "PYTHONPATH": str(src)}
     cmd = [sys.executable, "-c", _CHILD, rec, str(args.window), str(int(args.causal))]
     cmd += [str(args.frames), str(args.runs)]
@@ -89,7 +93,23 @@ def time_side(src: Path, args: argparse.Namespace, rec: str) -> float:
     )
     if done.returncode != 0:
         raise SystemExit(f"timing {src} failed:\n{done.stderr[-3000:]}")
-    return min(json.loads(done.stdout.strip().splitlines()[-1]))
+    total, stages = min(json.loads(done.stdout.strip().splitlines()[-1]), key=lambda r: r[0])
+    return total, stages
+
+
+def stage_summary(base: list[dict[str, float]], new: list[dict[str, float]]) -> dict:
+    """Per stage (those timed in every run of both sides): the medians (ms per frame) and the
+    median of the per-pair ratios new / base (stages at 0 ms in a base run are skipped)."""
+    names = [k for k in base[0] if all(k in d for d in base + new)]
+    out = {}
+    for k in names:
+        ratios = [n[k] / b[k] for b, n in zip(base, new, strict=True) if b[k] > 0]
+        out[k] = {
+            "base_median_ms": statistics.median(d[k] for d in base),
+            "new_median_ms": statistics.median(d[k] for d in new),
+            "ratio_median": statistics.median(ratios) if ratios else float("nan"),
+        }
+    return out
 
 
 def paired_summary(base: list[float], new: list[float], seed: int = 0) -> dict[str, float]:
@@ -134,26 +154,31 @@ def main() -> None:
         rec = str(args.input)
     base_ms: list[float] = []
     new_ms: list[float] = []
+    base_stages: list[dict[str, float]] = []
+    new_stages: list[dict[str, float]] = []
     with source_tree(args.base) as base_src, source_tree(args.new) as new_src:
         for i in range(args.pairs):
             order = [("base", base_src), ("new", new_src)]
             if i % 2:  # every other pair starts with new
                 order.reverse()
             got = {name: time_side(src, args, rec) for name, src in order}
-            base_ms.append(got["base"])
-            new_ms.append(got["new"])
+            (b, b_stages), (n, n_stages) = got["base"], got["new"]
+            base_ms.append(b)
+            new_ms.append(n)
+            base_stages.append(b_stages)
+            new_stages.append(n_stages)
             if not args.json:
                 print(
-                    f"pair {i + 1}: base {got['base']:.1f}, new {got['new']:.1f} ms/frame, "
-                    f"new / base {got['new'] / got['base']:.3f}",
+                    f"pair {i + 1}: base {b:.1f}, new {n:.1f} ms/frame, new / base {n / b:.3f}",
                     flush=True,
                 )
     summary = paired_summary(base_ms, new_ms)
+    stages = stage_summary(base_stages, new_stages)
     what = "the ball" if args.ball else args.input.name
     mode = f"{'causal' if args.causal else 'centred'} window {args.window}"
     if args.json:
         print(json.dumps({"input": what, "mode": mode, "base_ms": base_ms, "new_ms": new_ms,
-                          **summary}, indent=2))  # fmt: skip
+                          **summary, "stages": stages}, indent=2))  # fmt: skip
         return
     print(
         f"{what}, {mode}, {args.frames} frames: base {summary['base_median_ms']:.1f}, new "
@@ -162,6 +187,13 @@ def main() -> None:
         f"{summary['ratio_low']:.3f}-{summary['ratio_high']:.3f}); new faster in "
         f"{summary['new_faster']} of {summary['pairs']}"
     )
+    if stages:
+        print("stage (ms/frame, medians)   base     new   new / base (median of pairs)")
+        for k, st in stages.items():
+            print(
+                f"  {k:24s} {st['base_median_ms']:7.2f} {st['new_median_ms']:7.2f}   "
+                f"{st['ratio_median']:.3f}"
+            )
 
 
 if __name__ == "__main__":
