@@ -85,3 +85,40 @@ def test_median64_equals_numpy(rng, kind):
         with np.errstate(invalid="ignore"):  # numpy's mean of -inf and inf
             expected = np.median(a)
         np.testing.assert_equal(_median64(buffer, n), expected)  # (NaN equals NaN)
+
+
+def _numpy_depth_noise(depth: np.ndarray, reference: np.ndarray) -> float:
+    """estimate_depth_noise's statistic as numpy expressions (before issue 13's kernel)."""
+    r = np.abs(depth[::2, ::2] - reference[::2, ::2]).ravel()
+    r = r[np.isfinite(r)]
+    if r.size == 0:
+        return 0.0
+    keep = r[r <= np.quantile(r, 0.95)]
+    return float(1.2533 * keep.mean()) if keep.size else 0.0
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 7), (2, 2), (3, 5), (31, 47), (60, 80), (97, 41)])
+def test_depth_noise_kernel_equals_numpy(rng, shape):
+    """The one-kernel statistic (the engine's path, its reference a strided view of the
+    smoothed points) equals the numpy expressions bit for bit: continuous, quantised (ties at
+    the percentile), holed and constant residuals, references with NaN, every sample count's
+    interpolation weight."""
+    from fuse4d.motion import _depth_noise, estimate_depth_noise
+
+    for trial in range(12):
+        depth = rng.normal(1500.0, 40.0, shape).astype(np.float32)
+        noise = rng.normal(0.0, rng.choice([0.01, 1.0, 30.0]), shape)
+        if trial % 3 == 1:  # quantised: most residuals 0, many ties
+            noise = np.round(noise / 4.0) * 4.0
+        points = np.zeros((*shape, 3), np.float32)
+        points[..., 2] = depth + noise.astype(np.float32)
+        if trial % 4 == 2:
+            depth[rng.random(shape) < 0.3] = np.nan
+            points[..., 2][rng.random(shape) < 0.1] = np.nan
+        if trial == 11:
+            points[..., 2] = depth  # every residual 0
+        expected = _numpy_depth_noise(depth, points[..., 2])
+        assert _depth_noise(depth, points, 2) == expected
+        assert estimate_depth_noise(depth, reference=points[..., 2]) == expected
+        as64 = points[..., 2].astype(np.float64)  # the numpy path, unchanged
+        assert estimate_depth_noise(depth, reference=as64) == _numpy_depth_noise(depth, as64)

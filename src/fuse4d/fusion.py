@@ -50,11 +50,11 @@ from .holes import (
 from .motion import (
     _box_radius,
     _ComposedTracks,
+    _depth_noise,
     _pair_motion,
     _TimeFill,
     _track_window,
     _window,
-    estimate_depth_noise,
     estimate_noise_quad,
     motion_reference_depth,
 )
@@ -576,7 +576,7 @@ class FusionEngine:
         t2 = time.perf_counter()
         self.timings["motion_reference"] += t1 - t0
         self.timings["bilateral"] += t2 - t1
-        sigma0 = estimate_depth_noise(d, reference=self._smooth[slot][..., 2])
+        sigma0 = _depth_noise(d, self._smooth[slot], 2)  # estimate_depth_noise, ref. z~
         self._noise[slot] = (sigma0, quad, z_med)
         return d
 

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._kernels.fusion import _pair_diagnostics_kernel, _track_kernel
-from ._kernels.noise import _median64, _noise_quad_ratios
+from ._kernels.noise import _median64, _noise_quad_ratios, _trimmed_residuals
 from ._kernels.segment_smooth import _segment_smooth_sweep_kernel
 from ._kernels.tracks import _compose_kernel, _one_step_kernel
 from ._memory import committed
@@ -164,12 +164,27 @@ def estimate_depth_noise(depth: ArrayLike, *, reference: ArrayLike | None = None
     d = as_float32(depth, name="depth")
     check_shape(d, ("H", "W"), name="depth")
     ref = motion_reference_depth(d, sigma=2.0) if reference is None else np.asarray(reference)
+    if ref.dtype == np.float32 and ref.shape == d.shape:  # one kernel (issue 13), same value
+        return _depth_noise(d, np.ascontiguousarray(ref)[..., None], 0)
     r = np.abs(d[::2, ::2] - ref[::2, ::2]).ravel()
     r = r[np.isfinite(r)]
     if r.size == 0:
         return 0.0
     keep = r[r <= np.quantile(r, 0.95)]
     return float(1.2533 * keep.mean()) if keep.size else 0.0
+
+
+def _depth_noise(depth: NDArray[np.float32], points: NDArray[np.float32], channel: int) -> float:
+    """:func:`estimate_depth_noise` of C-contiguous float32 ``depth`` (H, W) with the reference
+    ``points[..., channel]`` (C-contiguous float32 (H, W, C); the engine passes its smoothed
+    points, z = channel 2): the residuals, their 95th percentile and the trim in one kernel
+    (:func:`fuse4d._kernels.noise._trimmed_residuals`), numpy's float32 mean of the kept
+    ones. The value of the numpy expressions, bit for bit (tested); 0.94 -> 0.2 ms on the
+    600 x 600 ball."""
+    h, w = depth.shape
+    kept = np.empty(((h + 1) // 2) * ((w + 1) // 2), np.float32)
+    k = _trimmed_residuals(depth, points, channel, kept)
+    return float(1.2533 * kept[:k].mean()) if k else 0.0
 
 
 @dataclass(frozen=True)

@@ -22,12 +22,14 @@ without ``contract`` and ``arcp`` so that it rounds as numpy does.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ._numba import njit
 from ._segments import SEGMENT_FASTMATH
 
-__all__ = ["_finite_median32", "_median64", "_noise_quad_ratios"]
+__all__ = ["_finite_median32", "_median64", "_noise_quad_ratios", "_trimmed_residuals"]
 
 #: no FMA contraction, no reciprocal rewriting: numpy's rounding
 _EXACT = set(SEGMENT_FASTMATH)
@@ -151,12 +153,10 @@ def _gather64(bits, n, high, count):
     return out
 
 
-@njit(fastmath=_EXACT)
-def _finite_median32(depth):
-    """``np.median`` of the finite values of float32 ``depth`` (any shape), as float: the
-    middle value, or float32(a + b) / 2 of the two middle ones (numpy's float32 mean); NaN
-    when there is none."""
-    bits = np.ascontiguousarray(depth).ravel().view(np.uint32)
+@njit
+def _top_histogram32(bits):
+    """Histogram of the top 16 key bits of the finite float32 bit patterns ``bits``, and their
+    count."""
     top = np.zeros(1 << _DIGIT, np.int64)
     # np.int64: a plain ``n = 0`` can be typed Literal[int](0) and compile a second overload
     # of this cached kernel; two cold processes compiling different overloads race on the index
@@ -166,18 +166,77 @@ def _finite_median32(depth):
         if (b & _EXPONENT) != _EXPONENT:
             top[_sortable(b, _SIGN) >> np.uint32(_DIGIT)] += 1
             n += 1
-    if n == 0:
-        return np.nan
-    high_a, rank_a = _bin_of(top, (n - 1) // 2)
-    high_b, rank_b = _bin_of(top, n // 2)
+    return top, n
+
+
+@njit
+def _ranked32(bits, top, rank_a, rank_b):
+    """The float32 values of ranks ``rank_a`` <= ``rank_b`` (0-based, increasing) among the
+    finite bit patterns ``bits`` whose top-digit histogram is ``top``."""
+    high_a, in_a = _bin_of(top, rank_a)
+    high_b, in_b = _bin_of(top, rank_b)
     keys_a = _gather32(bits, np.uint32(high_a), top[high_a])
     # (one digit below the top one: _key_of_rank leaves the keys in place, keys_a may be keys_b)
     keys_b = keys_a if high_b == high_a else _gather32(bits, np.uint32(high_b), top[high_b])
-    hi = _value(np.uint32(_key_of_rank(keys_b, top[high_b], rank_b, 0)))
+    a = _value(np.uint32(_key_of_rank(keys_a, top[high_a], in_a, 0)))
+    b = _value(np.uint32(_key_of_rank(keys_b, top[high_b], in_b, 0)))
+    return a, b
+
+
+@njit(fastmath=_EXACT)
+def _finite_median32(depth):
+    """``np.median`` of the finite values of float32 ``depth`` (any shape), as float: the
+    middle value, or float32(a + b) / 2 of the two middle ones (numpy's float32 mean); NaN
+    when there is none."""
+    bits = np.ascontiguousarray(depth).ravel().view(np.uint32)
+    top, n = _top_histogram32(bits)
+    if n == 0:
+        return np.nan
+    lo, hi = _ranked32(bits, top, (n - 1) // 2, n // 2)
     if n % 2 == 1:
         return np.float64(hi)
-    lo = _value(np.uint32(_key_of_rank(keys_a, top[high_a], rank_a, 0)))
     return np.float64(np.float32(lo + hi) / np.float32(2.0))
+
+
+@njit(fastmath=_EXACT)
+def _trimmed_residuals(depth, points, channel, out):
+    """The residuals of :func:`fuse4d.motion.estimate_depth_noise` at or below their 95th
+    percentile, in ``out[:k]``; returns k (0: no finite residual).
+
+    The residuals r = |depth - points[..., channel]| (float32) of every 2nd row and column,
+    the finite ones in row-major order (``out``: at least ceil(H / 2) ceil(W / 2) float32),
+    and ``np.quantile(r, 0.95)`` as numpy computes it (method "linear": the order statistics
+    around the virtual index (n - 1) 0.95 by radix selection, interpolated in float32 like
+    numpy's ``_lerp`` with a Python-float weight); the kept residuals stay in their order, so
+    numpy's ``mean`` of ``out[:k]`` is that of ``r[r <= q]``.
+    """
+    h, w = depth.shape
+    n = 0
+    for v in range(0, h, 2):
+        for u in range(0, w, 2):
+            x = abs(depth[v, u] - points[v, u, channel])
+            out[n] = x
+            n += np.isfinite(x)
+    if n == 0:
+        return 0
+    bits = out[:n].view(np.uint32)
+    top, _ = _top_histogram32(bits)
+    virtual = (n - 1) * 0.95
+    below = math.floor(virtual)
+    if virtual >= n - 1:  # numpy takes the last value twice (gamma is then unused: b - a = 0)
+        a, b = _ranked32(bits, top, n - 1, n - 1)
+        gamma = 0.0
+    else:
+        a, b = _ranked32(bits, top, int(below), int(below) + 1)
+        gamma = virtual - below
+    diff = b - a  # numpy's _lerp: from the nearer end
+    q = b - diff * np.float32(1.0 - gamma) if gamma >= 0.5 else a + diff * np.float32(gamma)
+    k = 0
+    for i in range(n):  # in place: k <= i
+        x = out[i]
+        out[k] = x
+        k += x <= q
+    return k
 
 
 @njit(fastmath=_EXACT)
