@@ -62,6 +62,10 @@ _SIGN64 = np.uint64(0x8000000000000000)
 #: one radix digit: 16 bits
 _DIGIT = 16
 _DIGIT_MASK = (1 << _DIGIT) - 1
+#: the shift of the digit below the top one, as int64 (one overload of _key_of_rank: a
+#: literal 0 would type as Literal[int](0), a second signature in the cache index)
+_LOW_SHIFT32 = np.int64(0)
+_LOW_SHIFT64 = np.int64(64 - 2 * _DIGIT)
 
 
 @njit(inline="always")
@@ -178,8 +182,8 @@ def _ranked32(bits, top, rank_a, rank_b):
     keys_a = _gather32(bits, np.uint32(high_a), top[high_a])
     # (one digit below the top one: _key_of_rank leaves the keys in place, keys_a may be keys_b)
     keys_b = keys_a if high_b == high_a else _gather32(bits, np.uint32(high_b), top[high_b])
-    a = _value(np.uint32(_key_of_rank(keys_a, top[high_a], in_a, 0)))
-    b = _value(np.uint32(_key_of_rank(keys_b, top[high_b], in_b, 0)))
+    a = _value(np.uint32(_key_of_rank(keys_a, top[high_a], in_a, _LOW_SHIFT32)))
+    b = _value(np.uint32(_key_of_rank(keys_b, top[high_b], in_b, _LOW_SHIFT32)))
     return a, b
 
 
@@ -255,7 +259,7 @@ def _median64(values, n):
         keys_b = keys_a.copy()
     else:
         keys_b = _gather64(bits, n, np.uint64(high_b), top[high_b])
-    hi = _value64(_key_of_rank(keys_b, top[high_b], rank_b, 64 - 2 * _DIGIT))
+    hi = _value64(_key_of_rank(keys_b, top[high_b], rank_b, _LOW_SHIFT64))
     if n % 2 == 1:
         return hi
-    return (_value64(_key_of_rank(keys_a, top[high_a], rank_a, 64 - 2 * _DIGIT)) + hi) / 2.0
+    return (_value64(_key_of_rank(keys_a, top[high_a], rank_a, _LOW_SHIFT64)) + hi) / 2.0
