@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+import stat
 import warnings
 from pathlib import Path
 
@@ -546,6 +548,26 @@ def test_failed_write_keeps_old_file_and_leaves_no_temp(tmp_path, small_sequence
 def test_written_files_have_normal_permissions(tmp_path, small_sequence):
     out = write_npz(small_sequence, tmp_path / "s.npz")
     assert out.stat().st_mode & 0o044  # readable by group/others (not mkstemp's 0600)
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX permission bits")
+def test_written_outputs_take_the_umask_which_is_never_changed(tmp_path, small_sequence):
+    """Outputs get the modes of ordinary new files and folders under the caller's umask, and
+    the writers never set the process-wide umask (which a concurrent thread would see)."""
+    previous = os.umask(0o027)
+    try:
+        calls = []
+        real = os.umask
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(os, "umask", lambda mask: calls.append(mask) or real(mask))
+            npz = write_npz(small_sequence, tmp_path / "s.npz")
+            folder = write_frame_folder(small_sequence, tmp_path / "seq", depth_unit_mm=0.01)
+        assert calls == []
+        assert stat.S_IMODE(npz.stat().st_mode) == 0o640
+        assert stat.S_IMODE(folder.stat().st_mode) == 0o750
+        assert stat.S_IMODE((folder / "camera.json").stat().st_mode) == 0o640
+    finally:
+        os.umask(previous)
 
 
 # ----------------------------------------------------------------------------- PLY

@@ -197,6 +197,14 @@ def test_read_only_output_folder_gives_clear_error(monkeypatch, inputs, tmp_path
         return real_mkdir(self, *args, **kwargs)
 
     monkeypatch.setattr(pathlib.Path, "mkdir", mkdir)
+    real_touch = pathlib.Path.touch
+
+    def touch(self, *args, **kwargs):  # how the atomic writers create their temporary files
+        if Path(self).absolute().parent == ro:
+            raise PermissionError(errno.EACCES, "Permission denied", str(self))
+        return real_touch(self, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "touch", touch)
     for args in (
         ["run", str(inputs / "s.npz"), "-o", str(ro / "r.npz"), "--window", "3"],
         ["run", str(inputs / "seq"), "-o", str(ro / "r"), "--window", "3"],

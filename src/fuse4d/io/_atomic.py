@@ -9,7 +9,7 @@ is removed and the destination is left untouched.
 from __future__ import annotations
 
 import errno
-import os
+import secrets
 import shutil
 import tempfile
 from collections.abc import Iterable, Iterator
@@ -89,24 +89,25 @@ def write_errors(path: str | PathLike[str]) -> Iterator[None]:
         raise
 
 
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
+def _create_temp(dest: Path, *, directory: bool) -> Path:
+    """A new, empty file or folder ``.NAME.tmp-XXXXXXXX`` next to ``dest``.
 
-
-def _set_default_mode(path: Path, *, directory: bool) -> None:
-    """mkstemp/mkdtemp create private (0600/0700) entries; give outputs the usual mode."""
-    path.chmod((0o777 if directory else 0o666) & ~_umask())
-
-
-def _temp_name(dest: Path, *, directory: bool) -> Path:
-    prefix = f".{dest.name}.tmp-"
-    if directory:
-        return Path(tempfile.mkdtemp(prefix=prefix, dir=dest.parent))
-    fd, name = tempfile.mkstemp(prefix=prefix, dir=dest.parent)
-    os.close(fd)
-    return Path(name)
+    Created with the modes of an ordinary new file or folder (0666 / 0777, less the umask,
+    which the system applies), so the output needs no chmod. ``tempfile.mkstemp`` creates
+    0600, and the umask cannot be read without setting it: ``os.umask`` is process-wide, and
+    another thread creating a file in between would get the wrong mode.
+    """
+    for _ in range(100):
+        tmp = dest.parent / f".{dest.name}.tmp-{secrets.token_hex(4)}"
+        try:
+            if directory:
+                tmp.mkdir(mode=0o777)
+            else:
+                tmp.touch(mode=0o666, exist_ok=False)  # O_CREAT | O_EXCL
+        except FileExistsError:
+            continue
+        return tmp
+    raise FileExistsError(errno.EEXIST, "no unused temporary name", str(dest.parent))
 
 
 @contextmanager
@@ -120,7 +121,7 @@ def atomic_file(path: str | PathLike[str], *, overwrite: bool = False) -> Iterat
     """
     dest = check_output(path, overwrite=overwrite)
     with write_errors(dest):
-        tmp = _temp_name(dest, directory=False)
+        tmp = _create_temp(dest, directory=False)
     try:
         with write_errors(dest):
             yield tmp
@@ -128,7 +129,6 @@ def atomic_file(path: str | PathLike[str], *, overwrite: bool = False) -> Iterat
             raise OutputExistsError(dest)
         if dest.is_dir():
             raise ParameterError(f"{dest}: is a folder; cannot replace it with a file")
-        _set_default_mode(tmp, directory=False)
         tmp.replace(dest)
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -147,11 +147,10 @@ def atomic_dir(path: str | PathLike[str], *, overwrite: bool = False) -> Iterato
     """
     dest = check_output(path, overwrite=overwrite)
     with write_errors(dest):
-        tmp = _temp_name(dest, directory=True)
+        tmp = _create_temp(dest, directory=True)
     try:
         with write_errors(dest):
             yield tmp
-        _set_default_mode(tmp, directory=True)
         if dest.exists():
             if not overwrite:
                 raise OutputExistsError(dest)

@@ -27,7 +27,6 @@ import math
 import os
 import shutil
 import sys
-import tempfile
 import time
 from collections.abc import Iterator
 from os import PathLike
@@ -39,7 +38,7 @@ import numpy as np
 
 from ..camera import Intrinsics
 from ..errors import InputFileError, OutputExistsError, ParameterError
-from ._atomic import _replace_existing, _set_default_mode, check_output, write_errors
+from ._atomic import _create_temp, _replace_existing, check_output, write_errors
 from ._base import check_flags, flag_images
 from ._images import QuantizationReport, depth_to_units, encode_png
 from .folder import camera_json_text, intensity_image
@@ -204,28 +203,18 @@ def unfinished_run_message(folder: Path) -> str:
 
 
 def _write_json_atomic(path: Path, data: dict[str, Any]) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.tmp-", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            json.dump(data, handle, indent=1, sort_keys=True)
-            handle.write("\n")
-        _set_default_mode(Path(tmp), directory=False)
-        Path(tmp).replace(path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    text = json.dumps(data, indent=1, sort_keys=True) + "\n"
+    _write_atomic(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
 
 
 def _write_atomic(path: Path, write: Any) -> None:
     """``write(tmp_path)`` then rename onto ``path``; the temporary is removed on any error."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.tmp-", dir=path.parent)
-    os.close(fd)
+    tmp = _create_temp(path, directory=False)
     try:
-        write(Path(tmp))
-        _set_default_mode(Path(tmp), directory=False)
-        Path(tmp).replace(path)
+        write(tmp)
+        tmp.replace(path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
 
 
