@@ -227,12 +227,10 @@ def _trimmed_residuals(depth, points, channel, out):
     top, _ = _top_histogram32(bits)
     virtual = (n - 1) * 0.95
     below = math.floor(virtual)
-    if virtual >= n - 1:  # numpy takes the last value twice (gamma is then unused: b - a = 0)
-        a, b = _ranked32(bits, top, n - 1, n - 1)
-        gamma = 0.0
-    else:
-        a, b = _ranked32(bits, top, int(below), int(below) + 1)
-        gamma = virtual - below
+    rank = int(below)
+    # (n = 1: numpy takes the one value twice; b - a = 0 makes the weight irrelevant)
+    a, b = _ranked32(bits, top, rank, min(rank + 1, n - 1))
+    gamma = virtual - below
     diff = b - a  # numpy's _lerp: from the nearer end
     q = b - diff * np.float32(1.0 - gamma) if gamma >= 0.5 else a + diff * np.float32(gamma)
     k = 0

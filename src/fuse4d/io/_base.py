@@ -326,16 +326,14 @@ def _parse_frame_string(text: str) -> slice:
 
 
 def flag_images(source: ArrayLike, confidence: ArrayLike) -> tuple[tuple[str, NDArray], ...]:
-    """A fused frame's per-pixel flags as the images of a frame folder: ``("source", uint8
-    codes)`` (:attr:`fuse4d.FusedFrame.source`) and ``("confidence", uint8 round(255 c))``."""
+    """A fused frame's per-pixel flags (each (H, W), as :func:`check_flags` checks) as the
+    images of a frame folder: ``("source", uint8 codes)`` (:attr:`fuse4d.FusedFrame.source`)
+    and ``("confidence", uint8 round(255 c))``."""
     from .._kernels.io import _confidence_to_uint8_kernel  # on first use (start-up time)
 
     c = np.ascontiguousarray(confidence, np.float32)
-    if c.ndim != 2:
-        c8 = np.rint(np.clip(np.nan_to_num(c), 0.0, 1.0) * 255.0).astype(np.uint8)
-    else:  # one pass, the same bytes (issue 13: 1.6 ms of the write-behind thread's frame)
-        c8 = np.empty(c.shape, np.uint8)
-        _confidence_to_uint8_kernel(c, c8)
+    c8 = np.empty(c.shape, np.uint8)
+    _confidence_to_uint8_kernel(c, c8)  # one pass (issue 13: numpy took 1.6 ms a frame)
     return (("source", np.asarray(source, np.uint8)), ("confidence", c8))
 
 
