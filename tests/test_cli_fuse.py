@@ -326,12 +326,12 @@ def test_run_reader_and_writer_errors_reach_the_caller(tmp_path, monkeypatch):
     monkeypatch.undo()
     read_ahead = run_module._ReadAhead
 
-    def broken(frames, depth, timings):
+    def broken(frames, depth, timings, group=None):
         def gen():
             yield from ()
             raise InputFileError("000000.png", "truncated PNG", frame=0)
 
-        return read_ahead(gen(), depth, timings)
+        return read_ahead(gen(), depth, timings, group)
 
     monkeypatch.setattr(run_module, "_ReadAhead", broken)
     with pytest.raises(InputFileError, match="truncated"):

@@ -42,6 +42,7 @@ from typing import Any, Literal, Protocol, Self
 import numpy as np
 from numpy.typing import NDArray
 
+from ._background import LOWER_AFTER_FRAMES
 from .camera import Intrinsics
 from .config import FlowConfig, FusionParams
 from .flying_pixels import resolve_flying_pixels
@@ -756,6 +757,7 @@ class LiveWriter:
 
         self.behind = int(behind)
         self._sink: Any = None
+        self._submitted = 0  # frames queued for the writer thread
         #: seconds spent writing (in the writer thread) and waiting for room in its queue
         self.timings = {"write": 0.0, "io_wait": 0.0}
         self.path = Path(path)
@@ -800,6 +802,9 @@ class LiveWriter:
             kwargs.update(source=fused.source, confidence=fused.confidence)
         if self._sink is not None:
             self._sink.submit(*args, **kwargs)  # FusedFrame arrays are not reused by the engine
+            self._submitted += 1
+            if self._submitted == LOWER_AFTER_FRAMES:  # (causal: as many frames fused)
+                self._sink.lower_priority()
         else:
             self._writer.write(*args, **kwargs)
 

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from ._background import LOWER_AFTER_FRAMES, STARVED_S, BackgroundLoop
 from .camera import depth_to_points
 from .config import FlowConfig, FusionParams, preset
 from .errors import ParameterError
@@ -363,19 +364,26 @@ class _ReadAhead:
 
     Decoding (OpenCV, PNG, video) releases the GIL, and so do the numba kernels, so frame
     t + 1 is read while frame t fuses. An exception of the reader is raised in the consumer.
-    Seconds spent producing items accumulate in ``timings["read"]``.
+    Seconds spent producing items accumulate in ``timings["read"]``. The thread is a
+    :class:`~fuse4d._background.BackgroundLoop`: :meth:`lower_priority` lets the fusion's
+    kernels go first, and a wait of :data:`~fuse4d._background.STARVED_S` for a frame hands
+    the reading back to a normal-priority thread.
     """
 
     _END = object()
 
-    def __init__(self, frames: Iterable[Any], depth: int, timings: dict[str, float]) -> None:
+    def __init__(
+        self,
+        frames: Iterable[Any],
+        depth: int,
+        timings: dict[str, float],
+        group: list[BackgroundLoop] | None = None,
+    ) -> None:
         self._queue: queue.Queue = queue.Queue(maxsize=max(depth, 1))
         self._stop = threading.Event()
         self._timings = timings
-        self._thread = threading.Thread(
-            target=self._run, args=(iter(frames),), name="fuse4d-read", daemon=True
-        )
-        self._thread.start()
+        self._frames = iter(frames)
+        self._worker = BackgroundLoop(self._run, "fuse4d-read", group)
 
     def _put(self, item: Any) -> bool:
         while not self._stop.is_set():
@@ -386,26 +394,39 @@ class _ReadAhead:
                 continue
         return False
 
-    def _run(self, frames: Iterator[Any]) -> None:
+    def _run(self, worker: BackgroundLoop) -> None:
         try:
             while not self._stop.is_set():
+                if worker.handing_over():
+                    return  # the next thread goes on with the next frame
                 t0 = time.perf_counter()
                 try:
-                    item = next(frames)
+                    item = next(self._frames)
                 except StopIteration:
                     break
                 self._timings["read"] += time.perf_counter() - t0
                 if not self._put((True, item)):
+                    worker.done = True
                     return
         except BaseException as exc:  # noqa: BLE001 - handed to the consumer
             self._put((False, exc))
+            worker.done = True
             return
         self._put((True, self._END))
+        worker.done = True
+
+    def lower_priority(self) -> None:
+        """Let the fusion go first (:meth:`~fuse4d._background.BackgroundLoop.lower_priority`)."""
+        self._worker.lower_priority()
 
     def __iter__(self) -> Iterator[Any]:
         while True:
             t0 = time.perf_counter()
-            ok, item = self._queue.get()
+            try:
+                ok, item = self._queue.get(timeout=STARVED_S)
+            except queue.Empty:
+                self._worker.promote()  # starved by other programs (if lowered)
+                ok, item = self._queue.get()
             self._timings["io_wait"] += time.perf_counter() - t0
             if not ok:
                 raise item
@@ -416,27 +437,44 @@ class _ReadAhead:
     def close(self) -> None:
         """Stop the thread (it may be blocked on a full queue) and wait for it."""
         self._stop.set()
-        self._thread.join()
+        self._worker.join()
 
 
 class _WriteBehind:
     """Run ``write(*args, **kwargs)`` calls in a daemon thread, in order, at most ``depth``
     queued; the first exception of the writer is raised by the next :meth:`submit` or by
-    :meth:`close`. Seconds spent writing accumulate in ``timings["write"]``."""
+    :meth:`close`. Seconds spent writing accumulate in ``timings["write"]``. The thread is a
+    :class:`~fuse4d._background.BackgroundLoop`, as :class:`_ReadAhead`'s (a wait of
+    :data:`~fuse4d._background.STARVED_S` for room in the queue hands it back)."""
 
-    def __init__(self, write: Callable[..., Any], depth: int, timings: dict[str, float]) -> None:
+    def __init__(
+        self,
+        write: Callable[..., Any],
+        depth: int,
+        timings: dict[str, float],
+        group: list[BackgroundLoop] | None = None,
+    ) -> None:
         self._write = write
         self._queue: queue.Queue = queue.Queue(maxsize=max(depth, 1))
         self._timings = timings
         self._error: BaseException | None = None
         self._abort = False
-        self._thread = threading.Thread(target=self._run, name="fuse4d-write", daemon=True)
-        self._thread.start()
+        self._taken: Any = None  # a job taken by a thread that then handed over
+        self._worker = BackgroundLoop(self._run, "fuse4d-write", group)
 
-    def _run(self) -> None:
+    def _run(self, worker: BackgroundLoop) -> None:
         while True:
-            job = self._queue.get()
+            if worker.handing_over():
+                return
+            if self._taken is not None:
+                job, self._taken = self._taken, None
+            else:
+                job = self._queue.get()
             if job is None:
+                worker.done = True
+                return
+            if worker.handing_over():
+                self._taken = job  # the next thread runs it
                 return
             if self._error is not None or self._abort:
                 continue  # drain after a failure or an interrupt
@@ -447,6 +485,17 @@ class _WriteBehind:
                 self._error = exc
             self._timings["write"] += time.perf_counter() - t0
 
+    def lower_priority(self) -> None:
+        """Let the fusion go first (:meth:`~fuse4d._background.BackgroundLoop.lower_priority`)."""
+        self._worker.lower_priority()
+
+    def _put(self, job: Any) -> None:
+        try:
+            self._queue.put(job, timeout=STARVED_S)
+        except queue.Full:
+            self._worker.promote()  # starved by other programs (if lowered)
+            self._queue.put(job)
+
     def submit(self, *args: Any, **kwargs: Any) -> None:
         """Queue ``write(*args, **kwargs)``."""
         self.call(self._write, *args, **kwargs)
@@ -456,7 +505,7 @@ class _WriteBehind:
         if self._error is not None:
             raise self._error
         t0 = time.perf_counter()
-        self._queue.put((func, args, kwargs))
+        self._put((func, args, kwargs))
         self._timings["io_wait"] += time.perf_counter() - t0
 
     def close(self, abort: bool = False) -> None:
@@ -466,8 +515,8 @@ class _WriteBehind:
         started, wait for the one in progress, raise nothing (the caller's exception wins).
         """
         self._abort = abort
-        self._queue.put(None)
-        self._thread.join()
+        self._put(None)
+        self._worker.join()
         if self._error is not None and not abort:
             raise self._error
 
@@ -604,11 +653,14 @@ def _fuse_streaming(
             written = 0
             # random access only when resuming; recordings are read in stream order
             todo = source if first == 0 else (reader.read_frame(t) for t in range(first, total))
+            background: tuple[Any, ...] = ()  # the I/O threads (lowered once fusion runs)
             if io_queue > 0:
-                frames: Any = _ReadAhead(todo, io_queue, timings)
+                group: list[BackgroundLoop] = []  # one starved thread promotes both
+                frames: Any = _ReadAhead(todo, io_queue, timings, group)
                 # a resumable folder's checkpoints are queued behind the writes they follow, so
                 # a checkpoint on disk only ever names frames already on disk
-                sink: Any = _WriteBehind(writer.write, io_queue, timings)
+                sink: Any = _WriteBehind(writer.write, io_queue, timings, group)
+                background = (frames, sink)
             else:
                 frames = _timed(todo, timings)
                 sink = _Inline(writer.write, timings)
@@ -651,6 +703,9 @@ def _fuse_streaming(
                 for order, frame in enumerate(frames):
                     pending[first + order] = frame
                     emit(engine.push(frame.depth, frame.intensity))
+                    if order + 1 == LOWER_AFTER_FRAMES:
+                        for thread in background:
+                            thread.lower_priority()
                 emit(engine.flush())
             except BaseException:
                 frames.close()
