@@ -648,6 +648,9 @@ def _fuse_streaming(
                 flow=flow_config,
                 timings=timings,
                 initial_flow=writer.seed if resumable and first > 0 else None,
+                # the flow beside the frame's filtering, the same output bit for bit (closed
+                # below); with the I/O threads lowered this is faster (fuse4d._background)
+                overlap_flow=io_queue > 0,
             )
             pending: dict[int, Any] = {}  # raw frames waiting for their fused output
             written = 0
@@ -711,6 +714,8 @@ def _fuse_streaming(
                 frames.close()
                 sink.close(abort=True)  # Ctrl-C or a failure: only the write in progress ends
                 raise
+            finally:
+                engine.close()  # the flow worker thread
             frames.close()  # the read-ahead thread, or the inline generator
             sink.close()  # all writes done before the writer is closed
         if tally is not None:
