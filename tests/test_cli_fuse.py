@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import threading
 
 import cv2
 import numpy as np
@@ -264,6 +265,9 @@ def test_run_read_ahead_and_write_behind_match_the_inline_run(tmp_path, capsys):
         load_sequence(tmp_path / "inline").depth, load_sequence(tmp_path / "threaded").depth
     )
     assert inline.fused_roughness == threaded.fused_roughness
+    # the read, write and flow (overlap_flow) threads have ended with the run
+    names = {t.name for t in threading.enumerate()}
+    assert not any(n.startswith(("fuse4d-read", "fuse4d-write", "fuse4d-flow")) for n in names)
     assert set(IO_STAGES) <= set(threaded.timings)
     assert threaded.timings["read"] > 0
     assert threaded.timings["write"] > 0
