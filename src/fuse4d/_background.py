@@ -30,8 +30,10 @@ Measured (stop 50; ``fuse4d run``'s streaming path on ``uva_cv2_person_turning``
 lowered or not in alternating rounds of one process, 2-core machine): centred window 9, 30
 frames, 95.8 -> 94.7 and 100.2 -> 95.5 ms a frame in two sittings (median per-round ratios
 0.988 and 0.970); causal window 3, 40 frames, 67.4 -> 64.8 (0.955). SCHED_IDLE instead of
-nice 19 gave the same (0.967). Beside two busy loops, with the hand-over: 215.6 -> 207.9 ms a
-frame over 40 frames (a hand-over in 3 of 4 runs).
+nice 19 gave the same (0.967). Beside two busy loops on the two cores, with the hand-over,
+centred 9, 40 frames: 215.6 -> 207.9 ms a frame (a hand-over in 3 of 4 runs); with the flow
+overlapped as ``fuse4d run`` now does, 213.2 -> 219.8 (+3 %, a hand-over in each run: the
+price of the lowered thread's last item under load).
 """
 
 from __future__ import annotations
