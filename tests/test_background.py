@@ -39,16 +39,20 @@ def test_starved_writer_hands_over_in_order(monkeypatch):
     new thread of the consumer's priority, every job once, in order."""
     monkeypatch.setattr(run_module, "STARVED_S", 0.01)
     ran = []
+    started = threading.Event()
 
     def write(i):
         ran.append((i, threading.get_native_id(), _nice()))
+        started.set()
         if i < 2:
             time.sleep(0.1)
 
     sink = run_module._WriteBehind(write, 1, _timings())
     sink.lower_priority()
     assert sink._worker.lowered
-    for i in range(8):
+    sink.submit(0)
+    started.wait(10)  # job 0 runs in the lowered thread before anything can starve
+    for i in range(1, 8):
         sink.submit(i)
     sink.close()
     assert [i for i, _, _ in ran] == list(range(8))
