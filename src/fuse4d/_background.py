@@ -13,8 +13,8 @@ So once the fusion runs, each I/O thread is moved to nice 19 (:meth:`BackgroundL
 lower_priority`; Linux, where nice is a per-thread value; elsewhere nothing changes): the
 scheduler then runs it when a core is free and gives the core back when a kernel's threads
 wake. Not at start: a thread inherits its creator's nice value, and the pools that the
-fusion shares (OpenCV's workers, started by its first parallel call) must not be created by
-a lowered thread.
+fusion shares (OpenCV's workers, started by its first parallel call) must be started by the
+fusion's own threads, not by a lowered one.
 
 The catch is other programs: a nice-19 thread gets about 1.5 % of a core that a
 normal-priority process wants, so on a machine kept busy by other work the I/O would starve
@@ -27,13 +27,14 @@ lowered thread has finished its current item. From then on the run behaves as if
 did not exist.
 
 Measured (stop 50; ``fuse4d run``'s streaming path on ``uva_cv2_person_turning``, the I/O
-lowered or not in alternating rounds of one process, 2-core machine): centred window 9, 30
-frames, 95.8 -> 94.7 and 100.2 -> 95.5 ms a frame in two sittings (median per-round ratios
-0.988 and 0.970); causal window 3, 40 frames, 67.4 -> 64.8 (0.955). SCHED_IDLE instead of
-nice 19 gave the same (0.967). Beside two busy loops on the two cores, with the hand-over,
-centred 9, 40 frames: 215.6 -> 207.9 ms a frame (a hand-over in 3 of 4 runs); with the flow
-overlapped as ``fuse4d run`` now does, 213.2 -> 219.8 (+3 %, a hand-over in each run: the
-price of the lowered thread's last item under load).
+lowered or not in alternating rounds of one process, 2-core machine). With the flow in the
+fusion thread: centred window 9, 30 frames, median per-round ratios 0.988 and 0.970 in two
+sittings; causal window 3, 40 frames, 0.955; SCHED_IDLE instead of nice 19 the same (0.967).
+With the flow overlapped, as ``fuse4d run`` computes it since (``python
+benchmarks/background_io.py``): centred 9 94.1 -> 91.4 ms a frame (0.971, lowered faster in
+6 of 6 rounds), causal 3 0.990; beside two busy loops on the two cores (``--load 2``, 40
+frames) 199.9 -> 204.9 (1.025, every run handed over: the price of the lowered threads' last
+items under load).
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ __all__ = ["BACKGROUND_NICE", "LOWER_AFTER_FRAMES", "STARVED_S", "BackgroundLoop
 BACKGROUND_NICE = 19
 #: The I/O threads of a run are lowered once the fusion has taken this many frames: by then it
 #: has run every stage, its flow included, so the thread pools it shares (OpenCV's workers)
-#: were started by the fusion thread, not by a lowered one.
+#: were started by its own threads (fusion or flow worker), not by a lowered one.
 LOWER_AFTER_FRAMES = 2
 #: A consumer that waited this long (s) for a lowered thread hands its loop to a normal one
 #: (about half a frame of the fast preset at 640 x 480; the waits of a run that is not starved
