@@ -28,6 +28,19 @@ def file_contents(path: Path) -> bytes:
     return repr((image.dtype.str, image.shape)).encode() + image.tobytes()
 
 
+def write_ball_folder(folder: Path, frames: int = 5) -> Path:
+    """The small synthetic ball (150 x 150) as a frame folder at ``folder`` (0.05 mm units):
+    a recording for the streaming path of ``fuse4d run``."""
+    from fuse4d.io import FrameFolderWriter
+    from fuse4d.synthetic import make_falling_ball
+
+    seq = make_falling_ball(small=True, num_frames=frames)
+    with FrameFolderWriter(folder, seq.intrinsics, depth_unit_mm=0.05) as writer:
+        for d, i in zip(seq.depth, seq.intensity, strict=True):
+            writer.write(d, i)
+    return folder
+
+
 def shared_data_dir() -> Path:
     """``$FUSE4D_DATA`` or ``<repo>/../shared/data`` (read in place, never copied)."""
     env = os.environ.get("FUSE4D_DATA")

@@ -12,10 +12,10 @@ import time
 import numpy as np
 import pytest
 
+from conftest import write_ball_folder
 from fuse4d import FusionParams, load_sequence
 from fuse4d import _background as background
 from fuse4d import run as run_module
-from fuse4d.io import FrameFolderWriter
 from fuse4d.io.resume import ResumableFolderWriter
 from fuse4d.synthetic import make_falling_ball
 
@@ -128,11 +128,7 @@ def test_run_with_every_wait_starved_writes_what_the_inline_run_does(tmp_path, m
     """fuse_file with the I/O lowered after the first frame, a slow writer and every consumer
     wait taken for starvation (the hand-over in the middle of a real run): the same output as
     without threads."""
-    seq = make_falling_ball(small=True, num_frames=6)
-    src = tmp_path / "rec"
-    with FrameFolderWriter(src, seq.intrinsics, depth_unit_mm=0.05) as writer:
-        for d, i in zip(seq.depth, seq.intensity, strict=True):
-            writer.write(d, i)
+    src = write_ball_folder(tmp_path / "rec", frames=6)
     params = FusionParams(num_frames=3)
     run_module.fuse_file(src, tmp_path / "inline", fusion=params, io_queue=0)
     promoted = []

@@ -11,9 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from conftest import write_ball_folder
 from fuse4d import _background
-from fuse4d.io import FrameFolderWriter
-from fuse4d.synthetic import make_falling_ball
 
 SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "background_io.py"
 
@@ -54,11 +53,7 @@ def test_normal_mode_never_lowers_and_restores_the_methods(bench):
 
 
 def test_compare_times_both_modes_in_each_round(bench, tmp_path):
-    seq = make_falling_ball(small=True, num_frames=5)
-    rec = tmp_path / "rec"
-    with FrameFolderWriter(rec, seq.intrinsics, depth_unit_mm=0.05) as writer:
-        for d, i in zip(seq.depth, seq.intensity, strict=True):
-            writer.write(d, i)
+    rec = write_ball_folder(tmp_path / "rec")
     args = argparse.Namespace(frames=4, window=3, causal=False, rounds=2, load=1)
     result = bench.compare(rec, args, echo=False)
     assert [len(result["ms_per_frame"][m]) for m in bench.MODES] == [2, 2]

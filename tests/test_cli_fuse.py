@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from scipy import ndimage as ndi
 
+from conftest import write_ball_folder
 from fuse4d import FusionParams, Sequence, load_config, load_sequence, preset
 from fuse4d.cli import main
 from fuse4d.errors import InputFileError, ParameterError
@@ -244,12 +245,7 @@ def test_demo_small_writes_figure_and_table(tmp_path, capsys):
 
 
 def _ball_folder(tmp_path, frames=5):
-    seq = make_falling_ball(small=True, num_frames=frames)
-    src = tmp_path / "rec"
-    with FrameFolderWriter(src, seq.intrinsics, depth_unit_mm=0.05) as writer:
-        for d, i in zip(seq.depth, seq.intensity, strict=True):
-            writer.write(d, i)
-    return src
+    return write_ball_folder(tmp_path / "rec", frames)
 
 
 def test_run_read_ahead_and_write_behind_match_the_inline_run(tmp_path, capsys):
