@@ -28,6 +28,16 @@ def file_contents(path: Path) -> bytes:
     return repr((image.dtype.str, image.shape)).encode() + image.tobytes()
 
 
+def load_benchmark(name: str):
+    """The module of the script ``benchmarks/<name>.py`` (not a package: loaded by path)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, REPO_ROOT / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def write_ball_folder(folder: Path, frames: int = 5) -> Path:
     """The small synthetic ball (150 x 150) as a frame folder at ``folder`` (0.05 mm units):
     a recording for the streaming path of ``fuse4d run``."""

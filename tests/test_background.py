@@ -37,7 +37,7 @@ def _timings() -> dict[str, float]:
 def test_starved_writer_hands_over_in_order(monkeypatch):
     """The first jobs are slow (the consumer's wait for room times out): the rest run in a
     new thread of the consumer's priority, every job once, in order."""
-    monkeypatch.setattr(run_module, "STARVED_S", 0.01)
+    monkeypatch.setattr(background, "STARVED_S", 0.01)
     ran = []
     started = threading.Event()
 
@@ -69,7 +69,7 @@ def test_starved_writer_hands_over_in_order(monkeypatch):
 
 @linux_only
 def test_starved_read_ahead_hands_over_in_order_and_promotes_its_group(monkeypatch):
-    monkeypatch.setattr(run_module, "STARVED_S", 0.01)
+    monkeypatch.setattr(background, "STARVED_S", 0.01)
     producers = []
 
     def frames():
@@ -98,7 +98,7 @@ def test_starved_read_ahead_hands_over_in_order_and_promotes_its_group(monkeypat
 
 def test_threads_never_lowered_are_never_handed_over(monkeypatch):
     """A slow reader that was not lowered is just slow: one thread throughout."""
-    monkeypatch.setattr(run_module, "STARVED_S", 0.01)
+    monkeypatch.setattr(background, "STARVED_S", 0.01)
     producers = []
 
     def frames():
@@ -147,7 +147,7 @@ def test_run_with_every_wait_starved_writes_what_the_inline_run_does(tmp_path, m
 
     monkeypatch.setattr(ResumableFolderWriter, "write", slow_write)
     monkeypatch.setattr(run_module, "LOWER_AFTER_FRAMES", 1)
-    monkeypatch.setattr(run_module, "STARVED_S", 1e-6)
+    monkeypatch.setattr(background, "STARVED_S", 1e-6)
     run_module.fuse_file(src, tmp_path / "starved", fusion=params, io_queue=1)
     assert True in promoted  # a lowered thread was handed over
     np.testing.assert_array_equal(

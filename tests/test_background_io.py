@@ -4,25 +4,18 @@ timed in alternating rounds."""
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import sys
 import threading
-from pathlib import Path
 
 import pytest
 
-from conftest import write_ball_folder
+from conftest import load_benchmark, write_ball_folder
 from fuse4d import _background
-
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "background_io.py"
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("background_io", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("background_io")
 
 
 def _lowered_by_lower_priority() -> bool:

@@ -20,8 +20,8 @@ The catch is other programs: a nice-19 thread gets about 1.5 % of a core that a
 normal-priority process wants, so on a machine kept busy by other work the I/O would starve
 and the run with it (measured beside two busy loops on the 2 cores: 213 -> 464 ms a frame;
 SCHED_IDLE, 0.3 %, is worse: 3.1 s). An unprivileged thread cannot raise its priority again
-(``RLIMIT_NICE``), so a consumer that has waited :data:`STARVED_S` for an item calls
-:meth:`BackgroundLoop.promote`: the rest of the loop (and of the run's other I/O loop) moves
+(``RLIMIT_NICE``), so a consumer that has waited :data:`STARVED_S` for an item
+(:meth:`BackgroundLoop.wait`) calls :meth:`BackgroundLoop.promote`: the rest of the loop (and of the run's other I/O loop) moves
 to a new thread, created by the consumer and so of its priority, which takes over once the
 lowered thread has finished its current item. From then on the run behaves as if this module
 did not exist.
@@ -40,11 +40,15 @@ items under load).
 from __future__ import annotations
 
 import os
+import queue
 import sys
 import threading
 from collections.abc import Callable
+from typing import TypeVar
 
 __all__ = ["BACKGROUND_NICE", "LOWER_AFTER_FRAMES", "STARVED_S", "BackgroundLoop"]
+
+T = TypeVar("T")
 
 #: Nice value of a lowered background thread (the lowest priority of the normal policy).
 BACKGROUND_NICE = 19
@@ -154,6 +158,16 @@ class BackgroundLoop:
 
         self._thread = threading.Thread(target=take_over, name=self._name, daemon=True)
         self._thread.start()
+
+    def wait(self, queue_op: Callable[[float | None], T]) -> T:
+        """``queue_op(timeout)``: a consumer's get from or put to this loop's queue (raising
+        ``queue.Empty`` / ``queue.Full`` when the timeout passes); one that waits more than
+        :data:`STARVED_S` promotes the loop (:meth:`promote`) and then waits on."""
+        try:
+            return queue_op(STARVED_S)
+        except (queue.Empty, queue.Full):
+            self.promote()  # starved by other programs (if lowered)
+            return queue_op(None)
 
     def join(self) -> None:
         """Wait until the loop has returned for good (call it from the consumer)."""

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ._background import LOWER_AFTER_FRAMES, STARVED_S, BackgroundLoop
+from ._background import LOWER_AFTER_FRAMES, BackgroundLoop
 from .camera import depth_to_points
 from .config import FlowConfig, FusionParams, preset
 from .errors import ParameterError
@@ -366,8 +366,9 @@ class _ReadAhead:
     t + 1 is read while frame t fuses. An exception of the reader is raised in the consumer.
     Seconds spent producing items accumulate in ``timings["read"]``. The thread is a
     :class:`~fuse4d._background.BackgroundLoop`: :meth:`lower_priority` lets the fusion's
-    kernels go first, and a wait of :data:`~fuse4d._background.STARVED_S` for a frame hands
-    the reading back to a normal-priority thread.
+    kernels go first, and a wait of :data:`~fuse4d._background.STARVED_S` for a frame
+    (:meth:`~fuse4d._background.BackgroundLoop.wait`) hands the reading back to a
+    normal-priority thread.
     """
 
     _END = object()
@@ -422,11 +423,7 @@ class _ReadAhead:
     def __iter__(self) -> Iterator[Any]:
         while True:
             t0 = time.perf_counter()
-            try:
-                ok, item = self._queue.get(timeout=STARVED_S)
-            except queue.Empty:
-                self._worker.promote()  # starved by other programs (if lowered)
-                ok, item = self._queue.get()
+            ok, item = self._worker.wait(lambda timeout: self._queue.get(timeout=timeout))
             self._timings["io_wait"] += time.perf_counter() - t0
             if not ok:
                 raise item
@@ -490,11 +487,7 @@ class _WriteBehind:
         self._worker.lower_priority()
 
     def _put(self, job: Any) -> None:
-        try:
-            self._queue.put(job, timeout=STARVED_S)
-        except queue.Full:
-            self._worker.promote()  # starved by other programs (if lowered)
-            self._queue.put(job)
+        self._worker.wait(lambda timeout: self._queue.put(job, timeout=timeout))
 
     def submit(self, *args: Any, **kwargs: Any) -> None:
         """Queue ``write(*args, **kwargs)``."""
