@@ -6,6 +6,7 @@ import dataclasses
 import json
 import math
 import threading
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -275,6 +276,62 @@ def test_run_read_ahead_and_write_behind_match_the_inline_run(tmp_path, capsys):
     assert math.isnan(summary["fused_roughness_mm"])
     assert summary["timings_ms_per_frame"]["summary"] == 0.0
     assert load_sequence(out).num_frames == 5
+
+
+def test_run_output_clock_separates_start_up_from_the_steady_rate():
+    """The summary's steady rate is the interval between frames that each followed a new
+    input frame (a centred window's last ``future_frames`` come out of the flush at once and
+    are left out); the first hand-over gives the start-up; every call reaches the caller's
+    progress; no steady rate from one frame or with fusion iterations."""
+    from fuse4d.run import RunSummary, _OutputClock
+
+    seen = []
+    clock = _OutputClock(lambda done, total: seen.append((done, total)))
+    for done in range(1, 7):
+        clock(done, 6)
+    assert seen == [(d, 6) for d in range(1, 7)]
+
+    def summary(params, times):
+        clock.times = times
+        s = RunSummary(Path("in"), Path("out"), "folder", "folder", 6, (2, 2), "dis", params)
+        clock.fill(s, start=10.0)
+        return s
+
+    # 2 s of start-up, then a frame every 100 ms, then the flush's two frames at once
+    times = [12.0, 12.1, 12.2, 12.3, 12.3001, 12.3002]
+    centred = summary(FusionParams(num_frames=5), times)  # future_frames 2
+    assert centred.first_output_seconds == pytest.approx(2.0)
+    assert centred.steady_ms_per_frame == pytest.approx(100.0)
+    causal = summary(FusionParams(num_frames=5, causal=True), times)  # all followed a push
+    assert causal.steady_ms_per_frame == pytest.approx(1000 * 0.3002 / 5)
+    assert math.isnan(summary(FusionParams(num_frames=3), [12.0, 12.1]).steady_ms_per_frame)
+    assert math.isnan(summary(FusionParams(num_frames=3, iterations=2), times).steady_ms_per_frame)
+    empty = summary(FusionParams(num_frames=3), [])
+    assert math.isnan(empty.first_output_seconds)
+
+
+def test_run_summary_reports_the_rate_once_running_apart_from_start_up(tmp_path, capsys):
+    """A short clip's average carries the start-up; the summary names both, and the JSON
+    has them; a run without the clock (dask) says its average includes the start-up."""
+    from fuse4d.cli.cmd_fuse import _time_note
+    from fuse4d.run import fuse_file
+
+    src = _ball_folder(tmp_path, frames=6)
+    done = []
+    s = fuse_file(
+        src, tmp_path / "a", fusion=FusionParams(num_frames=3), progress=lambda *a: done.append(a)
+    )
+    assert len(done) == 6
+    assert 0 < s.first_output_seconds < s.seconds
+    assert 0 < s.steady_ms_per_frame < s.ms_per_frame  # the average carries the start-up
+    assert "once running" in _time_note(s)
+    s.steady_ms_per_frame = math.nan
+    assert _time_note(s) == f"{s.ms_per_frame:.0f} ms/frame, start-up and I/O included"
+    out = tmp_path / "b"
+    assert main(["run", str(src), "-o", str(out), "--window", "3", "--no-summary", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert 0 < summary["steady_ms_per_frame"] < summary["ms_per_frame"]
+    assert 0 < summary["first_output_seconds"] < summary["seconds"]
 
 
 def test_run_summary_counts_equal_the_numpy_tallies():

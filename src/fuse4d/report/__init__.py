@@ -998,7 +998,7 @@ def _metric_rows(
             "values": {"fused": timing["fusion_ms_per_frame"]},
             "unit": "ms",
             "meaning": (
-                f"fusion wall time per frame (this report: "
+                f"fusion wall time per frame, start-up and I/O included (this report: "
                 f"{timing['report_ms_per_frame']:.1f} ms/frame)"
             ),
             "digits": 4,
