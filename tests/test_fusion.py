@@ -385,6 +385,20 @@ def test_curvature_critical_values_are_the_f_quantiles():
     np.testing.assert_allclose(crit[1:], f_dist.ppf(1 - CURVATURE_TEST_LEVEL / 3, 1, k), rtol=1e-9)
 
 
+def test_curvature_critical_table_is_scipys_and_covers_the_long_windows():
+    """The engine's critical values come from a table (scipy.special's import cost 0.23 s of
+    every start-up): scipy's own values up to 62 degrees of freedom, computed beyond it, and
+    for another level."""
+    from scipy.special import stdtrit
+
+    for max_df, level in ((62, CURVATURE_TEST_LEVEL), (80, CURVATURE_TEST_LEVEL), (6, 0.01)):
+        crit = curvature_f_critical(max_df, level)
+        k = np.arange(1, max_df + 1)
+        np.testing.assert_allclose(crit[1:], stdtrit(k, 1.0 - level / 6.0) ** 2, rtol=1e-13)
+        assert crit.size == max_df + 1
+    assert curvature_f_critical(0).tolist() == [math.inf, pytest.approx(1458.358423480592)]
+
+
 @pytest.mark.parametrize("per_step", [False, True])
 def test_pair_diagnostics_kernel_matches_oracle(rng, per_step):
     depth, fwd, bwd = _random_window(rng, 2)

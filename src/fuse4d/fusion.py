@@ -77,6 +77,31 @@ _BASE_CODES = {"frame": 0, "trajectory": 1, "quadratic": 2, "adaptive": 3}
 #: a parabola where the line is rejected at this level (Bonferroni over the three coordinates:
 #: each coordinate's F test at a third of it)
 CURVATURE_TEST_LEVEL = 0.05
+#: F(1, k) = t(k)^2 of A32's test at CURVATURE_TEST_LEVEL for k = 1..62 (windows of up to 64
+#: frames): ``scipy.special.stdtrit(k, 1 - level / 6) ** 2`` (scipy 1.17), kept as numbers
+#: because importing scipy.special took 0.23 s of every engine's start-up on a 2-core machine
+#: (``fuse4d run``, ``live``); other levels and longer windows compute them, and
+#: ``tests/test_fusion.py`` checks the table against scipy
+# fmt: off
+_F_CRITICAL = np.array([
+    1458.358423480592, 58.50420168067247, 23.587119865139854, 15.687829562095,
+    12.489938468539947, 10.807361409865731, 9.781583228143646, 9.094819456825068,
+    8.6043902074351, 8.237316474746873, 7.952590069122161, 7.725470723524656,
+    7.540179471418592, 7.386193106770218, 7.25623151978516, 7.145101604364696,
+    7.04900154869571, 6.965085377850276, 6.891181055637244, 6.825602592647069,
+    6.767021575663301, 6.714377327448648, 6.666812812338242, 6.623628084595241,
+    6.584245929723801, 6.548186133428797, 6.515045955260815, 6.484485130830167,
+    6.456214224189951, 6.4299854895355315, 6.405585633993121, 6.382830035973007,
+    6.361558088924791, 6.341629423166792, 6.322920818644201, 6.3053236656755995,
+    6.288741863550418, 6.2730900714153774, 6.258292244465671, 6.244280402618582,
+    6.230993589729796, 6.218376989837229, 6.206381173485751, 6.194961452341814,
+    6.1840773243792295, 6.17369199515349, 6.163771963268413, 6.15428666021704,
+    6.145208136457544, 6.136510786947558, 6.128171110471751, 6.120167498007926,
+    6.11248004612627, 6.105090392035158, 6.0979815674006534, 6.091137868494035,
+    6.084544740579336, 6.078188674752257, 6.072057115694005, 6.066138379016555,
+    6.06042157705596, 6.054896552123533,
+])
+# fmt: on
 #: ... and where the parabola moves the pixel's base by more than this many times its depth
 #: noise sigma(z) (A22): a significant but small curvature (a hand-held camera's jitter on a
 #: static room) keeps the steadier line
@@ -87,9 +112,12 @@ def curvature_f_critical(max_df: int, level: float = CURVATURE_TEST_LEVEL) -> ND
     """Per-coordinate critical values of A32's curvature test, F(1, k) at ``level`` / 3 for
     k = 0..``max_df`` (entry 0 unused, inf). F(1, k) = t(k)^2, so the two-sided Student-t
     quantile gives it without importing ``scipy.stats``."""
+    out = np.full(max(max_df, 1) + 1, np.inf)
+    if level == CURVATURE_TEST_LEVEL and out.size - 1 <= _F_CRITICAL.size:
+        out[1:] = _F_CRITICAL[: out.size - 1]
+        return out
     from scipy.special import stdtrit
 
-    out = np.full(max(max_df, 1) + 1, np.inf)
     k = np.arange(1, out.size)
     out[1:] = stdtrit(k, 1.0 - level / 6.0) ** 2
     return out

@@ -11,7 +11,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import ndimage, optimize
 
 from .._kernels.sphere_fit import _mlesac_score_kernel
 from .._validation import check_shape
@@ -88,6 +87,8 @@ def _fit_mlesac(
     rng: int | np.random.Generator | None,
 ) -> SphereFit:
     """MLESAC for a D-sphere (D = 3 sphere, D = 2 circle) with geometric residuals."""
+    from scipy import optimize  # here: scipy's import is ~0.3 s that `fuse4d run` never needs
+
     _check_fit_args(num_hypotheses, sigma, nu)
     name = "points"
     p = np.asarray(points, dtype=np.float64)
@@ -302,6 +303,8 @@ def shape_correctness(
     -------
     ShapeCorrectness
     """
+    from scipy import ndimage  # here: see _fit_mlesac
+
     if not isinstance(ground_truth, Sequence | GroundTruth):
         raise TypeError(
             "shape_correctness(ground_truth, points): the ground truth comes first, got "
