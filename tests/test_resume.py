@@ -162,6 +162,21 @@ def test_killed_runs_resume_to_the_uninterrupted_result(recording, reference, tm
     np.testing.assert_array_equal(load_sequence(out).depth, load_sequence(reference).depth)
 
 
+def test_a_one_frame_window_checkpoints_and_resumes(recording, tmp_path):
+    """``--window 1`` computes no flow: its checkpoints carry no warm start (a run past the
+    first checkpoint crashed asking the engine for a pair not yet pushed), and a killed run
+    resumes to the uninterrupted result."""
+    args = ["--window", "1", "--set", "spatial_radius=2"]
+    reference = tmp_path / "ref"
+    assert main(["run", str(recording), "-o", str(reference), *args]) == 0
+    assert load_sequence(reference).num_frames == FRAMES  # past 2 checkpoints of 8 frames
+    out = tmp_path / "out"
+    res = _child(10, "after", "SIGKILL", ["run", str(recording), "-o", str(out), *args])
+    assert res.returncode == -signal.SIGKILL, res.stderr[-2000:]
+    assert main(["run", str(recording), "-o", str(out), *args, "--resume"]) == 0
+    assert _contents(out) == _contents(reference)
+
+
 def test_ctrl_c_exits_130_and_leaves_only_complete_frames(recording, reference, tmp_path):
     out = tmp_path / "out"
     args = ["run", str(recording), "-o", str(out), *RUN_ARGS]

@@ -775,8 +775,9 @@ def _flow_config(flow: FlowConfig | str | None) -> FlowConfig:
 def _seed(engine: FusionEngine, first: int, start: int, seed: np.ndarray | None):
     """Warm start for an engine that starts at frame ``start``: the flow of pair
     (start - 1, start) (``seed`` if that is the pair before ``engine``'s first frame), or
-    None at the start of the recording."""
-    if start <= 0:
+    None at the start of the recording and for a window of one frame (no flow is computed, so
+    none warms a resumed engine; the pair would not even have been pushed yet)."""
+    if start <= 0 or engine.past + engine.future == 0:
         return None
     if start == first:
         return seed
