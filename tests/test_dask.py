@@ -375,6 +375,30 @@ def test_reader_options_reach_every_read_task(ball, tmp_path, capsys):
     assert _same(store["support"][:], ref.support)
 
 
+def test_bad_dask_options_are_user_errors_not_crashes(tmp_path, capsys):
+    """A wrong scheduler, chunk size or output is the user's: exit 2 with one line naming
+    it, not "internal error (a bug in fuse4d)" with a crash report."""
+    seq = _crop(make_falling_ball(small=True, num_frames=3), 3)
+    folder = write_frame_folder(seq, tmp_path / "rec", depth_unit_mm=0.05)
+    other = write_frame_folder(seq, tmp_path / "rec2", depth_unit_mm=0.05)
+    base = ["run", str(folder), "-o", str(tmp_path / "o.zarr"), "--engine", "dask"]
+    cases = [
+        (["--scheduler", "bogus"], "scheduler must be"),
+        (["--chunk-frames", "0"], "chunk_frames must be >= 1"),
+        (["run", str(folder), str(other), "-o", str(tmp_path / "o.zarr"), "--engine", "dask"],
+         "2 inputs need an output folder"),
+        (["run", str(folder), "-o", str(tmp_path / "no" / "o.zarr"), "--engine", "dask"],
+         "does not exist"),
+    ]  # fmt: skip
+    for extra, message in cases:
+        args = extra if extra[0] == "run" else [*base, *extra]
+        assert main(args) == 2, args
+        err = capsys.readouterr().err
+        assert message in err
+        assert "internal error" not in err
+    assert not (tmp_path / "o.zarr").exists()
+
+
 def test_missing_extra_gives_one_clear_error(monkeypatch):
     import importlib.util
 

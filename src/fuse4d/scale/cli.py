@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from ..config import FlowConfig, FusionParams
+from ..errors import ParameterError
 from ..flying_pixels import resolve_flying_pixels
 from .cluster import open_compute
 from .graph import even_chunk_frames, fuse, release_engines
@@ -67,19 +68,20 @@ def output_paths(inputs: list[Path], output: Path) -> list[Path]:
 
     Raises
     ------
-    ValueError
-        If several inputs target one ``.zarr`` path, or two inputs share a stem.
+    ParameterError
+        If several inputs target one ``.zarr`` path, or two inputs share a stem (a
+        ValueError).
     """
     if output.suffix.lower() == ".zarr":
         if len(inputs) != 1:
-            raise ValueError(
+            raise ParameterError(
                 f"{len(inputs)} inputs need an output folder, not the single store {output}"
             )
         return [output]
     output.mkdir(parents=True, exist_ok=True)
     paths = [output / f"{Path(p).stem}.zarr" for p in inputs]
     if len(set(paths)) != len(paths):
-        raise ValueError("inputs with the same name would write the same store; rename them")
+        raise ParameterError("inputs with the same name would write the same store; rename them")
     return paths
 
 

@@ -27,6 +27,7 @@ from typing import Any
 
 import dask
 
+from ..errors import ParameterError
 from ._deps import require_scale_extra
 
 __all__ = [
@@ -239,7 +240,7 @@ def open_compute(
         return
     # (no distributed: "processes" is dask's multiprocessing pool)
     if scheduler not in ("threads", "processes", "sync"):
-        raise ValueError(
+        raise ParameterError(
             f"scheduler must be threads, processes, sync or tcp://HOST:PORT, got {scheduler!r}"
         )
     from dask.diagnostics import ProgressBar

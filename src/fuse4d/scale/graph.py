@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 from .._validation import as_float32
 from ..camera import Intrinsics
 from ..config import FlowConfig, FusionParams, preset
-from ..errors import ShapeError
+from ..errors import ParameterError, ShapeError
 from ..flow import (
     FlowCache,
     FlowMethod,
@@ -151,7 +151,7 @@ def chunk_bounds(total: int, chunk_frames: int) -> list[tuple[int, int]]:
     [(0, 3), (3, 6), (6, 7)]
     """
     if chunk_frames < 1:
-        raise ValueError(f"chunk_frames must be >= 1, got {chunk_frames}")
+        raise ParameterError(f"chunk_frames must be >= 1, got {chunk_frames}")
     return [(s, min(s + chunk_frames, total)) for s in range(0, total, chunk_frames)]
 
 
@@ -172,7 +172,7 @@ def even_chunk_frames(total: int, max_frames: int) -> int:
     (30, 32, 20)
     """
     if max_frames < 1:
-        raise ValueError(f"chunk_frames must be >= 1, got {max_frames}")
+        raise ParameterError(f"chunk_frames must be >= 1, got {max_frames}")
     if total < 1:
         return max_frames
     chunks = -(-total // max_frames)
@@ -601,9 +601,9 @@ def fuse(
     """
     params = fusion or FusionParams()
     if chunk_frames < 1:
-        raise ValueError(f"chunk_frames must be >= 1, got {chunk_frames}")
+        raise ParameterError(f"chunk_frames must be >= 1, got {chunk_frames}")
     if params.num_frames > 256:
-        raise ValueError("num_frames must be <= 256 (support is stored as uint8)")
+        raise ParameterError("num_frames must be <= 256 (support is stored as uint8)")
     if client is not None:
         from .cluster import warn_if_slow_allocator
 
@@ -615,7 +615,7 @@ def fuse(
         raise ShapeError("intensity", d.shape, inten.shape, "it must match depth frame for frame")
     total, h, w = d.shape
     if total < 1:
-        raise ValueError("fuse needs at least one frame, got T = 0")
+        raise ParameterError("fuse needs at least one frame, got T = 0")
     if (h, w) != (intrinsics.height, intrinsics.width):
         raise ShapeError(
             "depth", ("T", intrinsics.height, intrinsics.width), d.shape,

@@ -53,6 +53,7 @@ from numpy.typing import NDArray
 
 from ..camera import Intrinsics
 from ..config import FlowConfig, FusionParams
+from ..errors import ParameterError
 from ..flow import FlowCache, estimate_flow, get_flow_method
 from ..fusion import FrameState
 from .graph import _flow_chain, _intensity_frame, chunk_bounds, chunk_engine
@@ -483,9 +484,9 @@ def recording_tasks(
         Compute them together (one call); the output is then ready for ``out.finalize()``.
     """
     if fusion.iterations != 1:
-        raise ValueError("recording_tasks fuses one iteration; use fuse() + write_zarr")
+        raise ParameterError("recording_tasks fuses one iteration; use fuse() + write_zarr")
     if lookahead is not None and lookahead < 1:
-        raise ValueError(f"lookahead must be >= 1, got {lookahead}")
+        raise ParameterError(f"lookahead must be >= 1, got {lookahead}")
     total = source.frames
     bounds = chunk_bounds(total, chunk_frames)
     missing = sorted(set(range(len(bounds))) - out.done_chunks())

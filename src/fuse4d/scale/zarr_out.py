@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 
 from .._version import __version__
 from ..camera import Intrinsics
-from ..errors import OutputExistsError
+from ..errors import OutputExistsError, ParameterError
 from ..io.zarrstore import codec
 from .graph import DaskFusion, chunk_bounds, delayed_blocks
 
@@ -119,8 +119,9 @@ class ZarrOutput:
     OutputExistsError
         If ``OUT.zarr`` exists (and neither ``overwrite`` nor a complete ``resume``), or a
         partial run exists without ``resume``/``overwrite``.
-    ValueError
-        If ``resume`` finds a partial run of other parameters or another input.
+    ParameterError
+        If the output folder does not exist, or ``resume`` finds a partial run of other
+        parameters or another input (a ValueError).
     """
 
     def __init__(
@@ -150,7 +151,7 @@ class ZarrOutput:
             "flows_saved": self.save_flows,
         }
         if not self.path.parent.is_dir():
-            raise ValueError(f"{self.path}: output folder {self.path.parent} does not exist")
+            raise ParameterError(f"{self.path}: output folder {self.path.parent} does not exist")
         self.already_complete = False
         if self.path.exists() and not overwrite:
             if resume and self._is_complete(self.path):
@@ -235,7 +236,7 @@ class ZarrOutput:
         have = self._comparable(meta)
         if have != want:
             diff = sorted(k for k in set(want) | set(have) if want.get(k) != have.get(k))
-            raise ValueError(
+            raise ParameterError(
                 f"{self.staging}: cannot resume, the interrupted run differs in {diff}; "
                 "rerun with the same input and parameters, or --force to start over"
             )
