@@ -459,6 +459,12 @@ def test_cli_metrics_default_and_file_roi(tmp_path, capsys):
     assert main(["metrics", str(path), "--json", "--roi", str(tmp_path / "roi.npz")]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["roi"]["pixels"] == 300
+    # the same pixels as a box, the form `fuse4d report --roi` takes: the same scores
+    assert main(["metrics", str(path), "--json", "--roi", "70:80,70:80"]) == 0
+    box = json.loads(capsys.readouterr().out)
+    assert box["roi"]["description"] == "box rows 70:80, columns 70:80"
+    assert box["output"] == res["output"]
+    assert box["roi"]["pixels"] == 300
     assert main(["metrics", str(path), "--gt", str(path), "--json", "--window", "3"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["output"]["rmse"] == 0.0
@@ -474,6 +480,11 @@ def test_cli_metrics_bad_input(tmp_path, capsys):
     capsys.readouterr()
     assert main(["metrics", str(out), "--roi", str(tmp_path / "roi.npz")]) == 2
     assert "no mask key: needs a key 'mask' or 'roi'" in capsys.readouterr().err
+    for box, message in (("0:5,7", "must look like R0:R1,C0:C1"), ("0:5,0:999", "not a non-empty")):
+        assert main(["metrics", str(out), "--roi", box]) == 2
+        assert message in capsys.readouterr().err
+        assert main(["metrics", str(out), "--static-mask", box]) == 2
+        assert message in capsys.readouterr().err
     assert main(["metrics", str(out), "--window", "4"]) == 2
     assert "--window must be an odd integer" in capsys.readouterr().err
 

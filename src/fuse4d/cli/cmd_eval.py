@@ -153,14 +153,27 @@ def synth_command(
     )
 
 
-def _read_region(path: Path, what: str, frames: str | None) -> np.ndarray:
-    """A bool mask through :func:`fuse4d.io.read_mask` (its InputFileError -> a CLI error)."""
-    from ..errors import InputFileError
+def _box(text: str) -> tuple[int, int, int, int] | None:
+    """The pixel box that ``text`` names ("R0:R1,C0:C1": a colon and a comma, and no such
+    file; a malformed one is a ParameterError naming the form), else None (a mask file)."""
+    from ..metrics.roi import parse_box
+
+    if Path(text).exists() or ":" not in text or "," not in text:
+        return None
+    return parse_box(text)
+
+
+def _read_region(text: str, what: str, frames: str | None, shape: tuple[int, int]) -> np.ndarray:
+    """A bool mask: the box R0:R1,C0:C1 (:func:`fuse4d.metrics.box_mask`, ``(H, W)``) or a
+    mask file through :func:`fuse4d.io.read_mask` (their errors -> one CLI error)."""
+    from ..errors import InputFileError, ParameterError
     from ..io import read_mask
+    from ..metrics.roi import box_mask
 
     try:
-        return read_mask(path, frames=frames)
-    except InputFileError as exc:
+        box = _box(text)
+        return read_mask(Path(text), frames=frames) if box is None else box_mask(box, shape)
+    except (InputFileError, ParameterError) as exc:
         fail(f"{what}: {exc}")
         raise AssertionError from None  # unreachable
 
@@ -198,14 +211,15 @@ def metrics_command(
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="One JSON object on stdout.")] = False,
     roi: Annotated[
-        Path | None,
+        str | None,
         typer.Option(
-            help="Pixels to score, for every metric: .npz (key roi/mask/mask_gt), image "
-            "(>= 50 % = in) or a recording with masks."
+            help="Pixels to score, for every metric: a box R0:R1,C0:C1 (px, as in `fuse4d "
+            "report`), .npz (key roi/mask/mask_gt), image (>= 50 % = in) or a recording with "
+            "masks."
         ),
     ] = None,
     static_mask: Annotated[
-        Path | None,
+        str | None,
         typer.Option("--static-mask", help="Pixels known static, for the flicker (as --roi)."),
     ] = None,
     window: Annotated[int, typer.Option(help="Roughness window n (odd, px).")] = 5,
@@ -256,8 +270,10 @@ def metrics_command(
         base = gtruth if gtruth is not None else GroundTruth()
         gtruth = dataclasses.replace(base, depth=depth_gt)
     t, h, w = out_seq.depth.shape
-    region = None if roi is None else _read_region(roi, "--roi", frames)
-    static = None if static_mask is None else _read_region(static_mask, "--static-mask", frames)
+    region = None if roi is None else _read_region(roi, "--roi", frames, (h, w))
+    static = (
+        None if static_mask is None else _read_region(static_mask, "--static-mask", frames, (h, w))
+    )
     if static is not None and static.ndim == 3:
         static = static.all(axis=0)
     for name, mask in (("--roi", region), ("--static-mask", static)):
@@ -284,7 +300,12 @@ def metrics_command(
         **report.to_dict(),
     }
     if roi is not None:
-        result["roi"]["description"] = f"mask from {roi}"
+        box = _box(roi)
+        result["roi"]["description"] = (
+            f"mask from {roi}"
+            if box is None
+            else f"box rows {box[0]}:{box[1]}, columns {box[2]}:{box[3]}"
+        )
     result = _clean(result)
     if as_json:
         out_console.file.write(json.dumps(result) + "\n")

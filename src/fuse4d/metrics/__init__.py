@@ -22,8 +22,10 @@ from .accuracy import (
 from .evaluate import MetricsReport, RunningEvaluation, Scores, evaluate
 from .roi import (
     ball_roi,
+    box_mask,
     central_roi,
     default_roi,
+    parse_box,
     scene_roi,
     static_mask_from_ground_truth,
     static_pixels,
@@ -48,6 +50,7 @@ __all__ = [
     "SphereFit",
     "bad_pixel_fraction",
     "ball_roi",
+    "box_mask",
     "central_roi",
     "circle_fit_mlesac",
     "default_roi",
@@ -55,6 +58,7 @@ __all__ = [
     "evaluate",
     "flow_angular_error",
     "flow_endpoint_error",
+    "parse_box",
     "roughness",
     "roughness_maps",
     "roughness_rms",

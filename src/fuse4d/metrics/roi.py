@@ -10,19 +10,49 @@ from numpy.typing import ArrayLike, NDArray
 from .._kernels.roi import _default_roi_kernel
 from .._validation import as_float32
 from ..camera import Intrinsics
-from ..errors import ShapeError
+from ..errors import ParameterError, ShapeError
 from ..sequence import BallTruth, GroundTruth, PlaneTruth, Sequence, SheetTruth
 
 __all__ = [
     "ball_roi",
     "ball_truth",
+    "box_mask",
     "central_roi",
     "default_roi",
+    "parse_box",
     "scene_roi",
     "static_mask_from_ground_truth",
     "static_pixels",
     "step_limit",
 ]
+
+
+def parse_box(text: str) -> tuple[int, int, int, int]:
+    """Parse a pixel box ``"R0:R1,C0:C1"`` (rows R0..R1-1, columns C0..C1-1) into
+    ``(r0, r1, c0, c1)``: the ``--roi`` of ``fuse4d report`` and ``fuse4d metrics``."""
+    try:
+        rows, cols = text.split(",")
+        r0, r1 = (int(x) for x in rows.split(":"))
+        c0, c1 = (int(x) for x in cols.split(":"))
+    except ValueError:
+        raise ParameterError(
+            f"roi must look like R0:R1,C0:C1 (pixel rows, then columns), got {text!r}"
+        ) from None
+    return r0, r1, c0, c1
+
+
+def box_mask(box: tuple[int, int, int, int], shape: tuple[int, int]) -> NDArray[np.bool_]:
+    """The ``(H, W)`` mask of the pixel box ``(r0, r1, c0, c1)`` (:func:`parse_box`);
+    ParameterError where it is not a non-empty region of the image."""
+    r0, r1, c0, c1 = (int(v) for v in box)
+    h, w = shape
+    if not (0 <= r0 < r1 <= h and 0 <= c0 < c1 <= w):
+        raise ParameterError(
+            f"roi rows {r0}:{r1}, columns {c0}:{c1} is not a non-empty region of the {h}x{w} image"
+        )
+    mask = np.zeros(shape, dtype=bool)
+    mask[r0:r1, c0:c1] = True
+    return mask
 
 
 def _window_size(ndim: int, window: int) -> tuple[int, ...]:

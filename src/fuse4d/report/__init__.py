@@ -28,6 +28,8 @@ from numpy.typing import ArrayLike, NDArray
 from ..camera import depth_to_points
 from ..errors import ParameterError, ShapeError
 from ..holes import _SourceTally
+from ..metrics.roi import box_mask
+from ..metrics.roi import parse_box as parse_roi
 from ..sequence import Sequence
 from ._sources import RawSource, open_fused, open_raw
 from .planes import Plane, detect_planes, given_plane
@@ -60,31 +62,6 @@ DEFINITIONS = {
     "rmse": "RMSE to the ground truth on pixels valid in the truth and in every method",
     "bad_pixels": "fraction of ground-truth-valid pixels off by > 1 mm (missing depth = bad)",
 }
-
-
-def parse_roi(text: str) -> tuple[int, int, int, int]:
-    """Parse ``"R0:R1,C0:C1"`` (rows R0..R1-1, columns C0..C1-1) into ``(r0, r1, c0, c1)``."""
-    try:
-        rows, cols = text.split(",")
-        r0, r1 = (int(x) for x in rows.split(":"))
-        c0, c1 = (int(x) for x in cols.split(":"))
-    except ValueError:
-        raise ParameterError(
-            f"roi must look like R0:R1,C0:C1 (pixel rows, then columns), got {text!r}"
-        ) from None
-    return r0, r1, c0, c1
-
-
-def _roi_mask(roi: tuple[int, int, int, int], shape: tuple[int, int]) -> NDArray[np.bool_]:
-    r0, r1, c0, c1 = (int(v) for v in roi)
-    h, w = shape
-    if not (0 <= r0 < r1 <= h and 0 <= c0 < c1 <= w):
-        raise ParameterError(
-            f"roi rows {r0}:{r1}, columns {c0}:{c1} is not a non-empty region of the {h}x{w} image"
-        )
-    mask = np.zeros(shape, dtype=bool)
-    mask[r0:r1, c0:c1] = True
-    return mask
 
 
 def _check_compare(compare: Iterable[str]) -> list[str]:
@@ -475,7 +452,7 @@ def _write(
         raise ParameterError(f"row must be in [0, {h - 1}] for a {h}x{w} image, got {row}")
     if col is not None and not 0 <= int(col) < w:
         raise ParameterError(f"col must be in [0, {w - 1}] for a {h}x{w} image, got {col}")
-    roi_mask = None if roi_box is None else _roi_mask(roi_box, (h, w))
+    roi_mask = None if roi_box is None else box_mask(roi_box, (h, w))
     names = ["raw", "fused", *compare]
 
     # ---------------------------------------------------------------- pass 1: scan the input
