@@ -191,6 +191,32 @@ def test_ctrl_c_exits_130_and_leaves_only_complete_frames(recording, reference, 
     assert _contents(out) == _contents(reference)
 
 
+def test_resume_of_a_finished_run_does_nothing_and_of_another_refuses(
+    recording, reference, tmp_path, capsys
+):
+    """A rerun with --resume (a batch script after a crash) leaves a finished output of the
+    same run as it is and succeeds, as --engine dask does; another run's finished output, or
+    a folder that no run wrote, is refused."""
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(reference, out)
+    before = {p: p.stat().st_mtime_ns for p in out.rglob("*")}
+    args = ["run", str(recording), "-o", str(out), *RUN_ARGS, "--resume"]
+    assert main([*args, "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["already_complete"] is True
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == before  # untouched
+    assert not partial_path(out).exists()
+    assert main(["run", str(recording), "-o", str(out), "--window", "7", "--resume"]) == 2
+    assert "holds a finished run whose fusion differ" in capsys.readouterr().err
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == before
+    stranger = tmp_path / "stranger"
+    stranger.mkdir()
+    assert main(["run", str(recording), "-o", str(stranger), *RUN_ARGS, "--resume"]) == 2
+    assert "output exists" in capsys.readouterr().err
+
+
 def test_resume_refuses_other_options_and_force_starts_over(recording, reference, tmp_path):
     out = tmp_path / "out"
     args = ["run", str(recording), "-o", str(out), *RUN_ARGS]
@@ -201,7 +227,7 @@ def test_resume_refuses_other_options_and_force_starts_over(recording, reference
     assert partial_path(out).exists()
     assert main([*args, "--force"]) == 0
     assert _contents(out) == _contents(reference)
-    assert main([*args, "--resume"]) == 2  # complete output exists: nothing to resume
+    assert main([*args, "--resume"]) == 0  # the same run, finished: nothing to do
 
 
 def test_resume_without_unfinished_run_just_runs(recording, reference, tmp_path):

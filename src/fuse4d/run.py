@@ -91,6 +91,9 @@ class RunSummary:
         track (A26) / in space from one side of the depth edges (A27).
     seconds : float
         Wall time of the whole run (I/O included).
+    already_complete : bool
+        ``resume`` found the output finished by an earlier run of the same input, options and
+        versions: nothing was fused now (the quality figures are NaN).
     first_output_seconds : float
         Wall time from the start until the first fused frame was handed to the writer: the
         start-up (opening the input, loading the compiled kernels, engine buffers) and the
@@ -131,6 +134,7 @@ class RunSummary:
     hole_time_fraction: float = float("nan")
     hole_space_fraction: float = float("nan")
     seconds: float = 0.0
+    already_complete: bool = False
     first_output_seconds: float = float("nan")
     steady_ms_per_frame: float = float("nan")
     timings: dict[str, float] = field(default_factory=dict)
@@ -168,6 +172,7 @@ class RunSummary:
             "hole_time_fraction": self.hole_time_fraction,
             "hole_space_fraction": self.hole_space_fraction,
             "seconds": self.seconds,
+            "already_complete": self.already_complete,
             "ms_per_frame": self.ms_per_frame,
             "first_output_seconds": self.first_output_seconds,
             "steady_ms_per_frame": self.steady_ms_per_frame,
@@ -276,7 +281,9 @@ def fuse_file(
     resume : bool
         Folder output only: continue the unfinished run in ``output.partial`` (left by a
         killed or interrupted run; see :mod:`fuse4d.io.resume`). The result equals an
-        uninterrupted run bit for bit; the quality figures cover the frames fused now.
+        uninterrupted run bit for bit; the quality figures cover the frames fused now. Where
+        ``output`` holds this run finished already (same input, options and versions), nothing
+        is done (:attr:`RunSummary.already_complete`).
     frames : slice, range, (start, stop) or "A:B", optional
         Fuse only this contiguous part of the recording, as if it were the whole (the output
         has its frames, numbered from 0; ``fuse4d run --frames``). Default: all frames.
@@ -677,6 +684,9 @@ def _fuse_streaming(
                 overwrite=overwrite,
                 warn_coarse_unit=warn_coarse,
             )
+        if resumable and writer.already_complete:  # --resume of a finished run: nothing to do
+            summary.already_complete = True
+            return summary
         with writer:
             # Resume = restart the (deterministic) engine `past` frames before the checkpoint,
             # warm-started with the flow stored there; frames before it only fill the window.

@@ -275,6 +275,11 @@ def run_command(
             summary_every=summary_every,
             frames=frames,
         )
+    if summary.already_complete:
+        err_console.print(
+            f"{output}: already complete (an earlier run of the same input, options and "
+            "versions); nothing fused now (--force redoes it)"
+        )
     if report is not None:
         from .cmd_report import make_report
 
@@ -289,7 +294,8 @@ def run_command(
             output,
             report,
             params=params,
-            fusion_seconds=summary.seconds,
+            # (a finished run found by --resume: the report reads its time from the manifest)
+            fusion_seconds=None if summary.already_complete else summary.seconds,
             overwrite=force,
             reader_options=all_options,
         )
@@ -297,7 +303,8 @@ def run_command(
     if as_json:
         print(json.dumps(summary.to_dict(), indent=2))
         return
-    out_console.print(run_summary_table(summary, fusion))
+    if not summary.already_complete:
+        out_console.print(run_summary_table(summary, fusion))
 
 
 def _time_note(summary: Any) -> str:

@@ -239,10 +239,16 @@ class ResumableFolderWriter:
     overwrite : bool
         Replace an existing ``path`` and discard an existing unfinished run.
     resume : bool
-        Continue the unfinished run in ``path.partial`` (if there is none, start one).
+        Continue the unfinished run in ``path.partial`` (if there is none, start one). Where
+        ``path`` already holds the finished run of the same identity, nothing is to be done
+        (:attr:`already_complete`; don't open the writer), as a rerun of a batch script with
+        ``--resume`` expects (``--engine dask`` alike); a finished run of another identity is
+        a ParameterError naming what differs.
 
     Attributes
     ----------
+    already_complete : bool
+        ``resume`` found this run finished in ``path``.
     frames_done : int
         Frames complete on disk (the next :meth:`write` writes this frame).
     restart_frame : int
@@ -271,12 +277,15 @@ class ResumableFolderWriter:
         if not (math.isfinite(depth_unit_mm) and depth_unit_mm > 0):
             raise ParameterError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
         self.path = Path(path)
+        self.identity = _canonical(identity)
+        self.already_complete = False
         if self.path.exists() and not overwrite:
-            raise OutputExistsError(self.path)
+            if not (resume and self._finished_here()):
+                raise OutputExistsError(self.path)
+            self.already_complete = True
         check_output(self.path, overwrite=True)
         self.partial = partial_path(self.path)
         self.intrinsics = intrinsics
-        self.identity = _canonical(identity)
         self.depth_unit_mm = float(depth_unit_mm)
         self.fps = fps
         self.overwrite = overwrite
@@ -292,6 +301,25 @@ class ResumableFolderWriter:
         # wall time of the run: the parts of a resumed run before this one, and since open()
         self._seconds_before = 0.0
         self._opened_at: float | None = None
+
+    def _finished_here(self) -> bool:
+        """Whether ``path`` holds the finished run of this identity (False: no run's manifest
+        there, so not ours to judge); ParameterError for a finished run of another one."""
+        if not self.path.is_dir():
+            return False
+        data = _finished_run(self.path)
+        if not data:
+            return False
+        have = data.get("identity") or {}
+        if have != self.identity:
+            diff = sorted(
+                k for k in set(self.identity) | set(have) if self.identity.get(k) != have.get(k)
+            )
+            raise ParameterError(
+                f"{self.path}: holds a finished run whose {', '.join(diff)} differ from this "
+                "one's; use --force to replace it, or another output"
+            )
+        return True
 
     # ------------------------------------------------------------------ life cycle
     def __enter__(self) -> Self:
