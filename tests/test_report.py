@@ -89,6 +89,10 @@ def test_report_folder_holds_page_video_metrics_and_clouds(run_with_report):
     assert m["methods"] == ["raw", "fused"]
     assert m["params"]["num_frames"] == 5  # recorded by fuse4d run --report
     assert m["timing"]["fusion_ms_per_frame"] > 0
+    # the rate once running (fuse4d run's clock), apart from the start-up in the average
+    assert 0 < m["timing"]["fusion_steady_ms_per_frame"] < m["timing"]["fusion_ms_per_frame"]
+    assert "time per frame" in page
+    assert "once running" in page
     assert m["timing"]["report_ms_per_frame"] > 0
     assert 0.5 < m["fusion"]["support_fraction"] <= 1.0
     assert m["xt_slice"]["how"].startswith("auto")

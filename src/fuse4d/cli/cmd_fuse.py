@@ -296,6 +296,7 @@ def run_command(
             params=params,
             # (a finished run found by --resume: the report reads its time from the manifest)
             fusion_seconds=None if summary.already_complete else summary.seconds,
+            fusion_steady_ms=summary.steady_ms_per_frame,
             overwrite=force,
             reader_options=all_options,
         )
