@@ -44,11 +44,12 @@ def folder(tmp_path_factory) -> Path:
 
 
 @pytest.mark.parametrize("suffix", [".npz", "", ".zarr", ".mkv"])
-def test_a_part_converts_losslessly_to_every_layout(folder, tmp_path, suffix):
+def test_a_part_converts_losslessly_to_every_layout(folder, tmp_path, suffix, capsys):
     if suffix == ".mkv" and importlib.util.find_spec("av") is None:
         pytest.skip("PyAV not installed (the sensors extra)")
     out = tmp_path / f"part{suffix}"
     assert main(["convert", str(folder), str(out), "--frames", "2:6"]) == 0
+    assert "4 frames (frames 2:6 of" in capsys.readouterr().out.replace("\n", "")
     want = load_sequence(folder, frames="2:6")
     got = load_sequence(out)
     np.testing.assert_array_equal(got.depth, want.depth)  # 0.1 mm units kept: exact

@@ -242,7 +242,7 @@ def convert_command(
     E.g. a RealSense .bag into a frame folder to share, a part of a long recording into a
     small .npz, or any input into the .npz that --set iterations=2 needs.
     """
-    from ..io import convert_recording, open_frames
+    from ..io import convert_recording, open_frames, resolve_frames
 
     options = reader_options(
         depth_topic, intensity_topic, intensity, no_undistort,
@@ -261,9 +261,13 @@ def convert_command(
         )
     with open_frames(path) as written:
         n, (h, w), fmt = len(written), written.shape, written.format
-    part = "" if frames is None else f" (frames {frames} of {input_path})"
+    part = ""
+    if frames is not None:  # the frames written (a range past the end is cut, as in Python)
+        with open_frames(input_path, format=input_format, **options) as src:
+            sel = resolve_frames(frames, len(src))
+        part = f" (frames {sel.start}:{sel.stop} of {input_path})"
     out_console.print(
-        f"wrote {path}: {fmt}, {n} frames{part}, {h}x{w}",
+        f"wrote {path}: {fmt}, {n} frame{'' if n == 1 else 's'}{part}, {h}x{w}",
         highlight=False,
         markup=False,
         soft_wrap=True,
