@@ -200,3 +200,29 @@ def test_folder_writer_rejects_bad_unit_with_parameter_error(tmp_path, small_int
 
     with pytest.raises(ParameterError):
         FrameFolderWriter(tmp_path / "x", small_intrinsics, depth_unit_mm=float("nan"))
+
+
+def test_console_script_warnings_are_one_line(npz_path, tmp_path):
+    """Run as a command, a warning (here: the output's depth unit is coarse for the data)
+    prints as ``fuse4d: warning: ...``, not Python's file, line, category and source line."""
+    import os
+    import subprocess
+    import sys
+
+    src = Path(__file__).resolve().parents[1] / "src"
+    env = {**os.environ, "PYTHONPATH": str(src), "COLUMNS": "200"}
+    env.pop("FUSE4D_DEBUG", None)
+    out = tmp_path / "coarse"
+    args = ["convert", str(npz_path), str(out), "--out-depth-unit-mm", "5"]
+    res = subprocess.run(
+        [sys.executable, "-m", "fuse4d", *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        check=False,
+    )
+    assert res.returncode == 0, res.stderr
+    lines = [ln for ln in res.stderr.splitlines() if "coarse" in ln]
+    assert lines
+    assert all(ln.startswith("fuse4d: warning: ") for ln in lines), res.stderr
+    assert "UserWarning" not in res.stderr

@@ -10,7 +10,8 @@ Error contract (see :mod:`fuse4d.errors`):
 * Ctrl-C (or SIGTERM) exits with code 130 (outputs are complete or absent; see
   ``fuse4d run --resume``).
 
-``fuse4d --debug COMMAND`` (or ``FUSE4D_DEBUG=1``) shows the traceback instead.
+``fuse4d --debug COMMAND`` (or ``FUSE4D_DEBUG=1``) shows the traceback instead. Warnings
+(e.g. a coarse output depth unit) print as one ``fuse4d: warning: ...`` line each.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import os
 import signal
 import sys
 import threading
+import warnings
 from collections.abc import Sequence
 
 import typer
@@ -54,6 +56,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if argv is None and threading.current_thread() is threading.main_thread():
         # console script: `kill` (SIGTERM) stops as cleanly as Ctrl-C (complete outputs only)
         signal.signal(signal.SIGTERM, _terminate)
+        if not _debug():  # a warning reads as one line, not Python's file, line and source
+            warnings.showwarning = _show_warning
     try:
         result = command.main(args=args, prog_name="fuse4d", standalone_mode=False)
     except typer.Exit as exc:
@@ -95,6 +99,11 @@ EXIT_INTERRUPTED = 130
 
 def _terminate(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """``warnings.showwarning`` of the console script: ``fuse4d: warning: MESSAGE``."""
+    print(f"fuse4d: warning: {message}", file=sys.stderr if file is None else file)
 
 
 def _debug() -> bool:
