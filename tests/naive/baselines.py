@@ -153,3 +153,27 @@ def stmf_median(depth, intensity, ref, vectors, half_window, intensity_tol) -> n
             if cands:
                 out[r, c] = np.median(cands)
     return out
+
+
+def region_grow(depth, intensity, todo, threshold, rounds):
+    """Ad-BF's region growing as fuse4d wrote it in numpy before stop 51 (every pixel, every
+    round): the oracle of ``_kernels.baselines._region_grow_kernel``. In place on ``depth``
+    and ``todo``."""
+    h, w = depth.shape
+    offsets = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0)]
+    pad_i = np.pad(intensity, 1, mode="edge")
+    for _ in range(rounds):
+        pad_d = np.pad(depth, 1, constant_values=np.nan)
+        acc = np.zeros((h, w), np.float64)
+        cnt = np.zeros((h, w), np.int32)
+        for dr, dc in offsets:
+            nd = pad_d[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
+            ni = pad_i[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
+            ok = np.isfinite(nd) & (np.abs(ni - intensity) < threshold)
+            acc += np.where(ok, nd, 0.0)
+            cnt += ok
+        grow = todo & (cnt > 0)
+        if not grow.any():
+            break
+        depth[grow] = (acc[grow] / cnt[grow]).astype(np.float32)
+        todo &= ~grow

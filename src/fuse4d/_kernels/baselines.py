@@ -15,6 +15,7 @@ from ._numba import njit, njit_parallel, prange
 __all__ = [
     "_block_match_kernel",
     "_pca_view_angle_kernel",
+    "_region_grow_kernel",
     "_stmf_median_kernel",
     "_temporal_average_kernel",
 ]
@@ -370,3 +371,83 @@ def _temporal_average_kernel(depth, num_frames, coeff_t, coeff_r, out):  # pragm
                     acc += w * value
                     norm += w
                 out[t, row, col] = acc / norm
+
+
+#: the 8-neighbourhood in the order Ad-BF's region growing sums it (row-major)
+_NEIGHBOURS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
+
+
+@njit
+def _region_grow_kernel(depth, intensity, todo, threshold, max_rounds):  # pragma: no cover
+    """Ad-BF's region growing (:func:`fuse4d.baselines.bilateral.region_growing_repair`), in
+    place on ``depth`` (H, W) float32 mm and ``todo`` (H, W) bool: round after round, every
+    ``todo`` pixel with finite 8-neighbours whose intensity differs from its own by less than
+    ``threshold`` (float32, as numpy compares a float32 image with a Python float) takes
+    their mean (summed in float64 in :data:`_NEIGHBOURS` order), all of a round from the
+    previous round's depth, until a round grows nothing or ``max_rounds`` rounds ran. Returns
+    the rounds that grew something.
+
+    Only the pixels that can grow are visited: a pixel that did not grow in a round can grow
+    in the next only if a neighbour grew, so each round looks at the todo neighbours of the
+    last round's growth (all todo pixels in the first). The values are those of the numpy
+    loop that evaluated every pixel in every round (tested against it), at the cost of the
+    holes' area instead of the image's times the rounds (a 640 x 480 uva frame: 3 s).
+    """
+    h, w = depth.shape
+    n = h * w
+    cand = np.empty(n, np.int64)
+    nxt = np.empty(n, np.int64)
+    grown = np.empty(n, np.int64)
+    values = np.empty(n, np.float32)
+    queued = np.zeros(n, np.bool_)
+    m = 0
+    for v in range(h):
+        for u in range(w):
+            if todo[v, u]:
+                cand[m] = v * w + u
+                m += 1
+    rounds = 0
+    while m > 0 and rounds < max_rounds:
+        g = 0
+        for j in range(m):
+            v = cand[j] // w
+            u = cand[j] - v * w
+            own = intensity[v, u]
+            acc = 0.0
+            cnt = 0
+            for k in range(8):
+                vv = v + _NEIGHBOURS[k][0]
+                uu = u + _NEIGHBOURS[k][1]
+                if vv < 0 or vv >= h or uu < 0 or uu >= w:
+                    continue
+                nd = depth[vv, uu]
+                if np.isfinite(nd) and abs(intensity[vv, uu] - own) < threshold:
+                    acc += np.float64(nd)
+                    cnt += 1
+            if cnt > 0:
+                grown[g] = cand[j]
+                values[g] = np.float32(acc / cnt)
+                g += 1
+        if g == 0:
+            break
+        rounds += 1
+        for j in range(g):  # the round's values, all from the previous round's depth
+            v = grown[j] // w
+            u = grown[j] - v * w
+            depth[v, u] = values[j]
+            todo[v, u] = False
+        m = 0
+        for j in range(g):
+            v = grown[j] // w
+            u = grown[j] - v * w
+            for k in range(8):
+                vv = v + _NEIGHBOURS[k][0]
+                uu = u + _NEIGHBOURS[k][1]
+                if 0 <= vv < h and 0 <= uu < w and todo[vv, uu] and not queued[vv * w + uu]:
+                    queued[vv * w + uu] = True
+                    nxt[m] = vv * w + uu
+                    m += 1
+        for j in range(m):
+            queued[nxt[j]] = False
+        cand, nxt = nxt, cand
+    return rounds

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._kernels.baselines import _pca_view_angle_kernel
+from .._kernels.baselines import _pca_view_angle_kernel, _region_grow_kernel
 from .._kernels.joint_bilateral import _joint_bilateral_kernel
 from .._params import check_bool, check_int, check_number
 from ..camera import Intrinsics, depth_to_points
@@ -252,23 +252,13 @@ def region_growing_repair(
         return d
     h, w = d.shape
     rounds = max_rounds if max_rounds is not None else h + w
-    offsets = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0)]
-    pad_i = np.pad(intensity, 1, mode="edge")
-    for _ in range(rounds):
-        pad_d = np.pad(d, 1, constant_values=np.nan)
-        acc = np.zeros((h, w), np.float64)
-        cnt = np.zeros((h, w), np.int32)
-        for dr, dc in offsets:
-            nd = pad_d[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
-            ni = pad_i[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
-            ok = np.isfinite(nd) & (np.abs(ni - intensity) < intensity_threshold)
-            acc += np.where(ok, nd, 0.0)
-            cnt += ok
-        grow = todo & (cnt > 0)
-        if not grow.any():
-            break
-        d[grow] = (acc[grow] / cnt[grow]).astype(np.float32)
-        todo &= ~grow
+    _region_grow_kernel(
+        d,
+        np.ascontiguousarray(intensity, dtype=np.float32),
+        todo,
+        np.float32(intensity_threshold),
+        np.int64(rounds),
+    )
     return d
 
 
