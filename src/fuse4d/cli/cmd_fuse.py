@@ -310,8 +310,8 @@ def run_command(
 
 def _time_note(summary: Any) -> str:
     """The summary's time row: the steady rate apart from the start-up, which dominates the
-    average of a short clip (a run without the per-frame clock, e.g. on dask: the average)."""
-    steady = getattr(summary, "steady_ms_per_frame", math.nan)
+    average of a short clip (too few frames for a steady rate: the average alone)."""
+    steady = summary.steady_ms_per_frame
     if not math.isfinite(steady):
         return f"{summary.ms_per_frame:.0f} ms/frame, start-up and I/O included"
     return (

@@ -140,6 +140,11 @@ def _canonical(value: Any) -> Any:
     return json.loads(json.dumps(value, sort_keys=True, default=str))
 
 
+def _identity_diff(want: dict[str, Any], have: dict[str, Any]) -> list[str]:
+    """The keys (sorted) in which two run identities (:func:`run_identity`) differ."""
+    return sorted(k for k in set(want) | set(have) if want.get(k) != have.get(k))
+
+
 def _read_manifest(folder: Path) -> dict[str, Any] | None:
     path = folder / MANIFEST_NAME
     try:
@@ -310,11 +315,8 @@ class ResumableFolderWriter:
         data = _finished_run(self.path)
         if not data:
             return False
-        have = data.get("identity") or {}
-        if have != self.identity:
-            diff = sorted(
-                k for k in set(self.identity) | set(have) if self.identity.get(k) != have.get(k)
-            )
+        diff = _identity_diff(self.identity, data.get("identity") or {})
+        if diff:
             raise ParameterError(
                 f"{self.path}: holds a finished run whose {', '.join(diff)} differ from this "
                 "one's; use --force to replace it, or another output"
@@ -367,12 +369,8 @@ class ResumableFolderWriter:
                 self.partial,
                 f"no {MANIFEST_NAME}: not an unfinished fuse4d run; remove it or use --force",
             )
-        if data.get("identity") != self.identity:
-            diff = sorted(
-                k
-                for k in set(self.identity) | set(data.get("identity", {}))
-                if self.identity.get(k) != data.get("identity", {}).get(k)
-            )
+        diff = _identity_diff(self.identity, data.get("identity") or {})
+        if diff:
             raise ParameterError(
                 f"{self.partial}: cannot resume: the {', '.join(diff)} differ from the "
                 "unfinished run's; rerun with the same input and options, or use --force "
