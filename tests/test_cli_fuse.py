@@ -311,8 +311,13 @@ def test_run_output_clock_separates_start_up_from_the_steady_rate():
 
 
 def test_run_summary_reports_the_rate_once_running_apart_from_start_up(tmp_path, capsys):
-    """A short clip's average carries the start-up; the summary names both, and the JSON
-    has them; a run without the clock (dask) says its average includes the start-up."""
+    """The summary names the first-output time and the rate once running, and the JSON has
+    them; a run without the clock (dask) says its average includes the start-up.
+
+    Which of the steady rate and the average is larger depends on the process's warmth and
+    the machine's load (an earlier test may have loaded the kernels), so only what holds on
+    any machine is asserted: the 4 steady intervals (6 frames, 1 flushed) lie after the
+    first output and inside the run. The clock's arithmetic is tested on injected times."""
     from fuse4d.cli.cmd_fuse import _time_note
     from fuse4d.run import fuse_file
 
@@ -323,15 +328,16 @@ def test_run_summary_reports_the_rate_once_running_apart_from_start_up(tmp_path,
     )
     assert len(done) == 6
     assert 0 < s.first_output_seconds < s.seconds
-    assert 0 < s.steady_ms_per_frame < s.ms_per_frame  # the average carries the start-up
+    assert 0 < 4 * s.steady_ms_per_frame <= 1000 * (s.seconds - s.first_output_seconds)
     assert "once running" in _time_note(s)
     s.steady_ms_per_frame = math.nan
     assert _time_note(s) == f"{s.ms_per_frame:.0f} ms/frame, start-up and I/O included"
     out = tmp_path / "b"
     assert main(["run", str(src), "-o", str(out), "--window", "3", "--no-summary", "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
-    assert 0 < summary["steady_ms_per_frame"] < summary["ms_per_frame"]
     assert 0 < summary["first_output_seconds"] < summary["seconds"]
+    inside = 1000 * (summary["seconds"] - summary["first_output_seconds"])
+    assert 0 < 4 * summary["steady_ms_per_frame"] <= inside
 
 
 def test_run_summary_counts_equal_the_numpy_tallies():

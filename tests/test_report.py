@@ -89,8 +89,13 @@ def test_report_folder_holds_page_video_metrics_and_clouds(run_with_report):
     assert m["methods"] == ["raw", "fused"]
     assert m["params"]["num_frames"] == 5  # recorded by fuse4d run --report
     assert m["timing"]["fusion_ms_per_frame"] > 0
-    # the rate once running (fuse4d run's clock), apart from the start-up in the average
-    assert 0 < m["timing"]["fusion_steady_ms_per_frame"] < m["timing"]["fusion_ms_per_frame"]
+    # the rate once running (fuse4d run's clock), apart from the start-up in the average: its
+    # FRAMES - 3 intervals (window 5 flushes 2 frames) lie inside the run (which of the two
+    # rates is larger depends on the process's warmth and the machine's load)
+    steady, average = (
+        m["timing"][k] for k in ("fusion_steady_ms_per_frame", "fusion_ms_per_frame")
+    )
+    assert 0 < (FRAMES - 3) * steady <= FRAMES * average
     assert "time per frame" in page
     assert "once running" in page
     assert m["timing"]["report_ms_per_frame"] > 0
