@@ -109,8 +109,12 @@ def test_e1_quick_subset_writes_every_output(tmp_path):
     assert {r["label"] for r in rows} >= {"Raw", "Ours (9 frames)", "Ad-JBF", "ST-MF"}
     stats = group_stats(rows, ("method", "sigma_d"), "roughness")
     assert stats[("ours", 0.4)].mean < stats[("raw", 0.4)].mean
+    unit_files = {p: p.stat().st_mtime_ns for p in (d / "rows").glob("*.csv")}
     again = run_experiment("E1", tmp_path, profile=prof)
-    assert again["seconds_this_call"] < 1.0  # nothing recomputed
+    assert again["rows"] == res["rows"]
+    # nothing recomputed: no unit's rows were written again
+    assert len(unit_files) == 9 * 2  # methods x levels
+    assert all(p.stat().st_mtime_ns == t for p, t in unit_files.items())
 
 
 def test_real_crop_keeps_the_geometry():
@@ -139,6 +143,36 @@ def test_cli_lists_experiments_and_rejects_bad_name(tmp_path, capsys):
     assert main(["experiments", "E9", "--out", str(tmp_path)]) == 2
     assert "unknown experiment" in capsys.readouterr().err
     assert set(EXPERIMENTS) == {"E1", "E2", "E3", "E4", "E5", "E6", "real"}
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["E1", "--profile", "huge"], "--profile 'huge': choose one of"),
+        (["E1", "--quick", "--profile", "reduced"], "pass one"),
+        (["E1", "--quick", "--report", "R.md"], "pass --publish DIR too"),
+        (["E1", "--quick", "--log", "."], "--log .: cannot be written"),
+        (["E1", "--quick", "--publish", "afile"], "--publish afile: exists and is not a folder"),
+        (["E1", "--quick", "--publish", "afile/sub"], "--publish afile/sub: cannot be created"),
+        (["verdicts", "--report", "nodir/R.md"], "not a Markdown file in an existing folder"),
+    ],
+)
+def test_cli_bad_options_fail_before_any_compute(tmp_path, monkeypatch, capsys, args, says):
+    """Every option that would fail after the run (a wrong profile, an unwritable --publish
+    or --log, a --report nothing would write) is one clear line before any unit runs."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "afile").write_text("")
+    assert main(["experiments", *args, "--out", "run"]) == 2
+    assert says in capsys.readouterr().err
+    assert not (tmp_path / "run" / "E1").exists()  # nothing computed
+
+
+def test_cli_verdicts_need_a_run_folder_with_results(tmp_path, capsys):
+    """A mistyped --out is an error, not a table of twelve N/A."""
+    assert main(["experiments", "verdicts", "--out", str(tmp_path / "nope")]) == 2
+    assert "no such run folder" in capsys.readouterr().err
+    assert main(["experiments", "verdicts", "--out", str(tmp_path)]) == 2
+    assert "holds no experiment results" in capsys.readouterr().err
 
 
 @pytest.mark.skipif(not (COMMITTED / "E1" / "E1.csv").exists(), reason="no committed run")

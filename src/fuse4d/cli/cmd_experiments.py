@@ -40,7 +40,7 @@ def experiments_command(
         typer.Option(
             "--report",
             help="With verdicts: rewrite the generated block of this Markdown file "
-            "(e.g. REPRODUCTION.md).",
+            "(e.g. REPRODUCTION.md; created or appended to where it has none).",
         ),
     ] = None,
     publish_to: Annotated[
@@ -62,14 +62,28 @@ def experiments_command(
 
     if name not in _NAMES:
         fail(f"unknown experiment {name!r}; choose one of {', '.join(_NAMES)}")
+    if report is not None and (report.is_dir() or not report.parent.is_dir()):
+        fail(f"--report {report}: not a Markdown file in an existing folder")
     if name == "verdicts":
+        if not out.is_dir():
+            fail(f"--out {out}: no such run folder")
+        if not any((out / n / f"{n}.csv").is_file() for n in EXPERIMENTS):
+            fail(
+                f"--out {out} holds no experiment results ({', '.join(EXPERIMENTS)}); "
+                f"run `fuse4d experiments all -o {out}` first"
+            )
         verdicts = compute_verdicts(out)
         print(verdict_table(verdicts), end="")
         if report is not None:
             update_report(report, out)
             eprint(f"updated {report}")
         return
-    prof = "quick" if quick else profile
+    prof = _profile_name(quick, profile)
+    if report is not None and publish_to is None:
+        fail("--report judges published results: pass --publish DIR too, or use `verdicts`")
+    _prepare(out, "--out")
+    _prepare(publish_to, "--publish")
+    _prepare(log_file, "--log", folder=False)
 
     def log(line: str) -> None:
         if log_file is not None:
@@ -98,3 +112,33 @@ def experiments_command(
         if report is not None:
             update_report(report, publish_to)
             eprint(f"updated {report}")
+
+
+def _profile_name(quick: bool, profile: str) -> str:
+    """The run-size profile that ``--quick`` / ``--profile`` ask for (a clear error on a
+    name that does not exist or on the two disagreeing)."""
+    from ..experiments.paper import PROFILES
+
+    if profile not in PROFILES:
+        fail(f"--profile {profile!r}: choose one of {', '.join(PROFILES)}")
+    if quick and profile not in ("paper", "quick"):  # paper is --profile's default
+        fail(f"--quick asks for the quick profile, --profile for {profile!r}: pass one")
+    return "quick" if quick else profile
+
+
+def _prepare(path: Path | None, what: str, *, folder: bool = True) -> None:
+    """Create the folder (or append-open the file) ``path`` now, so that a path that cannot
+    be written fails before hours of compute, not after."""
+    if path is None:
+        return
+    if folder and path.exists() and not path.is_dir():
+        fail(f"{what} {path}: exists and is not a folder")
+    try:
+        if folder:
+            path.mkdir(parents=True, exist_ok=True)
+        else:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with path.open("a"):
+                pass
+    except OSError as exc:
+        fail(f"{what} {path}: cannot be {'created' if folder else 'written'} ({exc.strerror})")
