@@ -78,6 +78,18 @@ def test_help_lists_every_command():
     assert not missing, missing
 
 
+def test_help_paragraphs_flow_to_the_terminal_width():
+    """A docstring's line breaks do not reach ``--help`` (typer keeps them, and at 80
+    columns every source line would end in a ragged break); paragraphs stay apart."""
+    out = _python("-m", "fuse4d", "bench", "--help").stdout
+    assert (
+        "With --causal: the causal engine (each frame fused with the --window - 1 previous" in out
+    )
+    assert "as `fuse4d run --causal`" not in out.split("With --causal")[1].splitlines()[1]
+    listing = _python("-m", "fuse4d", "--help").stdout
+    assert "into OUT/<name>/: tidy CSV, Markdown summary" in listing
+
+
 def test_registered_commands_are_the_listed_ones():
     from fuse4d.cli import app
 

@@ -654,3 +654,10 @@ def test_to_uint8_kernel_gives_the_numpy_expressions_bytes():
         expected = np.empty(a.shape, np.uint8)
         np.clip(a * np.float32(255) + np.float32(0.5), 0, 255, out=expected, casting="unsafe")
         np.testing.assert_array_equal(to_uint8(a), expected)
+
+
+def test_cli_flow_one_pixel_high_image_names_the_file(tmp_path, capsys):
+    line = tmp_path / "line.png"
+    cv2.imwrite(str(line), np.full((1, 50), 100, np.uint8))
+    assert main(["flow", str(line), str(line), "-o", str(tmp_path / "f.flo")]) == 2
+    assert f"{line}: 50x1 px; flow needs at least 2 px" in capsys.readouterr().err

@@ -16,6 +16,7 @@ Error contract (see :mod:`fuse4d.errors`):
 
 from __future__ import annotations
 
+import inspect
 import os
 import signal
 import sys
@@ -51,6 +52,8 @@ _ClickException = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "C
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI; returns the exit code (also used as the console-script entry point)."""
     command = typer.main.get_command(app)
+    for sub in getattr(command, "commands", {}).values():
+        sub.help = _reflow(sub.help)
     args = list(sys.argv[1:] if argv is None else argv)
     STATE.debug = False
     if argv is None and threading.current_thread() is threading.main_thread():
@@ -104,6 +107,16 @@ def _terminate(signum: int, frame: object) -> None:
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """``warnings.showwarning`` of the console script: ``fuse4d: warning: MESSAGE``."""
     print(f"fuse4d: warning: {message}", file=sys.stderr if file is None else file)
+
+
+def _reflow(text: str | None) -> str | None:
+    """A docstring's paragraphs each on one line, so that ``--help`` wraps them to the
+    terminal's width (typer >= 0.2x keeps a docstring's single line breaks, and at 80
+    columns every source line then ends in a ragged break)."""
+    if not text:
+        return text
+    paragraphs = inspect.cleandoc(text).split("\n\n")
+    return "\n\n".join(" ".join(line.strip() for line in p.splitlines()) for p in paragraphs)
 
 
 def _debug() -> bool:

@@ -236,7 +236,7 @@ def metrics_command(
     """Roughness (Eq. 7), RMS residual, flicker, and (with GT) RMSE, bad pixels, shape (Eq. 8).
 
     With two inputs RAW FUSED, both are scored on the same pixels (ROI and static pixels of
-    RAW). The policy (ROI, static pixels, same pixels) is :func:`fuse4d.metrics.evaluate`'s.
+    RAW). The policy (ROI, static pixels, same pixels) is that of fuse4d.metrics.evaluate.
     """
     from ..io import count_frames, load_sequence, resolve_frames
     from ..metrics import evaluate

@@ -80,6 +80,8 @@ def flow_command(
             f"{image1}: size {b.shape[1]}x{b.shape[0]} differs from {image0} "
             f"({a.shape[1]}x{a.shape[0]})"
         )
+    if min(a.shape) < 2:
+        fail(f"{image0}: {a.shape[1]}x{a.shape[0]} px; flow needs at least 2 px on each side")
     flow = estimate_flow(a, b, method=m, params=params)
     write_flo(flow, output, overwrite=force)
     if vis is not None:

@@ -199,8 +199,9 @@ def run_command(
     """Fuse a recording (paper Eq. 2-6) and write the same kind of file or folder.
 
     Camera recordings (.bag/.db3/.mcap/.mkv) are read directly; the output is a frame folder,
-    an FFV1 .mkv or a .zarr store, chosen by the output's suffix. ``--engine dask``: chunked
+    an FFV1 .mkv or a .zarr store, chosen by the output's suffix. --engine dask: chunked
     fusion on a dask cluster to zarr v3, many recordings at once (docs/scaling.md).
+
     A folder output is built in OUTPUT.partial (complete frames + a manifest); if the run is
     killed or interrupted (Ctrl-C), the same command with --resume continues it.
     """
@@ -461,8 +462,10 @@ def bench_command(
 
     With --input REC: a real recording end to end through the streaming path of `fuse4d run`
     (read, write and summary are stages; reading and writing overlap the fusion).
+
     With --causal: the causal engine (each frame fused with the --window - 1 previous ones,
     as `fuse4d run --causal` and `fuse4d live`), stage by stage alike.
+
     With --quality: RMSE/roughness/bad pixels/shape of raw, the depth self-guided filter, a
     9-frame mean and fuse4d against ground truth on the 50-frame 600x600 ball.
     """

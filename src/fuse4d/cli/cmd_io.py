@@ -86,7 +86,7 @@ def info_command(
     For camera recordings also the streams/topics (messages, rate, size, encoding) and which
     of them are used as depth and intensity. The valid fraction and depth range are computed
     on at most 10 evenly spaced frames (first and last included; the output says how many),
-    or on all of them with ``--all-frames``.
+    or on all of them with --all-frames.
     """
     import numpy as np
 

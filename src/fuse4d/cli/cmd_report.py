@@ -82,7 +82,7 @@ def report_command(
 ) -> None:
     """Write DIR/report.html (self-contained), DIR/compare.mp4 and DIR/metrics.json.
 
-    A frame folder written by ``fuse4d run`` records how the run read INPUT (streams, camera,
+    A frame folder written by `fuse4d run` records how the run read INPUT (streams, camera,
     frame range); the report reads it the same way.
     """
     from ..io.resume import run_reader_options
