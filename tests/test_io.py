@@ -530,6 +530,21 @@ def test_check_output_refuses_input(tmp_path):
         check_output(tmp_path / "missing" / "x.npz")
 
 
+def test_an_output_named_like_a_foreign_file_is_refused_not_made_a_folder(tmp_path, small_sequence):
+    """``-o out.mp4`` used to give a frame folder called out.mp4; a folder name with a dot
+    that is no file format stays a folder."""
+    from fuse4d.errors import ParameterError
+    from fuse4d.io import save_sequence
+    from fuse4d.io.api import output_layout
+
+    for name in ("out.mp4", "OUT.AVI", "depth.png", "cloud.ply", "rec.bag"):
+        with pytest.raises(ParameterError, match=r"fuse4d does not write \.\w+ files"):
+            save_sequence(small_sequence, tmp_path / name)
+    assert not list(tmp_path.iterdir())
+    assert output_layout(tmp_path / "run_v1.2") == "folder"
+    assert output_layout(tmp_path / "a.MKV") == "mkv"
+
+
 def test_failed_write_keeps_old_file_and_leaves_no_temp(tmp_path, small_sequence, monkeypatch):
     out = write_npz(small_sequence, tmp_path / "s.npz")
     before = out.read_bytes()

@@ -281,6 +281,29 @@ def test_cli_live_without_camera_fails_cleanly(capsys, monkeypatch):
     assert "no RealSense camera" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--fps", "nan"], "--fps must be a number > 0, got nan"),
+        (["--frames", "0"], "--frames must be >= 1, got 0"),
+        (["--duration", "0"], "--duration must be a number of seconds > 0"),
+        (["--simulate-delay-ms", "-5"], "--simulate-delay-ms must be >= 0"),
+        (["--width", "320", "--serial", "1"], "--width, --serial: for a camera; "),
+        (["--set", "iterations=2"], "live fusion fuses each frame once"),
+        (["-o", "out.mp4"], "out.mp4: fuse4d does not write .mp4 files"),
+    ],
+)
+def test_cli_live_bad_options_are_one_line_and_write_nothing(
+    ball, tmp_path, monkeypatch, capsys, args, says
+):
+    """Each was an internal error, a silently ignored option or a run of 1 frame (--frames
+    0), or an output folder named out.mp4."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["live", str(ball[0]), *args]) == 2
+    assert says in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
 class _FakeRealSense:
     """The parts of the pyrealsense2 API that RealSenseSource uses, replaying the ball."""
 

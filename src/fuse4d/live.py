@@ -45,6 +45,7 @@ from numpy.typing import NDArray
 from ._background import LOWER_AFTER_FRAMES
 from .camera import Intrinsics
 from .config import FlowConfig, FusionParams
+from .errors import ParameterError
 from .flying_pixels import resolve_flying_pixels
 from .fusion import FusedFrame, FusionEngine
 
@@ -540,11 +541,17 @@ def run_live(
         Achieved rate, drops, gaps, restarts and capture-to-output latency.
     """
     if on_gap not in ("restart", "track"):
-        raise ValueError(f"on_gap must be 'restart' or 'track', got {on_gap!r}")
+        raise ParameterError(f"on_gap must be 'restart' or 'track', got {on_gap!r}")
+    if max_frames is not None and max_frames < 1:
+        raise ParameterError(f"max_frames must be >= 1, got {max_frames}")
+    if duration_s is not None and not (math.isfinite(duration_s) and duration_s > 0):
+        raise ParameterError(f"duration_s must be > 0 s, got {duration_s}")
     params = (fusion or FusionParams()).replace(causal=True)
     params = resolve_flying_pixels(params, getattr(source, "sensor", None))  # A36
     if params.iterations != 1:
-        raise ValueError("live fusion supports iterations=1 only")
+        raise ParameterError(
+            f"live fusion fuses each frame once (iterations=1), got iterations={params.iterations}"
+        )
     queue = DropOldestQueue(queue_size, block=block)
     stop = stop or threading.Event()
     stats = LiveStats()
@@ -753,7 +760,8 @@ class LiveWriter:
         behind: int = 2,
         warn_coarse_unit: bool = True,
     ) -> None:
-        from .io import DepthVideoWriter, FrameFolderWriter, ZarrWriter, check_output
+        from .io import check_output
+        from .io.api import output_layout, stream_writer
 
         self.behind = int(behind)
         self._sink: Any = None
@@ -764,14 +772,13 @@ class LiveWriter:
         self.intrinsics = intrinsics
         self.fps = fps
         self.overwrite = overwrite
-        suffix = self.path.suffix.lower()
         self._frames: list[tuple[np.ndarray, np.ndarray, float | None]] | None = None
         self._writer: Any = None
-        if suffix == ".npz":
+        if output_layout(self.path) == "npz":
             check_output(self.path, overwrite=overwrite)
             self._frames = []
         else:
-            cls = {".mkv": DepthVideoWriter, ".zarr": ZarrWriter}.get(suffix, FrameFolderWriter)
+            cls, _ = stream_writer(self.path)
             self._writer = cls(
                 self.path,
                 intrinsics,

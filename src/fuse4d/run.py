@@ -30,7 +30,7 @@ from .holes import _SourceTally
 from .io import check_output, detect_format, open_frames, read_npz_extra
 from .io import write_npz as _write_npz
 from .io._base import FrameSelection
-from .io.api import stream_writer
+from .io.api import output_layout, stream_writer
 from .io.resume import ResumableFolderWriter, partial_path, run_identity
 from .metrics import RunningEvaluation
 
@@ -298,6 +298,7 @@ def fuse_file(
     fmt = detect_format(src)
     check_output(dst, overwrite=overwrite or resume, inputs=[src])
     check_output(partial_path(dst), overwrite=True, inputs=[src])
+    output_layout(dst)  # refuses a file suffix fuse4d does not write (out.mp4)
     if fmt == "npz" and dst.suffix.lower() != ".npz":
         raise ParameterError(f"{dst}: npz input is written as .npz; give an output ending in .npz")
     if fmt != "npz" and dst.suffix.lower() == ".npz":

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import threading
 from pathlib import Path
 from typing import Annotated, Any
@@ -94,8 +95,12 @@ def live_command(
     duration: Annotated[
         float | None, typer.Option("--duration", help="Stop after this many seconds.")
     ] = None,
-    width: Annotated[int, typer.Option("--width", help="Camera: stream width (px).")] = 640,
-    height: Annotated[int, typer.Option("--height", help="Camera: stream height (px).")] = 480,
+    width: Annotated[
+        int | None, typer.Option("--width", help="Camera: stream width (px). [default: 640]")
+    ] = None,
+    height: Annotated[
+        int | None, typer.Option("--height", help="Camera: stream height (px). [default: 480]")
+    ] = None,
     serial: Annotated[
         str | None, typer.Option("--serial", help="Camera: serial number of the device.")
     ] = None,
@@ -143,15 +148,30 @@ def live_command(
         fail(f"--on-gap must be restart or track, got {on_gap!r}")
     if queue_size < 1:
         fail(f"--queue must be >= 1, got {queue_size}")
-    if fps is not None and fps <= 0:
-        fail(f"--fps must be > 0, got {fps}")
+    if fps is not None and not (math.isfinite(fps) and fps > 0):
+        fail(f"--fps must be a number > 0, got {fps}")
+    if max_frames is not None and max_frames < 1:
+        fail(f"--frames must be >= 1, got {max_frames}")
+    if duration is not None and not (math.isfinite(duration) and duration > 0):
+        fail(f"--duration must be a number of seconds > 0, got {duration}")
+    if not (math.isfinite(delay_ms) and delay_ms >= 0):
+        fail(f"--simulate-delay-ms must be >= 0, got {delay_ms}")
+    camera_only = {"--width": width, "--height": height, "--serial": serial}
+    if input_path is not None and any(v is not None for v in camera_only.values()):
+        given = ", ".join(k for k, v in camera_only.items() if v is not None)
+        fail(f"{given}: for a camera; {input_path} is a recording, played at its own size")
+    for name, value in (("--width", width), ("--height", height)):
+        if value is not None and value < 1:
+            fail(f"{name} must be >= 1 px, got {value}")
     if not 1 <= decimate <= MAX_DECIMATION:
         fail(f"--decimate must be 1..{MAX_DECIMATION}, got {decimate}")
     fusion, flow = _resolve(preset_name, config, window, True, sets, flow_method, flow_params)
     if input_path is None:
         if not realsense_available():
             fail("no RealSense camera attached; give a recording to play back")
-        source: Any = RealSenseSource(width=width, height=height, fps=int(fps or 30), serial=serial)
+        source: Any = RealSenseSource(
+            width=width or 640, height=height or 480, fps=int(fps or 30), serial=serial
+        )
         realtime = True
     else:
         options = reader_options(

@@ -282,8 +282,11 @@ def save_sequence(
     seq : Sequence
         The sequence.
     path : str or PathLike
-        Output; ``format`` follows the suffix (``.npz``, ``.mkv``, ``.zarr``), else ``folder``.
+        Output; ``format`` follows the suffix (``.npz``, ``.mkv``, ``.zarr``), else ``folder``
+        (a suffix of another file format, e.g. ``.mp4``, is a
+        :class:`~fuse4d.ParameterError`; see :func:`output_layout`).
     format : {"npz", "folder", "mkv", "zarr"}, optional
+        Override the suffix's layout.
     overwrite : bool, optional
         Replace an existing output. Default False (:class:`~fuse4d.OutputExistsError`).
     depth_unit_mm : float, optional
@@ -311,10 +314,56 @@ def save_sequence(
     raise ParameterError(f"format must be one of {', '.join(WRITE_FORMATS)}, got {fmt!r}")
 
 
+#: Suffixes of files that fuse4d reads or that other tools write, never a fuse4d output: a
+#: path ending in one is refused rather than silently made a frame folder of that name.
+FILE_SUFFIXES = frozenset(
+    [
+        ".mp4",
+        ".avi",
+        ".mov",
+        ".webm",
+        ".m4v",
+        ".gif",
+        ".png",
+        ".jpg",
+        ".jpeg",
+        ".tif",
+        ".tiff",
+        ".exr",
+        ".ply",
+        ".pcd",
+        ".bag",
+        ".db3",
+        ".mcap",
+        ".h5",
+        ".hdf5",
+        ".npy",
+        ".flo",
+        ".json",
+        ".csv",
+        ".txt",
+        ".html",
+    ]
+)
+
+
 def output_layout(path: str | PathLike[str]) -> str:
     """The layout (one of :data:`WRITE_FORMATS`) an output ``path`` is written in, by its
-    suffix: ``.npz``, ``.mkv`` (FFV1 depth video), ``.zarr``, else a frame folder."""
+    suffix: ``.npz``, ``.mkv`` (FFV1 depth video), ``.zarr``, else a frame folder.
+
+    Raises
+    ------
+    ParameterError
+        A suffix of :data:`FILE_SUFFIXES` (e.g. ``out.mp4``): a user who names a file of a
+        format fuse4d does not write would otherwise get a folder called ``out.mp4``.
+    """
     suffix = Path(path).suffix.lower()
+    if suffix in FILE_SUFFIXES:
+        raise ParameterError(
+            f"{path}: fuse4d does not write {suffix} files; give a frame folder (a name without "
+            "a suffix), an .mkv (FFV1 depth video), a .zarr or an .npz (fuse4d report writes a "
+            "viewable compare.mp4)"
+        )
     return {".npz": "npz", ".mkv": "mkv", ".zarr": "zarr"}.get(suffix, "folder")
 
 

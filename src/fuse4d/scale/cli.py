@@ -72,7 +72,9 @@ def output_paths(inputs: list[Path], output: Path) -> list[Path]:
         If several inputs target one ``.zarr`` path, or two inputs share a stem (a
         ValueError).
     """
-    if output.suffix.lower() == ".zarr":
+    from ..io.api import output_layout
+
+    if output_layout(output) == "zarr":
         if len(inputs) != 1:
             raise ParameterError(
                 f"{len(inputs)} inputs need an output folder, not the single store {output}"
