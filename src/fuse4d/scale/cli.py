@@ -17,7 +17,7 @@ from typing import Any
 from ..config import FlowConfig, FusionParams
 from ..errors import ParameterError
 from ..flying_pixels import resolve_flying_pixels
-from .cluster import open_compute
+from .cluster import SCHEDULER_ADDRESS_SCHEMES, check_scheduler, open_compute
 from .graph import even_chunk_frames, fuse, release_engines
 from .inputs import open_lazy
 from .streamed import recording_tasks, source_of
@@ -97,7 +97,7 @@ def _worker_pool(scheduler: str, workers: int | None) -> tuple[int, int]:
     threads for ``threads``/``sync``, that many single-threaded processes for ``processes``,
     the cluster's workers and their threads for a scheduler address (flow look-ahead and the
     halo states' hand-over of :func:`~fuse4d.scale.streamed.recording_tasks`)."""
-    if scheduler.startswith(("tcp://", "tls://", "ucx://", "inproc://")):
+    if scheduler.startswith(SCHEDULER_ADDRESS_SCHEMES):
         from distributed import Client
 
         with Client(scheduler) as client:
@@ -176,6 +176,7 @@ def run_dask(
     list of DaskRunSummary
     """
     start = time.perf_counter()
+    check_scheduler(scheduler, workers)  # before any output is created
     targets = output_paths(inputs, output)
     flow_meta = {
         "method": flow.method,

@@ -187,6 +187,31 @@ def _compute_with(client: Any, show: bool) -> Callable[..., tuple[Any, ...]]:
     return compute
 
 
+#: Address schemes of a running dask scheduler (``distributed``).
+SCHEDULER_ADDRESS_SCHEMES = ("tcp://", "tls://", "ucx://", "inproc://")
+
+
+def check_scheduler(scheduler: str, workers: int | None = None) -> None:
+    """Refuse a scheduler name or worker count that :func:`open_compute` cannot use, before a
+    caller writes anything.
+
+    Raises
+    ------
+    ParameterError
+        ``scheduler`` is not threads, processes, sync or an address; ``workers`` < 1.
+    """
+    if not scheduler.startswith(SCHEDULER_ADDRESS_SCHEMES) and scheduler not in (
+        "threads",
+        "processes",
+        "sync",
+    ):
+        raise ParameterError(
+            f"scheduler must be threads, processes, sync or tcp://HOST:PORT, got {scheduler!r}"
+        )
+    if workers is not None and workers < 1:
+        raise ParameterError(f"workers must be >= 1 (default: the CPU count), got {workers}")
+
+
 @contextlib.contextmanager
 def open_compute(
     scheduler: str = "threads",
@@ -217,8 +242,9 @@ def open_compute(
     callable
         ``compute(*delayed) -> tuple`` of results; all inputs of one call share the workers.
     """
+    check_scheduler(scheduler, workers)
     n = workers or os.cpu_count() or 1
-    if scheduler.startswith(("tcp://", "tls://", "ucx://", "inproc://")):
+    if scheduler.startswith(SCHEDULER_ADDRESS_SCHEMES):
         require_scale_extra(distributed=True)
         from distributed import Client
 
@@ -239,10 +265,6 @@ def open_compute(
                     on_exit(client)
         return
     # (no distributed: "processes" is dask's multiprocessing pool)
-    if scheduler not in ("threads", "processes", "sync"):
-        raise ParameterError(
-            f"scheduler must be threads, processes, sync or tcp://HOST:PORT, got {scheduler!r}"
-        )
     from dask.diagnostics import ProgressBar
 
     def compute(*tasks: Any) -> tuple[Any, ...]:
