@@ -226,3 +226,33 @@ def test_console_script_warnings_are_one_line(npz_path, tmp_path):
     assert lines
     assert all(ln.startswith("fuse4d: warning: ") for ln in lines), res.stderr
     assert "UserWarning" not in res.stderr
+
+
+def test_console_script_prints_each_warning_once(tmp_path):
+    """A recording with few valid pixels warned for the input and again for the filtered
+    sequence made from it: the same line twice."""
+    import os
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    from fuse4d.synthetic import make_scene
+
+    seq = make_scene("ball", small=True, num_frames=3, rng=0)
+    with pytest.warns(UserWarning, match="only 0.0 %"):
+        empty = seq.with_depth(np.full_like(seq.depth, np.nan))
+    write_npz(empty, tmp_path / "empty.npz")
+    src = Path(__file__).resolve().parents[1] / "src"
+    env = {**os.environ, "PYTHONPATH": str(src), "COLUMNS": "200"}
+    env.pop("FUSE4D_DEBUG", None)
+    args = ["baseline", "guided", str(tmp_path / "empty.npz"), "-o", str(tmp_path / "out.npz")]
+    res = subprocess.run(
+        [sys.executable, "-m", "fuse4d", *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        check=False,
+    )
+    assert res.returncode == 0, res.stderr
+    assert res.stderr.count("fuse4d: warning: only 0.0 % of depth pixels are valid") == 1

@@ -104,9 +104,18 @@ def _terminate(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
+#: Warnings the console script has printed: each text once per command (a recording with
+#: few valid pixels warned again for every sequence made from it, e.g. a filtered result).
+_SHOWN_WARNINGS: set[str] = set()
+
+
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    """``warnings.showwarning`` of the console script: ``fuse4d: warning: MESSAGE``."""
-    print(f"fuse4d: warning: {message}", file=sys.stderr if file is None else file)
+    """``warnings.showwarning`` of the console script: ``fuse4d: warning: MESSAGE``, once."""
+    text = str(message)
+    if text in _SHOWN_WARNINGS:
+        return
+    _SHOWN_WARNINGS.add(text)
+    print(f"fuse4d: warning: {text}", file=sys.stderr if file is None else file)
 
 
 def _reflow(text: str | None) -> str | None:
