@@ -230,6 +230,22 @@ def test_bench_causal_refuses_quality():
     assert main(["bench", "--small", "--causal", "--quality"]) != 0
 
 
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--small", "--frames", "1"], "--frames must be >= 2, got 1"),
+        (["--input", "rec", "--frames", "0"], "--frames must be >= 1, got 0"),  # 0-frame table
+        (["--input", "rec", "--frames", "-1"], "--frames must be >= 1, got -1"),  # was a crash
+    ],
+)
+def test_bench_frame_counts_it_cannot_time_are_one_line(tmp_path, monkeypatch, capsys, args, says):
+    monkeypatch.chdir(tmp_path)
+    assert main(["bench", *args]) == 2
+    err = capsys.readouterr().err
+    assert says in err
+    assert "internal error" not in err
+
+
 def test_demo_small_writes_figure_and_table(tmp_path, capsys):
     assert main(["demo", "--small", "--frames", "6", "--out", str(tmp_path / "demo")]) == 0
     out = capsys.readouterr().out

@@ -478,6 +478,9 @@ def bench_command(
             fail(f"unknown preset {name!r}; choose fast, paper or all")
     if quality and causal:
         fail("--quality scores the centred engine; drop --causal")
+    fewest = 1 if recording is not None else 2  # the synthetic ball needs a pair to move
+    if not quality and num_frames < fewest:
+        fail(f"--frames must be >= {fewest}, got {num_frames}")
     if quality:
         _quality(names, small, intensity_noise, as_json)
         return

@@ -204,6 +204,8 @@ def benchmark_recording(
     from ..io import detect_format
     from ..run import _fuse_streaming
 
+    if num_frames is not None and num_frames < 1:
+        raise ParameterError(f"num_frames must be >= 1 (or None: all), got {num_frames}")
     chosen = get_preset(preset)
     fusion = chosen.fusion.replace(num_frames=window, causal=causal)
     src = Path(path)
