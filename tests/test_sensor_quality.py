@@ -293,3 +293,22 @@ def test_cli_synth_sensor_writes_a_range_scene_with_ground_truth(tmp_path, capsy
         str(tmp_path / "b.npz"),
     ]
     assert main(args) == 2
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["-o", "s.png"], "s.png: synth writes an .npz"),  # was an .npz called s.png
+        (["--seed", "-1", "-o", "s.npz"], "--seed must be >= 0, got -1"),  # was a crash
+        (["--frames", "1", "-o", "s.npz"], "--frames must be >= 2"),
+    ],
+)
+def test_cli_synth_bad_options_are_one_line(tmp_path, monkeypatch, capsys, args, says):
+    from fuse4d.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["synth", "ball", "--small", *args]) == 2
+    err = capsys.readouterr().err
+    assert says in err
+    assert "internal error" not in err
+    assert not list(tmp_path.iterdir())

@@ -104,14 +104,17 @@ def synth_command(
     at 1-5 m through that sensor model (disparity quantisation, correlated noise, shadow
     holes, flying pixels; see docs/sensors.md); --depth-noise does not apply there.
     """
-
+    if output.suffix.lower() != ".npz":
+        fail(f"{output}: synth writes an .npz (it keeps the ground truth); give a name ending .npz")
     if output.exists() and not force:
         fail(f"{output}: output exists; pass --force to replace it")
+    if frames is not None and frames < 2:
+        fail(f"--frames must be >= 2 (a scene moves between frames), got {frames}")
+    if seed < 0:
+        fail(f"--seed must be >= 0, got {seed}")
     if sensor is not None:
         from ..range_scenes import make_range_scene
 
-        if frames is not None and frames < 2:
-            fail(f"--frames must be >= 2 for a range scene, got {frames}")
         if scene.value not in _RANGE_SCENES:
             fail(
                 f"scene {scene.value!r} has no range version; with --sensor choose one of "
