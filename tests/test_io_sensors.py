@@ -507,10 +507,21 @@ def test_missing_extra_message(monkeypatch, tmp_path, capsys):
 
 
 def test_not_a_bag(tmp_path):
-    bad = tmp_path / "x.bag"
-    bad.write_bytes(b"hello")
+    """A file named like a recording whose first bytes are not that says so (was "unknown
+    file type (expected ... an .mkv ...)" for an .mkv)."""
+    for name, says in (
+        ("x.bag", "its name says a ROS 1 bag, its first bytes do not"),
+        ("x.mkv", "its name says a Matroska video"),
+        ("x.db3", "its name says a ROS 2 SQLite bag"),
+    ):
+        bad = tmp_path / name
+        bad.write_bytes(b"hello")
+        with pytest.raises(InputFileError, match=says):
+            detect_format(bad)
+    other = tmp_path / "x.dat"
+    other.write_bytes(b"hello")
     with pytest.raises(InputFileError, match="unknown file type"):
-        detect_format(bad)
+        detect_format(other)
 
 
 # ----------------------------------------------------------------- RealSense layout, synthetic

@@ -51,6 +51,16 @@ READ_FORMATS: dict[str, type[FrameReader]] = {
 WRITE_FORMATS = ("npz", "folder", "mkv", "zarr")
 
 
+#: What a file with a camera recording's suffix must be (:func:`detect_format` goes by the
+#: first bytes; a mismatch is named rather than called an unknown type).
+_RECORDING_SUFFIXES = {
+    ".bag": "a ROS 1 bag",
+    ".db3": "a ROS 2 SQLite bag",
+    ".mcap": "an MCAP bag",
+    ".mkv": "a Matroska video (Azure Kinect, Orbbec or fuse4d)",
+}
+
+
 def detect_format(path: str | PathLike[str]) -> str:
     """Name the layout of ``path`` (one of :data:`READ_FORMATS`).
 
@@ -75,6 +85,13 @@ def detect_format(path: str | PathLike[str]) -> str:
             return "npz"
         if p.name == "frames.json":
             return "frames-json"
+        expected = _RECORDING_SUFFIXES.get(p.suffix.lower())
+        if expected is not None:  # the name says a recording, its first bytes do not
+            raise InputFileError(
+                p,
+                f"its name says {expected}, its first bytes do not (truncated, or another "
+                "format renamed?)",
+            )
         raise InputFileError(
             p,
             "unknown file type (expected .npz, a ROS .bag/.db3/.mcap, an .mkv, or a sequence "
