@@ -423,6 +423,22 @@ def test_full_ball_matches_spec_simulation():
 
 
 # ---------------------------------------------------------------------------- CLI
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--window", "999"], "--window 999: larger than the 150x150 image"),  # was n/a
+        (["--max-step", "-1"], "--max-step must be a depth step > 0 mm"),  # was ignored
+        (["--max-step", "nan"], "--max-step must be a depth step > 0 mm"),
+    ],
+)
+def test_cli_metrics_options_it_cannot_use_are_one_line(tmp_path, capsys, args, says):
+    out = tmp_path / "ball.npz"
+    assert main(["synth", "ball", "-o", str(out), "--small", "--frames", "2"]) == 0
+    capsys.readouterr()
+    assert main(["metrics", str(out), "--no-shape", *args]) == 2
+    assert says in capsys.readouterr().err
+
+
 def test_cli_metrics_json_on_synthetic_ball(tmp_path, capsys):
     out = tmp_path / "ball.npz"
     assert main(["synth", "ball", "-o", str(out), "--small", "--frames", "4"]) == 0

@@ -248,6 +248,8 @@ def metrics_command(
         fail(f"give INPUT or RAW FUSED, got {len(inputs)} paths")
     if window < 3 or window % 2 == 0:
         fail(f"--window must be an odd integer >= 3, got {window}")
+    if not (math.isfinite(max_step) and max_step > 0):
+        fail(f"--max-step must be a depth step > 0 mm, got {max_step}")
     seqs = []
     for path in inputs:
         with progress_bar(f"loading {path.name}", None) as bar:
@@ -273,6 +275,8 @@ def metrics_command(
         base = gtruth if gtruth is not None else GroundTruth()
         gtruth = dataclasses.replace(base, depth=depth_gt)
     t, h, w = out_seq.depth.shape
+    if window > min(h, w):
+        fail(f"--window {window}: larger than the {w}x{h} image")
     region = None if roi is None else _read_region(roi, "--roi", frames, (h, w))
     static = (
         None if static_mask is None else _read_region(static_mask, "--static-mask", frames, (h, w))
