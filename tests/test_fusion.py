@@ -124,6 +124,36 @@ def test_bilateral_kernel_sums_each_row_over_its_valid_span(rng, radius):
     np.testing.assert_array_equal(np.isnan(fast), np.isnan(pts))
 
 
+def test_bilateral_radius_past_the_image_is_the_whole_image_and_quick(rng):
+    """A radius larger than the image (``--set spatial_radius=1000000``) looped over a
+    million empty column offsets per row pair (a hang); it equals the image-wide window."""
+    pts = depth_to_points(_plane_depth(1)[0] + rng.normal(0, 0.3, (H, W)), K)[:10, :12]
+    inten = _texture(10, 12)
+    whole = bilateral_filter_points(pts, inten, radius=12, reference=pts + 0.1)
+    huge = bilateral_filter_points(pts, inten, radius=10**9, reference=pts + 0.1)
+    np.testing.assert_array_equal(huge, whole)
+    np.testing.assert_allclose(
+        whole, naive.bilateral3d(pts, inten, 12, 2.0, 0.1, pts + 0.1), atol=2e-4
+    )
+
+
+def test_vanishing_sigmas_weigh_the_centre_not_nan(rng):
+    """A sigma so small that 1 / (2 sigma^2) overflows float32 gave the centre 0 x inf = NaN
+    weight: every output NaN. Now only equal values weigh: the residual bilateral returns
+    each point itself; the temporal weights of a tiny sigma_temporal are (1, 0, 0, ...)."""
+    from fuse4d._kernels._common import MAX_GAUSS_FACTOR, gauss_factor
+
+    pts = depth_to_points(_plane_depth(1)[0] + rng.normal(0, 0.3, (H, W)), K)[:10, :12]
+    out = bilateral_filter_points(
+        pts, _texture(10, 12), sigma_distance=1e-30, sigma_intensity=1e-30, reference=pts
+    )
+    np.testing.assert_array_equal(out, pts)
+    assert gauss_factor(1e-200) == MAX_GAUSS_FACTOR  # 2 sigma^2 == 0.0: no ZeroDivisionError
+    assert gauss_factor(2.0) == 1.0 / 8.0
+    engine = FusionEngine(K, fusion=FusionParams(sigma_temporal=1e-200))
+    np.testing.assert_array_equal(engine._temporal_weight[:2], [1.0, 0.0])
+
+
 def test_bilateral_planes_kernel_equals_numpys_planes_and_residuals(rng):
     """issue 13: the planar inputs of the residual bilateral in one pass are the numpy
     values, bit for bit (NaN points included)."""

@@ -7,6 +7,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._kernels._common import gauss_factor
 from ._kernels.fusion import _bilateral3d_kernel, _bilateral_planes_kernel
 from ._validation import as_float32, check_shape
 
@@ -124,8 +125,8 @@ def _planar_bilateral(
         intensity,
         *values,
         int(radius),
-        1.0 / (2.0 * sigma_distance**2),
-        1.0 / (2.0 * sigma_intensity**2),
+        gauss_factor(sigma_distance),
+        gauss_factor(sigma_intensity),
         out,
     )
     return out

@@ -19,6 +19,7 @@ from typing import Any, Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._kernels._common import gauss_factor
 from ._kernels._numba import kernel_threads
 from ._kernels.camera import _valid_depth_kernel
 from ._kernels.fov import _inside_extents_kernel, _valid_extents_kernel
@@ -351,7 +352,7 @@ class FusionEngine:
         if math.isinf(p.sigma_temporal):
             self._temporal_weight = np.ones_like(tw)
         else:
-            self._temporal_weight = np.exp(-(tw**2) / (2.0 * p.sigma_temporal**2))
+            self._temporal_weight = np.exp(-(tw**2) * gauss_factor(p.sigma_temporal))
         # A32's F test: samples in a window = past + future + 1, parameters 3
         self._f_critical = (
             curvature_f_critical(self.past + self.future - 2)

@@ -61,6 +61,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._kernels._common import gauss_factor
 from ._kernels.fusion import _fill_holes_kernel
 from ._kernels.holes import (
     _grazing_rims_kernel,
@@ -386,8 +387,8 @@ def _side_consistent(
         intensity,
         holes,
         int(radius),
-        1.0 / (2.0 * sigma_intensity**2),
-        1.0 / (2.0 * 2.0**2),
+        gauss_factor(sigma_intensity),
+        gauss_factor(2.0),
         float(max_step),
         float(quad),
         side,
@@ -423,8 +424,8 @@ def _fill_small_holes(
             intensity,
             target,
             int(radius),
-            1.0 / (2.0 * sigma_intensity**2),
-            1.0 / (2.0 * sigma_space**2),
+            gauss_factor(sigma_intensity),
+            gauss_factor(sigma_space),
             float(max_step),
             float(quad),
             out,
@@ -532,7 +533,7 @@ def _fill_holes(
         raw_points,
         hole,
         int(radius),
-        1.0 / (2.0 * sigma**2),
+        gauss_factor(sigma),
         int(passes),
         int(min_neighbours),
         float(gate),

@@ -3,6 +3,7 @@
 * :data:`ROW_CHUNKS`: parallel loops run over this many row chunks.
 * :func:`_balanced_row_bounds`: row chunks of about equal work where few pixels have any.
 * :func:`_exp_neg_fast`: the bilateral weight function exp(-x) ~ (1 - x/1024)^1024.
+* :func:`gauss_factor`: 1 / (2 sigma^2) for those weights, finite for any sigma > 0.
 * :func:`_bilinear_stencil`: the clamped 2x2 stencil (indices, weights) of a bilinear sample.
 * :func:`_bilinear2`: bilinear sample of a two-component (flow) field, stencil clamped.
 * :func:`_bilinear2_plane`: the same on one (H, W, 2) field (a ring slot taken once per loop).
@@ -31,6 +32,7 @@ __all__ = [
     "_exp_neg_fast",
     "_round_half_up",
     "_step_limit",
+    "gauss_factor",
 ]
 
 #: parallel loops run over this many row chunks (scratch buffers are allocated per chunk:
@@ -41,6 +43,24 @@ ROW_CHUNKS = 64
 #: 0.05 % at x = 1 and 0.8 % at x = 4; exactly 0 beyond x = EXP_POWER. Pure arithmetic, so the
 #: bilateral loops vectorise (a table lookup or a libm call would not).
 EXP_POWER = 1024.0
+
+
+#: Largest Gaussian exponent factor handed to a kernel: any squared difference >= 1e-27 then
+#: weighs 0 already, and a zero difference still weighs exp(0) = 1 in float32.
+MAX_GAUSS_FACTOR = 1e30
+
+
+def gauss_factor(sigma: float) -> float:
+    """The exponent factor 1 / (2 sigma^2) of a Gaussian weight exp(-d^2 / (2 sigma^2)), at
+    most :data:`MAX_GAUSS_FACTOR` (plain Python, for the kernels' arguments).
+
+    Without the cap a sigma under ~1e-19 overflows float32 to inf, and a zero difference
+    (the centre pixel) gets 0 x inf = NaN: every output NaN (``--set sigma_intensity=1e-30``
+    emptied the whole result). With it, a vanishing sigma is the limit it should be: only
+    equal values weigh.
+    """
+    two_var = 2.0 * float(sigma) ** 2  # 0.0 for sigma < ~1e-162
+    return MAX_GAUSS_FACTOR if two_var * MAX_GAUSS_FACTOR <= 1.0 else 1.0 / two_var
 
 
 @njit

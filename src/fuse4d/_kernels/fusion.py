@@ -219,7 +219,9 @@ def _bilateral_row_offsets(px, py, pz, pi, qx, qy, qz, v, nv, radius, lo, hi, a,
     """Accumulate neighbour row ``nv``'s offsets -radius..radius for row ``v``'s columns
     ``lo`` .. ``hi - 1`` (one :func:`_bilateral_row_kernel` call per offset)."""
     w = px.shape[1]
-    for du in range(-radius, radius + 1):
+    # only the offsets that reach a column of the image (a radius past the image's width
+    # would otherwise loop over millions of empty offsets: `--set spatial_radius=1000000`)
+    for du in range(max(-radius, 1 - hi), min(radius, w - 1 - lo) + 1):
         u0 = max(lo, -du)
         u1 = min(hi, w - du)
         if u1 <= u0:
