@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -234,6 +235,27 @@ def test_run_set_inf_bool_and_literal(tiny, tmp_path, capsys):
     assert "'middle' is not one of adaptive, trajectory, frame" in capsys.readouterr().err
     assert main([*args, "--force", "--window", "300"]) == 2
     assert "num_frames must be an integer in [1, 256], got 300" in capsys.readouterr().err
+
+
+def test_every_float_fusion_parameter_at_inf_is_refused_or_runs(tiny):
+    """``--set motion_sigma=inf`` (and reference_sigma, base_smoothing, static_smoothing)
+    passed validation and crashed in the blur's radius (OverflowError, an internal error):
+    each float field either refuses inf or fuses with it."""
+    from fuse4d.errors import ParameterError
+
+    ran = []
+    for f in dataclasses.fields(FusionParams):
+        if not isinstance(getattr(FusionParams(), f.name), float):
+            continue
+        try:
+            params = FusionParams(num_frames=3, **{f.name: math.inf})
+        except ParameterError:
+            continue
+        out = fuse_sequence(tiny.depth, tiny.intensity, tiny.intrinsics, fusion=params)
+        assert out.depth.shape == tiny.depth.shape, f.name
+        ran.append(f.name)
+    assert "sigma_temporal" in ran  # inf there means equal temporal weights (tested above)
+    assert "motion_sigma" not in ran
 
 
 def test_flow_command_param_optional_int(tiny, tmp_path, capsys):

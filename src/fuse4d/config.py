@@ -285,18 +285,18 @@ class FusionParams:
     sigma_temporal: float = param(3.0, gt=0)
     fb_threshold: float = param(2.0, gt=0)
     max_depth_step: float = param(10.0, gt=0)
-    motion_sigma: float = param(3.0, gt=0)
-    reference_sigma: float = param(3.0, gt=0)
+    motion_sigma: float = param(3.0, gt=0, finite=True)  # a blur radius: inf has none
+    reference_sigma: float = param(3.0, gt=0, finite=True)
     temporal_gate: float = param(3.0, gt=0)
     min_gate_mm: float = param(0.05, gt=0)
     base: Literal["adaptive", "trajectory", "frame", "quadratic"] = "adaptive"
-    base_smoothing: float = param(2.0, ge=0)
+    base_smoothing: float = param(2.0, ge=0, finite=True)
     base_fine_limit: float = param(0.075, ge=0)
     motion_depth: MotionDepth = "smoothed"
     quantize: Quantize = "final"
     tracks: Tracks = "composed"
     static_tracks: bool = True
-    static_smoothing: float = param(4.0, ge=0)
+    static_smoothing: float = param(4.0, ge=0, finite=True)
     static_smoothing_limit: float = param(0.5, ge=0)
     flying_pixels: FlyingPixels = "auto"
     min_temporal_support: int = param(1, ge=0)
