@@ -661,3 +661,21 @@ def test_cli_flow_one_pixel_high_image_names_the_file(tmp_path, capsys):
     cv2.imwrite(str(line), np.full((1, 50), 100, np.uint8))
     assert main(["flow", str(line), str(line), "-o", str(tmp_path / "f.flo")]) == 2
     assert f"{line}: 50x1 px; flow needs at least 2 px" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("method", "param", "value"),
+    [
+        ("dis", "patch_size", 100000),
+        ("farneback", "poly_n", 100000),
+        ("pmbp", "presmooth_sigma", 1e9),
+    ],
+)
+def test_flow_parameters_far_past_any_use_are_refused(method, param, value):
+    """Each passed validation and then was killed for memory (DIS) or hung (Farneback's
+    polynomial expansion, PMBP's Gaussian pre-smoothing)."""
+    from fuse4d.errors import ParameterError
+    from fuse4d.flow import flow_params_from_mapping
+
+    with pytest.raises(ParameterError, match=param):
+        flow_params_from_mapping(method, {param: value})

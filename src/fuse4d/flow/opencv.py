@@ -104,7 +104,7 @@ class DISParams:
     """
 
     finest_scale: int = param(2, ge=0)
-    patch_size: int = param(8, ge=2)
+    patch_size: int = param(8, ge=2, le=512)  # larger: gigabytes, no use
     patch_stride: int = param(4, ge=1)
     gradient_descent_iterations: int = param(16, ge=1)
     variational_refinement_iterations: int = param(5, ge=0)
@@ -271,7 +271,7 @@ class FarnebackParams:
     levels: int = param(5, ge=1)
     winsize: int = param(15, ge=1)
     iterations: int = param(3, ge=1)
-    poly_n: int = param(5, ge=1)
+    poly_n: int = param(5, ge=1, le=255)  # OpenCV: typically 5 or 7; 1e5 hung
     poly_sigma: float = param(1.1, gt=0)
     gaussian_window: bool = False
 

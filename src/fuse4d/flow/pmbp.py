@@ -273,7 +273,7 @@ class PMBPParams:
     early_termination: bool = True
     search_best_only: bool = False
     inside_target: bool = False
-    presmooth_sigma: float = param(1.0, ge=0)
+    presmooth_sigma: float = param(1.0, ge=0, le=100)  # 1e9 hung in GaussianBlur
     data_sweeps: int = param(1, ge=0)
     consistency_check: bool = True
     consistency_threshold: float = param(1.0, gt=0)
