@@ -466,3 +466,25 @@ def test_region_grow_kernel_matches_on_a_real_frame(shared_data):
     got, got_todo = depth.copy(), ~np.isfinite(depth)
     _region_grow_kernel(got, intensity, got_todo, np.float32(0.05), np.int64(h + w))
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize(
+    ("name", "params", "says"),
+    [
+        ("adbf", {"size": 10**6}, r"adaptive_bilateral.size must be an integer in \[1, 64\]"),
+        ("guided", {"size": 65}, r"guided.size must be an integer in \[1, 64\]"),
+        ("stmf", {"block": 10**6}, r"block must be an integer in \[1, 64\]"),  # was a MemoryError
+        ("stmf", {"search": 10**6}, r"search must be an integer in \[0, 64\]"),
+        ("realsense", {"spatial_alpha": 0.0}, r"spatial_alpha: 0 is outside the SDK's range"),
+        ("realsense", {"persistence": 9}, r"persistence: 9 is outside the SDK's range \[0, 8\]"),
+        ("realsense", {"depth_unit": -1.0}, r"depth_unit -1 mm cannot represent"),
+    ],
+)
+def test_baseline_knobs_out_of_range_are_parameter_errors(plane, intrinsics, name, params, says):
+    """Each hung (a radius of a million px), ran out of memory (STMF's block) or surfaced
+    pyrealsense2's bare 'out of range value for argument' as an internal error."""
+    from fuse4d.errors import ParameterError
+
+    depth, inten = plane
+    with pytest.raises(ParameterError, match=says):
+        _call(name, depth, inten, intrinsics, **params)

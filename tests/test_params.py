@@ -307,7 +307,7 @@ def test_baseline_size_by_name_and_from_strings(tiny):
         run_baseline("guided", d, i, k, size=3, spatial_radius=3)
     with pytest.raises(ValueError, match=r"unknown parameter\(s\) radius for baseline 'guided'"):
         run_baseline("guided", d, i, k, radius=3)
-    with pytest.raises(ValueError, match=r"guided\.size must be an integer >= 1, got 0"):
+    with pytest.raises(ValueError, match=r"guided\.size must be an integer in \[1, 64\], got 0"):
         run_baseline("guided", d, i, k, size=0)
     with pytest.raises(ValueError, match=r"adaptive_gaussian\.size must be a number > 0"):
         run_baseline("adgf", d, i, k, kernel_scale=0.0)

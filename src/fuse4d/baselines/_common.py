@@ -14,6 +14,7 @@ from .._validation import as_float32, check_same_shape, check_shape
 from ..camera import Intrinsics
 
 __all__ = [
+    "MAX_WINDOW_RADIUS",
     "DepthNoiseModel",
     "check_inputs",
     "estimate_noise_model",
@@ -23,6 +24,11 @@ __all__ = [
     "normalized_convolution_fill",
     "resolve_noise_sigma",
 ]
+
+#: Largest pixel radius of a baseline's window (size, STMF's half window, block and search):
+#: 4x the largest of the size sweeps (16). A window of (2r + 1)^2 pixels per pixel beyond it
+#: takes hours on a VGA frame (``-p size=1000000`` hung) and no sensor's image needs it.
+MAX_WINDOW_RADIUS = 64
 
 #: MAD → σ for a Gaussian, and the variance factor of r = D − mean(4-neighbours): 1 + 4/16.
 _MAD_TO_SIGMA = 1.4826

@@ -18,6 +18,7 @@ from .._kernels.joint_bilateral import _joint_bilateral_kernel
 from .._params import check_bool, check_int, check_number
 from ..camera import Intrinsics, depth_to_points
 from ._common import (
+    MAX_WINDOW_RADIUS,
     DepthNoiseModel,
     check_inputs,
     estimate_noise_model,
@@ -308,7 +309,7 @@ def adaptive_bilateral(
     [R] (BASELINES §2): σ_r(i) = 3 σ̂_d (D(i)/D_med)², D_med = median valid depth of the frame.
     """
     d, g = check_inputs(depth, intensity, intrinsics)
-    radius = check_int("adaptive_bilateral", "size", size, minimum=1)
+    radius = check_int("adaptive_bilateral", "size", size, minimum=1, maximum=MAX_WINDOW_RADIUS)
     check_bool("adaptive_bilateral", "hole_repair", hole_repair)
     sigma_d = resolve_noise_sigma(d, noise_sigma, owner="adaptive_bilateral")
 
@@ -399,7 +400,9 @@ def adaptive_joint_bilateral(
         Filtered depth (mm), NaN where the input is NaN.
     """
     d, g = check_inputs(depth, intensity, intrinsics)
-    radius = check_int("adaptive_joint_bilateral", "size", size, minimum=1)
+    radius = check_int(
+        "adaptive_joint_bilateral", "size", size, minimum=1, maximum=MAX_WINDOW_RADIUS
+    )
     check_number("adaptive_joint_bilateral", "sigma_intensity", sigma_intensity, gt=0)
     check_bool("adaptive_joint_bilateral", "temporal", temporal)
     sigma_d = resolve_noise_sigma(d, noise_sigma, owner="adaptive_joint_bilateral")
@@ -476,7 +479,7 @@ def dnbf(
     is our choice: the spec fixes σ_s = 2 px only at the default radius 3.
     """
     d, _ = check_inputs(depth, intensity, intrinsics)
-    radius = check_int("dnbf", "size", size, minimum=1)
+    radius = check_int("dnbf", "size", size, minimum=1, maximum=MAX_WINDOW_RADIUS)
     k = check_int("dnbf", "num_previous", num_previous, minimum=0)
     check_number("dnbf", "sigma_temporal", sigma_temporal, gt=0)
     sigma_d = resolve_noise_sigma(d, noise_sigma, owner="dnbf")

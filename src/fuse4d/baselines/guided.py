@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._params import check_int, check_number
 from ..camera import Intrinsics
-from ._common import check_inputs, iterate, normalized_convolution_fill
+from ._common import MAX_WINDOW_RADIUS, check_inputs, iterate, normalized_convolution_fill
 
 __all__ = ["guided"]
 
@@ -68,7 +68,7 @@ def guided(
     d, g = check_inputs(depth, intensity if guide == "intensity" else None, intrinsics)
     if guide == "intensity" and g is None:
         raise ValueError("the intensity-guided filter needs intensity (or pass guide='depth')")
-    radius = check_int("guided", "size", size, minimum=1)
+    radius = check_int("guided", "size", size, minimum=1, maximum=MAX_WINDOW_RADIUS)
     check_number("guided", "eps", eps, gt=0)
     valid = np.isfinite(d)
 

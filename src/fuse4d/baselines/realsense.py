@@ -26,12 +26,14 @@ steps are 1/8 px, the filters then act as on a D4xx. Float depth stays in the de
 from __future__ import annotations
 
 import importlib.util
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._params import check_choice, check_int, check_number
 from ..camera import Intrinsics
+from ..errors import ParameterError
 from ._common import check_inputs, iterate
 
 __all__ = ["have_pyrealsense2", "realsense_chain", "recording_depth_unit"]
@@ -204,7 +206,10 @@ def realsense_chain(
     finite_max = float(finite.max()) if finite.size else 1.0
     unit_mm = float(depth_unit) if depth_unit is not None else recording_depth_unit(d)
     if not unit_mm > 0 or finite_max / unit_mm > 65535:
-        raise ValueError(f"depth_unit {unit_mm} mm cannot represent depth up to {finite_max} mm")
+        raise ParameterError(
+            f"realsense_chain.depth_unit {unit_mm:g} mm cannot represent depth up to "
+            f"{finite_max:.0f} mm in 16 bits; give a unit > {finite_max / 65535:.3g} mm"
+        )
     if domain == "auto":
         domain = "disparity" if unit_mm == 1.0 else "depth"
     fb = float(intrinsics.fx) * float(baseline_mm)  # disparity (px) = fb / z (mm)
@@ -230,13 +235,19 @@ def realsense_chain(
         first = _software_sensor(rs, intrinsics, unit_m)
         second = _software_sensor(rs, intrinsics, unit_m) if domain == "disparity" else None
         spatial = rs.spatial_filter()
-        spatial.set_option(rs.option.filter_magnitude, magnitude)
-        spatial.set_option(rs.option.filter_smooth_alpha, float(spatial_alpha))
-        spatial.set_option(rs.option.filter_smooth_delta, to_units(spatial_delta))
+        _set_option(spatial, rs.option.filter_magnitude, magnitude, "size")
+        _set_option(spatial, rs.option.filter_smooth_alpha, float(spatial_alpha), "spatial_alpha")
+        _set_option(
+            spatial, rs.option.filter_smooth_delta, to_units(spatial_delta), "spatial_delta"
+        )
         temporal = rs.temporal_filter()
-        temporal.set_option(rs.option.filter_smooth_alpha, float(temporal_alpha))
-        temporal.set_option(rs.option.filter_smooth_delta, to_units(temporal_delta))
-        temporal.set_option(rs.option.holes_fill, int(persistence))
+        _set_option(
+            temporal, rs.option.filter_smooth_alpha, float(temporal_alpha), "temporal_alpha"
+        )
+        _set_option(
+            temporal, rs.option.filter_smooth_delta, to_units(temporal_delta), "temporal_delta"
+        )
+        _set_option(temporal, rs.option.holes_fill, int(persistence), "persistence")
         holes = None
         if hole_filling is not None:
             holes = rs.hole_filling_filter()
@@ -271,3 +282,20 @@ def realsense_chain(
         return out
 
     return iterate(step, d, iterations, owner="realsense_chain")
+
+
+def _set_option(block: Any, option: Any, value: float, knob: str) -> None:
+    """``block.set_option(option, value)``, with a value outside the SDK's range named as the
+    knob it came from (pyrealsense2 raises a bare 'out of range value for argument')."""
+    rng = block.get_option_range(option)
+    if not rng.min <= value <= rng.max:
+        raise ParameterError(
+            f"realsense_chain.{knob}: {value:g} is outside the SDK's range "
+            f"[{rng.min:g}, {rng.max:g}]"
+            + (
+                " (in SDK steps: the knob's mm or disparity value converted)"
+                if "delta" in knob
+                else ""
+            )
+        )
+    block.set_option(option, value)

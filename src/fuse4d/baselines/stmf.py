@@ -11,7 +11,7 @@ from scipy.ndimage import median_filter
 from .._kernels.baselines import _block_match_kernel, _stmf_median_kernel
 from .._params import check_int, check_number
 from ..camera import Intrinsics
-from ._common import check_inputs, iterate
+from ._common import MAX_WINDOW_RADIUS, check_inputs, iterate
 
 __all__ = ["block_match", "sorting_network", "spatio_temporal_median"]
 
@@ -123,10 +123,12 @@ def spatio_temporal_median(
     """
     d, g = check_inputs(depth, intensity, intrinsics)
     k = check_int("spatio_temporal_median", "size", size, minimum=0)
-    a = check_int("spatio_temporal_median", "half_window", half_window, minimum=0)
+    a = check_int(
+        "spatio_temporal_median", "half_window", half_window, minimum=0, maximum=MAX_WINDOW_RADIUS
+    )
     check_number("spatio_temporal_median", "intensity_tol", intensity_tol, gt=0)
-    check_int("spatio_temporal_median", "block", block, minimum=1)
-    check_int("spatio_temporal_median", "search", search, minimum=0)
+    check_int("spatio_temporal_median", "block", block, minimum=1, maximum=MAX_WINDOW_RADIUS)
+    check_int("spatio_temporal_median", "search", search, minimum=0, maximum=MAX_WINDOW_RADIUS)
     n, h, w = d.shape
     # Motion from every neighbour to every frame: depends on intensity only, computed once.
     vectors: dict[tuple[int, int], NDArray[np.int32]] = {}
