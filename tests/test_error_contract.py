@@ -202,9 +202,9 @@ def test_folder_writer_rejects_bad_unit_with_parameter_error(tmp_path, small_int
         FrameFolderWriter(tmp_path / "x", small_intrinsics, depth_unit_mm=float("nan"))
 
 
-def test_console_script_warnings_are_one_line(npz_path, tmp_path):
-    """Run as a command, a warning (here: the output's depth unit is coarse for the data)
-    prints as ``fuse4d: warning: ...``, not Python's file, line, category and source line."""
+def _console_script(*args: str):
+    """``python -m fuse4d ARGS`` in a fresh process, as the console script runs (warnings go
+    through the CLI's one-line printer only there): the CompletedProcess."""
     import os
     import subprocess
     import sys
@@ -212,15 +212,20 @@ def test_console_script_warnings_are_one_line(npz_path, tmp_path):
     src = Path(__file__).resolve().parents[1] / "src"
     env = {**os.environ, "PYTHONPATH": str(src), "COLUMNS": "200"}
     env.pop("FUSE4D_DEBUG", None)
-    out = tmp_path / "coarse"
-    args = ["convert", str(npz_path), str(out), "--out-depth-unit-mm", "5"]
-    res = subprocess.run(
+    return subprocess.run(
         [sys.executable, "-m", "fuse4d", *args],
         capture_output=True,
         text=True,
         env=env,
         check=False,
     )
+
+
+def test_console_script_warnings_are_one_line(npz_path, tmp_path):
+    """Run as a command, a warning (here: the output's depth unit is coarse for the data)
+    prints as ``fuse4d: warning: ...``, not Python's file, line, category and source line."""
+    out = tmp_path / "coarse"
+    res = _console_script("convert", str(npz_path), str(out), "--out-depth-unit-mm", "5")
     assert res.returncode == 0, res.stderr
     lines = [ln for ln in res.stderr.splitlines() if "coarse" in ln]
     assert lines
@@ -231,10 +236,6 @@ def test_console_script_warnings_are_one_line(npz_path, tmp_path):
 def test_console_script_prints_each_warning_once(tmp_path):
     """A recording with few valid pixels warned for the input and again for the filtered
     sequence made from it: the same line twice."""
-    import os
-    import subprocess
-    import sys
-
     import numpy as np
 
     from fuse4d.synthetic import make_scene
@@ -243,16 +244,8 @@ def test_console_script_prints_each_warning_once(tmp_path):
     with pytest.warns(UserWarning, match="only 0.0 %"):
         empty = seq.with_depth(np.full_like(seq.depth, np.nan))
     write_npz(empty, tmp_path / "empty.npz")
-    src = Path(__file__).resolve().parents[1] / "src"
-    env = {**os.environ, "PYTHONPATH": str(src), "COLUMNS": "200"}
-    env.pop("FUSE4D_DEBUG", None)
-    args = ["baseline", "guided", str(tmp_path / "empty.npz"), "-o", str(tmp_path / "out.npz")]
-    res = subprocess.run(
-        [sys.executable, "-m", "fuse4d", *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        check=False,
+    res = _console_script(
+        "baseline", "guided", str(tmp_path / "empty.npz"), "-o", str(tmp_path / "out.npz")
     )
     assert res.returncode == 0, res.stderr
     assert res.stderr.count("fuse4d: warning: only 0.0 % of depth pixels are valid") == 1
