@@ -136,3 +136,7 @@ def test_export_ply_errors(npz_path, tmp_path, capsys):
     assert "output would overwrite the input" in capsys.readouterr().err
     assert npz_path.read_bytes() == before
     assert not (tmp_path / "x.ply").exists()
+    # a PLY under another name (was written as a.txt)
+    assert main(["export-ply", str(npz_path), "-o", str(tmp_path / "a.txt")]) == 2
+    assert "give a name ending .ply" in capsys.readouterr().err
+    assert not (tmp_path / "a.txt").exists()

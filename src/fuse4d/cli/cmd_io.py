@@ -300,6 +300,8 @@ def export_ply_command(
     from ..io import check_output, open_frames, write_ply
 
     check_output(output, overwrite=force, inputs=[input_path])
+    if output.suffix.lower() != ".ply":
+        fail(f"{output}: export-ply writes a PLY point cloud; give a name ending .ply")
     with open_frames(
         input_path,
         format=input_format,
