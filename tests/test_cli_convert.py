@@ -127,3 +127,12 @@ def test_run_report_lists_the_parameters_as_run(folder, tmp_path):
     dask = ["run", str(folder), "-o", str(tmp_path / "o.zarr"), "--window", "3", "--engine", "dask"]
     assert main([*dask, "--report", str(rep2)]) == 0
     assert json.loads((rep2 / "metrics.json").read_text())["params"]["flying_pixels"] == "on"
+
+
+@pytest.mark.parametrize("unit", ["0", "-1", "nan"])
+def test_an_output_depth_unit_that_is_no_unit_is_refused(folder, tmp_path, capsys, unit):
+    """``--out-depth-unit-mm 0`` silently meant the input's own unit."""
+    out = tmp_path / "out"
+    assert main(["convert", str(folder), str(out), "--out-depth-unit-mm", unit]) == 2
+    assert "out_depth_unit_mm must be > 0 mm" in capsys.readouterr().err
+    assert not out.exists()
