@@ -473,6 +473,7 @@ def test_region_grow_kernel_matches_on_a_real_frame(shared_data):
     [
         ("adbf", {"size": 10**6}, r"adaptive_bilateral.size must be an integer in \[1, 64\]"),
         ("guided", {"size": 65}, r"guided.size must be an integer in \[1, 64\]"),
+        ("adgf", {"size": float("inf")}, r"adaptive_gaussian.size must be a finite number"),
         ("stmf", {"block": 10**6}, r"block must be an integer in \[1, 64\]"),  # was a MemoryError
         ("stmf", {"search": 10**6}, r"search must be an integer in \[0, 64\]"),
         ("realsense", {"spatial_alpha": 0.0}, r"spatial_alpha: 0 is outside the SDK's range"),

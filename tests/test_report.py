@@ -303,6 +303,9 @@ def test_cli_report_errors_are_one_line(run_with_report, tmp_path, capsys):
     assert "unknown baseline" in capsys.readouterr().err
     assert main(["report", str(raw), str(fused), "-o", str(tmp_path / "r"), "--roi", "3"]) == 2
     assert "R0:R1,C0:C1" in capsys.readouterr().err
+    for fps in ("0", "nan", "-5"):  # nan and -5 were internal errors, 0 meant the default
+        assert main(["report", str(raw), str(fused), "-o", str(tmp_path / "r"), "--fps", fps]) == 2
+        assert "fps must be a video frame rate > 0" in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
 
 

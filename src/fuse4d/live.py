@@ -148,7 +148,7 @@ class RecordingSource:
         from .io import open_frames
 
         if fps is not None and not (math.isfinite(fps) and fps > 0):
-            raise ValueError(f"fps must be > 0, got {fps}")
+            raise ParameterError(f"fps must be > 0, got {fps}")
         self.path = Path(path)
         self._reader = open_frames(path, **reader_options)
         self.intrinsics = self._reader.intrinsics

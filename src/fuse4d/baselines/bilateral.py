@@ -183,7 +183,7 @@ def adaptive_gaussian(
     σ_z(i) = σ̂_d(D_i) · σ_z^K(1 m, θ_i) / σ_z^K(1 m, 0); depth gate 3 σ_z(i).
     """
     d, _ = check_inputs(depth, intensity, intrinsics)
-    scale = check_number("adaptive_gaussian", "size", size, gt=0)
+    scale = check_number("adaptive_gaussian", "size", size, gt=0, finite=True)
     if noise_sigma is None:
         model = estimate_noise_model(d)
     else:

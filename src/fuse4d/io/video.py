@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..camera import Intrinsics
+from ..errors import ParameterError
 from ..sequence import Sequence
 from ._atomic import StagedWriter, atomic_file, check_output
 from ._base import check_frame_shapes
@@ -80,7 +81,7 @@ class DepthVideoWriter(StagedWriter):
         if not (math.isfinite(depth_unit_mm) and depth_unit_mm > 0):
             raise ValueError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
         if fps is not None and not (math.isfinite(fps) and fps > 0):
-            raise ValueError(f"fps must be > 0, got {fps!r}")
+            raise ParameterError(f"fps must be > 0, got {fps!r}")
         self._av = require("av", what="writing .mkv depth video")
         self.path = check_output(path, overwrite=overwrite)
         self.intrinsics = intrinsics

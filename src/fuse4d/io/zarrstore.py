@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..camera import Intrinsics
-from ..errors import InputFileError
+from ..errors import InputFileError, ParameterError
 from ..sequence import Sequence
 from ._atomic import StagedWriter, atomic_dir, check_output
 from ._base import (
@@ -100,7 +100,7 @@ class ZarrWriter(StagedWriter):
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics)}")
         if fps is not None and not (math.isfinite(fps) and fps > 0):
-            raise ValueError(f"fps must be > 0, got {fps!r}")
+            raise ParameterError(f"fps must be > 0, got {fps!r}")
         self._zarr = require("zarr", what="writing zarr stores")
         self.path = check_output(path, overwrite=overwrite)
         self.intrinsics = intrinsics

@@ -371,6 +371,8 @@ def write_report(
     if isinstance(chunk_frames, bool) or int(chunk_frames) < 1:
         raise ParameterError(f"chunk_frames must be a positive integer, got {chunk_frames!r}")
     chunk_frames = int(chunk_frames)
+    if fps is not None and not (math.isfinite(fps) and fps > 0):  # 0 silently meant the default
+        raise ParameterError(f"fps must be a video frame rate > 0, got {fps}")
     methods_compare = _check_compare(compare)
     roi_box = parse_roi(roi) if isinstance(roi, str) else roi
     inputs = [p for p in (input, fused, ground_truth) if isinstance(p, str | PathLike)]

@@ -10,6 +10,8 @@ from typing import Self
 import numpy as np
 from numpy.typing import NDArray
 
+from ..errors import ParameterError
+
 __all__ = ["Mp4Writer", "choose_codec", "count_video_frames"]
 
 
@@ -56,7 +58,7 @@ class Mp4Writer:
         if width < 2 or height < 2:
             raise ValueError(f"video frames must be at least 2x2 px, got {width}x{height}")
         if not (np.isfinite(fps) and fps > 0):
-            raise ValueError(f"fps must be > 0, got {fps!r}")
+            raise ParameterError(f"fps must be > 0, got {fps!r}")
         self.path = Path(path)
         self.codec = codec or choose_codec()
         self.width = width + width % 2
