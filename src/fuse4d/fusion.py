@@ -349,10 +349,8 @@ class FusionEngine:
             committed((hf, wf), np.uint8, 0),
         )
         tw = np.arange(max(self.past, self.future) + 1, dtype=np.float64)
-        if math.isinf(p.sigma_temporal):
-            self._temporal_weight = np.ones_like(tw)
-        else:
-            self._temporal_weight = np.exp(-(tw**2) * gauss_factor(p.sigma_temporal))
+        # sigma_temporal = inf: factor 0, equal weights
+        self._temporal_weight = np.exp(-(tw**2) * gauss_factor(p.sigma_temporal))
         # A32's F test: samples in a window = past + future + 1, parameters 3
         self._f_critical = (
             curvature_f_critical(self.past + self.future - 2)

@@ -298,10 +298,10 @@ def fuse_file(
     fmt = detect_format(src)
     check_output(dst, overwrite=overwrite or resume, inputs=[src])
     check_output(partial_path(dst), overwrite=True, inputs=[src])
-    output_layout(dst)  # refuses a file suffix fuse4d does not write (out.mp4)
-    if fmt == "npz" and dst.suffix.lower() != ".npz":
+    layout = output_layout(dst)  # refuses a file suffix fuse4d does not write (out.mp4)
+    if fmt == "npz" and layout != "npz":
         raise ParameterError(f"{dst}: npz input is written as .npz; give an output ending in .npz")
-    if fmt != "npz" and dst.suffix.lower() == ".npz":
+    if fmt != "npz" and layout == "npz":
         raise ParameterError(
             f"{dst}: {fmt} input is written as a frame folder, .mkv or .zarr; not .npz"
         )

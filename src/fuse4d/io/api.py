@@ -447,13 +447,13 @@ def convert_recording(
     """
     src, dst = Path(input), Path(output)
     check_output(dst, overwrite=overwrite, inputs=[src])
-    output_layout(dst)  # refuses a file suffix fuse4d does not write, before reading
+    layout = output_layout(dst)  # refuses a file suffix fuse4d does not write, before reading
     if out_depth_unit_mm is not None and not (
         math.isfinite(out_depth_unit_mm) and out_depth_unit_mm > 0
     ):  # 0 used to mean "the input's unit" silently
         raise ParameterError(f"out_depth_unit_mm must be > 0 mm, got {out_depth_unit_mm}")
     with open_frames(src, frames=frames, **reader_options) as reader:
-        if output_layout(dst) == "npz":
+        if layout == "npz":
             return write_npz(reader.read_sequence(progress=progress), dst, overwrite=overwrite)
         writer_cls, _ = stream_writer(dst)
         unit = out_depth_unit_mm or reader.depth_unit_mm or 1.0
