@@ -90,6 +90,17 @@ def test_help_paragraphs_flow_to_the_terminal_width():
     assert "into OUT/<name>/: tidy CSV, Markdown summary" in listing
 
 
+def test_help_shows_no_value_for_a_flag():
+    """``--small`` takes no value, so ``--help`` shows none (typer >= 0.2x printed
+    ``--small <bool>``); an option that takes a value still shows its type."""
+    out = _python("-m", "fuse4d", "bench", "--help").stdout
+    rows = {line.split()[1]: line for line in out.splitlines() if line.startswith("│ --")}
+    assert "<bool>" not in out
+    assert "<int>" in rows["--frames"]
+    assert rows["--small"].split()[2:4] == ["150x150", "CI"], rows["--small"]
+    assert "<bool>" not in _python("-m", "fuse4d", "--help").stdout
+
+
 def test_registered_commands_are_the_listed_ones():
     from fuse4d.cli import app
 

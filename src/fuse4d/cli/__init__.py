@@ -52,8 +52,7 @@ _ClickException = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "C
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI; returns the exit code (also used as the console-script entry point)."""
     command = typer.main.get_command(app)
-    for sub in getattr(command, "commands", {}).values():
-        sub.help = _reflow(sub.help)
+    _tidy_help(command)
     args = list(sys.argv[1:] if argv is None else argv)
     STATE.debug = False
     if argv is None and threading.current_thread() is threading.main_thread():
@@ -116,6 +115,20 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
         return
     _SHOWN_WARNINGS.add(text)
     print(f"fuse4d: warning: {text}", file=sys.stderr if file is None else file)
+
+
+def _tidy_help(command) -> None:
+    """What ``--help`` shows: each command's docstring reflowed (``_reflow``), and no type
+    column for a flag (typer >= 0.2x shows ``--small <bool>``, as if it took a value; click
+    itself never shows a flag's metavar, so an empty one changes only typer's panel)."""
+    subcommands = list(getattr(command, "commands", {}).values())
+    for sub in subcommands:
+        sub.help = _reflow(sub.help)
+    for cmd in [command, *subcommands]:
+        help_option = cmd.get_help_option(cmd.context_class(cmd))  # created once, cached
+        for param in [*cmd.params, help_option]:
+            if getattr(param, "is_flag", False) and param.metavar is None:
+                param.metavar = ""
 
 
 def _reflow(text: str | None) -> str | None:
