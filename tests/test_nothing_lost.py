@@ -216,3 +216,22 @@ def test_read_only_output_folder_gives_clear_error(monkeypatch, inputs, tmp_path
         assert "Permission denied" in err
         assert "not writable" in err
     assert _leftovers(ro) == []
+
+
+@pytest.mark.parametrize("directory", [False, True])
+def test_a_folder_that_takes_no_files_names_the_output(tmp_path, monkeypatch, directory):
+    """A folder that exists but refuses new entries (``/proc``: ENOENT) is reported for the
+    output the user named, not for fuse4d's temporary ``.NAME.tmp-XXXXXXXX``."""
+    from fuse4d.io._atomic import atomic_dir, atomic_file
+
+    def refuse(self, *args, **kwargs):
+        raise FileNotFoundError(2, "No such file or directory", str(self))
+
+    monkeypatch.setattr(Path, "mkdir" if directory else "touch", refuse)
+    target = tmp_path / ("out" if directory else "c.ply")
+    with (
+        pytest.raises(OutputWriteError) as info,
+        (atomic_dir if directory else atomic_file)(target),
+    ):
+        pass
+    assert str(info.value) == f"{target}: cannot write the output (No such file or directory)"

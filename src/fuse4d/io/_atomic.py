@@ -96,6 +96,10 @@ def _create_temp(dest: Path, *, directory: bool) -> Path:
     which the system applies), so the output needs no chmod. ``tempfile.mkstemp`` creates
     0600, and the umask cannot be read without setting it: ``os.umask`` is process-wide, and
     another thread creating a file in between would get the wrong mode.
+
+    Any other failure to create it (the folder exists: ``check_output``) means the folder
+    takes no new files (e.g. ``/proc``: ENOENT, which named the temporary name): an
+    :class:`~fuse4d.OutputWriteError` naming ``dest``.
     """
     for _ in range(100):
         tmp = dest.parent / f".{dest.name}.tmp-{secrets.token_hex(4)}"
@@ -106,6 +110,8 @@ def _create_temp(dest: Path, *, directory: bool) -> Path:
                 tmp.touch(mode=0o666, exist_ok=False)  # O_CREAT | O_EXCL
         except FileExistsError:
             continue
+        except OSError as exc:
+            raise OutputWriteError(dest, exc) from exc
         return tmp
     raise FileExistsError(errno.EEXIST, "no unused temporary name", str(dest.parent))
 
