@@ -6,6 +6,7 @@ import dataclasses
 import json
 import math
 import threading
+import warnings
 from pathlib import Path
 
 import cv2
@@ -475,3 +476,43 @@ def test_bench_input_causal_runs_the_causal_streaming_path(tmp_path, monkeypatch
     assert result["frames"] == 4
     assert {"flow", "tracking", "fill", "read", "write", "io_wait"} <= set(result["stage_ms"])
     assert seen == [True, True]  # warm-up and timed run
+
+
+@pytest.mark.parametrize(
+    ("option", "message"),
+    [
+        (["--depth-unit-mm", "1000"], "depth_unit_mm does not apply to .npz files"),
+        (["--intrinsics", "100,100,75,75"], ".npz files store their intrinsics"),
+        (["--depth-topic", "/depth"], "option depth_topic does not apply to npz input"),
+        (["--no-undistort"], "option undistort does not apply to npz input"),
+    ],
+)
+def test_run_refuses_recording_options_an_npz_does_not_take(
+    ball_npz, tmp_path, capsys, option, message
+):
+    """They were ignored: `fuse4d run x.npz --depth-unit-mm 1000` fused the depth as stored."""
+    out = tmp_path / "out.npz"
+    assert main(["run", str(ball_npz), "-o", str(out), *option]) == 2
+    err = capsys.readouterr().err
+    assert err == f"fuse4d: error: {message}" + err.split(message, 1)[1]
+    assert len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_a_sensor_option_for_a_folder_is_one_line_not_an_internal_error(tmp_path, capsys):
+    folder = write_ball_folder(tmp_path / "rec", frames=3)
+    assert main(["run", str(folder), "-o", str(tmp_path / "out"), "--depth-topic", "/d"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("fuse4d: error: option depth_topic does not apply to folder input")
+
+
+def test_depth_in_metres_is_warned_about(ball_npz, tmp_path, capsys):
+    """Depth in metres (median 1, the wall) ran silently with every mm scale 1000x too large."""
+    seq = load_sequence(ball_npz)
+    metres = tmp_path / "metres.npz"
+    write_npz(seq.with_depth(seq.depth / 1000), metres)
+    with pytest.warns(UserWarning, match=r"^depth \(frame 0\) has a median of 1 mm: fuse4d takes"):
+        assert main(["run", str(metres), "-o", str(tmp_path / "out.npz"), "--no-summary"]) == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # and none for the depth in mm
+        assert main(["run", str(ball_npz), "-o", str(tmp_path / "mm.npz"), "--no-summary"]) == 0

@@ -23,7 +23,7 @@ from fuse4d._params import (
 from fuse4d.baselines import available_baselines, get_baseline, guided, run_baseline
 from fuse4d.cli import main
 from fuse4d.config import load_config
-from fuse4d.errors import InputFileError
+from fuse4d.errors import InputFileError, ParameterError, ParameterTypeError
 from fuse4d.flow import (
     DISParams,
     PMBPFastParams,
@@ -353,3 +353,34 @@ def test_float_intensity_above_one_is_refused_naming_the_frame(tiny):
     # integers are still divided by their dtype maximum
     as_uint8 = np.round(255 * tiny.intensity).astype(np.uint8)
     assert fuse_sequence(d, as_uint8, k, flow="dis").depth.shape == d.shape
+
+
+def test_non_finite_intensity_is_refused_naming_the_frame(tiny):
+    """A NaN intensity pixel was passed on to the flow, which named "image0" (and a one-frame
+    window, which computes no flow, would have weighed it as NaN)."""
+    d, k = tiny.depth, tiny.intrinsics
+    holes = tiny.intensity.copy()
+    holes[2, :2, :3] = np.nan
+    with pytest.raises(ParameterError, match=r"^intensity \(frame 2\) has 6 NaN or inf pixel"):
+        fuse_sequence(d, holes, k, flow="dis")
+    bright = tiny.intensity[0].copy()
+    bright[3, 4] = np.inf
+    with pytest.raises(ParameterError, match=r"^intensity \(frame 0\) has 1 NaN or inf"):
+        FusionEngine(k).push(d[0], bright)
+
+
+@pytest.mark.parametrize(
+    ("fusion", "hint"),
+    [
+        ({"num_frames": 3}, r"got dict; FusionParams\(\*\*mapping\)"),
+        ("fast", r"got str; fuse4d.preset\('fast'\).fusion"),
+        (3, r"got int; e.g. FusionParams\(num_frames=5\)"),
+    ],
+)
+def test_fusion_argument_of_another_type_says_how_to_make_one(tiny, fusion, hint):
+    """``fusion={...}`` failed deep inside the run with an AttributeError."""
+    d, k = tiny.depth, tiny.intrinsics
+    with pytest.raises(ParameterTypeError, match=r"^fusion must be a FusionParams, " + hint):
+        fuse_sequence(d, tiny.intensity, k, fusion=fusion)
+    with pytest.raises(ParameterTypeError, match="fusion must be a FusionParams"):
+        FusionEngine(k, fusion=fusion)

@@ -27,6 +27,7 @@ from types import MappingProxyType
 from typing import Any, Literal
 
 from ._params import coerce_fields, param, validate
+from .errors import ParameterError, ParameterTypeError
 
 __all__ = ["LITERAL_PAPER", "PRESETS", "FlowConfig", "FusionParams", "load_config", "preset"]
 
@@ -419,7 +420,29 @@ def preset(name: str) -> Preset:
         return Preset(name, PRESETS[name], FusionParams(), FlowConfig("dis"))
     if name == "paper":
         return Preset(name, PRESETS[name], FusionParams(), FlowConfig("pmbp"))
-    raise ValueError(f"unknown preset {name!r}; choose one of: {', '.join(PRESETS)}")
+    raise ParameterError(f"unknown preset {name!r}; choose one of: {', '.join(PRESETS)}")
+
+
+def fusion_params(fusion: FusionParams | None) -> FusionParams:
+    """The ``fusion`` argument of the public entry points: itself, or the defaults for None.
+
+    Raises
+    ------
+    ParameterTypeError
+        For anything else (a dict or a preset name failed later as an AttributeError deep
+        inside the run); the message says how to make a :class:`FusionParams`.
+    """
+    if fusion is None:
+        return FusionParams()
+    if isinstance(fusion, FusionParams):
+        return fusion
+    if isinstance(fusion, Mapping):
+        hint = "FusionParams(**mapping) makes one from a mapping of its fields"
+    elif isinstance(fusion, str):
+        hint = f"fuse4d.preset({fusion!r}).fusion is a preset's (with its flow: .flow)"
+    else:
+        hint = "e.g. FusionParams(num_frames=5)"
+    raise ParameterTypeError(f"fusion must be a FusionParams, got {type(fusion).__name__}; {hint}")
 
 
 def load_config(path: str | PathLike[str], *, base: str | None = None) -> Preset:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, Self
@@ -31,7 +32,7 @@ from ._memory import committed
 from ._validation import as_float32, check_shape
 from .bilateral import _residual_bilateral, bilateral_filter_points
 from .camera import Intrinsics, depth_to_points
-from .config import FlowConfig, FusionParams, preset
+from .config import FlowConfig, FusionParams, fusion_params, preset
 from .errors import ShapeError
 from .flow import SequenceFlow, as_sequence_flow
 from .flying_pixels import flying_pixel_mask, resolve_flying_pixels
@@ -273,7 +274,7 @@ class FusionEngine:
         self._initial_flow = (
             None if initial_flow is None else as_float32(initial_flow, name="initial_flow")
         )
-        self.params = fusion or FusionParams()
+        self.params = fusion_params(fusion)
         self.precomputed: SequenceFlow | None = None
         if isinstance(flow, str):
             flow = FlowConfig(flow)
@@ -478,6 +479,8 @@ class FusionEngine:
         valid = np.empty((h, w), np.float32)  # (the caller's array is not written to)
         _valid_depth_kernel(d, valid)  # NaN = invalid
         d = valid
+        if index == 0:
+            _warn_if_not_millimetres(d)
         slot = index % self.ring
         input_quad = math.nan  # q of the depth as pushed (input_noise_quad)
         if self._rejected is not None:  # A36, before anything sees the depth
@@ -1151,6 +1154,25 @@ class FusionResult:
         return float((self.support[valid] > 0).mean()) if valid.any() else 0.0
 
 
+#: Median depth (mm) below which a stream's first frame is probably not in millimetres: no 3D
+#: video sensor measures a scene closer than ~0.1 m, so depth in metres has a median of 0.1-10.
+MILLIMETRE_MEDIAN_FLOOR = 20.0
+
+
+def _warn_if_not_millimetres(depth: NDArray[np.float32]) -> None:
+    """Warn once per stream where the first frame's median valid depth (mm) is below
+    :data:`MILLIMETRE_MEDIAN_FLOOR`: depth in metres ran silently, every mm scale (noise
+    model, gates, kernels) 1000x too large for it, and the output hardly changed."""
+    finite = depth[np.isfinite(depth)]
+    if finite.size and (median := float(np.median(finite))) < MILLIMETRE_MEDIAN_FLOOR:
+        warnings.warn(
+            f"depth (frame 0) has a median of {median:.3g} mm: fuse4d takes depth in "
+            "millimetres; if it is in metres, multiply it by 1000 (a frame folder's or camera "
+            "recording's unit: --depth-unit-mm 1000)",
+            stacklevel=3,
+        )
+
+
 def fuse_sequence(
     depth: ArrayLike,
     intensity: ArrayLike,
@@ -1210,7 +1232,7 @@ def fuse_sequence(
     >>> res.points.shape
     (4, 150, 150, 3)
     """
-    params = resolve_flying_pixels(fusion or FusionParams(), sensor)
+    params = resolve_flying_pixels(fusion_params(fusion), sensor)
     d = as_float32(depth, name="depth")
     check_shape(d, ("T", "H", "W"), name="depth")
     inten = np.asarray(intensity)
@@ -1353,7 +1375,7 @@ def fuse_stream(
     >>> [f.index for f in fuse_stream(frames, seq.intrinsics, fusion=FusionParams(num_frames=3))]
     [0, 1, 2, 3]
     """
-    params = fusion or FusionParams()
+    params = fusion_params(fusion)
     if params.iterations != 1:
         raise ValueError("fuse_stream supports iterations=1 only; use fuse_sequence for more")
     engine = FusionEngine(intrinsics, fusion=params, flow=flow, timings=timings, overlap_flow=True)

@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 
 from ._background import LOWER_AFTER_FRAMES
 from .camera import Intrinsics
-from .config import FlowConfig, FusionParams
+from .config import FlowConfig, FusionParams, fusion_params
 from .errors import ParameterError
 from .flying_pixels import resolve_flying_pixels
 from .fusion import FusedFrame, FusionEngine
@@ -546,7 +546,7 @@ def run_live(
         raise ParameterError(f"max_frames must be >= 1, got {max_frames}")
     if duration_s is not None and not (math.isfinite(duration_s) and duration_s > 0):
         raise ParameterError(f"duration_s must be > 0 s, got {duration_s}")
-    params = (fusion or FusionParams()).replace(causal=True)
+    params = fusion_params(fusion).replace(causal=True)
     params = resolve_flying_pixels(params, getattr(source, "sensor", None))  # A36
     if params.iterations != 1:
         raise ParameterError(

@@ -22,7 +22,7 @@ import numpy as np
 
 from ._background import LOWER_AFTER_FRAMES, BackgroundLoop
 from .camera import depth_to_points
-from .config import FlowConfig, FusionParams, preset
+from .config import FlowConfig, FusionParams, fusion_params, preset
 from .errors import ParameterError
 from .flying_pixels import resolve_flying_pixels
 from .fusion import STAGES, FusedFrame, FusionEngine, fuse_sequence
@@ -292,7 +292,7 @@ def fuse_file(
     -------
     RunSummary
     """
-    params = fusion or FusionParams()
+    params = fusion_params(fusion)
     src = Path(input)
     dst = Path(output)
     fmt = detect_format(src)
@@ -307,6 +307,8 @@ def fuse_file(
         )
     if resume and fmt == "npz":
         raise ParameterError("--resume applies to frame-folder outputs; .npz is written at once")
+    if fmt == "npz" and reader_options:  # refused as open_frames refuses them (were ignored)
+        open_frames(src, **reader_options).close()
     start = time.perf_counter()
     clock = _OutputClock(progress)
     if fmt == "npz":

@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 from ._validation import as_float32, check_shape
 from .camera import Intrinsics, depth_to_points
-from .errors import ShapeError
+from .errors import ParameterError, ShapeError
 
 __all__ = [
     "BallTruth",
@@ -56,11 +56,12 @@ def normalize_intensity(intensity: np.ndarray) -> NDArray[np.float32]:
 
 
 def check_unit_intensity(intensity: np.ndarray, *, name: str = "intensity") -> NDArray[np.float32]:
-    """Float intensity as float32, refusing values outside [0, 1] (METHOD A16).
+    """Float intensity as float32, refusing values outside [0, 1] and NaN/inf (METHOD A16).
 
     The fusion's intensity kernel (``sigma_intensity``) and the flow methods expect [0, 1];
-    a float frame in 0-255 would silently make every intensity weight ~0. NaN is passed
-    through (the flow methods reject it with their own message).
+    a float frame in 0-255 would silently make every intensity weight ~0. NaN or inf has no
+    intensity weight at all (the flow methods refused it later, naming "image0" instead of
+    the frame).
 
     Parameters
     ----------
@@ -76,17 +77,21 @@ def check_unit_intensity(intensity: np.ndarray, *, name: str = "intensity") -> N
 
     Raises
     ------
-    ValueError
-        If a finite or infinite value lies outside [0, 1]; the message says how to rescale.
+    ParameterError
+        If a value lies outside [0, 1] or is not finite; the message says how to rescale or
+        how many pixels are not finite.
     """
     arr = as_float32(intensity, name=name)
     if arr.size:
         lo, hi = float(arr.min()), float(arr.max())
-        if np.isnan(lo) or np.isnan(hi):
-            values = arr[~np.isnan(arr)]
-            lo, hi = (float(values.min()), float(values.max())) if values.size else (0.0, 0.0)
+        if not (np.isfinite(lo) and np.isfinite(hi)):
+            bad = int(np.count_nonzero(~np.isfinite(arr)))
+            raise ParameterError(
+                f"{name} has {bad} NaN or inf pixel(s) of {arr.size}; intensity must be finite, "
+                "in [0, 1] (set pixels without an image to 0)"
+            )
         if lo < 0.0 or hi > 1.0:
-            raise ValueError(
+            raise ParameterError(
                 f"{name} is float with values in [{lo:.4g}, {hi:.4g}], outside [0, 1]; "
                 "rescale it to [0, 1] (e.g. divide 8-bit values by 255, or use "
                 "fuse4d.sequence.normalize_intensity on the whole sequence), or pass integer "

@@ -18,6 +18,7 @@ from os import PathLike
 from pathlib import Path
 from typing import Any
 
+from ..errors import ParameterError
 from .mkv import is_matroska
 from .rosbag import bag_kind
 from .zarrstore import is_zarr_store
@@ -58,7 +59,7 @@ def check_sensor_options(fmt: str, options: dict[str, Any]) -> dict[str, Any]:
     wrong = [k for k in given if k not in allowed]
     if wrong:
         where = ", ".join(f for f, opts in SENSOR_OPTIONS.items() if wrong[0] in opts) or "no"
-        raise ValueError(
+        raise ParameterError(
             f"option {wrong[0]} does not apply to {fmt} input (it applies to {where} input)"
         )
     return given

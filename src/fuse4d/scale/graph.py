@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 
 from .._validation import as_float32
 from ..camera import Intrinsics
-from ..config import FlowConfig, FusionParams, preset
+from ..config import FlowConfig, FusionParams, fusion_params, preset
 from ..errors import ParameterError, ShapeError
 from ..flow import (
     FlowCache,
@@ -599,7 +599,7 @@ def fuse(
     ShapeError
         If depth, intensity, intrinsics or flows disagree in shape.
     """
-    params = fusion or FusionParams()
+    params = fusion_params(fusion)
     if chunk_frames < 1:
         raise ParameterError(f"chunk_frames must be >= 1, got {chunk_frames}")
     if params.num_frames > 256:
