@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from fuse4d.cli import main
-from fuse4d.errors import ShapeError
+from fuse4d.errors import ParameterError, ShapeError
 from fuse4d.flow import (
     DeepFlowParams,
     DISParams,
@@ -348,7 +348,7 @@ def test_bad_inputs_have_clear_errors():
         estimate_flow(np.stack([image, image]), image)
     bad = image.copy()
     bad[3, 4] = np.nan
-    with pytest.raises(ValueError, match="image1 contains NaN"):
+    with pytest.raises(ParameterError, match=r"^image1 has 1 NaN or inf pixel\(s\)"):
         estimate_flow(image, bad)
     with pytest.raises(ShapeError, match="init must have shape"):
         estimate_flow(image, image, init=np.zeros((4, 4, 2)))
@@ -356,6 +356,26 @@ def test_bad_inputs_have_clear_errors():
         estimate_flow(image, image, roi=(10, 5, 0, 20))
     with pytest.raises(ValueError, match="at least 2 frames"):
         estimate_sequence_flow(image[None])
+
+
+def test_flow_takes_integer_images_as_the_engine_does_and_refuses_0_255_floats():
+    """A uint8 frame (``cv2.imread``) was taken as 0-255 and saturated to white: the flow of
+    a 1.5 px shift came out near zero. Now integers are divided by their dtype maximum."""
+    image = texture()
+    shifted = np.roll(image, 1, axis=1)
+    as_float = estimate_flow(image, shifted, method="dis")
+    as_uint8 = estimate_flow(*(np.round(255 * im).astype(np.uint8) for im in (image, shifted)))
+    inner = (slice(8, -8), slice(8, -8))
+    assert abs(float(np.median(as_uint8[inner][..., 0])) - 1.0) < 0.3  # (was ~0)
+    assert np.abs(as_uint8 - as_float)[inner].mean() < 0.05
+    with pytest.raises(ParameterError, match=r"^image0 is float with values in \[0, 2\d\d"):
+        estimate_flow(255 * image, 255 * shifted)
+    estimate_flow(image * 1.01 - 0.005, shifted)  # a resampling's slight overshoot is kept
+    video = np.stack([image, shifted])
+    as_video = estimate_sequence_flow(np.round(255 * video).astype(np.uint8), method="dis")
+    np.testing.assert_allclose(as_video.forward[0], as_uint8, atol=1e-6)
+    with pytest.raises(ParameterError, match=r"^frame pair \(0, 1\): image0 is float"):
+        estimate_sequence_flow(255 * video)
 
 
 def test_method_returning_wrong_shape_is_reported(monkeypatch):

@@ -2,26 +2,50 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .._validation import as_float32, check_shape
-from ..errors import ShapeError
+from ..errors import ParameterError, ShapeError
+from ..sequence import normalize_intensity
 from ._registry import Roi
 
 __all__ = ["check_flow_field", "check_image", "check_roi", "to_uint8"]
 
 
+#: How far (in units of the [0, 1] range) a flow input may stray outside [0, 1]: resampled
+#: images over- and undershoot a little (cubic warps: -0.003 .. 1.007) and are saturated like
+#: OpenCV's conversion to 8 bits; 0-255 floats are far beyond it.
+UNIT_RANGE_SLACK = 0.5
+
+
 def check_image(image: Any, name: str) -> NDArray[np.float32]:
-    """One gray intensity frame as float32 ``(H, W)``, at least 2 px a side, finite."""
-    arr = as_float32(image, name=name)
+    """One gray intensity frame as float32 ``(H, W)``, about [0, 1], at least 2 px a side.
+
+    Integers are divided by their dtype's maximum, as :class:`fuse4d.FusionEngine` does (a
+    ``cv2.imread`` uint8 frame was taken as 0-255 and saturated: a near-zero flow). Floats
+    must be finite and within :data:`UNIT_RANGE_SLACK` of [0, 1] (0-255 floats were
+    saturated the same way).
+    """
+    arr = np.asarray(image)
+    if arr.dtype.kind in "uib":
+        arr = normalize_intensity(arr)
+    arr = as_float32(arr, name=name)
     check_shape(arr, ("H", "W"), name=name, hint="Pass one gray-scale intensity frame")
     if arr.shape[0] < 2 or arr.shape[1] < 2:
         raise ShapeError(name, ("H", "W"), arr.shape, "Each side must be at least 2 px")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} contains NaN or inf; intensity must be finite, in [0, 1]")
+    lo, hi = float(arr.min()), float(arr.max())
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        bad = int(np.count_nonzero(~np.isfinite(arr)))
+        raise ParameterError(f"{name} has {bad} NaN or inf pixel(s); intensity must be finite")
+    if lo < -UNIT_RANGE_SLACK or hi > 1.0 + UNIT_RANGE_SLACK:
+        raise ParameterError(
+            f"{name} is float with values in [{lo:.4g}, {hi:.4g}], not [0, 1]; rescale it "
+            "(e.g. divide 8-bit values by 255) or pass integers, divided by their dtype maximum"
+        )
     return arr
 
 

@@ -19,7 +19,8 @@ from numpy.typing import NDArray
 
 from .._validation import as_float32, check_shape
 from .._version import __version__
-from ..errors import ShapeError
+from ..errors import Fuse4dError, ParameterError, ShapeError
+from ..sequence import normalize_intensity
 from ._checks import check_flow_field, check_image, check_roi
 from ._registry import FlowMethod, Roi, get_flow_method, resolve_flow_params
 from .cache import FlowCache, hash_parts
@@ -413,7 +414,8 @@ def estimate_sequence_flow(
     Parameters
     ----------
     intensity : (T, H, W) ndarray
-        Intensity frames, float in [0, 1], T >= 2.
+        Intensity frames, float in [0, 1] (integers are divided by their dtype maximum),
+        T >= 2.
     method, params, roi, cache
         As in :func:`estimate_flow_pair` (``roi`` = (row0, row1, col0, col1), flow 0 outside).
     warm_start : bool, optional
@@ -427,7 +429,10 @@ def estimate_sequence_flow(
     SequenceFlow
         ``.forward`` and ``.backward``, each ``(T-1, H, W, 2)`` float32 px.
     """
-    video = as_float32(intensity, name="intensity")
+    video = np.asarray(intensity)
+    if video.dtype.kind in "uib":  # as check_image does per frame, with the dtype's maximum
+        video = normalize_intensity(video)
+    video = as_float32(video, name="intensity")
     check_shape(video, ("T", "H", "W"), name="intensity")
     num_frames = video.shape[0]
     if num_frames < 2:
@@ -441,8 +446,9 @@ def estimate_sequence_flow(
     for t in range(num_frames - 1):
         try:
             forward[t], backward[t] = estimator(video[t], video[t + 1])
-        except ValueError as exc:
-            raise ValueError(f"frame pair ({t}, {t + 1}): {exc}") from exc
+        except ValueError as exc:  # (a fuse4d input error stays one)
+            error = ParameterError if isinstance(exc, Fuse4dError) else ValueError
+            raise error(f"frame pair ({t}, {t + 1}): {exc}") from exc
         if progress is not None:
             progress(t + 1, num_frames - 1)
     return SequenceFlow(
