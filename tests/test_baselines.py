@@ -17,6 +17,7 @@ from fuse4d.baselines import available_baselines, estimate_noise_sigma, run_base
 from fuse4d.baselines._common import normalized_convolution_fill
 from fuse4d.baselines.bilateral import _view_angle, joint_bilateral_frame
 from fuse4d.baselines.stmf import block_match, sorting_network
+from fuse4d.errors import ParameterError
 from naive.baselines import block_match as naive_block_match
 from naive.baselines import guided_filter as naive_guided
 from naive.baselines import joint_bilateral as naive_joint_bilateral
@@ -489,3 +490,18 @@ def test_baseline_knobs_out_of_range_are_parameter_errors(plane, intrinsics, nam
     depth, inten = plane
     with pytest.raises(ParameterError, match=says):
         _call(name, depth, inten, intrinsics, **params)
+
+
+@pytest.mark.parametrize("name", ["dnbf", "adjbf"])
+def test_integer_intensity_is_the_unit_intensity_and_0_255_floats_are_refused(
+    name, plane, intrinsics, rng
+):
+    """A uint8 guide was taken as 0-255, so every intensity weight was ~0: the joint filters
+    then smoothed nothing. Integers are divided by their dtype maximum, as for the fusion."""
+    depth, tex = plane
+    noisy = (depth + rng.normal(0, 0.2, depth.shape)).astype(np.float32)
+    as_uint8 = np.round(255 * tex).astype(np.uint8)
+    from_uint8 = run_baseline(name, noisy, as_uint8, intrinsics)
+    np.testing.assert_allclose(from_uint8, run_baseline(name, noisy, as_uint8 / 255.0, intrinsics))
+    with pytest.raises(ParameterError, match=r"^intensity is float with values in \[.*, 2\d\d"):
+        run_baseline(name, noisy, 255.0 * tex, intrinsics)

@@ -12,6 +12,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._params import check_int, check_number
 from .._validation import as_float32, check_same_shape, check_shape
 from ..camera import Intrinsics
+from ..sequence import check_unit_intensity, normalize_intensity
 
 __all__ = [
     "MAX_WINDOW_RADIUS",
@@ -43,6 +44,8 @@ def check_inputs(
     """Validate ``(T, H, W)`` depth (mm) / intensity ([0, 1]) against ``intrinsics``.
 
     Returns contiguous float32 arrays; depth values <= 0 or non-finite become NaN (copy).
+    Integer intensity is divided by its dtype's maximum and float intensity must lie in
+    [0, 1], as for the fusion (a uint8 guide was taken as 0-255: every range weight ~0).
     """
     if not isinstance(intrinsics, Intrinsics):
         raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics).__name__}")
@@ -59,9 +62,10 @@ def check_inputs(
         d[bad] = np.nan
     if intensity is None:
         return d, None
-    i = as_float32(intensity, name="intensity")
+    i = np.asarray(intensity)
+    i = normalize_intensity(i) if i.dtype.kind in "uib" else as_float32(i, name="intensity")
     check_same_shape(d, i, names=("depth", "intensity"))
-    return d, i
+    return d, check_unit_intensity(i)
 
 
 def estimate_noise_sigma(depth: ArrayLike) -> float:
