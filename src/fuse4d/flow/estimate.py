@@ -111,8 +111,9 @@ def estimate_flow(
     Parameters
     ----------
     image0, image1 : (H, W) ndarray
-        Intensity frames, float in [0, 1] (other numeric dtypes are converted to float32 as
-        they are, so pass normalised intensity).
+        Intensity frames, float in [0, 1]; integers are divided by their dtype's maximum (a
+        ``cv2.imread`` uint8 frame by 255), as :class:`fuse4d.FusionEngine` does. Floats far
+        outside [0, 1] (0-255) are refused.
     method : str or FlowMethod, optional
         A name from :func:`available_flow_methods` (``"dis"`` by default; ``"pmbp"`` is the
         paper's tracker once registered).
@@ -204,7 +205,7 @@ def estimate_flow_pair(
     Parameters
     ----------
     image0, image1 : (H, W) ndarray
-        Frames t and t+1, float in [0, 1].
+        Frames t and t+1, float in [0, 1] (integers: as in :func:`estimate_flow`).
     method, params, roi
         As in :func:`estimate_flow`.
     init_forward : (H, W, 2) ndarray, optional
