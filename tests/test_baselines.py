@@ -422,6 +422,35 @@ def test_cli_runs_baseline_and_refuses_overwrite(tmp_path, plane, intrinsics, rn
     assert "unknown baseline" in capsys.readouterr().err
 
 
+def test_cli_baseline_writes_a_folder_in_the_inputs_own_unit(
+    tmp_path, plane, intrinsics, rng, capsys
+):
+    """A 0.05 mm-unit folder came back in 1 mm steps (5x the noise): Eq. 7 then read the
+    rounding as roughness. Now the input's unit, as `fuse4d run` and `convert` write;
+    --out-depth-unit-mm overrides it (and warns when coarse); the recording options reach
+    the reader."""
+    from fuse4d import Sequence
+    from fuse4d.cli import main
+    from fuse4d.io import load_sequence, save_sequence
+
+    depth, tex = plane
+    noisy = depth + rng.normal(0, 0.2, depth.shape).astype(np.float32)
+    src = save_sequence(Sequence(noisy, tex, intrinsics), tmp_path / "in", depth_unit_mm=0.05)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert main(["baseline", "temporal-mean", str(src), "-o", str(tmp_path / "a")]) == 0
+    own = load_sequence(tmp_path / "a").depth
+    exact = run_baseline("temporal-mean", load_sequence(src).depth, None, intrinsics)
+    assert np.nanmax(np.abs(own - exact)) <= 0.025 + 1e-4  # half of 0.05 mm
+    coarse = ["baseline", "temporal-mean", str(src), "-o", str(tmp_path / "b")]
+    with pytest.warns(UserWarning, match="depth_unit_mm=1 is coarse"):
+        assert main([*coarse, "--out-depth-unit-mm", "1"]) == 0
+    assert np.nanmax(np.abs(load_sequence(tmp_path / "b").depth - exact)) > 0.4
+    capsys.readouterr()
+    assert main([*coarse, "--force", "--depth-topic", "/d"]) == 2
+    assert "option depth_topic does not apply to folder input" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(
     ("seed", "threshold", "rounds"), [(0, 0.05, 999), (1, 0.1, 999), (2, 0.3, 3)]
 )

@@ -283,6 +283,25 @@ def test_folder_warns_on_coarse_unit_and_clipping(tmp_path, small_sequence):
     assert np.all(read_frame_folder(tmp_path / "c").depth == 1.0)  # still valid
 
 
+def test_no_coarse_unit_warning_for_piecewise_constant_depth(tmp_path, small_sequence):
+    """Depth whose neighbours are mostly equal (the RealSense chain's output) has a noise
+    estimate of 0: "coarse against an estimated pixel noise of 0 mm" is not a finding."""
+    steps = np.repeat(np.repeat(small_sequence.depth[:, ::4, ::4], 4, axis=1), 4, axis=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        write_frame_folder(small_sequence.with_depth(steps + 0.3), tmp_path / "a")
+    assert np.all(np.isfinite(read_frame_folder(tmp_path / "a").depth))
+
+
+def test_save_sequence_passes_warn_coarse_unit_on(tmp_path, small_sequence):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for name in ("a", "b.mkv"):
+            save_sequence(small_sequence, tmp_path / name, warn_coarse_unit=False)
+    with pytest.warns(UserWarning, match="is coarse for this data"):
+        save_sequence(small_sequence, tmp_path / "c.mkv")
+
+
 def test_folder_in_the_inputs_own_unit_warns_of_clipping_only(tmp_path, small_sequence):
     """warn_coarse_unit=False (the input's own unit, as `fuse4d run` writes): the same data
     that warns of a coarse unit above writes silently, and clipping is still reported."""

@@ -1,8 +1,9 @@
-"""Command-line options shared by the commands that read camera recordings (info, run, export-ply).
+"""Command-line options shared by the commands that read camera recordings (info, run, baseline, …).
 
 ROS bags and RealSense files: ``--depth-topic``, ``--intensity-topic``, ``--intensity``;
-Azure Kinect ``.mkv``: ``--no-undistort``; ``run`` and ``live`` also share ``--depth-unit-mm`` and
-``--intrinsics``. :func:`reader_options` turns the given ones into
+Azure Kinect ``.mkv``: ``--no-undistort``; ``run``, ``live`` and ``baseline`` also share
+``--depth-unit-mm`` and ``--intrinsics``; ``convert`` and ``baseline`` the output's unit
+(``--out-depth-unit-mm``). :func:`reader_options` turns the given ones into
 keyword arguments of :func:`fuse4d.io.open_frames` (options left unset are not passed, so
 other layouts are unaffected).
 """
@@ -20,6 +21,7 @@ __all__ = [
     "IntensityOpt",
     "IntensityTopicOpt",
     "NoUndistortOpt",
+    "OutDepthUnitOpt",
     "frame_range",
     "reader_options",
 ]
@@ -48,6 +50,14 @@ NoUndistortOpt = Annotated[
 DepthUnitOpt = Annotated[
     float | None,
     typer.Option("--depth-unit-mm", "--depth-unit", help="Millimetres per stored depth unit."),
+]
+OutDepthUnitOpt = Annotated[
+    float | None,
+    typer.Option(
+        "--out-depth-unit-mm",
+        help="Folder / .mkv output: mm per stored depth unit (default: the input's own, "
+        "or 1 mm for float depth).",
+    ),
 ]
 CameraOverrideOpt = Annotated[
     str | None, typer.Option("--intrinsics", help="Camera override: 'fx,fy,cx,cy' or file.")

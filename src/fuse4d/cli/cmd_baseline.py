@@ -10,6 +10,16 @@ import typer
 from rich.table import Table
 
 from ._app import app, eprint, fail, out_console
+from ._recording_opts import (
+    CameraOverrideOpt,
+    DepthTopicOpt,
+    DepthUnitOpt,
+    IntensityOpt,
+    IntensityTopicOpt,
+    NoUndistortOpt,
+    OutDepthUnitOpt,
+    reader_options,
+)
 
 __all__ = ["baseline_command"]
 
@@ -70,7 +80,10 @@ def baseline_command(
     ] = None,
     input_path: Annotated[
         Path | None,
-        typer.Argument(help="Input recording (.npz or sequence folder).", show_default=False),
+        typer.Argument(
+            help="Input recording (any layout fuse4d reads, camera recordings included).",
+            show_default=False,
+        ),
     ] = None,
     output: Annotated[
         Path | None, typer.Option("--output", "-o", help="Output .npz file or folder.")
@@ -90,9 +103,13 @@ def baseline_command(
         ),
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite OUTPUT.")] = False,
-    depth_unit_mm: Annotated[
-        float, typer.Option("--depth-unit-mm", help="Folder output: mm per stored depth unit.")
-    ] = 1.0,
+    out_depth_unit_mm: OutDepthUnitOpt = None,
+    depth_topic: DepthTopicOpt = None,
+    intensity_topic: IntensityTopicOpt = None,
+    intensity: IntensityOpt = None,
+    no_undistort: NoUndistortOpt = False,
+    depth_unit_mm: DepthUnitOpt = None,
+    intrinsics: CameraOverrideOpt = None,
     list_methods: Annotated[
         bool, typer.Option("--list", help="List the methods and exit.")
     ] = False,
@@ -110,9 +127,9 @@ def baseline_command(
         fail("usage: fuse4d baseline NAME INPUT -o OUTPUT (or fuse4d baseline --list)")
     import numpy as np
 
-    from .._params import parse_assignments
+    from .._params import check_number, parse_assignments
     from ..baselines import get_baseline
-    from ..io import load_sequence, save_sequence
+    from ..io import load_sequence, open_frames, save_sequence
 
     info = get_baseline(name)
     if info.needs is not None and not info.available:
@@ -125,15 +142,22 @@ def baseline_command(
     if iterations is not None:
         params["iterations"] = iterations
     kwargs = info.knobs(params)  # strings to the method's keyword types, before reading input
-    seq = load_sequence(input_path)
+    if out_depth_unit_mm is not None:
+        check_number("baseline", "out_depth_unit_mm", out_depth_unit_mm, gt=0, finite=True)
+    options = reader_options(
+        depth_topic, intensity_topic, intensity, no_undistort,
+        depth_unit_mm=depth_unit_mm, intrinsics=intrinsics,
+    )  # fmt: skip
+    with open_frames(input_path, **options) as reader:  # the input's own depth unit
+        own_unit = reader.depth_unit_mm
+    unit = out_depth_unit_mm or own_unit or 1.0
+    seq = load_sequence(input_path, **options)
     start = time.perf_counter()
     result = info.function(seq.depth, seq.intensity, seq.intrinsics, **kwargs)
     elapsed = time.perf_counter() - start
     depth = result[..., 2] if info.returns_points else result
     depth = np.where(np.isfinite(depth), depth, np.nan).astype(np.float32)
-    written = save_sequence(
-        seq.with_depth(depth), output, overwrite=force, depth_unit_mm=depth_unit_mm
-    )
+    written = save_sequence(seq.with_depth(depth), output, overwrite=force, depth_unit_mm=unit)
     eprint(
         f"{name}: {seq.num_frames} frames in {elapsed:.2f} s "
         f"({1000 * elapsed / max(seq.num_frames, 1):.1f} ms/frame) -> {written}"

@@ -16,6 +16,7 @@ from ._recording_opts import (
     IntensityOpt,
     IntensityTopicOpt,
     NoUndistortOpt,
+    OutDepthUnitOpt,
     frame_range,
     reader_options,
 )
@@ -220,14 +221,7 @@ def convert_command(
             callback=frame_range,
         ),
     ] = None,
-    out_depth_unit_mm: Annotated[
-        float | None,
-        typer.Option(
-            "--out-depth-unit-mm",
-            help="Folder / .mkv output: mm per stored depth unit (default: the input's own, "
-            "or 1 mm for float depth).",
-        ),
-    ] = None,
+    out_depth_unit_mm: OutDepthUnitOpt = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing output.")] = False,
     intrinsics: IntrinsicsOpt = None,
     depth_unit_mm: UnitOpt = None,

@@ -327,7 +327,9 @@ class QuantizationReport:
         if self.off_grid and self.noise_estimates:
             noise = float(np.median(self.noise_estimates))
             rms = self.unit_mm / np.sqrt(12.0)
-            if rms > 0.5 * noise:
+            # noise 0: most neighbours are equal (piecewise-constant data, e.g. the RealSense
+            # chain's output), so the rounding has no noise to be compared with
+            if noise > 0 and rms > 0.5 * noise:
                 problems.append(
                     f"depth_unit_mm={self.unit_mm:g} is coarse for this data: rounding adds "
                     f"{rms:.3g} mm RMS error against an estimated pixel noise of {noise:.3g} mm "

@@ -291,6 +291,7 @@ def save_sequence(
     overwrite: bool = False,
     depth_unit_mm: float = 1.0,
     progress: ProgressCallback | None = None,
+    warn_coarse_unit: bool = True,
 ) -> Path:
     """Write a sequence atomically as ``.npz`` (lossless, keeps ground truth), a frame folder,
     an FFV1 ``.mkv`` (lossless 16-bit depth video) or a ``.zarr`` v3 store (float, lossless).
@@ -312,6 +313,9 @@ def save_sequence(
         rounded and clipped to 16 bit with a ``UserWarning`` on clipping or coarse rounding.
     progress : callable, optional
         ``callback(done, total)`` (folder format).
+    warn_coarse_unit : bool, optional
+        Folder and mkv formats: warn when ``depth_unit_mm`` is coarse for the data (default
+        True). False where it is the input recording's own unit (a filtered result of it).
 
     Returns
     -------
@@ -322,13 +326,17 @@ def save_sequence(
     if fmt == "npz":
         return write_npz(seq, path, overwrite=overwrite)
     if fmt == "mkv":
-        return write_depth_video(seq, path, depth_unit_mm=depth_unit_mm, overwrite=overwrite)
+        return write_depth_video(
+            seq, path, depth_unit_mm=depth_unit_mm, overwrite=overwrite,
+            warn_coarse_unit=warn_coarse_unit,
+        )  # fmt: skip
     if fmt == "zarr":
         return write_zarr(seq, path, overwrite=overwrite)
     if fmt == "folder":
         return write_frame_folder(
-            seq, path, depth_unit_mm=depth_unit_mm, overwrite=overwrite, progress=progress
-        )
+            seq, path, depth_unit_mm=depth_unit_mm, overwrite=overwrite, progress=progress,
+            warn_coarse_unit=warn_coarse_unit,
+        )  # fmt: skip
     raise ParameterError(f"format must be one of {', '.join(WRITE_FORMATS)}, got {fmt!r}")
 
 

@@ -512,8 +512,10 @@ def write_frame_folder(
     intensity_bits: int | None = None,
     overwrite: bool = False,
     progress: ProgressCallback | None = None,
+    warn_coarse_unit: bool = True,
 ) -> Path:
-    """Write a sequence as a frame folder, atomically (see :class:`FrameFolderWriter`).
+    """Write a sequence as a frame folder, atomically (see :class:`FrameFolderWriter`, whose
+    ``warn_coarse_unit`` this passes on).
 
     ``ground_truth.mask`` is written to ``mask/``; ground-truth depth, flow and extras cannot
     be stored in this format (a ``UserWarning`` says so; use :func:`write_npz` to keep them).
@@ -544,6 +546,7 @@ def write_frame_folder(
         intensity_bits=intensity_bits,
         overwrite=overwrite,
         sensor=seq.sensor,
+        warn_coarse_unit=warn_coarse_unit,
     )
     with writer:
         for t in range(seq.num_frames):

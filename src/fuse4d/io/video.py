@@ -195,8 +195,10 @@ def write_depth_video(
     *,
     depth_unit_mm: float = 1.0,
     overwrite: bool = False,
+    warn_coarse_unit: bool = True,
 ) -> Path:
-    """Write a :class:`~fuse4d.Sequence` as FFV1 ``.mkv`` (see :class:`DepthVideoWriter`)."""
+    """Write a :class:`~fuse4d.Sequence` as FFV1 ``.mkv`` (see :class:`DepthVideoWriter`, whose
+    ``warn_coarse_unit`` this passes on)."""
     with DepthVideoWriter(
         path,
         seq.intrinsics,
@@ -204,6 +206,7 @@ def write_depth_video(
         fps=seq.fps,
         overwrite=overwrite,
         sensor=seq.sensor,
+        warn_coarse_unit=warn_coarse_unit,
     ) as writer:
         ts = seq.timestamps
         for t in range(seq.num_frames):
