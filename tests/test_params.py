@@ -384,3 +384,34 @@ def test_fusion_argument_of_another_type_says_how_to_make_one(tiny, fusion, hint
         fuse_sequence(d, tiny.intensity, k, fusion=fusion)
     with pytest.raises(ParameterTypeError, match="fusion must be a FusionParams"):
         FusionEngine(k, fusion=fusion)
+
+
+def test_intrinsics_of_another_type_say_how_to_make_them(tiny):
+    """A tuple of fx, fy, cx, cy failed as an AttributeError inside the engine; one check
+    (``camera.check_intrinsics``) serves the engine, fuse_sequence, Sequence, the baselines
+    and the writers."""
+    from fuse4d.baselines import run_baseline
+    from fuse4d.io import FrameFolderWriter
+
+    d, i = tiny.depth, tiny.intensity
+    k = tuple(getattr(tiny.intrinsics, f) for f in ("fx", "fy", "cx", "cy"))
+    message = r"^intrinsics must be a fuse4d.Intrinsics, got tuple; e.g. Intrinsics\(fx="
+    for call in (
+        lambda: FusionEngine(k),
+        lambda: fuse_sequence(d, i, k),
+        lambda: Sequence(d, i, k),
+        lambda: run_baseline("temporal-mean", d, i, k),
+        lambda: FrameFolderWriter("unused", k),
+    ):
+        with pytest.raises(ParameterTypeError, match=message):
+            call()
+
+
+def test_pair_flow_that_is_not_a_pair_is_named(tiny):
+    engine = FusionEngine(tiny.intrinsics)
+    engine.push(tiny.depth[0], tiny.intensity[0])
+    flow = np.zeros((*tiny.depth.shape[1:], 2), np.float32)
+    with pytest.raises(ParameterTypeError, match=r"^pair_flow must be a \(forward, backward\)"):
+        engine.push(tiny.depth[1], tiny.intensity[1], pair_flow=flow)
+    engine.push(tiny.depth[1], tiny.intensity[1], pair_flow=(flow, flow))
+    assert [f.index for f in engine.flush()] == [0, 1]  # the refused push left no frame

@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._validation import as_float32, check_shape
+from .errors import ParameterTypeError
 
 __all__ = ["Intrinsics", "depth_to_points", "points_to_depth", "project_points"]
 
@@ -128,6 +129,18 @@ class Intrinsics:
             "width": self.width,
             "height": self.height,
         }
+
+
+def check_intrinsics(intrinsics: object) -> Intrinsics:
+    """``intrinsics`` itself where it is an :class:`Intrinsics`; else a
+    :class:`~fuse4d.ParameterTypeError` saying how to make one (a tuple failed later as an
+    AttributeError)."""
+    if not isinstance(intrinsics, Intrinsics):
+        raise ParameterTypeError(
+            f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics).__name__}; e.g. "
+            "Intrinsics(fx=525.0, fy=525.0, cx=319.5, cy=239.5, width=640, height=480) (px)"
+        )
+    return intrinsics
 
 
 def depth_to_points(depth: ArrayLike, intrinsics: Intrinsics) -> NDArray[np.float32]:

@@ -31,9 +31,9 @@ from ._kernels.smooth_base import _smooth_base_cols_kernel, _smooth_base_rows_ke
 from ._memory import committed
 from ._validation import as_float32, check_shape
 from .bilateral import _residual_bilateral, bilateral_filter_points
-from .camera import Intrinsics, depth_to_points
+from .camera import Intrinsics, check_intrinsics, depth_to_points
 from .config import FlowConfig, FusionParams, fusion_params, preset
-from .errors import ShapeError
+from .errors import ParameterTypeError, ShapeError
 from .flow import SequenceFlow, as_sequence_flow
 from .flying_pixels import flying_pixel_mask, resolve_flying_pixels
 from .holes import (
@@ -270,7 +270,7 @@ class FusionEngine:
         initial_flow: np.ndarray | None = None,
         overlap_flow: bool = False,
     ) -> None:
-        self.intrinsics = intrinsics
+        self.intrinsics = check_intrinsics(intrinsics)
         self._initial_flow = (
             None if initial_flow is None else as_float32(initial_flow, name="initial_flow")
         )
@@ -472,6 +472,14 @@ class FusionEngine:
         """
         if self._closed:
             raise RuntimeError("engine was flushed; create a new FusionEngine for a new stream")
+        if pair_flow is not None and not (
+            isinstance(pair_flow, tuple | list) and len(pair_flow) == 2
+        ):
+            raise ParameterTypeError(
+                "pair_flow must be a (forward, backward) pair of (H, W, 2) px arrays, got "
+                + (f"an array of shape {np.shape(pair_flow)}" if hasattr(pair_flow, "shape")
+                   else type(pair_flow).__name__)
+            )  # fmt: skip
         h, w = self.intrinsics.height, self.intrinsics.width
         index = self._pushed
         d = as_float32(depth, name="depth")
@@ -1232,6 +1240,7 @@ def fuse_sequence(
     >>> res.points.shape
     (4, 150, 150, 3)
     """
+    check_intrinsics(intrinsics)
     params = resolve_flying_pixels(fusion_params(fusion), sensor)
     d = as_float32(depth, name="depth")
     check_shape(d, ("T", "H", "W"), name="depth")

@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._validation import as_float32, check_shape
-from .camera import Intrinsics, depth_to_points
+from .camera import Intrinsics, check_intrinsics, depth_to_points
 from .errors import ParameterError, ShapeError
 
 __all__ = [
@@ -389,10 +389,7 @@ class Sequence:
     sensor: str | None = None
 
     def __post_init__(self) -> None:
-        if not isinstance(self.intrinsics, Intrinsics):
-            raise TypeError(
-                f"intrinsics must be a fuse4d.Intrinsics, got {type(self.intrinsics).__name__}"
-            )
+        check_intrinsics(self.intrinsics)
         depth = np.asarray(self.depth)
         intensity = np.asarray(self.intensity)
         if depth.ndim == 2:

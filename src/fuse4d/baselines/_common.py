@@ -11,7 +11,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._params import check_int, check_number
 from .._validation import as_float32, check_same_shape, check_shape
-from ..camera import Intrinsics
+from ..camera import Intrinsics, check_intrinsics
 from ..sequence import check_unit_intensity, normalize_intensity
 
 __all__ = [
@@ -47,8 +47,7 @@ def check_inputs(
     Integer intensity is divided by its dtype's maximum and float intensity must lie in
     [0, 1], as for the fusion (a uint8 guide was taken as 0-255: every range weight ~0).
     """
-    if not isinstance(intrinsics, Intrinsics):
-        raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics).__name__}")
+    check_intrinsics(intrinsics)
     d = as_float32(depth, name="depth")
     check_shape(d, ("T", "H", "W"), name="depth", hint="Pass a (frames, rows, columns) array.")
     if d.shape[1:] != (intrinsics.height, intrinsics.width):

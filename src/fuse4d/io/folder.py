@@ -27,7 +27,7 @@ from typing import Self
 import numpy as np
 from numpy.typing import NDArray
 
-from ..camera import Intrinsics
+from ..camera import Intrinsics, check_intrinsics
 from ..errors import InputFileError, ParameterError
 from ..sequence import Sequence
 from ._atomic import atomic_dir, check_output
@@ -316,8 +316,7 @@ class FrameFolderWriter:
         sensor: str | None = None,
         warn_coarse_unit: bool = True,
     ) -> None:
-        if not isinstance(intrinsics, Intrinsics):
-            raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics)}")
+        check_intrinsics(intrinsics)
         if not (np.isfinite(depth_unit_mm) and depth_unit_mm > 0):
             raise ParameterError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
         if intensity_bits not in (None, 8, 16):

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from ..camera import Intrinsics
+from ..camera import Intrinsics, check_intrinsics
 from ..errors import ParameterError
 from ..sequence import Sequence
 from ._atomic import StagedWriter, atomic_file, check_output
@@ -76,8 +76,7 @@ class DepthVideoWriter(StagedWriter):
         sensor: str | None = None,
         warn_coarse_unit: bool = True,
     ) -> None:
-        if not isinstance(intrinsics, Intrinsics):
-            raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics)}")
+        check_intrinsics(intrinsics)
         if not (math.isfinite(depth_unit_mm) and depth_unit_mm > 0):
             raise ValueError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
         if fps is not None and not (math.isfinite(fps) and fps > 0):

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..camera import Intrinsics
+from ..camera import Intrinsics, check_intrinsics
 from ..errors import InputFileError, ParameterError
 from ..sequence import Sequence
 from ._atomic import StagedWriter, atomic_dir, check_output
@@ -97,8 +97,7 @@ class ZarrWriter(StagedWriter):
         sensor: str | None = None,
         warn_coarse_unit: bool = True,
     ) -> None:
-        if not isinstance(intrinsics, Intrinsics):
-            raise TypeError(f"intrinsics must be a fuse4d.Intrinsics, got {type(intrinsics)}")
+        check_intrinsics(intrinsics)
         if fps is not None and not (math.isfinite(fps) and fps > 0):
             raise ParameterError(f"fps must be > 0, got {fps!r}")
         self._zarr = require("zarr", what="writing zarr stores")
