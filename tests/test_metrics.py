@@ -518,3 +518,12 @@ def test_plot_roughness_map_and_save_figure(tmp_path):
         save_figure(fig, out)
     with pytest.raises(ValueError, match="vmax must exceed vmin"):
         plot_roughness_map(np.zeros((4, 4)), vmax=0.0)
+
+
+def test_roughness_of_a_depth_map_says_how_to_make_points():
+    """A (T, H, W) depth passed to the roughness (which takes 3D points) got "must have shape
+    (H, W, 3)"; the message now names the conversion."""
+    depth = np.full((2, 16, 20), 500.0, np.float32)
+    for wrong in (depth, depth[0]):
+        with pytest.raises(ShapeError, match=r"3D points in mm \(from depth: fuse4d.depth_to_"):
+            roughness_stats(wrong)

@@ -30,12 +30,18 @@ def _check_window(window: int, min_valid_fraction: float) -> None:
         raise ValueError(f"min_valid_fraction must be in (0, 1], got {min_valid_fraction!r}")
 
 
+#: What the roughness takes, said wherever a depth map was passed instead.
+_POINTS_HINT = (
+    "pass a (H, W, 3) or (T, H, W, 3) map of 3D points in mm (from depth: "
+    "fuse4d.depth_to_points(depth, intrinsics), or Sequence.points())"
+)
+
+
 def _as_points(points: ArrayLike) -> tuple[NDArray[np.float32], bool]:
     p = as_float32(points, name="points")
-    if p.ndim == 3:
-        check_shape(p, ("H", "W", 3), name="points")
+    if p.ndim == 3 and p.shape[-1] == 3:
         return p[None], True
-    check_shape(p, ("T", "H", "W", 3), name="points", hint="pass a (H, W, 3) or (T, H, W, 3) map")
+    check_shape(p, ("T", "H", "W", 3), name="points", hint=_POINTS_HINT)
     return p, False
 
 
