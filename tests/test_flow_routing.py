@@ -115,7 +115,17 @@ def test_cli_flow_cache_and_roi(ball, tmp_path, capsys):
     capsys.readouterr()
     bad = ["run", str(src), "-o", str(tmp_path / "c.npz"), "--flow-roi", "1,2,3"]
     assert main(bad) == 2
-    assert "--flow-roi must be ROW0,ROW1,COL0,COL1" in capsys.readouterr().err
+    assert "--flow-roi must be R0:R1,C0:C1 or ROW0,ROW1,COL0,COL1" in capsys.readouterr().err
+
+
+def test_cli_flow_roi_takes_the_roi_syntax_of_report_and_metrics():
+    """``--flow-roi 10:60,20:90`` (the ``--roi`` syntax of report and metrics) was refused;
+    the config's R0,R1,C0,C1 still works."""
+    from fuse4d.cli.cmd_fuse import _resolve
+
+    for roi in ("10:60,20:90", "10,60,20,90", "10, 60, 20, 90"):
+        _, flow = _resolve("fast", None, None, False, None, None, None, flow_roi=roi)
+        assert flow.roi == (10, 60, 20, 90)
 
 
 def test_cli_flow_param_on_optional_field(tmp_path, capsys):

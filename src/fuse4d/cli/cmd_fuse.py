@@ -78,13 +78,20 @@ def _resolve(
     if flow_cache is not None:
         flow = dataclasses.replace(flow, cache_dir=str(flow_cache))
     if flow_roi is not None:
+        from ..metrics.roi import parse_box
+
         text = ",".join(flow_roi.replace(",", " ").split())
-        try:
-            roi = coerce_fields(FlowConfig, {"roi": text})["roi"] or ()
+        try:  # R0:R1,C0:C1 as --roi of report and metrics, or the config's ROW0,ROW1,COL0,COL1
+            roi = (
+                parse_box(text) if ":" in text else coerce_fields(FlowConfig, {"roi": text})["roi"]
+            )
         except ValueError:
             roi = ()
-        if len(roi) != 4:
-            fail(f"--flow-roi must be ROW0,ROW1,COL0,COL1 (px, half-open), got {flow_roi!r}")
+        if len(roi or ()) != 4:
+            fail(
+                f"--flow-roi must be R0:R1,C0:C1 or ROW0,ROW1,COL0,COL1 (px, half-open), "
+                f"got {flow_roi!r}"
+            )
         flow = dataclasses.replace(flow, roi=roi)
     assert isinstance(flow, FlowConfig)
     with user_values("--flow/--flow-param: "):
@@ -128,7 +135,9 @@ def run_command(
     flow_roi: Annotated[
         str | None,
         typer.Option(
-            "--flow-roi", help="Solve flow only in ROW0,ROW1,COL0,COL1 (px); 0 flow outside."
+            "--flow-roi",
+            help="Solve flow only in rows R0..R1-1, columns C0..C1-1: R0:R1,C0:C1 (as --roi "
+            "elsewhere) or R0,R1,C0,C1 (px); 0 flow outside.",
         ),
     ] = None,
     frames: Annotated[
