@@ -415,3 +415,12 @@ def test_pair_flow_that_is_not_a_pair_is_named(tiny):
         engine.push(tiny.depth[1], tiny.intensity[1], pair_flow=flow)
     engine.push(tiny.depth[1], tiny.intensity[1], pair_flow=(flow, flow))
     assert [f.index for f in engine.flush()] == [0, 1]  # the refused push left no frame
+
+
+def test_engine_refuses_an_unknown_flow_method_when_made():
+    """FusionEngine(k, flow="nope") was made, and failed at the second frame's flow."""
+    k = Intrinsics(fx=50.0, fy=50.0, cx=8.0, cy=6.0, width=16, height=12)
+    with pytest.raises(ParameterError, match="unknown flow method 'nope'"):
+        FusionEngine(k, flow="nope")
+    with pytest.raises(ParameterError, match="bogus"):
+        FusionEngine(k, flow=FlowConfig("dis", params={"bogus": 1}))

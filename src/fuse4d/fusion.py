@@ -282,6 +282,8 @@ class FusionEngine:
             self.precomputed = as_sequence_flow(flow)
             flow = None
         self.flow_config = flow or preset("fast").flow
+        if self.precomputed is None:  # an unknown method or key fails here, not at frame 1
+            self.flow_config.build_params()
         self.warm_start = warm_start
         # the tracker (built on the first pair that needs it, so precomputed runs never load it)
         self._flow_estimator: Any = None
