@@ -475,3 +475,16 @@ def test_local_cluster_with_two_worker_processes(ball, reference, tmp_path):
         out = fd.write_zarr(res, tmp_path / "lc.zarr", intrinsics=ball.intrinsics,
                             compute=lambda *t: client.gather(client.compute(list(t))))  # fmt: skip
         assert _same(zarr.open_group(str(out), mode="r")["depth"][:], reference.depth)
+
+
+def test_fuse_refuses_intrinsics_and_fusion_of_another_type():
+    """A tuple of intrinsics failed as an AttributeError (one check: camera.check_intrinsics)."""
+    from fuse4d.errors import ParameterTypeError
+
+    depth = np.full((3, 12, 16), 800.0, np.float32)
+    intensity = np.zeros((3, 12, 16), np.float32)
+    with pytest.raises(ParameterTypeError, match=r"^intrinsics must be a fuse4d\.Intrinsics"):
+        fd.fuse(depth, intensity, (50.0, 50.0, 8.0, 6.0))
+    k = Intrinsics(fx=50.0, fy=50.0, cx=8.0, cy=6.0, width=16, height=12)
+    with pytest.raises(ParameterTypeError, match=r"^fusion must be a FusionParams, got dict"):
+        fd.fuse(depth, intensity, k, fusion={"num_frames": 3})

@@ -40,7 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._validation import as_float32
-from ..camera import Intrinsics
+from ..camera import Intrinsics, check_intrinsics
 from ..config import FlowConfig, FusionParams, fusion_params, preset
 from ..errors import ParameterError, ShapeError
 from ..flow import (
@@ -599,6 +599,7 @@ def fuse(
     ShapeError
         If depth, intensity, intrinsics or flows disagree in shape.
     """
+    check_intrinsics(intrinsics)
     params = fusion_params(fusion)
     if chunk_frames < 1:
         raise ParameterError(f"chunk_frames must be >= 1, got {chunk_frames}")
