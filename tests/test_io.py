@@ -670,3 +670,17 @@ def test_read_mask_sources(tmp_path, small_sequence, rng):
     np.savez(tmp_path / "other.npz", x=roi)
     with pytest.raises(InputFileError, match="no mask key"):
         read_mask(tmp_path / "other.npz")
+
+
+def test_writers_of_a_sequence_refuse_an_array(tmp_path):
+    """write_npz(depth_array, path) failed with "'numpy.ndarray' object has no attribute
+    'depth'"; every writer of a Sequence now says what it takes."""
+    from fuse4d.errors import ParameterTypeError
+    from fuse4d.io import write_depth_video, write_zarr
+
+    depth = np.full((2, 4, 5), 500.0, np.float32)
+    for write in (write_npz, save_sequence, write_frame_folder, write_depth_video, write_zarr):
+        name = write.__name__
+        with pytest.raises(ParameterTypeError, match=rf"^{name} takes a fuse4d\.Sequence, got "):
+            write(depth, tmp_path / "out")
+    assert not list(tmp_path.iterdir())

@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 from ._validation import as_float32, check_shape
 from .camera import Intrinsics, check_intrinsics, depth_to_points
-from .errors import ParameterError, ShapeError
+from .errors import ParameterError, ParameterTypeError, ShapeError
 
 __all__ = [
     "BallTruth",
@@ -505,3 +505,15 @@ class Sequence:
     def with_depth(self, depth: np.ndarray) -> Sequence:
         """The same sequence with other depth frames (e.g. a filtered result)."""
         return replace(self, depth=depth)
+
+
+def check_sequence(seq: object, owner: str) -> Sequence:
+    """``seq`` itself where it is a :class:`Sequence`; else a
+    :class:`~fuse4d.ParameterTypeError` naming ``owner`` and how to make one (an array
+    failed later with "'numpy.ndarray' object has no attribute 'depth'")."""
+    if not isinstance(seq, Sequence):
+        raise ParameterTypeError(
+            f"{owner} takes a fuse4d.Sequence, got {type(seq).__name__}; make one with "
+            "fuse4d.Sequence(depth, intensity, intrinsics)"
+        )
+    return seq

@@ -10,7 +10,7 @@ from typing import Any
 
 from ..camera import Intrinsics
 from ..errors import InputFileError, ParameterError
-from ..sequence import Sequence
+from ..sequence import Sequence, check_sequence
 from ._atomic import check_output
 from ._base import Frame, FrameReader, FrameSelection, IntrinsicsLike, ProgressCallback
 from .cv2xml import Cv2XmlReader, is_cv2_xml_folder
@@ -322,6 +322,7 @@ def save_sequence(
     Path
         The written file or folder.
     """
+    check_sequence(seq, "save_sequence")
     fmt = format or output_layout(path)
     if fmt == "npz":
         return write_npz(seq, path, overwrite=overwrite)

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from ..camera import Intrinsics, check_intrinsics
 from ..errors import InputFileError, ParameterError
-from ..sequence import Sequence
+from ..sequence import Sequence, check_sequence
 from ._atomic import atomic_dir, check_output
 from ._base import (
     Frame,
@@ -524,7 +524,7 @@ def write_frame_folder(
     Path
         The written folder.
     """
-    gt = seq.ground_truth
+    gt = check_sequence(seq, "write_frame_folder").ground_truth
     if gt is not None:
         dropped = [n for n, v in (("depth", gt.depth), ("flow", gt.flow)) if v is not None]
         dropped += [f"extra[{k!r}]" for k in gt.extra]

@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 
 from ..camera import Intrinsics
 from ..errors import InputFileError
-from ..sequence import GroundTruth, Sequence, split_scene_extra
+from ..sequence import GroundTruth, Sequence, check_sequence, split_scene_extra
 from ._atomic import atomic_file
 from ._base import Frame, FrameReader, FrameSelection, ProgressCallback, resolve_frames
 
@@ -499,6 +499,7 @@ def write_npz(
     ValueError
         If an ``extra`` key is reserved or a value cannot be stored without pickling.
     """
+    check_sequence(seq, "write_npz")
     arrays: dict[str, Any] = {
         "depth": seq.depth,
         "intensity": seq.intensity,

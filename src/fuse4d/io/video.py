@@ -27,7 +27,7 @@ import numpy as np
 
 from ..camera import Intrinsics, check_intrinsics
 from ..errors import ParameterError
-from ..sequence import Sequence
+from ..sequence import Sequence, check_sequence
 from ._atomic import StagedWriter, atomic_file, check_output
 from ._base import check_frame_shapes
 from ._extras import require
@@ -198,6 +198,7 @@ def write_depth_video(
 ) -> Path:
     """Write a :class:`~fuse4d.Sequence` as FFV1 ``.mkv`` (see :class:`DepthVideoWriter`, whose
     ``warn_coarse_unit`` this passes on)."""
+    check_sequence(seq, "write_depth_video")
     with DepthVideoWriter(
         path,
         seq.intrinsics,

@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from ..camera import Intrinsics, check_intrinsics
 from ..errors import InputFileError, ParameterError
-from ..sequence import Sequence
+from ..sequence import Sequence, check_sequence
 from ._atomic import StagedWriter, atomic_dir, check_output
 from ._base import (
     Frame,
@@ -307,6 +307,7 @@ class ZarrReader(FrameReader):
 
 def write_zarr(seq: Sequence, path: str | PathLike[str], *, overwrite: bool = False) -> Path:
     """Write a :class:`~fuse4d.Sequence` as a zarr v3 store (see :class:`ZarrWriter`)."""
+    check_sequence(seq, "write_zarr")
     with ZarrWriter(
         path, seq.intrinsics, fps=seq.fps, overwrite=overwrite, sensor=seq.sensor
     ) as writer:
