@@ -424,3 +424,16 @@ def test_engine_refuses_an_unknown_flow_method_when_made():
         FusionEngine(k, flow="nope")
     with pytest.raises(ParameterError, match="bogus"):
         FusionEngine(k, flow=FlowConfig("dis", params={"bogus": 1}))
+
+
+def test_no_intensity_says_why_it_is_needed(tiny):
+    """intensity=None gave "intensity must have shape (T, H, W), got (). convert colour to
+    gray"."""
+    d, k = tiny.depth, tiny.intrinsics
+    for call in (
+        lambda: Sequence(d, None, k),
+        lambda: fuse_sequence(d, None, k),
+        lambda: FusionEngine(k).push(d[0], None),
+    ):
+        with pytest.raises(ParameterTypeError, match=r"^intensity is required: fuse4d tracks"):
+            call()

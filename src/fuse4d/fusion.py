@@ -60,7 +60,7 @@ from .motion import (
     estimate_noise_quad,
     motion_reference_depth,
 )
-from .sequence import check_unit_intensity, normalize_intensity
+from .sequence import INTENSITY_REQUIRED, check_unit_intensity, normalize_intensity
 from .static_tracks import STATIC_DEPTH_TOLERANCE, static_pixels
 
 __all__ = [
@@ -500,6 +500,8 @@ class FusionEngine:
             d[rejected] = np.nan
             self._rejected[slot] = rejected
             self.timings["motion_reference"] += time.perf_counter() - t0
+        if intensity is None:
+            raise ParameterTypeError(INTENSITY_REQUIRED)
         inten = np.asarray(intensity)
         check_shape(inten, (h, w), name=f"intensity (frame {index})")
         inten = (
@@ -1246,6 +1248,8 @@ def fuse_sequence(
     params = resolve_flying_pixels(fusion_params(fusion), sensor)
     d = as_float32(depth, name="depth")
     check_shape(d, ("T", "H", "W"), name="depth")
+    if intensity is None:
+        raise ParameterTypeError(INTENSITY_REQUIRED)
     inten = np.asarray(intensity)
     if inten.shape != d.shape:
         raise ShapeError("intensity", d.shape, inten.shape, "it must match depth frame for frame")

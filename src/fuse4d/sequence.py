@@ -397,6 +397,8 @@ class Sequence:
                 "depth", ("T", "H", "W"), depth.shape, "For a single frame use depth[None]"
             )
         check_shape(depth, ("T", "H", "W"), name="depth")
+        if self.intensity is None:
+            raise ParameterTypeError(INTENSITY_REQUIRED)
         check_shape(intensity, ("T", "H", "W"), name="intensity", hint="convert colour to gray")
         if depth.shape[0] < 1:
             raise ValueError("a sequence needs at least one frame (T >= 1), got T = 0")
@@ -517,3 +519,11 @@ def check_sequence(seq: object, owner: str) -> Sequence:
             "fuse4d.Sequence(depth, intensity, intrinsics)"
         )
     return seq
+
+
+#: Why fuse4d needs an intensity video (said where None was passed).
+INTENSITY_REQUIRED = (
+    "intensity is required: fuse4d tracks every pixel through the registered intensity (IR or "
+    "gray) video; a depth-only recording has none (baselines without a guide, e.g. "
+    "temporal-mean, take intensity=None)"
+)
