@@ -442,6 +442,11 @@ def test_cli_baseline_writes_a_folder_in_the_inputs_own_unit(
     own = load_sequence(tmp_path / "a").depth
     exact = run_baseline("temporal-mean", load_sequence(src).depth, None, intrinsics)
     assert np.nanmax(np.abs(own - exact)) <= 0.025 + 1e-4  # half of 0.05 mm
+    with pytest.warns(UserWarning, match="is coarse"):  # the input itself, in 1 mm steps
+        whole_mm = save_sequence(load_sequence(src), tmp_path / "in_mm", depth_unit_mm=1.0)
+    with warnings.catch_warnings():  # its filtered result in the same 1 mm: no warning
+        warnings.simplefilter("error")
+        assert main(["baseline", "temporal-mean", str(whole_mm), "-o", str(tmp_path / "c")]) == 0
     coarse = ["baseline", "temporal-mean", str(src), "-o", str(tmp_path / "b")]
     with pytest.warns(UserWarning, match="depth_unit_mm=1 is coarse"):
         assert main([*coarse, "--out-depth-unit-mm", "1"]) == 0

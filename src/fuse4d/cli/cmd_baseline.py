@@ -157,7 +157,12 @@ def baseline_command(
     elapsed = time.perf_counter() - start
     depth = result[..., 2] if info.returns_points else result
     depth = np.where(np.isfinite(depth), depth, np.nan).astype(np.float32)
-    written = save_sequence(seq.with_depth(depth), output, overwrite=force, depth_unit_mm=unit)
+    written = save_sequence(
+        seq.with_depth(depth), output, overwrite=force, depth_unit_mm=unit,
+        # in the input's own unit no "coarse" warning, as `fuse4d run` writes: the input was
+        # stored at that precision (a unit chosen with --out-depth-unit-mm is still checked)
+        warn_coarse_unit=out_depth_unit_mm is not None or own_unit is None,
+    )  # fmt: skip
     eprint(
         f"{name}: {seq.num_frames} frames in {elapsed:.2f} s "
         f"({1000 * elapsed / max(seq.num_frames, 1):.1f} ms/frame) -> {written}"
