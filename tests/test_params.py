@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from dataclasses import dataclass
 
 import cv2
@@ -437,3 +438,17 @@ def test_no_intensity_says_why_it_is_needed(tiny):
     ):
         with pytest.raises(ParameterTypeError, match=r"^intensity is required: fuse4d tracks"):
             call()
+
+
+def test_dark_or_black_intensity_is_warned_about_once(tiny):
+    """16-bit IR stored raw (0-3000 of 65535) reached the flow as ~12 gray levels and was
+    tracked silently badly; an all-0 IR (a test recording's) gave nothing to track."""
+    raw_ir = np.round(3000 * tiny.intensity).astype(np.uint16)
+    with pytest.warns(UserWarning, match=r"^intensity \(frame 0\) is dark: 99\.5 % of its") as rec:
+        fuse_sequence(tiny.depth, raw_ir, tiny.intrinsics, flow="dis")
+    assert len([w for w in rec if "is dark" in str(w.message)]) == 1  # frame 0 only
+    with pytest.warns(UserWarning, match=r"^intensity \(frame 0\) is black"):
+        fuse_sequence(tiny.depth, np.zeros_like(tiny.intensity), tiny.intrinsics, flow="dis")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fuse_sequence(tiny.depth, tiny.intensity, tiny.intrinsics, flow="dis")

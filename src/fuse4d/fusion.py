@@ -509,6 +509,8 @@ class FusionEngine:
             if inten.dtype.kind != "f"
             else check_unit_intensity(inten, name=f"intensity (frame {index})")
         )
+        if index == 0:
+            _warn_if_dark(inten)
         if state is not None:
             if points is not None:
                 raise ValueError("push takes points or a frame state, not both")
@@ -1183,6 +1185,32 @@ def _warn_if_not_millimetres(depth: NDArray[np.float32]) -> None:
             "recording's unit: --depth-unit-mm 1000)",
             stacklevel=3,
         )
+
+
+#: 99.5th intensity percentile below which a stream's first frame is too dark to track: the
+#: flow methods see [0, 1] in 8 bits, so fewer than ~26 gray levels would be left.
+DARK_INTENSITY_CEILING = 0.1
+
+
+def _warn_if_dark(intensity: NDArray[np.float32]) -> None:
+    """Warn once per stream where the first frame's 99.5th intensity percentile is below
+    :data:`DARK_INTENSITY_CEILING` (16-bit IR stored raw, e.g. Azure Kinect IR of 0-3000
+    divided by 65535, reached the flow as a few gray levels and tracked silently badly)."""
+    bright = float(np.percentile(intensity, 99.5)) if intensity.size else 1.0
+    if bright >= DARK_INTENSITY_CEILING:
+        return
+    if bright == 0.0:
+        what = "is black (99.5 % of its pixels are 0): the optical flow has nothing to track"
+    else:
+        what = (
+            f"is dark: 99.5 % of its pixels are at most {bright:.3g} of the [0, 1] range, so "
+            f"the optical flow sees about {max(2, round(255 * bright) + 1)} gray levels"
+        )
+    warnings.warn(
+        f"intensity (frame 0) {what}; scale it to fill [0, 1] (16-bit IR stored raw? divide "
+        "it by its 99.5th percentile and clip, as fuse4d's .bag and .mkv readers do)",
+        stacklevel=3,
+    )
 
 
 def fuse_sequence(
