@@ -18,6 +18,7 @@ from fuse4d import (
     Sequence,
     depth_to_points,
 )
+from fuse4d.errors import ParameterError
 from fuse4d.flow import read_flo, write_flo
 from fuse4d.io import (
     CAMERA_PRESETS,
@@ -507,6 +508,9 @@ def test_associate_timestamps_greedy_unique():
     rgb = np.array([0.010, 0.020, 0.070, 0.9])
     # 0.020 is nearest to both 0.0 (0.02) and 0.033 (0.013): 0.033 wins it, 0.0 takes 0.010
     assert associate_timestamps(depth, rgb) == [(0, 0), (1, 1), (2, 2)]
+    for bad in (-0.02, float("nan")):  # a negative tolerance matched nothing, silently
+        with pytest.raises(ParameterError, match="max_difference must be a finite number >= 0"):
+            associate_timestamps(depth, rgb, max_difference=bad)
 
 
 # ----------------------------------------------------------------------------- cv2-xml

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from .._params import check_number
 from ..camera import Intrinsics
 from ..errors import InputFileError, ParameterError
 from ..sequence import Sequence
@@ -91,7 +92,13 @@ def associate_timestamps(
     list of (i, j)
         Index pairs with ``|first[i] - second[j]| <= max_difference``, each index used once,
         chosen greedily by increasing difference, sorted by ``i``.
+
+    Raises
+    ------
+    ParameterError
+        If ``max_difference`` is not a finite number >= 0 s (a negative one matched nothing).
     """
+    check_number("associate_timestamps", "max_difference", max_difference, ge=0, finite=True)
     a = np.asarray(first, dtype=np.float64)
     b = np.asarray(second, dtype=np.float64)
     order = np.argsort(b, kind="stable")
