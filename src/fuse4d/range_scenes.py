@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .camera import Intrinsics
+from .errors import ParameterError
 from .sensors import SensorModel, apply_sensor, get_sensor
 from .sequence import GroundTruth, Sequence
 from .synthetic import _Texture
@@ -305,9 +306,11 @@ def make_range_scene(
         flow (px) and ``extra["sensor"]`` (the model's name).
     """
     if name not in RANGE_SCENES:
-        raise ValueError(f"unknown range scene {name!r}; choose one of {', '.join(RANGE_SCENES)}")
+        raise ParameterError(
+            f"unknown range scene {name!r}; choose one of {', '.join(RANGE_SCENES)}"
+        )
     if isinstance(num_frames, bool) or int(num_frames) != num_frames or num_frames < 2:
-        raise ValueError(f"num_frames must be an integer >= 2, got {num_frames!r}")
+        raise ParameterError(f"num_frames must be an integer >= 2, got {num_frames!r}")
     model = get_sensor(sensor)
     seeds = np.random.SeedSequence(rng).spawn(3)
     texture_streams = [np.random.default_rng(s) for s in seeds[0].spawn(12)]

@@ -46,6 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .camera import Intrinsics
+from .errors import ParameterError, ShapeError
 
 __all__ = [
     "D435",
@@ -187,7 +188,9 @@ def get_sensor(name: str | SensorModel) -> SensorModel:
     try:
         return SENSORS[name]
     except KeyError:
-        raise ValueError(f"unknown sensor {name!r}; choose one of {', '.join(SENSORS)}") from None
+        raise ParameterError(
+            f"unknown sensor {name!r}; choose one of {', '.join(SENSORS)}"
+        ) from None
 
 
 def depth_step_mm(model: SensorModel, z_mm: float, focal_px: float) -> float:
@@ -271,7 +274,7 @@ def apply_sensor(
     gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
     z = np.asarray(depth, dtype=np.float64)
     if z.ndim != 3:
-        raise ValueError(f"depth must be (T, H, W), got shape {z.shape}")
+        raise ShapeError("depth", ("T", "H", "W"), z.shape)
     albedo = np.clip(np.asarray(intensity, dtype=np.float64), 0.0, 1.0)
     cos = np.ones_like(z) if normal_z is None else np.clip(-np.asarray(normal_z), 0.0, 1.0)
     t, h, w = z.shape
@@ -380,7 +383,7 @@ def _tof_frame(
     mix = gen.random(z.shape)
     depth = np.where(fly, mix * z + (1.0 - mix) * neighbour, depth)
     if not math.isfinite(m.tof_noise_mm):
-        raise ValueError("tof_noise_mm must be finite")
+        raise ParameterError("tof_noise_mm must be finite")
     return depth, fly
 
 
