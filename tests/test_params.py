@@ -444,11 +444,34 @@ def test_dark_or_black_intensity_is_warned_about_once(tiny):
     """16-bit IR stored raw (0-3000 of 65535) reached the flow as ~12 gray levels and was
     tracked silently badly; an all-0 IR (a test recording's) gave nothing to track."""
     raw_ir = np.round(3000 * tiny.intensity).astype(np.uint16)
-    with pytest.warns(UserWarning, match=r"^intensity \(frame 0\) is dark: 99\.5 % of its") as rec:
+    n = tiny.depth.shape[0]
+    with pytest.warns(
+        UserWarning, match=rf"^intensity \(frames 0-{n - 1}\) is dark: 99\.5 %"
+    ) as rec:
         fuse_sequence(tiny.depth, raw_ir, tiny.intrinsics, flow="dis")
-    assert len([w for w in rec if "is dark" in str(w.message)]) == 1  # frame 0 only
-    with pytest.warns(UserWarning, match=r"^intensity \(frame 0\) is black"):
+    assert len([w for w in rec if "is dark" in str(w.message)]) == 1
+    with pytest.warns(UserWarning, match=rf"^intensity \(frames 0-{n - 1}\) is black"):
         fuse_sequence(tiny.depth, np.zeros_like(tiny.intensity), tiny.intrinsics, flow="dis")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         fuse_sequence(tiny.depth, tiny.intensity, tiny.intrinsics, flow="dis")
+
+
+def test_dark_first_frames_of_a_camera_settling_are_not_warned_about(tiny):
+    """A camera's auto-exposure may still be settling in the first frames: only a stream
+    whose first DARK_CHECK_FRAMES frames are all dark is warned about."""
+    from fuse4d.fusion import DARK_CHECK_FRAMES
+
+    engine = FusionEngine(tiny.intrinsics, fusion=FusionParams(num_frames=1))
+    frames = DARK_CHECK_FRAMES + 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for t in range(frames):
+            scale = 0.01 if t < DARK_CHECK_FRAMES - 1 else 1.0  # bright from the 8th frame on
+            engine.push(tiny.depth[t % len(tiny.depth)], scale * tiny.intensity[0])
+        engine.flush()
+    engine = FusionEngine(tiny.intrinsics, fusion=FusionParams(num_frames=1))
+    for t in range(DARK_CHECK_FRAMES - 1):
+        engine.push(tiny.depth[t % len(tiny.depth)], 0.01 * tiny.intensity[0])
+    with pytest.warns(UserWarning, match=rf"^intensity \(frames 0-{DARK_CHECK_FRAMES - 1}\)"):
+        engine.push(tiny.depth[0], 0.01 * tiny.intensity[0])  # the 8th dark frame

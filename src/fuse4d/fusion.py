@@ -361,6 +361,7 @@ class FusionEngine:
             else np.full(2, np.inf)
         )
         self._no_static = np.zeros((h, w), np.bool_)  # A33 off, or a window of one frame
+        self._dark = _DarkIntensityCheck()  # warns once if the stream's first frames are dark
         self._pushed = 0  # frames received
         self._emitted = 0  # frames emitted
         # frames from this one on are never emitted (set_output_range; None: all are): their
@@ -509,8 +510,7 @@ class FusionEngine:
             if inten.dtype.kind != "f"
             else check_unit_intensity(inten, name=f"intensity (frame {index})")
         )
-        if index == 0:
-            _warn_if_dark(inten)
+        self._dark.add(inten)
         if state is not None:
             if points is not None:
                 raise ValueError("push takes points or a frame state, not both")
@@ -676,6 +676,7 @@ class FusionEngine:
 
     def flush(self) -> list[FusedFrame]:
         """End of stream: emit the remaining frames with truncated windows."""
+        self._dark.finish()  # a stream shorter than DARK_CHECK_FRAMES
         out = []
         while self._emitted < self._emit_end():
             out.append(self._emit(self._emitted))
@@ -1187,30 +1188,56 @@ def _warn_if_not_millimetres(depth: NDArray[np.float32]) -> None:
         )
 
 
-#: 99.5th intensity percentile below which a stream's first frame is too dark to track: the
-#: flow methods see [0, 1] in 8 bits, so fewer than ~26 gray levels would be left.
+#: 99.5th intensity percentile below which a frame is too dark to track: the flow methods
+#: see [0, 1] in 8 bits, so fewer than ~26 gray levels would be left.
 DARK_INTENSITY_CEILING = 0.1
+#: Frames at the start of a stream that must all be dark for the warning: a camera's
+#: auto-exposure may still be settling in the first ones.
+DARK_CHECK_FRAMES = 8
 
 
-def _warn_if_dark(intensity: NDArray[np.float32]) -> None:
-    """Warn once per stream where the first frame's 99.5th intensity percentile is below
-    :data:`DARK_INTENSITY_CEILING` (16-bit IR stored raw, e.g. Azure Kinect IR of 0-3000
-    divided by 65535, reached the flow as a few gray levels and tracked silently badly)."""
-    bright = float(np.percentile(intensity, 99.5)) if intensity.size else 1.0
-    if bright >= DARK_INTENSITY_CEILING:
-        return
-    if bright == 0.0:
-        what = "is black (99.5 % of its pixels are 0): the optical flow has nothing to track"
-    else:
-        what = (
-            f"is dark: 99.5 % of its pixels are at most {bright:.3g} of the [0, 1] range, so "
-            f"the optical flow sees about {max(2, round(255 * bright) + 1)} gray levels"
+class _DarkIntensityCheck:
+    """Warns once where the first :data:`DARK_CHECK_FRAMES` frames of a stream (all of a
+    shorter one, at :meth:`finish`) have a 99.5th intensity percentile below
+    :data:`DARK_INTENSITY_CEILING`: 16-bit IR stored raw (e.g. Azure Kinect IR of 0-3000
+    divided by 65535) reached the flow as a few gray levels and tracked silently badly."""
+
+    def __init__(self) -> None:
+        self.frames = 0
+        self.brightest = 0.0
+        self.done = False
+
+    def add(self, intensity: NDArray[np.float32]) -> None:
+        """Take the next frame's intensity ([0, 1])."""
+        if self.done:
+            return
+        bright = float(np.percentile(intensity, 99.5)) if intensity.size else 1.0
+        self.brightest = max(self.brightest, bright)
+        self.frames += 1
+        if self.brightest >= DARK_INTENSITY_CEILING:
+            self.done = True
+        elif self.frames == DARK_CHECK_FRAMES:
+            self.finish()
+
+    def finish(self) -> None:
+        """Warn now if every frame taken was dark (and no warning was given yet)."""
+        if self.done or not self.frames:
+            return
+        self.done = True
+        frames = "frame 0" if self.frames == 1 else f"frames 0-{self.frames - 1}"
+        if self.brightest == 0.0:
+            what = "black (99.5 % of the pixels are 0): the optical flow has nothing to track"
+        else:
+            what = (
+                f"dark: 99.5 % of the pixels are at most {self.brightest:.3g} of the [0, 1] "
+                f"range, so the optical flow sees about {max(2, round(255 * self.brightest) + 1)}"
+                " gray levels"
+            )
+        warnings.warn(
+            f"intensity ({frames}) is {what}; scale it to fill [0, 1] (16-bit IR stored raw? "
+            "divide it by its 99.5th percentile and clip, as fuse4d's .bag and .mkv readers do)",
+            stacklevel=4,
         )
-    warnings.warn(
-        f"intensity (frame 0) {what}; scale it to fill [0, 1] (16-bit IR stored raw? divide "
-        "it by its 99.5th percentile and clip, as fuse4d's .bag and .mkv readers do)",
-        stacklevel=3,
-    )
 
 
 def fuse_sequence(
