@@ -125,8 +125,15 @@ def test_run_frames_then_report_reads_the_same_part(recording, tmp_path, capsys)
     again = json.loads((tmp_path / "rep2" / "metrics.json").read_text())
     assert again["metrics"] == metrics["metrics"]
     # the run's own time, from its manifest (the report of a run folder used to say n/a)
-    seconds = json.loads((out / MANIFEST_NAME).read_text())["seconds"]
-    assert again["timing"]["fusion_ms_per_frame"] == pytest.approx(1000 * seconds / (b - a))
+    manifest = json.loads((out / MANIFEST_NAME).read_text())
+    assert again["timing"]["fusion_ms_per_frame"] == pytest.approx(
+        1000 * manifest["seconds"] / (b - a)
+    )
+    # and its rate once running, which the report made during the run shows (it said n/a)
+    steady = metrics["timing"]["fusion_steady_ms_per_frame"]
+    assert steady > 0
+    assert manifest["steady_ms_per_frame"] == pytest.approx(steady)
+    assert again["timing"]["fusion_steady_ms_per_frame"] == pytest.approx(steady)
     store = tmp_path / "out.zarr"
     zargs = ["run", str(recording), "-o", str(store), *RUN_ARGS, "--frames", f"{a}:{b}"]
     assert main([*zargs, "--no-summary"]) == 0

@@ -361,11 +361,15 @@ class _OutputClock:
         if not self.times:
             return
         summary.first_output_seconds = self.times[0] - start
-        params = summary.params
+        summary.steady_ms_per_frame = self.steady_ms(summary.params)
+
+    def steady_ms(self, params: FusionParams) -> float:
+        """Wall time per frame (ms) over the frames that followed a push (see :meth:`fill`);
+        NaN for fewer than two of them or ``iterations`` > 1."""
         pushed = self.times[: len(self.times) - params.future_frames]
         if params.iterations == 1 and len(pushed) > 1:
-            per_frame = (pushed[-1] - pushed[0]) / (len(pushed) - 1)
-            summary.steady_ms_per_frame = 1000.0 * per_frame
+            return 1000.0 * (pushed[-1] - pushed[0]) / (len(pushed) - 1)
+        return float("nan")
 
 
 def _fuse_npz(
@@ -771,6 +775,8 @@ def _fuse_streaming(
                 engine.close()  # the flow worker thread
             frames.close()  # the read-ahead thread, or the inline generator
             sink.close()  # all writes done before the writer is closed
+            if resumable and isinstance(progress, _OutputClock):  # for a later report
+                writer.set_steady_rate(progress.steady_ms(params))
         if tally is not None:
             t0 = time.perf_counter()
             tally.fill(summary)

@@ -53,6 +53,7 @@ __all__ = [
     "run_parameters",
     "run_reader_options",
     "run_seconds",
+    "run_steady_ms",
     "unfinished_run_message",
 ]
 
@@ -192,6 +193,15 @@ def run_seconds(folder: str | PathLike[str]) -> float | None:
     return float(seconds) if isinstance(seconds, int | float) else None
 
 
+def run_steady_ms(folder: str | PathLike[str]) -> float | None:
+    """Wall time per frame once running (ms, I/O included) of the finished ``fuse4d run``
+    whose output is ``folder`` (:attr:`fuse4d.RunSummary.steady_ms_per_frame`; of the last
+    session of a resumed run), for the report; None where the manifest does not say (too few
+    frames, or written by an older fuse4d)."""
+    steady = _finished_run(folder).get("steady_ms_per_frame")
+    return float(steady) if isinstance(steady, int | float) else None
+
+
 def unfinished_run_message(folder: Path) -> str:
     """A message if ``folder`` holds an unfinished run (for readers), else ``""``."""
     try:
@@ -306,6 +316,13 @@ class ResumableFolderWriter:
         # wall time of the run: the parts of a resumed run before this one, and since open()
         self._seconds_before = 0.0
         self._opened_at: float | None = None
+        self._steady_ms: float | None = None  # set_steady_rate
+
+    def set_steady_rate(self, ms_per_frame: float) -> None:
+        """The run's wall time per frame once running (ms, I/O included; of this session for
+        a resumed run), stored in the finished run's manifest for a later ``fuse4d report``
+        (:func:`run_steady_ms`). Not stored when NaN (too few frames)."""
+        self._steady_ms = float(ms_per_frame) if math.isfinite(ms_per_frame) else None
 
     def _finished_here(self) -> bool:
         """Whether ``path`` holds the finished run of this identity (False: no run's manifest
@@ -425,6 +442,7 @@ class ResumableFolderWriter:
                 "frames_done": self.frames_done,
                 "seconds": self._seconds_before
                 + (0.0 if self._opened_at is None else time.perf_counter() - self._opened_at),
+                "steady_ms_per_frame": self._steady_ms,
                 "has_mask": self._has_mask,
                 "checkpoint": self._checkpoint,
                 "identity": self.identity,

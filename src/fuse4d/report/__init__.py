@@ -765,6 +765,8 @@ def _write(
         }
         if timing["fusion_ms_per_frame"] is None and fres.seconds is not None:
             timing["fusion_ms_per_frame"] = 1000.0 * fres.seconds / total
+        if fusion_steady_ms is None and fusion_seconds is None:  # a run's folder, made earlier
+            fusion_steady_ms = fres.steady_ms
         timing["fusion_steady_ms_per_frame"] = (
             fusion_steady_ms
             if fusion_steady_ms is not None and math.isfinite(fusion_steady_ms)
@@ -844,7 +846,7 @@ def _write(
                 "report time (ms/frame, wall)": timing["report_ms_per_frame"],
                 "report CPU time (ms/frame, all threads)": timing["report_cpu_ms_per_frame"],
                 "fusion time (ms/frame, wall, start-up included)": timing["fusion_ms_per_frame"],
-                # (n/a for a report made later from a folder: the manifest keeps the total)
+                # (from the manifest for a report made later from a run's folder)
                 "fusion time once running (ms/frame, wall)": timing["fusion_steady_ms_per_frame"],
                 "video codec": video.codec,
                 "fused depth step (mm)": fres.depth_unit_mm or "float (no rounding)",

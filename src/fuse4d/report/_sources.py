@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..camera import Intrinsics
 from ..errors import InputFileError, ParameterError, ShapeError
 from ..fusion import FusionResult
-from ..io.resume import run_parameters, run_seconds
+from ..io.resume import run_parameters, run_seconds, run_steady_ms
 from ..sequence import Sequence
 
 __all__ = ["FusedChunk", "FusedSource", "RawSource", "open_fused", "open_raw"]
@@ -125,6 +125,8 @@ class FusedSource:
         #: mm per stored depth step of a fused frame folder (None: float depth)
         self.depth_unit_mm: float | None = None
         self.seconds: float | None = None
+        #: wall ms per frame once running, of a `fuse4d run` output folder (its manifest)
+        self.steady_ms: float | None = None
         self.name = "in-memory result"
         if isinstance(data, FusionResult):
             self._depth = data.depth
@@ -158,6 +160,7 @@ class FusedSource:
             if Path(data).is_dir():  # a `fuse4d run` output folder records its parameters
                 self.params = run_parameters(data)
                 self.seconds = run_seconds(data)
+                self.steady_ms = run_steady_ms(data)
             members = getattr(self._reader, "_members", None)
             if isinstance(members, dict):  # NpzReader: support/filled are memory-mapped members
                 self._keys = {k for k in ("support", "filled") if k in members}
