@@ -60,7 +60,7 @@ from .motion import (
     estimate_noise_quad,
     motion_reference_depth,
 )
-from .sequence import INTENSITY_REQUIRED, check_unit_intensity, normalize_intensity
+from .sequence import INTENSITY_REQUIRED, as_unit_intensity
 from .static_tracks import STATIC_DEPTH_TOLERANCE, static_pixels
 
 __all__ = [
@@ -475,6 +475,8 @@ class FusionEngine:
         """
         if self._closed:
             raise RuntimeError("engine was flushed; create a new FusionEngine for a new stream")
+        if intensity is None:
+            raise ParameterTypeError(INTENSITY_REQUIRED)
         if pair_flow is not None and not (
             isinstance(pair_flow, tuple | list) and len(pair_flow) == 2
         ):
@@ -501,15 +503,9 @@ class FusionEngine:
             d[rejected] = np.nan
             self._rejected[slot] = rejected
             self.timings["motion_reference"] += time.perf_counter() - t0
-        if intensity is None:
-            raise ParameterTypeError(INTENSITY_REQUIRED)
         inten = np.asarray(intensity)
         check_shape(inten, (h, w), name=f"intensity (frame {index})")
-        inten = (
-            normalize_intensity(inten)
-            if inten.dtype.kind != "f"
-            else check_unit_intensity(inten, name=f"intensity (frame {index})")
-        )
+        inten = as_unit_intensity(inten, name=f"intensity (frame {index})")
         self._dark.add(inten)
         if state is not None:
             if points is not None:

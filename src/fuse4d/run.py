@@ -307,14 +307,13 @@ def fuse_file(
         )
     if resume and fmt == "npz":
         raise ParameterError("--resume applies to frame-folder outputs; .npz is written at once")
-    if fmt == "npz" and reader_options:  # refused as open_frames refuses them (were ignored)
-        open_frames(src, **reader_options).close()
     start = time.perf_counter()
     clock = _OutputClock(progress)
     if fmt == "npz":
         summary = _fuse_npz(
-            src, dst, params, flow, overwrite, quality, clock, summary_every, frames
-        )
+            src, dst, params, flow, overwrite, quality, clock, summary_every, frames,
+            reader_options or {},
+        )  # fmt: skip
     else:
         options = dict(reader_options or {})
         if frames is not None:
@@ -373,11 +372,21 @@ class _OutputClock:
 
 
 def _fuse_npz(
-    src, dst, params, flow, overwrite, quality, progress, summary_every=SUMMARY_EVERY, frames=None
+    src,
+    dst,
+    params,
+    flow,
+    overwrite,
+    quality,
+    progress,
+    summary_every=SUMMARY_EVERY,
+    frames=None,
+    reader_options=None,
 ) -> RunSummary:
     from .io import load_sequence
 
-    seq = load_sequence(src, frames=frames)
+    # (an .npz takes no recording options: open_frames refuses any given, they were ignored)
+    seq = load_sequence(src, frames=frames, **(reader_options or {}))
     params = resolve_flying_pixels(params, seq.sensor)  # A36
     result = fuse_sequence(
         seq.depth, seq.intensity, seq.intrinsics, fusion=params, flow=flow, progress=progress

@@ -36,6 +36,14 @@ def sanitize_depth(depth: np.ndarray) -> NDArray[np.float32]:
     return d
 
 
+#: Why fuse4d needs an intensity video (said where None was passed).
+INTENSITY_REQUIRED = (
+    "intensity is required: fuse4d tracks every pixel through the registered intensity (IR or "
+    "gray) video; a depth-only recording has none (baselines without a guide, e.g. "
+    "temporal-mean, take intensity=None)"
+)
+
+
 def normalize_intensity(intensity: np.ndarray) -> NDArray[np.float32]:
     """Convert intensity to float32 in [0, 1] (METHOD A16).
 
@@ -98,6 +106,16 @@ def check_unit_intensity(intensity: np.ndarray, *, name: str = "intensity") -> N
                 "intensity, which is divided by its dtype maximum"
             )
     return arr
+
+
+def as_unit_intensity(intensity: np.ndarray, *, name: str = "intensity") -> NDArray[np.float32]:
+    """Intensity as float32 in [0, 1]: integers divided by their dtype maximum
+    (:func:`normalize_intensity`), floats checked (:func:`check_unit_intensity`), as the
+    fusion engine and the baselines take it."""
+    arr = np.asarray(intensity)
+    if arr.dtype.kind in "uib":
+        return normalize_intensity(arr)
+    return check_unit_intensity(arr, name=name)
 
 
 class _SceneTruthBase:
@@ -519,11 +537,3 @@ def check_sequence(seq: object, owner: str) -> Sequence:
             "fuse4d.Sequence(depth, intensity, intrinsics)"
         )
     return seq
-
-
-#: Why fuse4d needs an intensity video (said where None was passed).
-INTENSITY_REQUIRED = (
-    "intensity is required: fuse4d tracks every pixel through the registered intensity (IR or "
-    "gray) video; a depth-only recording has none (baselines without a guide, e.g. "
-    "temporal-mean, take intensity=None)"
-)

@@ -12,7 +12,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._params import check_int, check_number
 from .._validation import as_float32, check_same_shape, check_shape
 from ..camera import Intrinsics, check_intrinsics
-from ..sequence import check_unit_intensity, normalize_intensity
+from ..sequence import as_unit_intensity
 
 __all__ = [
     "MAX_WINDOW_RADIUS",
@@ -61,10 +61,9 @@ def check_inputs(
         d[bad] = np.nan
     if intensity is None:
         return d, None
-    i = np.asarray(intensity)
-    i = normalize_intensity(i) if i.dtype.kind in "uib" else as_float32(i, name="intensity")
+    i = as_unit_intensity(intensity)
     check_same_shape(d, i, names=("depth", "intensity"))
-    return d, check_unit_intensity(i)
+    return d, i
 
 
 def estimate_noise_sigma(depth: ArrayLike) -> float:

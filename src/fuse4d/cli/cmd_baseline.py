@@ -129,7 +129,7 @@ def baseline_command(
 
     from .._params import check_number, parse_assignments
     from ..baselines import get_baseline
-    from ..io import load_sequence, open_frames, save_sequence
+    from ..io import open_frames, save_sequence
 
     info = get_baseline(name)
     if info.needs is not None and not info.available:
@@ -148,10 +148,10 @@ def baseline_command(
         depth_topic, intensity_topic, intensity, no_undistort,
         depth_unit_mm=depth_unit_mm, intrinsics=intrinsics,
     )  # fmt: skip
-    with open_frames(input_path, **options) as reader:  # the input's own depth unit
-        own_unit = reader.depth_unit_mm
+    with open_frames(input_path, **options) as reader:
+        own_unit = reader.depth_unit_mm  # written back in it (below)
+        seq = reader.read_sequence()
     unit = out_depth_unit_mm or own_unit or 1.0
-    seq = load_sequence(input_path, **options)
     start = time.perf_counter()
     result = info.function(seq.depth, seq.intensity, seq.intrinsics, **kwargs)
     elapsed = time.perf_counter() - start
