@@ -1231,7 +1231,8 @@ class _DarkIntensityCheck:
             )
         warnings.warn(
             f"intensity ({frames}) is {what}; scale it to fill [0, 1] (16-bit IR stored raw? "
-            "divide it by its 99.5th percentile and clip, as fuse4d's .bag and .mkv readers do)",
+            "divide it by its 99.5th percentile and clip, as fuse4d's .bag and .mkv readers do; "
+            "a time-of-flight camera's IR then by its square root)",
             stacklevel=4,
         )
 

@@ -19,6 +19,7 @@ from .rvl import decode_rvl
 __all__ = [
     "DEPTH_ENCODINGS",
     "INTENSITY_ENCODINGS",
+    "amplitude_to_gray",
     "decode_compressed",
     "decode_image_msg",
     "image_kind",
@@ -175,3 +176,19 @@ def normalise_intensity(image: np.ndarray, white: float | None) -> np.ndarray:
         return np.minimum(image.astype(np.float32) * scale, np.float32(1.0))
     out = np.nan_to_num(image.astype(np.float32), nan=0.0, posinf=1.0, neginf=0.0)
     return np.clip(out, 0.0, 1.0)
+
+
+def amplitude_to_gray(image: np.ndarray, white: float) -> np.ndarray:
+    """Time-of-flight IR amplitude (uint16) to float32 [0, 1]: ``sqrt(min(image / white, 1))``.
+
+    A ToF camera's IR amplitude falls as 1 / z² and its noise is shot noise (variance
+    proportional to the amplitude). Divided linearly by a white level set by a near, bright
+    object, the rest of the scene is left in a few gray levels: in the Azure Kinect fixture a
+    mug at 25 cm saturates and the 1.5-2 m background has a median of 0.0086 (about 2 of the
+    flow's 256 levels). The square root (Anscombe's variance-stabilising transform) gives the
+    noise one standard deviation at every brightness and the far scene its texture: on that
+    frame, shifted by a known ~1 px flow with shot noise added, DIS's mean end-point error on
+    the background fell from 0.81-1.50 px to 0.29-0.67 px, and on the mug it did not rise
+    (``docs/method_notes.md``, "ToF IR mapping").
+    """
+    return np.sqrt(normalise_intensity(image, white))

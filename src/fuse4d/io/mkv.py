@@ -33,7 +33,7 @@ from ._base import (
     resolve_intrinsics,
 )
 from ._extras import require
-from ._rosimage import normalise_intensity, white_level
+from ._rosimage import amplitude_to_gray, white_level
 
 __all__ = ["K4A_DEPTH_MODES", "MkvReader", "is_matroska", "k4a_depth_camera"]
 
@@ -352,11 +352,12 @@ class MkvReader(SequentialReader):
         else:
             if self._white is None:
                 self._white = white_level(ir)
-                self.notes = (
-                    *self.notes,
-                    f"IR scaled by 1/{self._white:g} (99.5th percentile of the first frame read)",
+                note = (
+                    f"IR shown as sqrt(IR / {self._white:g}) (99.5th percentile of the first "
+                    "frame read; the square root gives the far, dark scene its texture)"
                 )
-            gray = normalise_intensity(ir, self._white)
+                self.notes = (*self.notes, note)
+            gray = amplitude_to_gray(ir, self._white)
         ts = None if self.timestamps is None else float(self.timestamps[k])
         return Frame(k, depth, gray, timestamp=ts)
 

@@ -43,6 +43,7 @@ from ._realsense import (
     stream_prefix,
 )
 from ._rosimage import (
+    amplitude_to_gray,
     decode_compressed,
     decode_image_msg,
     image_kind,
@@ -752,14 +753,21 @@ class RosbagReader(SequentialReader):
         return Frame(k, depth, gray, timestamp=float(self.timestamps[k]))
 
     def _normalise(self, img: np.ndarray) -> np.ndarray:
-        """Intensity to float32 [0, 1]: 8 bit / 255; 16 bit / a fixed per-file white level."""
+        """Intensity to float32 [0, 1]: 8 bit / 255; 16 bit / a fixed per-file white level
+        (its square root for a time-of-flight camera's IR, :func:`amplitude_to_gray`)."""
+        tof = img.dtype == np.uint16 and self.sensor == "tof"
         if img.dtype == np.uint16 and self._white is None:
             self._white = white_level(img)
-            self._notes.append(
+            note = (
                 f"16-bit intensity scaled by 1/{self._white:g} (99.5th percentile of the "
                 "unsaturated pixels of the first frame read), clipped to 1"
             )
+            if tof:
+                note += "; a time-of-flight camera's IR then shown as its square root"
+            self._notes.append(note)
             self.notes = tuple(self._notes)
+        if tof:
+            return amplitude_to_gray(img, self._white or 65535.0)
         return normalise_intensity(img, self._white)
 
     # ------------------------------------------------------------------ info / close
