@@ -7,9 +7,9 @@ from collections.abc import Sequence as Seq
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import ShapeError
+from .errors import ParameterError, ParameterTypeError, ShapeError
 
-__all__ = ["as_float32", "check_same_shape", "check_shape"]
+__all__ = ["as_float32", "check_output_buffer", "check_same_shape", "check_shape"]
 
 
 def check_shape(array: np.ndarray, expected: Seq[object], *, name: str, hint: str = "") -> None:
@@ -55,15 +55,37 @@ def check_same_shape(a: np.ndarray, b: np.ndarray, *, names: tuple[str, str]) ->
         )
 
 
+def check_output_buffer(out: object, shape: tuple[int, ...], *, name: str) -> None:
+    """Refuse an output buffer that a kernel could not write through safely: not a
+    C-contiguous, writeable float32 array of exactly ``shape``.
+
+    Raises
+    ------
+    ParameterTypeError
+        If ``out`` is not a float32 ndarray.
+    ShapeError
+        If its shape differs.
+    ParameterError
+        If it is not C-contiguous or not writeable.
+    """
+    if not isinstance(out, np.ndarray) or out.dtype != np.float32:
+        what = out.dtype if isinstance(out, np.ndarray) else type(out).__name__
+        raise ParameterTypeError(f"{name} must be a float32 ndarray, got {what}")
+    if out.shape != tuple(shape):
+        raise ShapeError(name, tuple(shape), out.shape)
+    if not (out.flags.c_contiguous and out.flags.writeable):
+        raise ParameterError(f"{name} must be a C-contiguous, writeable array")
+
+
 def as_float32(array: ArrayLike, *, name: str) -> NDArray[np.float32]:
     """Return a C-contiguous float32 copy-or-view of ``array``.
 
     Raises
     ------
-    TypeError
-        If ``array`` is not numeric (e.g. object or string arrays).
+    ParameterTypeError
+        If ``array`` is not numeric (e.g. object or string arrays); a ``TypeError``.
     """
     arr = np.asarray(array)
     if arr.dtype.kind not in "fiub":
-        raise TypeError(f"{name} must be a numeric array, got dtype {arr.dtype}")
+        raise ParameterTypeError(f"{name} must be a numeric array, got dtype {arr.dtype}")
     return np.ascontiguousarray(arr, dtype=np.float32)

@@ -9,7 +9,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._kernels._common import gauss_factor
 from ._kernels.fusion import _bilateral3d_kernel, _bilateral_planes_kernel
-from ._validation import as_float32, check_shape
+from ._validation import as_float32, check_output_buffer, check_shape
+from .errors import ParameterError
+from .sequence import as_unit_intensity
 
 __all__ = ["bilateral_filter_points"]
 
@@ -37,7 +39,7 @@ def bilateral_filter_points(
     points : (H, W, 3) ndarray
         Point map in mm (paper :math:`P^T`), NaN = invalid.
     intensity : (H, W) ndarray
-        Registered intensity in [0, 1].
+        Registered intensity in [0, 1] (integers are divided by their dtype maximum).
     radius : int
         Window radius r in px.
     sigma_distance : float
@@ -49,7 +51,7 @@ def bilateral_filter_points(
         ``P[n] - P~[n]`` and adds them to ``P~[c]`` (our A18): the weights are unchanged, but
         curvature is not flattened and the result stays on the centre pixel's ray.
     out : (H, W, 3) ndarray of float32, optional
-        Output buffer.
+        Output buffer (C-contiguous, writeable).
 
     Returns
     -------
@@ -64,14 +66,16 @@ def bilateral_filter_points(
     """
     p = as_float32(points, name="points")
     check_shape(p, ("H", "W", 3), name="points")
-    i = as_float32(intensity, name="intensity")
+    i = as_unit_intensity(np.asarray(intensity))
     check_shape(i, p.shape[:2], name="intensity")
     if radius < 0 or int(radius) != radius:
-        raise ValueError(f"radius must be an integer >= 0, got {radius!r}")
+        raise ParameterError(f"radius must be an integer >= 0, got {radius!r}")
     if not (sigma_distance > 0 and sigma_intensity > 0):
-        raise ValueError("sigma_distance and sigma_intensity must be > 0")
+        raise ParameterError("sigma_distance and sigma_intensity must be > 0")
     if out is None:
         out = np.empty_like(p)
+    else:  # the kernels write through it: a wrong buffer corrupted memory
+        check_output_buffer(out, p.shape, name="out")
     if reference is not None:
         ref = as_float32(reference, name="reference")
         check_shape(ref, p.shape, name="reference")

@@ -13,7 +13,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._validation import as_float32, check_shape
-from .errors import ParameterTypeError
+from .errors import ParameterError, ParameterTypeError
+
+#: The largest and the smallest normal magnitude of float32, in which the kernels compute.
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+_FLOAT32_TINY = float(np.finfo(np.float32).tiny)
 
 __all__ = ["Intrinsics", "depth_to_points", "points_to_depth", "project_points"]
 
@@ -53,17 +57,34 @@ class Intrinsics:
             try:
                 value = float(value)
             except (TypeError, ValueError):
-                raise TypeError(f"Intrinsics.{name} must be a number, got {value!r}") from None
+                raise ParameterTypeError(
+                    f"Intrinsics.{name} must be a number, got {value!r}"
+                ) from None
             if not math.isfinite(value):
-                raise ValueError(f"Intrinsics.{name} must be finite, got {value}")
+                raise ParameterError(f"Intrinsics.{name} must be finite, got {value}")
+            if abs(value) > _FLOAT32_MAX:  # the kernels compute in float32: it became inf
+                raise ParameterError(
+                    f"Intrinsics.{name} must be at most {_FLOAT32_MAX:.3g} pixels in size "
+                    f"(float32), got {value}"
+                )
             object.__setattr__(self, name, value)
         for name in ("fx", "fy"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"Intrinsics.{name} must be > 0 pixels, got {getattr(self, name)}")
+            value = getattr(self, name)
+            if value <= 0:
+                raise ParameterError(f"Intrinsics.{name} must be > 0 pixels, got {value}")
+            if value < _FLOAT32_TINY:  # 0 in float32: every point at infinity, no error
+                raise ParameterError(
+                    f"Intrinsics.{name} must be at least {_FLOAT32_TINY:.3g} pixels "
+                    f"(float32), got {value}"
+                )
         for name in ("width", "height"):
             value = getattr(self, name)
-            if isinstance(value, bool) or int(value) != value or int(value) < 1:
-                raise ValueError(f"Intrinsics.{name} must be a positive integer, got {value!r}")
+            try:
+                whole = not isinstance(value, bool) and int(value) == value and int(value) >= 1
+            except (TypeError, ValueError, OverflowError):
+                whole = False
+            if not whole:
+                raise ParameterError(f"Intrinsics.{name} must be a positive integer, got {value!r}")
             object.__setattr__(self, name, int(value))
 
     @classmethod
@@ -77,7 +98,7 @@ class Intrinsics:
         """
         arr = np.asarray(values, dtype=np.float64).ravel()
         if arr.size != 4:
-            raise ValueError(
+            raise ParameterError(
                 f"intrinsics must be [fx, fy, cx, cy] (4 numbers), got {arr.size} values"
             )
         return cls(*(float(x) for x in arr), width=width, height=height)
@@ -87,7 +108,7 @@ class Intrinsics:
         """Build from a 3x3 camera matrix ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``."""
         mat = np.asarray(matrix, dtype=np.float64)
         if mat.shape != (3, 3):
-            raise ValueError(f"camera matrix must be 3x3, got shape {mat.shape}")
+            raise ParameterError(f"camera matrix must be 3x3, got shape {mat.shape}")
         return cls(mat[0, 0], mat[1, 1], mat[0, 2], mat[1, 2], width=width, height=height)
 
     def as_array(self) -> NDArray[np.float64]:
@@ -109,7 +130,7 @@ class Intrinsics:
     def scaled(self, factor: float) -> Intrinsics:
         """Intrinsics of the image resized by ``factor`` (pixel-centre convention kept)."""
         if not factor > 0:
-            raise ValueError(f"factor must be > 0, got {factor}")
+            raise ParameterError(f"factor must be > 0, got {factor}")
         return Intrinsics(
             fx=self.fx * factor,
             fy=self.fy * factor,
@@ -167,6 +188,7 @@ def depth_to_points(depth: ArrayLike, intrinsics: Intrinsics) -> NDArray[np.floa
     >>> p[1, 2].tolist()
     [5.0, 0.0, 500.0]
     """
+    check_intrinsics(intrinsics)
     d = as_float32(depth, name="depth")
     check_shape(
         d,
@@ -215,6 +237,7 @@ def project_points(
     u, v : (...) ndarray of float32
         Column and row coordinates in pixels; NaN where Z is not > 0.
     """
+    check_intrinsics(intrinsics)
     p = np.asarray(points, dtype=np.float64)
     check_shape(p, ("*", 3), name="points")
     z = p[..., 2]

@@ -46,6 +46,7 @@ from ._kernels.flying_pixels import _flying_pixels_kernel
 from ._validation import as_float32, check_shape
 from .camera import Intrinsics
 from .config import FusionParams
+from .errors import ParameterError
 from .motion import estimate_noise_quad
 
 __all__ = [
@@ -105,12 +106,12 @@ def flying_pixel_mask(
     d = as_float32(depth, name="depth")
     check_shape(d, ("H", "W"), name="depth")
     if d.shape != (intrinsics.height, intrinsics.width):
-        raise ValueError(
+        raise ParameterError(
             f"depth is {d.shape[0]}x{d.shape[1]} but the intrinsics are for "
             f"{intrinsics.height}x{intrinsics.width}"
         )
     if not 0.0 < max_angle_deg < 90.0:
-        raise ValueError(f"max_angle_deg must lie in (0, 90), got {max_angle_deg}")
+        raise ParameterError(f"max_angle_deg must lie in (0, 90), got {max_angle_deg}")
     d = np.where(np.isfinite(d) & (d > 0), d, np.float32(np.nan))
     q = estimate_noise_quad(d) if quad is None else float(quad)
     out = np.empty(d.shape, np.bool_)

@@ -33,7 +33,7 @@ from ._validation import as_float32, check_shape
 from .bilateral import _residual_bilateral, bilateral_filter_points
 from .camera import Intrinsics, check_intrinsics, depth_to_points
 from .config import FlowConfig, FusionParams, fusion_params, preset
-from .errors import ParameterTypeError, ShapeError
+from .errors import ParameterError, ParameterTypeError, ShapeError
 from .flow import SequenceFlow, as_sequence_flow
 from .flying_pixels import flying_pixel_mask, resolve_flying_pixels
 from .holes import (
@@ -294,6 +294,10 @@ class FusionEngine:
         p = self.params
         self.past = p.past_frames
         self.future = p.future_frames
+        if ring_size is not None and (
+            isinstance(ring_size, bool) or not isinstance(ring_size, int | np.integer)
+        ):
+            raise ParameterTypeError(f"ring_size must be an integer, got {ring_size!r}")
         self.ring = max(ring_size or 0, p.num_frames)
         h, w = intrinsics.height, intrinsics.width
         s = self.ring
@@ -431,7 +435,7 @@ class FusionEngine:
                 "pushed); call reset() to start a new stream"
             )
         if first < 0 or (stop is not None and stop <= first):
-            raise ValueError(f"output range needs 0 <= first < stop, got [{first}, {stop})")
+            raise ParameterError(f"output range needs 0 <= first < stop, got [{first}, {stop})")
         self._emitted = int(first)
         self._emit_stop = None if stop is None else int(stop)
 
@@ -509,7 +513,7 @@ class FusionEngine:
         self._dark.add(inten)
         if state is not None:
             if points is not None:
-                raise ValueError("push takes points or a frame state, not both")
+                raise ParameterError("push takes points or a frame state, not both")
             _check_state(state, (h, w), index, separate=self._separate_reference)
         needs_pair = index > 0 and (self.past + self.future > 0 or pair_flow is not None)
         if needs_pair and pair_flow is None and self.overlap_flow and self.precomputed is None:
@@ -709,7 +713,7 @@ class FusionEngine:
         intensity from its ring slot unless given)."""
         if self.precomputed is not None:
             if index - 1 >= self.precomputed.num_pairs:
-                raise ValueError(
+                raise ParameterError(
                     f"precomputed flows cover {self.precomputed.num_pairs} pairs; frame {index} "
                     "needs one more"
                 )
@@ -1043,7 +1047,7 @@ def _check_state(state: FrameState, shape: tuple[int, int], index: int, *, separ
     for name in ("smooth", "bilateral"):
         check_shape(getattr(state, name), (h, w, 3), name=f"state.{name} (frame {index})")
     if separate != (state.reference is not None):
-        raise ValueError(
+        raise ParameterError(
             f"frame {index}: the state's motion reference does not match the engine's "
             "parameters (a state from an engine with other FusionParams?)"
         )
@@ -1307,7 +1311,7 @@ def fuse_sequence(
         raise ShapeError("intensity", d.shape, inten.shape, "it must match depth frame for frame")
     n, h, w = d.shape
     if n < 1:
-        raise ValueError("fuse_sequence needs at least one frame, got T = 0")
+        raise ParameterError("fuse_sequence needs at least one frame, got T = 0")
     if (h, w) != (intrinsics.height, intrinsics.width):
         raise ShapeError(
             "depth",
@@ -1400,7 +1404,7 @@ def fuse_sequence(
 
 
 def fuse_stream(
-    frames: Iterable[tuple[np.ndarray, np.ndarray]],
+    frames: Iterable[Any],
     intrinsics: Intrinsics,
     *,
     fusion: FusionParams | None = None,
@@ -1416,9 +1420,10 @@ def fuse_stream(
 
     Parameters
     ----------
-    frames : iterable of (depth, intensity)
+    frames : iterable of (depth, intensity) or of fuse4d.io.Frame
         ``(H, W)`` depth in mm (NaN or 0 = invalid) and registered intensity in [0, 1], in
-        frame order (e.g. ``fuse4d.io.iter_frames(path)``).
+        frame order: pairs (e.g. ``zip(depth, intensity)``) or a reader's frames (e.g.
+        ``fuse4d.io.iter_frames(path)``, which used to fail to unpack).
     intrinsics : Intrinsics
         Pinhole camera (px); its size fixes the frame shape.
     fusion : FusionParams, optional
@@ -1444,9 +1449,22 @@ def fuse_stream(
     """
     params = fusion_params(fusion)
     if params.iterations != 1:
-        raise ValueError("fuse_stream supports iterations=1 only; use fuse_sequence for more")
+        raise ParameterError("fuse_stream supports iterations=1 only; use fuse_sequence for more")
     engine = FusionEngine(intrinsics, fusion=params, flow=flow, timings=timings, overlap_flow=True)
     with engine:  # stops the flow worker when the stream ends or is abandoned
-        for depth, intensity in frames:
-            yield from engine.push(depth, intensity)
+        for k, frame in enumerate(frames):
+            yield from engine.push(*_depth_and_intensity(frame, k))
         yield from engine.flush()
+
+
+def _depth_and_intensity(frame: Any, k: int) -> tuple[Any, Any]:
+    """One item of :func:`fuse_stream`'s input: a ``(depth, intensity)`` pair or a reader's
+    ``fuse4d.io.Frame`` (anything with ``depth`` and ``intensity``)."""
+    if hasattr(frame, "depth") and hasattr(frame, "intensity"):
+        return frame.depth, frame.intensity
+    if isinstance(frame, tuple | list) and len(frame) == 2:
+        return frame[0], frame[1]
+    raise ParameterTypeError(
+        f"fuse_stream takes (depth, intensity) pairs or fuse4d.io frames; item {k} is a "
+        f"{type(frame).__name__} (e.g. zip(depth_frames, intensity_frames))"
+    )

@@ -75,6 +75,7 @@ from ._kernels.holes import (
 )
 from ._validation import as_float32, check_shape
 from .config import FusionParams
+from .errors import ParameterError
 
 __all__ = [
     "SOURCE_FUSED",
@@ -599,11 +600,11 @@ def fill_holes(
     check_shape(mask, pts.shape[:2], name="hole")
     for name, value in (("radius", radius), ("passes", passes), ("min_neighbours", min_neighbours)):
         if isinstance(value, bool) or int(value) != value or value < 0:
-            raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
+            raise ParameterError(f"{name} must be an integer >= 0, got {value!r}")
     if not sigma > 0:
-        raise ValueError(f"sigma must be > 0 mm, got {sigma}")
+        raise ParameterError(f"sigma must be > 0 mm, got {sigma}")
     if not gate > 0:
-        raise ValueError(f"gate must be > 0 mm, got {gate}")
+        raise ParameterError(f"gate must be > 0 mm, got {gate}")
     filled = _fill_holes(
         pts,
         raw,

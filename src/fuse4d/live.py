@@ -164,7 +164,7 @@ class RecordingSource:
             self.fps = (len(timestamps) - 1) / span if span > 0 else None
         if realtime and self._timestamps is None and self.fps is None:
             self._reader.close()
-            raise ValueError(
+            raise ParameterError(
                 f"{path}: the recording stores no timestamps or frame rate; give the "
                 "playback rate (--fps)"
             )
@@ -368,7 +368,7 @@ class DropOldestQueue:
 
     def __init__(self, maxsize: int, *, block: bool = False) -> None:
         if maxsize < 1:
-            raise ValueError(f"queue size must be >= 1, got {maxsize}")
+            raise ParameterError(f"queue size must be >= 1, got {maxsize}")
         self.maxsize = maxsize
         self.block = block
         self._items: collections.deque[Any] = collections.deque()

@@ -16,6 +16,7 @@ rings (forward s^{T-1,T} on frame T-1's grid, backward s^{T,T-1} on frame T's gr
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -29,8 +30,9 @@ from ._kernels.segment_smooth import _segment_smooth_sweep_kernel
 from ._kernels.tracks import _compose_kernel, _one_step_kernel
 from ._memory import committed
 from ._validation import as_float32, check_shape
-from .camera import Intrinsics, depth_to_points
+from .camera import Intrinsics, check_intrinsics, depth_to_points
 from .config import FusionParams
+from .errors import ParameterError
 
 __all__ = [
     "Tracks",
@@ -91,8 +93,8 @@ def motion_reference_depth(
     """
     d = as_float32(depth, name="depth")
     check_shape(d, ("H", "W"), name="depth")
-    if not sigma > 0:
-        raise ValueError(f"sigma must be > 0 px, got {sigma}")
+    if not (sigma > 0 and math.isfinite(sigma)):
+        raise ParameterError(f"sigma must be a finite number > 0 px, got {sigma}")
     return _segment_smooth(d, d, sigma=sigma, max_step=max_step, noise_quad=noise_quad)
 
 
@@ -551,7 +553,7 @@ def track_frame(
     fwd, bwd, d = _check_flows(flow_forward, flow_backward, depth)
     n = d.shape[0]
     if not 0 <= t < n:
-        raise ValueError(f"t must be in [0, {n - 1}], got {t}")
+        raise ParameterError(f"t must be in [0, {n - 1}], got {t}")
     first, last = _window(t, params.past_frames, params.future_frames, n)
     _slots, rows, cols, valid = _track_window(
         _pair_ring(fwd),
@@ -601,6 +603,7 @@ def compute_motion_field(
         |s^{t,t+1}(x) + s^{t+1,t}(x + s^{t,t+1}(x))| in px; NaN where the step leaves the image.
     """
     params = params or FusionParams()
+    check_intrinsics(intrinsics)
     fwd, bwd, d = _check_flows(flow_forward, flow_backward, depth)
     n, h, w = d.shape
     quads = [estimate_noise_quad(f) for f in d]

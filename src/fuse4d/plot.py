@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .errors import ParameterError
 from .io._atomic import atomic_file
 
 if TYPE_CHECKING:
@@ -55,9 +56,9 @@ def plot_roughness_map(
 
     pi = np.asarray(roughness_map, dtype=np.float32)
     if pi.ndim != 2:
-        raise ValueError(f"roughness_map must be (H, W), got shape {pi.shape}")
+        raise ParameterError(f"roughness_map must be (H, W), got shape {pi.shape}")
     if not vmax > vmin:
-        raise ValueError(f"vmax must exceed vmin, got vmin={vmin}, vmax={vmax}")
+        raise ParameterError(f"vmax must exceed vmin, got vmin={vmin}, vmax={vmax}")
     h, w = pi.shape
     fig = Figure(figsize=(5.0 * w / max(h, w) + 1.2, 5.0 * h / max(h, w)), dpi=100)
     ax = fig.add_subplot(1, 1, 1)

@@ -45,8 +45,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from .camera import Intrinsics
+from ._validation import check_same_shape
+from .camera import Intrinsics, check_intrinsics
 from .errors import ParameterError, ShapeError
+from .sequence import as_unit_intensity
 
 __all__ = [
     "D435",
@@ -193,12 +195,13 @@ def get_sensor(name: str | SensorModel) -> SensorModel:
         ) from None
 
 
-def depth_step_mm(model: SensorModel, z_mm: float, focal_px: float) -> float:
+def depth_step_mm(model: SensorModel | str, z_mm: float, focal_px: float) -> float:
     """Depth quantisation step of a disparity sensor at depth ``z_mm``: ``z² q / (f b)`` (mm).
 
     Parameters
     ----------
-    model : SensorModel
+    model : SensorModel or str
+        The sensor or its name (``kinect``, ``d435``, ``tof``).
     z_mm : float
         Depth, mm.
     focal_px : float
@@ -209,6 +212,9 @@ def depth_step_mm(model: SensorModel, z_mm: float, focal_px: float) -> float:
     float
         Step between neighbouring depth levels, mm (1 for ToF: the mm of the file).
     """
+    model = get_sensor(model)
+    if not focal_px > 0:
+        raise ParameterError(f"focal_px must be > 0 pixels, got {focal_px!r}")
     if model.kind == "tof" or model.subpixel <= 0:
         return 1.0
     return z_mm * z_mm * model.subpixel / (focal_px * model.baseline_mm)
@@ -252,8 +258,9 @@ def apply_sensor(
     depth : (T, H, W) ndarray
         True depth, mm (NaN = no surface).
     intensity : (T, H, W) ndarray
-        Albedo-like IR reflectance in [0, 1] (the registered intensity of the scene): dark
-        pixels drop out, and ToF noise grows as it falls.
+        Albedo-like IR reflectance in [0, 1] (the registered intensity of the scene; integers
+        are divided by their dtype maximum): dark pixels drop out, and ToF noise grows as it
+        falls.
     intrinsics : Intrinsics
         The depth camera; its ``fx`` sets the disparity scale.
     model : SensorModel or str
@@ -271,12 +278,24 @@ def apply_sensor(
         Sensor depth (mm, NaN holes) and the masks of each kind of hole.
     """
     m = get_sensor(model)
+    check_intrinsics(intrinsics)
     gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
     z = np.asarray(depth, dtype=np.float64)
     if z.ndim != 3:
         raise ShapeError("depth", ("T", "H", "W"), z.shape)
-    albedo = np.clip(np.asarray(intensity, dtype=np.float64), 0.0, 1.0)
-    cos = np.ones_like(z) if normal_z is None else np.clip(-np.asarray(normal_z), 0.0, 1.0)
+    if z.shape[1:] != intrinsics.shape:
+        raise ShapeError(
+            "depth", ("T", *intrinsics.shape), z.shape, "The intrinsics' height x width"
+        )
+    # integers divided by their maximum (a uint8 albedo was clipped to 1 everywhere)
+    albedo = as_unit_intensity(np.asarray(intensity)).astype(np.float64)
+    check_same_shape(z, albedo, names=("depth", "intensity"))
+    if normal_z is None:
+        cos = np.ones_like(z)
+    else:
+        nz = np.asarray(normal_z, dtype=np.float64)
+        check_same_shape(z, nz, names=("depth", "normal_z"))
+        cos = np.clip(-nz, 0.0, 1.0)
     t, h, w = z.shape
     out = np.full(z.shape, np.nan, np.float32)
     shadow = np.zeros(z.shape, bool)

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any, ClassVar
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ._validation import as_float32, check_shape
 from .camera import Intrinsics, check_intrinsics, depth_to_points
@@ -20,6 +20,7 @@ __all__ = [
     "SceneTruth",
     "Sequence",
     "SheetTruth",
+    "as_storable_intensity",
     "check_unit_intensity",
     "normalize_intensity",
     "sanitize_depth",
@@ -27,11 +28,12 @@ __all__ = [
 
 
 def sanitize_depth(depth: np.ndarray) -> NDArray[np.float32]:
-    """Float32 depth (mm) with every invalid value (0, negative, inf, NaN) set to NaN."""
+    """Float32 depth (mm) with every invalid value (0, negative, inf, NaN) set to NaN; the
+    input is never written to (a view of it, e.g. of a memmap, is copied first)."""
     d = as_float32(depth, name="depth")
     bad = ~(np.isfinite(d) & (d > 0))
     if bad.any():
-        d = d.copy() if d is depth else d
+        d = d.copy() if np.may_share_memory(d, depth) else d
         d[bad] = np.nan
     return d
 
@@ -105,6 +107,42 @@ def check_unit_intensity(intensity: np.ndarray, *, name: str = "intensity") -> N
                 "fuse4d.sequence.normalize_intensity on the whole sequence), or pass integer "
                 "intensity, which is divided by its dtype maximum"
             )
+    return arr
+
+
+#: How far outside [0, 1] float intensity may lie where it is saturated rather than refused
+#: (flow input, writers, colours): resampled images over- and undershoot a little (cubic
+#: warps: -0.003 .. 1.007); 0-255 floats are far beyond it.
+UNIT_RANGE_SLACK = 0.5
+
+
+def as_storable_intensity(intensity: ArrayLike, *, name: str = "intensity") -> NDArray[np.float32]:
+    """Intensity to store or show (writers, point colours): integers divided by their dtype
+    maximum, as the fusion engine takes them (a ``cv2.imread`` uint8 frame used to be stored
+    as 0-255 and saturated to white); floats as float32, to be clipped to [0, 1] by the
+    caller, NaN allowed (stored as 0), refused when farther than :data:`UNIT_RANGE_SLACK`
+    outside [0, 1] (0-255 floats would all store as 1).
+
+    Raises
+    ------
+    ParameterError
+        For float values far outside [0, 1].
+    """
+    arr = np.asarray(intensity)
+    if arr.dtype.kind in "uib":
+        return normalize_intensity(arr)
+    arr = as_float32(arr, name=name)
+    if not arr.size:
+        return arr
+    lo, hi = float(arr.min()), float(arr.max())
+    if not (np.isfinite(lo) and np.isfinite(hi)):  # NaN or inf present: the finite values
+        finite = arr[np.isfinite(arr)]
+        lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+    if lo < -UNIT_RANGE_SLACK or hi > 1.0 + UNIT_RANGE_SLACK:
+        raise ParameterError(
+            f"{name} is float with values in [{lo:.4g}, {hi:.4g}], not [0, 1]; rescale it "
+            "(e.g. divide 8-bit values by 255) or pass integers, divided by their dtype maximum"
+        )
     return arr
 
 
@@ -419,7 +457,7 @@ class Sequence:
             raise ParameterTypeError(INTENSITY_REQUIRED)
         check_shape(intensity, ("T", "H", "W"), name="intensity", hint="convert colour to gray")
         if depth.shape[0] < 1:
-            raise ValueError("a sequence needs at least one frame (T >= 1), got T = 0")
+            raise ParameterError("a sequence needs at least one frame (T >= 1), got T = 0")
         if intensity.shape != depth.shape:
             raise ShapeError(
                 "intensity",
@@ -440,10 +478,10 @@ class Sequence:
             i = as_float32(intensity, name="intensity")
             finite = i[np.isfinite(i)]
             if finite.size != i.size:
-                raise ValueError("intensity contains NaN or inf; intensity must be dense")
+                raise ParameterError("intensity contains NaN or inf; intensity must be dense")
             lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
             if lo < 0.0 or hi > 1.0:
-                raise ValueError(
+                raise ParameterError(
                     f"intensity must lie in [0, 1], got range [{lo:.4g}, {hi:.4g}]; "
                     "use fuse4d.sequence.normalize_intensity() to rescale"
                 )
@@ -456,12 +494,12 @@ class Sequence:
             if ts.shape != (d.shape[0],):
                 raise ShapeError("timestamps", (d.shape[0],), ts.shape, "one time per frame")
             if ts.size > 1 and not np.all(np.diff(ts) > 0):
-                raise ValueError("timestamps must be strictly increasing")
+                raise ParameterError("timestamps must be strictly increasing")
             object.__setattr__(self, "timestamps", ts)
         if self.fps is not None:
             fps = float(self.fps)
             if not (np.isfinite(fps) and fps > 0):
-                raise ValueError(f"fps must be a positive number, got {self.fps!r}")
+                raise ParameterError(f"fps must be a positive number, got {self.fps!r}")
             object.__setattr__(self, "fps", fps)
         if self.ground_truth is not None:
             self._check_ground_truth(self.ground_truth)
@@ -508,7 +546,7 @@ class Sequence:
         sl = slice(start, stop)
         idx = range(self.num_frames)[sl]
         if len(idx) < 1:
-            raise ValueError(
+            raise ParameterError(
                 f"frame range {start}:{stop} selects no frame of a {self.num_frames}-frame sequence"
             )
         gt = self.ground_truth

@@ -12,6 +12,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._params import check_int, check_number
 from .._validation import as_float32, check_same_shape, check_shape
 from ..camera import Intrinsics, check_intrinsics
+from ..errors import ParameterTypeError, ShapeError
 from ..sequence import as_unit_intensity
 
 __all__ = [
@@ -39,21 +40,35 @@ _NOISE_SAMPLES = 1_500_000
 
 
 def check_inputs(
-    depth: ArrayLike, intensity: ArrayLike | None, intrinsics: Intrinsics
+    depth: ArrayLike,
+    intensity: ArrayLike | None,
+    intrinsics: Intrinsics,
+    *,
+    guided_by: str | None = None,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
     """Validate ``(T, H, W)`` depth (mm) / intensity ([0, 1]) against ``intrinsics``.
 
     Returns contiguous float32 arrays; depth values <= 0 or non-finite become NaN (copy).
     Integer intensity is divided by its dtype's maximum and float intensity must lie in
     [0, 1], as for the fusion (a uint8 guide was taken as 0-255: every range weight ~0).
+    ``guided_by``: the name of a method that needs the intensity; None intensity is then
+    refused with a :class:`~fuse4d.errors.ParameterTypeError` naming it.
     """
+    if intensity is None and guided_by is not None:
+        raise ParameterTypeError(
+            f"{guided_by} needs intensity: it is guided by the registered intensity (IR or "
+            "gray) video; baselines without a guide (e.g. temporal-mean, ta) take "
+            "intensity=None"
+        )
     check_intrinsics(intrinsics)
     d = as_float32(depth, name="depth")
     check_shape(d, ("T", "H", "W"), name="depth", hint="Pass a (frames, rows, columns) array.")
     if d.shape[1:] != (intrinsics.height, intrinsics.width):
-        raise ValueError(
-            f"depth frames are {d.shape[1]}x{d.shape[2]} (HxW) but intrinsics describe "
-            f"{intrinsics.height}x{intrinsics.width}"
+        raise ShapeError(
+            "depth",
+            ("T", intrinsics.height, intrinsics.width),
+            d.shape,
+            "Its frames must have the intrinsics' height x width",
         )
     bad = ~(np.isfinite(d) & (d > 0))
     if bad.any():

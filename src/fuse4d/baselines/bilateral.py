@@ -17,6 +17,7 @@ from .._kernels.baselines import _pca_view_angle_kernel, _region_grow_kernel
 from .._kernels.joint_bilateral import _joint_bilateral_kernel
 from .._params import check_bool, check_int, check_number
 from ..camera import Intrinsics, depth_to_points
+from ..errors import ParameterError
 from ._common import (
     MAX_WINDOW_RADIUS,
     DepthNoiseModel,
@@ -60,7 +61,7 @@ def _run_kernel(
     int_coeff = 0.0 if sigma_intensity is None else 0.5 / float(sigma_intensity) ** 2
     guide = depth if intensity is None or int_coeff == 0 else intensity  # unread when 0
     if guide.shape != depth.shape:
-        raise ValueError("intensity window must match the depth window")
+        raise ParameterError("intensity window must match the depth window")
     tw = np.ones(n, np.float32) if time_weight is None else time_weight.astype(np.float32)
     out = np.empty(shape, np.float32)
     _joint_bilateral_kernel(
@@ -308,7 +309,7 @@ def adaptive_bilateral(
     -----
     [R] (BASELINES §2): σ_r(i) = 3 σ̂_d (D(i)/D_med)², D_med = median valid depth of the frame.
     """
-    d, g = check_inputs(depth, intensity, intrinsics)
+    d, g = check_inputs(depth, intensity, intrinsics, guided_by="adbf")
     radius = check_int("adaptive_bilateral", "size", size, minimum=1, maximum=MAX_WINDOW_RADIUS)
     check_bool("adaptive_bilateral", "hole_repair", hole_repair)
     sigma_d = resolve_noise_sigma(d, noise_sigma, owner="adaptive_bilateral")
@@ -399,7 +400,7 @@ def adaptive_joint_bilateral(
     (T, H, W) ndarray of float32
         Filtered depth (mm), NaN where the input is NaN.
     """
-    d, g = check_inputs(depth, intensity, intrinsics)
+    d, g = check_inputs(depth, intensity, intrinsics, guided_by="adjbf")
     radius = check_int(
         "adaptive_joint_bilateral", "size", size, minimum=1, maximum=MAX_WINDOW_RADIUS
     )

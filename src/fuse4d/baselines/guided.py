@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._params import check_int, check_number
 from ..camera import Intrinsics
+from ..errors import ParameterError
 from ._common import MAX_WINDOW_RADIUS, check_inputs, iterate, normalized_convolution_fill
 
 __all__ = ["guided"]
@@ -64,10 +65,13 @@ def guided(
     intensity texture is copied into depth; this artefact is part of the method.
     """
     if guide not in ("intensity", "depth"):
-        raise ValueError(f"guide must be 'intensity' or 'depth', got {guide!r}")
-    d, g = check_inputs(depth, intensity if guide == "intensity" else None, intrinsics)
-    if guide == "intensity" and g is None:
-        raise ValueError("the intensity-guided filter needs intensity (or pass guide='depth')")
+        raise ParameterError(f"guide must be 'intensity' or 'depth', got {guide!r}")
+    d, g = check_inputs(
+        depth,
+        intensity if guide == "intensity" else None,
+        intrinsics,
+        guided_by="guided with guide='intensity'" if guide == "intensity" else None,
+    )
     radius = check_int("guided", "size", size, minimum=1, maximum=MAX_WINDOW_RADIUS)
     check_number("guided", "eps", eps, gt=0)
     valid = np.isfinite(d)

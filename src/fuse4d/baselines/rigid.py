@@ -40,6 +40,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._kernels.tsdf import _surface_bounds_kernel, _tsdf_raycast_kernel
 from .._params import check_choice, check_int, check_number
 from ..camera import Intrinsics, depth_to_points
+from ..errors import ParameterError
 from ._common import check_inputs, iterate, resolve_noise_sigma
 from ._fusion import apply_rigid, projective_fuse, projective_icp
 
@@ -297,11 +298,11 @@ def tsdf_raycast(
     d = np.ascontiguousarray(depth, dtype=np.float32)
     to_ref = np.asarray(to_reference, dtype=np.float64)
     if d.ndim != 3 or to_ref.shape != (d.shape[0], 4, 4):
-        raise ValueError(
+        raise ParameterError(
             f"depth must be (F, H, W) and to_reference (F, 4, 4); got {d.shape} and {to_ref.shape}"
         )
     if not (truncation > 0 and step > 0):
-        raise ValueError(f"truncation and step must be > 0 mm, got {truncation!r}, {step!r}")
+        raise ParameterError(f"truncation and step must be > 0 mm, got {truncation!r}, {step!r}")
     k = intrinsics
     h, w = k.height, k.width
     from_ref = np.ascontiguousarray(np.linalg.inv(to_ref)[:, :3, :])

@@ -121,7 +121,7 @@ def spatio_temporal_median(
     3×3 median on the block vectors; candidates D_τ(x + v_τ(x) + o) kept if valid and
     |I_τ(x + v_τ(x) + o) − I_t(x + o)| < τ_I; output = their median.
     """
-    d, g = check_inputs(depth, intensity, intrinsics)
+    d, g = check_inputs(depth, intensity, intrinsics, guided_by="stmf")
     k = check_int("spatio_temporal_median", "size", size, minimum=0)
     a = check_int(
         "spatio_temporal_median", "half_window", half_window, minimum=0, maximum=MAX_WINDOW_RADIUS

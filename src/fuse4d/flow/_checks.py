@@ -10,16 +10,10 @@ from numpy.typing import NDArray
 
 from .._validation import as_float32, check_shape
 from ..errors import ParameterError, ShapeError
-from ..sequence import normalize_intensity
+from ..sequence import UNIT_RANGE_SLACK, normalize_intensity
 from ._registry import Roi
 
 __all__ = ["check_flow_field", "check_image", "check_roi", "to_uint8"]
-
-
-#: How far (in units of the [0, 1] range) a flow input may stray outside [0, 1]: resampled
-#: images over- and undershoot a little (cubic warps: -0.003 .. 1.007) and are saturated like
-#: OpenCV's conversion to 8 bits; 0-255 floats are far beyond it.
-UNIT_RANGE_SLACK = 0.5
 
 
 def check_image(image: Any, name: str) -> NDArray[np.float32]:
@@ -54,7 +48,7 @@ def check_flow_field(flow: Any, shape: tuple[int, int], name: str) -> NDArray[np
     arr = as_float32(flow, name=name)
     check_shape(arr, (*shape, 2), name=name, hint="A flow field is (H, W, 2) px: du, dv")
     if not np.isfinite(arr).all():
-        raise ValueError(f"{name} contains NaN or inf")
+        raise ParameterError(f"{name} contains NaN or inf")
     return arr
 
 
@@ -65,10 +59,10 @@ def check_roi(roi: Any, shape: tuple[int, int]) -> Roi | None:
     try:
         r0, r1, c0, c1 = (int(v) for v in roi)
     except (TypeError, ValueError):
-        raise ValueError(f"roi must be (row0, row1, col0, col1), got {roi!r}") from None
+        raise ParameterError(f"roi must be (row0, row1, col0, col1), got {roi!r}") from None
     h, w = shape
     if not (0 <= r0 < r1 <= h and 0 <= c0 < c1 <= w) or r1 - r0 < 2 or c1 - c0 < 2:
-        raise ValueError(
+        raise ParameterError(
             f"roi {(r0, r1, c0, c1)} must satisfy 0 <= row0 < row1 <= {h}, "
             f"0 <= col0 < col1 <= {w}, at least 2 px each way (half-open, px)"
         )

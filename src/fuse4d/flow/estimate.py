@@ -437,7 +437,7 @@ def estimate_sequence_flow(
     check_shape(video, ("T", "H", "W"), name="intensity")
     num_frames = video.shape[0]
     if num_frames < 2:
-        raise ValueError(f"intensity needs at least 2 frames for flow, got {num_frames}")
+        raise ParameterError(f"intensity needs at least 2 frames for flow, got {num_frames}")
     estimator = SequenceFlowEstimator(
         method=method, params=params, warm_start=warm_start, roi=roi, cache=cache
     )
@@ -495,7 +495,7 @@ def warp_image(
     map_u = grid_u + f[..., 0]
     map_v = grid_v + f[..., 1]
     if border not in ("replicate", "nan"):
-        raise ValueError(f"border must be 'replicate' or 'nan', got {border!r}")
+        raise ParameterError(f"border must be 'replicate' or 'nan', got {border!r}")
     out = cv2.remap(img, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     if border == "nan":
         # Not BORDER_CONSTANT=NaN: OpenCV would blend the NaN in with weight 0 (NaN * 0 = NaN)

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import InputFileError
+from ..errors import InputFileError, ParameterError
 from ..io._atomic import atomic_file
 
 __all__ = ["FLO_TAG", "FLO_UNKNOWN", "read_flo", "write_flo"]
@@ -80,7 +80,7 @@ def write_flo(flow: ArrayLike, path: str | PathLike[str], *, overwrite: bool = F
     """
     f = np.asarray(flow, dtype=np.float32)
     if f.ndim != 3 or f.shape[2] != 2 or f.shape[0] < 1 or f.shape[1] < 1:
-        raise ValueError(f"flow must have shape (H, W, 2), got {f.shape}")
+        raise ParameterError(f"flow must have shape (H, W, 2), got {f.shape}")
     out = f.astype("<f4", copy=True)
     out[~np.isfinite(out).all(axis=2)] = FLO_UNKNOWN
     header = np.array([FLO_TAG], "<f4").tobytes() + np.array(f.shape[1::-1], "<i4").tobytes()

@@ -43,6 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._params import param, validate
+from ..errors import ParameterError
 from ._checks import to_uint8
 from ._registry import FlowMethod, register_flow_method
 
@@ -135,7 +136,7 @@ class DISParams:
     def __post_init__(self) -> None:
         validate(self, finite=True)
         if self.patch_stride > self.patch_size:
-            raise ValueError(
+            raise ParameterError(
                 f"DISParams.patch_stride must be <= patch_size ({self.patch_size}), "
                 f"got {self.patch_stride!r}"
             )
@@ -144,7 +145,7 @@ class DISParams:
     def from_preset(cls, preset: DISPreset, **overrides: Any) -> DISParams:
         """Parameters of OpenCV's ``ultrafast``, ``fast`` or ``medium`` preset, plus overrides."""
         if preset not in cls.PRESETS:
-            raise ValueError(
+            raise ParameterError(
                 f"unknown DIS preset {preset!r}; choose one of {', '.join(cls.PRESETS)}"
             )
         return cls(**{**cls.PRESETS[preset], **overrides})
@@ -359,7 +360,7 @@ class TVL1Params:
     def __post_init__(self) -> None:
         validate(self, finite=True)
         if self.median_filtering % 2 == 0:
-            raise ValueError(
+            raise ParameterError(
                 f"TVL1Params.median_filtering must be odd, got {self.median_filtering!r}"
             )
 

@@ -96,6 +96,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._kernels import pmbp as _k
 from .._params import check_int, param, validate
 from .._validation import as_float32, check_same_shape, check_shape
+from ..errors import ParameterError
 from ._checks import check_image, to_uint8
 from ._registry import FlowMethod, register_flow_method
 
@@ -294,7 +295,7 @@ class PMBPParams:
         check_int(owner, "finest_level", self.finest_level, maximum=self.pyramid_levels - 1)
         roi = self.roi
         if roi is not None and not (0 <= roi[0] < roi[1] and 0 <= roi[2] < roi[3]):
-            raise ValueError(
+            raise ParameterError(
                 f"{owner}.roi must satisfy 0 <= row0 < row1 and 0 <= col0 < col1, got {roi!r}"
             )
 
@@ -522,7 +523,7 @@ def _check_inputs(
         check_shape(init_arr, (h, w, 2), name="init", hint="Warm start must be (H, W, 2) px")
         init_arr = np.nan_to_num(init_arr, nan=0.0, posinf=0.0, neginf=0.0)
     if p.roi is not None and (p.roi[1] > h or p.roi[3] > w):
-        raise ValueError(f"PMBPParams.roi {p.roi} exceeds the image ({h}, {w})")
+        raise ParameterError(f"PMBPParams.roi {p.roi} exceeds the image ({h}, {w})")
     return p, a, b, init_arr
 
 

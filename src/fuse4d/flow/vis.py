@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._validation import as_float32, check_shape
+from ..errors import ParameterError
 from ..io._atomic import atomic_file
 from ..io._images import encode_png
 
@@ -96,7 +97,7 @@ def flow_to_color(
     if max_magnitude is None:
         max_magnitude = float(radius.max()) if radius.size else 0.0
     elif not (np.isfinite(max_magnitude) and max_magnitude > 0):
-        raise ValueError(f"max_magnitude must be a positive number, got {max_magnitude!r}")
+        raise ParameterError(f"max_magnitude must be a positive number, got {max_magnitude!r}")
     scale = 1.0 / max(float(max_magnitude), np.finfo(np.float64).eps)
     u *= scale
     v *= scale

@@ -340,10 +340,10 @@ def flag_images(source: ArrayLike, confidence: ArrayLike) -> tuple[tuple[str, ND
 def check_flags(index: int, shape: tuple[int, int], source: Any, confidence: Any) -> None:
     """Both per-pixel fusion flags of frame ``index`` or neither, each of ``shape``."""
     if (source is None) != (confidence is None):
-        raise ValueError(f"frame {index}: give source and confidence together")
+        raise ParameterError(f"frame {index}: give source and confidence together")
     for name, a in (("source", source), ("confidence", confidence)):
         if a is not None and np.shape(a) != shape:
-            raise ValueError(f"frame {index}: {name} has shape {np.shape(a)}, expected {shape}")
+            raise ParameterError(f"frame {index}: {name} has shape {np.shape(a)}, expected {shape}")
 
 
 def check_frame_shapes(index: int, shape: tuple[int, int], **arrays: ArrayLike | None) -> None:
@@ -354,7 +354,7 @@ def check_frame_shapes(index: int, shape: tuple[int, int], **arrays: ArrayLike |
     """
     for name, arr in arrays.items():
         if arr is not None and np.shape(arr) != shape:
-            raise ValueError(
+            raise ParameterError(
                 f"{name} of frame {index} has shape {np.shape(arr)}, expected {shape} "
                 "(the intrinsics' height x width)"
             )

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from ..camera import Intrinsics, check_intrinsics
 from ..errors import InputFileError, ParameterError
-from ..sequence import Sequence, check_sequence
+from ..sequence import Sequence, as_storable_intensity, check_sequence
 from ._atomic import atomic_dir, check_output
 from ._base import (
     Frame,
@@ -369,7 +369,8 @@ class FrameFolderWriter:
         depth : (H, W) ndarray
             Depth in mm; NaN, inf and values <= 0 are stored as 0 (invalid).
         intensity : (H, W) ndarray of float
-            Intensity in [0, 1] (values outside are clipped).
+            Intensity in [0, 1] (values slightly outside are clipped; integers are divided by
+            their dtype maximum).
         mask : (H, W) ndarray of bool, optional
             Object mask (all frames or none).
         timestamp : float, optional
@@ -383,17 +384,20 @@ class FrameFolderWriter:
             raise RuntimeError("FrameFolderWriter is not open; use it in a `with` block")
         shape = self.intrinsics.shape
         check_frame_shapes(self.num_written, shape, depth=depth, intensity=intensity, mask=mask)
+        intensity = as_storable_intensity(intensity, name=f"intensity of frame {self.num_written}")
         if self._has_mask is None:
             self._has_mask = mask is not None
             if self._has_mask:
                 (self._tmp / "mask").mkdir()
         elif self._has_mask != (mask is not None):
-            raise ValueError(f"frame {self.num_written}: give a mask for every frame or for none")
+            raise ParameterError(
+                f"frame {self.num_written}: give a mask for every frame or for none"
+            )
         check_flags(self.num_written, shape, source, confidence)
         if self._has_flags is None:
             self._has_flags = source is not None
         elif self._has_flags != (source is not None):
-            raise ValueError(
+            raise ParameterError(
                 f"frame {self.num_written}: give source and confidence for every frame or none"
             )
         k = self.num_written
@@ -422,13 +426,13 @@ class FrameFolderWriter:
         stack, self._stack = self._stack, None
         try:
             if self.num_written == 0:
-                raise ValueError(f"{self.path}: no frame was written")
+                raise ParameterError(f"{self.path}: no frame was written")
             text = camera_json_text(self.intrinsics, self.depth_unit_mm, self.fps, self.sensor)
             (self._tmp / "camera.json").write_text(text)
             stamps = self._timestamps
             if any(t is not None for t in stamps):
                 if any(t is None for t in stamps):
-                    raise ValueError("give a timestamp for every frame or for none")
+                    raise ParameterError("give a timestamp for every frame or for none")
                 text = "".join(f"{t:.6f}\n" for t in stamps)
                 (self._tmp / "timestamps.txt").write_text(text)
         except BaseException as exc:

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import InputFileError
+from ..errors import InputFileError, ShapeError
+from ..sequence import as_storable_intensity
 from ._atomic import atomic_file
 
 __all__ = ["read_ply", "write_ply"]
@@ -38,7 +39,8 @@ def write_ply(
     path : str or PathLike
         Output ``.ply`` file.
     colors : (H, W) or (N,) ndarray, optional
-        Intensity in [0, 1] for each point, stored as gray ``red = green = blue`` (uchar).
+        Intensity in [0, 1] for each point (integers are divided by their dtype maximum),
+        stored as gray ``red = green = blue`` (uchar).
     overwrite : bool, optional
         Replace an existing file. Default False.
 
@@ -49,24 +51,24 @@ def write_ply(
 
     Raises
     ------
-    ValueError
+    ShapeError
         If the shapes do not fit.
+    ParameterError
+        If float ``colors`` lie far outside [0, 1] (0-255).
     OutputExistsError
         If ``path`` exists and ``overwrite`` is False.
     """
     p = np.asarray(points, dtype=np.float32)
     if p.ndim < 2 or p.shape[-1] != 3:
-        raise ValueError(f"points must have shape (H, W, 3) or (N, 3), got {p.shape}")
+        raise ShapeError("points", ("H", "W", 3), p.shape, "Or (N, 3): X, Y, Z in mm")
     flat = p.reshape(-1, 3)
     keep = np.isfinite(flat).all(axis=1)
     n = int(keep.sum())
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
     if colors is not None:
-        c = np.asarray(colors, dtype=np.float64)
+        c = as_storable_intensity(colors, name="colors")
         if c.shape != p.shape[:-1]:
-            raise ValueError(
-                f"colors must have shape {p.shape[:-1]} (one per point), got {c.shape}"
-            )
+            raise ShapeError("colors", p.shape[:-1], c.shape, "One intensity per point")
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
     vertices = np.empty(n, dtype=fields)
     for axis, name in enumerate("xyz"):

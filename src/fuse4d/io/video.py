@@ -27,7 +27,7 @@ import numpy as np
 
 from ..camera import Intrinsics, check_intrinsics
 from ..errors import ParameterError
-from ..sequence import Sequence, check_sequence
+from ..sequence import Sequence, as_storable_intensity, check_sequence
 from ._atomic import StagedWriter, atomic_file, check_output
 from ._base import check_frame_shapes
 from ._extras import require
@@ -78,7 +78,7 @@ class DepthVideoWriter(StagedWriter):
     ) -> None:
         check_intrinsics(intrinsics)
         if not (math.isfinite(depth_unit_mm) and depth_unit_mm > 0):
-            raise ValueError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
+            raise ParameterError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
         if fps is not None and not (math.isfinite(fps) and fps > 0):
             raise ParameterError(f"fps must be > 0, got {fps!r}")
         self._av = require("av", what="writing .mkv depth video")
@@ -132,11 +132,13 @@ class DepthVideoWriter(StagedWriter):
         mask: np.ndarray | None = None,
         timestamp: float | None = None,
     ) -> None:
-        """Append one frame (depth mm, NaN/<=0 invalid; intensity [0, 1]; mask ignored)."""
+        """Append one frame (depth mm, NaN/<=0 invalid; intensity [0, 1], integers divided by
+        their dtype maximum; mask ignored)."""
         if self._streams is None:
             raise RuntimeError("DepthVideoWriter is not open; use it in a `with` block")
         shape = self.intrinsics.shape
         check_frame_shapes(self.num_written, shape, depth=depth, intensity=intensity)
+        intensity = as_storable_intensity(intensity, name=f"intensity of frame {self.num_written}")
         if timestamp is not None and self.num_written == 0:
             self._t0 = float(timestamp)
             self._container.metadata["FUSE4D_T0"] = repr(self._t0)
@@ -165,7 +167,7 @@ class DepthVideoWriter(StagedWriter):
             return
         if self.num_written == 0:
             self.abort()
-            raise ValueError(f"{self.path}: no frame was written")
+            raise ParameterError(f"{self.path}: no frame was written")
         stack, self._stack = self._stack, None
         try:
             for stream in self._streams or ():

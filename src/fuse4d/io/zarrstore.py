@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from ..camera import Intrinsics, check_intrinsics
 from ..errors import InputFileError, ParameterError
-from ..sequence import Sequence, check_sequence
+from ..sequence import Sequence, as_storable_intensity, check_sequence
 from ._atomic import StagedWriter, atomic_dir, check_output
 from ._base import (
     Frame,
@@ -146,7 +146,8 @@ class ZarrWriter(StagedWriter):
         source: np.ndarray | None = None,
         confidence: np.ndarray | None = None,
     ) -> None:
-        """Append one frame (depth mm, NaN invalid; intensity [0, 1]; mask ignored).
+        """Append one frame (depth mm, NaN invalid; intensity [0, 1], integers divided by their
+        dtype maximum; mask ignored).
 
         ``source`` / ``confidence`` (both or neither, all frames or none): a fused frame's
         per-pixel flags (:attr:`fuse4d.FusedFrame.source` codes, confidence in [0, 1]),
@@ -156,14 +157,14 @@ class ZarrWriter(StagedWriter):
             raise RuntimeError("ZarrWriter is not open; use it in a `with` block")
         shape = self.intrinsics.shape
         d = np.asarray(depth, dtype=np.float32)
-        i = np.asarray(intensity, dtype=np.float32)
-        check_frame_shapes(self.num_written, shape, depth=d, intensity=i)
+        check_frame_shapes(self.num_written, shape, depth=d, intensity=intensity)
+        i = as_storable_intensity(intensity, name=f"intensity of frame {self.num_written}")
         check_flags(self.num_written, shape, source, confidence)
         if self.num_written == 0 and source is not None:
             self._add_array("source", "uint8", 0)
             self._add_array("confidence", "float32", 0.0)
         if ("source" in self._arrays) != (source is not None):
-            raise ValueError(
+            raise ParameterError(
                 f"frame {self.num_written}: give source and confidence for every frame or none"
             )
         d = np.where(np.isfinite(d) & (d > 0), d, np.float32(np.nan))
@@ -181,7 +182,7 @@ class ZarrWriter(StagedWriter):
             return
         if self.num_written == 0:
             self.abort()
-            raise ValueError(f"{self.path}: no frame was written")
+            raise ParameterError(f"{self.path}: no frame was written")
         try:
             if all(t is not None for t in self._timestamps):
                 ts = np.asarray(self._timestamps, dtype=np.float64)
@@ -224,7 +225,7 @@ class ZarrReader(FrameReader):
         self.path = Path(path)
         zarr = require("zarr", what="reading zarr stores")
         if depth_unit_mm is not None:
-            raise ValueError("depth_unit_mm does not apply to zarr stores (depth is float mm)")
+            raise ParameterError("depth_unit_mm does not apply to zarr stores (depth is float mm)")
         try:
             group = zarr.open_group(str(self.path), mode="r")
             self._depth = group["depth"]

@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._validation import as_float32, check_same_shape, check_shape
-from ..errors import ShapeError
+from ..errors import ParameterError, ShapeError
 
 __all__ = [
     "FlickerStats",
@@ -128,7 +128,7 @@ def bad_pixel_fraction(
     0.5
     """
     if not (math.isfinite(threshold) and threshold >= 0):
-        raise ValueError(f"threshold must be a finite number >= 0 (mm), got {threshold!r}")
+        raise ParameterError(f"threshold must be a finite number >= 0 (mm), got {threshold!r}")
     roi = _renamed(roi, mask, ("roi", "mask"))
     a, b, m = _pair(depth_true, depth_test, roi, ("depth_true", "depth_test"))
     use = _broadcast_mask(m, a.shape) & np.isfinite(a)
@@ -205,7 +205,7 @@ def temporal_flicker(
     d = as_float32(depth, name="depth")
     check_shape(d, ("T", "H", "W"), name="depth")
     if d.shape[0] < 2:
-        raise ValueError(f"temporal_flicker needs at least 2 frames, got {d.shape[0]}")
+        raise ParameterError(f"temporal_flicker needs at least 2 frames, got {d.shape[0]}")
     use = np.all(np.isfinite(d), axis=0)
     if static is not None:
         sm = np.asarray(static)

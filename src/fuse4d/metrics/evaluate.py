@@ -33,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._kernels.flicker import _temporal_tally_kernel
 from ..camera import Intrinsics, depth_to_points
-from ..errors import ShapeError
+from ..errors import ParameterError, ShapeError
 from ..sequence import BallTruth, GroundTruth, Sequence
 from .accuracy import FlickerStats, bad_pixel_fraction, depth_rmse, temporal_flicker
 from .roi import (
@@ -197,7 +197,7 @@ def _as_video(
         return arr[..., 2], arr, intrinsics
     if arr.ndim == 3:
         if intrinsics is None:
-            raise ValueError(f"{name}: depth maps need intrinsics= to give 3D points")
+            raise ParameterError(f"{name}: depth maps need intrinsics= to give 3D points")
         return arr, depth_to_points(arr, intrinsics), intrinsics
     raise ShapeError(name, ("T", "H", "W"), arr.shape, "depth (T, H, W) or points (T, H, W, 3)")
 
@@ -419,7 +419,7 @@ class RunningEvaluation:
 
     def __init__(self, *, window: int = 5, max_step: float = 10.0, every: int = 1) -> None:
         if isinstance(every, bool) or int(every) != every or every < 1:
-            raise ValueError(f"every must be an integer >= 1, got {every!r}")
+            raise ParameterError(f"every must be an integer >= 1, got {every!r}")
         self.window = window
         self.max_step = max_step
         self.every = int(every)

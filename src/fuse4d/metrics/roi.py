@@ -116,7 +116,7 @@ def _frame_quads(d: NDArray[np.float32], noise_quad: float | ArrayLike | None) -
 
 def _check_odd_window(window: int) -> None:
     if isinstance(window, bool) or int(window) != window or window < 1 or window % 2 == 0:
-        raise ValueError(f"window must be an odd positive integer (pixels), got {window!r}")
+        raise ParameterError(f"window must be an odd positive integer (pixels), got {window!r}")
 
 
 def default_roi(
@@ -161,7 +161,7 @@ def default_roi(
     if d.ndim not in (2, 3):
         raise ShapeError("depth", ("T", "H", "W"), d.shape, "a (H, W) or (T, H, W) depth map")
     if not (math.isfinite(max_step) and max_step >= 0):
-        raise ValueError(f"max_step must be a finite number >= 0 (mm), got {max_step!r}")
+        raise ParameterError(f"max_step must be a finite number >= 0 (mm), got {max_step!r}")
     _check_odd_window(window)
     quads = np.asarray(_frame_quads(d, noise_quad), np.float64).reshape(-1)
     frames = d.reshape(-1, *d.shape[-2:])
@@ -175,7 +175,7 @@ def default_roi(
 def _ground_truth(seq_or_gt: Sequence | GroundTruth) -> GroundTruth:
     gt = seq_or_gt.ground_truth if isinstance(seq_or_gt, Sequence) else seq_or_gt
     if not isinstance(gt, GroundTruth):
-        raise ValueError(  # noqa: TRY004  (missing data, not a wrong type)
+        raise ParameterError(
             "this ROI needs ground truth (a synthetic scene from fuse4d.synthetic)"
         )
     return gt
@@ -191,7 +191,7 @@ def ball_truth(seq_or_gt: Sequence | GroundTruth, *, what: str = "this metric") 
     """
     gt = _ground_truth(seq_or_gt)
     if not isinstance(gt.scene, BallTruth) or gt.mask is None:
-        raise ValueError(
+        raise ParameterError(
             f"{what} needs the falling-ball ground truth (mask and a BallTruth scene, "
             "from fuse4d.synthetic.make_falling_ball)"
         )
@@ -266,13 +266,13 @@ def central_roi(
     (T, H, W) ndarray of bool
     """
     if not 0.0 < fraction <= 1.0:
-        raise ValueError(f"fraction must be in (0, 1], got {fraction!r}")
+        raise ParameterError(f"fraction must be in (0, 1], got {fraction!r}")
     gt = _ground_truth(seq_or_gt)
     k = seq_or_gt.intrinsics if isinstance(seq_or_gt, Sequence) else intrinsics
     if k is None:
-        raise ValueError("central_roi needs the intrinsics with a bare GroundTruth")
+        raise ParameterError("central_roi needs the intrinsics with a bare GroundTruth")
     if gt.depth is None or gt.mask is None:
-        raise ValueError("central_roi needs ground-truth depth and mask")
+        raise ParameterError("central_roi needs ground-truth depth and mask")
     truth = gt.scene
     z = np.asarray(gt.depth, dtype=np.float64)
     xn = (np.arange(k.width) - k.cx) / k.fx
@@ -288,9 +288,7 @@ def central_roi(
         a, b = x - cx_mm[:, None, None], y
     else:
         name = "no scene" if truth is None else truth.scene
-        raise ValueError(  # noqa: TRY004  (a wrong scene, not a wrong argument type)
-            f"central_roi applies to the 'plane' and 'sheet' scenes, not {name!r}"
-        )
+        raise ParameterError(f"central_roi applies to the 'plane' and 'sheet' scenes, not {name!r}")
     size = truth.size_mm
     with np.errstate(invalid="ignore"):
         inside = (np.abs(a) <= fraction * size[0] / 2) & (np.abs(b) <= fraction * size[1] / 2)
@@ -319,7 +317,7 @@ def scene_roi(
             ),
         )
     if gt.scene is None:
-        raise ValueError("scene_roi needs a synthetic scene (ground_truth.scene is None)")
+        raise ParameterError("scene_roi needs a synthetic scene (ground_truth.scene is None)")
     return (
         central_roi(seq_or_gt, intrinsics=intrinsics, window=window),
         f"central 80 % of the {gt.scene.scene}, {window}x{window} window inside the GT mask",
@@ -332,7 +330,7 @@ def static_mask_from_ground_truth(gt: GroundTruth) -> NDArray[np.bool_]:
     True where the GT depth is finite and identical in all frames and the GT flow is zero.
     """
     if gt.depth is None:
-        raise ValueError("static_mask_from_ground_truth needs ground-truth depth")
+        raise ParameterError("static_mask_from_ground_truth needs ground-truth depth")
     d = np.asarray(gt.depth)
     static = np.all(np.isfinite(d), axis=0) & np.all(d == d[:1], axis=0)
     if gt.flow is not None and np.asarray(gt.flow).shape[0] > 0:

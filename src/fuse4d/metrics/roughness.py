@@ -10,7 +10,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._kernels.roughness import _roughness_kernel, _roughness_masked_kernel
 from .._validation import as_float32, check_shape
-from ..errors import ShapeError
+from ..errors import ParameterError, ShapeError
 from .roi import default_roi
 
 __all__ = [
@@ -25,9 +25,9 @@ __all__ = [
 
 def _check_window(window: int, min_valid_fraction: float) -> None:
     if isinstance(window, bool) or int(window) != window or window < 3 or window % 2 == 0:
-        raise ValueError(f"window must be an odd integer >= 3 (pixels), got {window!r}")
+        raise ParameterError(f"window must be an odd integer >= 3 (pixels), got {window!r}")
     if not 0.0 < float(min_valid_fraction) <= 1.0:
-        raise ValueError(f"min_valid_fraction must be in (0, 1], got {min_valid_fraction!r}")
+        raise ParameterError(f"min_valid_fraction must be in (0, 1], got {min_valid_fraction!r}")
 
 
 #: What the roughness takes, said wherever a depth map was passed instead.
@@ -181,7 +181,7 @@ class RoughnessStats:
     def interior(self, margin: int) -> tuple[float, float]:
         """``(mean, std)`` over the interior frames ``margin ... T-1-margin`` (mm)."""
         if margin < 0 or 2 * margin >= self.frame_means.size:
-            raise ValueError(
+            raise ParameterError(
                 f"margin must be in [0, {(self.frame_means.size - 1) // 2}] for "
                 f"{self.frame_means.size} frames, got {margin}"
             )

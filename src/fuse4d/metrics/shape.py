@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._kernels.sphere_fit import _mlesac_score_kernel
 from .._validation import check_shape
-from ..errors import ShapeError
+from ..errors import ParameterError, ShapeError
 from ..sequence import GroundTruth, Sequence
 from ..synthetic import _seed_of
 from .roi import ball_truth
@@ -70,11 +70,11 @@ def _check_fit_args(num_hypotheses: int, sigma: float, nu: float) -> None:
         or int(num_hypotheses) != num_hypotheses
         or (num_hypotheses < 1)
     ):
-        raise ValueError(f"num_hypotheses must be a positive integer, got {num_hypotheses!r}")
+        raise ParameterError(f"num_hypotheses must be a positive integer, got {num_hypotheses!r}")
     if not (math.isfinite(sigma) and sigma > 0):
-        raise ValueError(f"sigma must be > 0 (mm), got {sigma!r}")
+        raise ParameterError(f"sigma must be > 0 (mm), got {sigma!r}")
     if not (math.isfinite(nu) and nu > 0):
-        raise ValueError(f"nu must be > 0 (mm), got {nu!r}")
+        raise ParameterError(f"nu must be > 0 (mm), got {nu!r}")
 
 
 def _fit_mlesac(
@@ -96,7 +96,7 @@ def _fit_mlesac(
     p = p[np.all(np.isfinite(p), axis=1)]
     n = p.shape[0]
     if n < dim + 1:
-        raise ValueError(
+        raise ParameterError(
             f"{name}: a {'sphere' if dim == 3 else 'circle'} fit needs at least {dim + 1} "
             f"finite points, got {n}"
         )
@@ -123,7 +123,7 @@ def _fit_mlesac(
         q, np.ascontiguousarray(centres), radii, usable, float(sigma), float(nu), NUM_EM, nll, gamma
     )
     if not np.isfinite(nll).any():
-        raise ValueError(f"{name}: every MLESAC hypothesis was degenerate ({n} points)")
+        raise ParameterError(f"{name}: every MLESAC hypothesis was degenerate ({n} points)")
     best = int(np.argmin(nll))
     c0, r0, g0 = centres[best], float(radii[best]), float(gamma[best])
     # inlier posteriors of the best hypothesis
@@ -312,7 +312,7 @@ def shape_correctness(
         )
     gt = ground_truth.ground_truth if isinstance(ground_truth, Sequence) else ground_truth
     if gt is None:
-        raise ValueError("shape_correctness needs the falling-ball ground truth")
+        raise ParameterError("shape_correctness needs the falling-ball ground truth")
     ball = ball_truth(gt, what="shape_correctness")
     base_seed = _seed_of(rng)
     p = np.asarray(points, dtype=np.float32)
