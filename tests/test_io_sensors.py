@@ -213,6 +213,23 @@ def test_tof_bag_ir_is_square_rooted(tmp_path):
 
 
 @pytest.mark.realdata
+@pytest.mark.parametrize("name", ["azure_kinect_recording.mkv", "rs2551_swdev_5f.bag"])
+@pytest.mark.parametrize("unit", ["-1", "0", "1e-30", "nan"])
+def test_sensor_readers_refuse_a_bad_depth_unit(recordings, capsys, name, unit):
+    """-1 gave negative depth from an .mkv; a bag raised a plain ValueError (exit 70)."""
+    code, _, err = _run(["info", recordings / name, f"--depth-unit-mm={unit}"], capsys)
+    assert code == 2
+    assert "depth_unit_mm must be in [1e-06, 10000] mm" in err
+
+
+@pytest.mark.realdata
+def test_bag_reader_refuses_an_unknown_intensity_choice(recordings, capsys):
+    code, _, err = _run(["info", recordings / "rs2551_swdev_5f.bag", "--intensity", "IR"], capsys)
+    assert code == 2
+    assert "intensity must be one of auto, ir, color, got 'IR'" in err
+
+
+@pytest.mark.realdata
 def test_k4a_modes_table(recordings):
     calib = json.loads((recordings / "azure_kinect_calibration.json").read_text())
     sizes = {}
@@ -429,6 +446,29 @@ def float_sequence(rng) -> Sequence:
     return Sequence(depth, intensity, k, timestamps=ts, fps=30.0)
 
 
+@pytest.mark.parametrize(
+    ("fps", "period_s", "frames"),
+    [(29.97, 1 / 29.97, 600), (30.0, 0.01, 8), (None, 0.0505, 5)],
+    ids=["ntsc", "100Hz-stated-30", "no-fps"],
+)
+def test_ffv1_keeps_timestamps_to_the_ms(tmp_path, fps, period_s, frames):
+    """The encoder's time base was 1/round(fps): ms pts were snapped onto a 1/30 s grid, so
+    29.97 fps frames collided (frame 487 'missing' on reading back) and 100 Hz ones all did
+    (frame 0 missing); 50 ms steps came back as 67/33 ms."""
+    k = Intrinsics(20.0, 20.0, 7.5, 7.5, width=16, height=16)
+    ts = 5.0 + np.arange(frames) * period_s
+    seq = Sequence(
+        np.full((frames, 16, 16), 1000.0, np.float32),
+        np.full((frames, 16, 16), 0.5, np.float32),
+        k,
+        timestamps=ts,
+        fps=fps,
+    )
+    back = load_sequence(save_sequence(seq, tmp_path / "t.mkv"))
+    assert back.num_frames == frames
+    np.testing.assert_allclose(back.timestamps, ts, atol=5e-4)
+
+
 def test_ffv1_round_trip_bit_exact(tmp_path, float_sequence):
     seq = float_sequence
     units = np.round(np.nan_to_num(seq.depth, nan=0.0)).astype(np.uint16)
@@ -541,6 +581,13 @@ def test_realsense_and_kinect_run(recordings, tmp_path, capsys):
     back = load_sequence(out)
     assert back.depth.shape == (1, 576, 640)
     assert back.intrinsics.fx == pytest.approx(504.6076)
+    assert back.sensor == "tof"  # a ToF output stays one (A36 on a later run); it was dropped
+    folder = tmp_path / "k4a_folder"
+    code, _, err = _run(
+        ["run", recordings / "azure_kinect_recording.mkv", "-o", folder, "--no-summary"], capsys
+    )
+    assert code == 0, err
+    assert load_sequence(folder).sensor == "tof"
     ply = tmp_path / "f.ply"
     code, _, err = _run(["export-ply", recordings / "rs2551_swdev_5f.bag", "-o", ply], capsys)
     assert code == 0

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import threading
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -21,6 +22,7 @@ from fuse4d.io import load_sequence, write_npz
 from fuse4d.live import (
     CapturedFrame,
     DropOldestQueue,
+    LiveWriter,
     RecordingSource,
     display_available,
     run_live,
@@ -182,6 +184,34 @@ def test_recording_without_rate_needs_fps(tmp_path, ball):
     RecordingSource(path, realtime=False).close()
     with pytest.raises(ValueError, match="fps must be > 0"):
         RecordingSource(path, fps=0.0)
+
+
+def test_playback_without_timestamps_stamps_frames_at_the_rate(tmp_path, ball):
+    """A recording without timestamps played at --fps: each frame carries its time at that
+    rate, so an output of a run that dropped frames keeps the gaps (it used to store fps
+    alone, which says the frames were consecutive)."""
+    _, seq = ball
+    path = tmp_path / "norate.npz"
+    write_npz(Sequence(depth=seq.depth, intensity=seq.intensity, intrinsics=seq.intrinsics), path)
+    source = RecordingSource(path, realtime=False, fps=10.0, frames="2:6")
+    try:
+        stamps = [(f.index, f.timestamp) for f in source]
+    finally:
+        source.close()
+    assert stamps == [(2, 0.0), (3, 0.1), (4, 0.2), (5, pytest.approx(0.3))]
+
+
+def test_live_writer_keeps_the_camera_kind(tmp_path, ball):
+    _, seq = ball
+    for name in ("o.npz", "o_folder"):
+        path = tmp_path / name
+        with LiveWriter(
+            path, seq.intrinsics, fps=30.0, sensor="tof", behind=0, warn_coarse_unit=False
+        ) as writer:
+            for k in range(2):
+                captured = CapturedFrame(k, seq.depth[k], seq.intensity[k], None, 0.0)
+                writer(captured, SimpleNamespace(depth=seq.depth[k], source=None))
+        assert load_sequence(path).sensor == "tof", name
 
 
 def test_side_by_side_image(ball):

@@ -56,6 +56,8 @@ def _commands(i: Path, o: Path) -> list[list[str]]:
         ["run", seq, "-o", str(i / "seq" / "inside"), "--window", "3"],  # refused
         ["run", seq, "-o", str(o / "r"), "--resume"],  # refused: output complete
         ["baseline", "temporal-mean", npz, "-o", str(o / "b.npz")],
+        ["baseline", "guided", npz, "-o", npz, "--force"],  # refused (it used to replace it)
+        ["baseline", "guided", seq, "-o", str(i / "seq" / "depth"), "--force"],  # refused
         ["flow", str(i / "i0.png"), str(i / "i1.png"), "-o", str(o / "f.flo")],
         ["flow", str(i / "i0.png"), str(i / "i1.png"), "-o", str(i / "i1.png"), "--force"],
         ["metrics", str(o / "r.npz"), "--json"],

@@ -189,11 +189,16 @@ class RecordingSource:
                 wait = start + self._due(order, frame.index) - time.perf_counter()
                 if wait > 0:
                     time.sleep(wait)
+            timestamp = frame.timestamp
+            if timestamp is None and self.fps is not None:
+                # the frame's time at the stated rate: an output of a run that dropped frames
+                # keeps the gaps (it stored fps alone, which says the frames are consecutive)
+                timestamp = self._due(order, frame.index)
             yield CapturedFrame(
                 index=frame.index,
                 depth=frame.depth,
                 intensity=frame.intensity,
-                timestamp=frame.timestamp,
+                timestamp=timestamp,
                 captured=time.perf_counter(),
                 mask=frame.mask,
             )
@@ -747,6 +752,8 @@ class LiveWriter:
     warn_coarse_unit : bool
         As for :class:`~fuse4d.io.FrameFolderWriter`: False where ``depth_unit_mm`` is the
         camera's own unit (``fuse4d live``).
+    sensor : str, optional
+        The camera kind (``"tof"``, ...), stored with the output as ``fuse4d run`` does.
     """
 
     def __init__(
@@ -759,6 +766,7 @@ class LiveWriter:
         overwrite: bool = False,
         behind: int = 2,
         warn_coarse_unit: bool = True,
+        sensor: str | None = None,
     ) -> None:
         from .io import check_output
         from .io.api import output_layout, stream_writer
@@ -771,6 +779,7 @@ class LiveWriter:
         self.path = Path(path)
         self.intrinsics = intrinsics
         self.fps = fps
+        self.sensor = sensor
         self.overwrite = overwrite
         self._frames: list[tuple[np.ndarray, np.ndarray, float | None]] | None = None
         self._writer: Any = None
@@ -786,6 +795,7 @@ class LiveWriter:
                 fps=fps,
                 overwrite=overwrite,
                 warn_coarse_unit=warn_coarse_unit,
+                sensor=sensor,
             )
 
     def __enter__(self) -> Self:
@@ -838,5 +848,6 @@ class LiveWriter:
             intrinsics=self.intrinsics,
             timestamps=None if any(t is None for t in ts) else np.asarray(ts, np.float64),
             fps=self.fps,
+            sensor=self.sensor,
         )
         save_sequence(seq, self.path, overwrite=self.overwrite)

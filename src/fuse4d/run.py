@@ -685,6 +685,7 @@ def _fuse_streaming(
                 overwrite=overwrite,
                 resume=resume,
                 warn_coarse_unit=warn_coarse,
+                sensor=reader.sensor,  # a ToF recording's output stays one (A36), as convert's
             )
         else:
             if resume:
@@ -699,6 +700,7 @@ def _fuse_streaming(
                 fps=reader.fps,
                 overwrite=overwrite,
                 warn_coarse_unit=warn_coarse,
+                sensor=reader.sensor,
             )
         if resumable and writer.already_complete:  # --resume of a finished run: nothing to do
             summary.already_complete = True

@@ -130,12 +130,14 @@ def baseline_command(
     from .._params import check_number, parse_assignments
     from ..baselines import get_baseline
     from ..io import open_frames, save_sequence
+    from ..io._atomic import check_output
 
     info = get_baseline(name)
     if info.needs is not None and not info.available:
         fail(f"baseline {name!r} needs the optional extra: pip install 'fuse4d[{info.needs}]'")
-    if output.exists() and not force:
-        fail(f"{output}: output exists (use --force to overwrite)")
+    # before any work: an existing output needs --force, and the input is never the output
+    # (--force used to replace the input itself, or a folder inside it)
+    check_output(output, overwrite=force, inputs=[input_path])
     params: dict[str, str] = parse_assignments(knobs, what="--param")
     if size is not None:
         params["size"] = size

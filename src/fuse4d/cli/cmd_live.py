@@ -202,6 +202,7 @@ def live_command(
                 overwrite=force,
                 # the camera's own unit: no "coarse unit" warning (see QuantizationReport)
                 warn_coarse_unit=source.depth_unit_mm is None,
+                sensor=getattr(source, "sensor", None),
             )
             sinks.append(stack.enter_context(writer))
         if show and not display_available():

@@ -30,6 +30,7 @@ from ._base import (
     IntrinsicsLike,
     SequentialReader,
     check_sensor_kind,
+    depth_unit,
     resolve_intrinsics,
 )
 from ._extras import require
@@ -185,7 +186,7 @@ class MkvReader(SequentialReader):
             raise InputFileError(
                 self.path, f"IR track is {iw}x{ih} but the DEPTH track is {w}x{h} (frame 0)"
             )
-        self.depth_unit_mm = 1.0 if unit is None else float(unit)
+        self.depth_unit_mm = 1.0 if unit is None else depth_unit(unit)  # -1 gave negative mm
         notes.append(
             "Azure Kinect / Orbbec recording: DEPTH track (mm"
             + (")" if unit is None else f", overridden: {unit:g} mm per unit)")
@@ -251,7 +252,9 @@ class MkvReader(SequentialReader):
         except ValueError as exc:
             raise InputFileError(self.path, f"bad FUSE4D_* tag ({exc})") from None
         self.sensor = check_sensor_kind(meta.get("FUSE4D_SENSOR"), self.path, "tag FUSE4D_SENSOR")
-        self.depth_unit_mm = stored_unit if unit is None else float(unit)
+        self.depth_unit_mm = (
+            depth_unit(stored_unit, self.path) if unit is None else depth_unit(unit)
+        )
         self.intrinsics = (
             Intrinsics.from_array(vals, width=w, height=h)
             if spec is None

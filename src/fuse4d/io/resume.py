@@ -249,7 +249,7 @@ class ResumableFolderWriter:
         Camera; frames must be ``(intrinsics.height, intrinsics.width)``.
     identity : dict
         :func:`run_identity` of this run (stored in, and compared with, the manifest).
-    depth_unit_mm, fps, warn_coarse_unit
+    depth_unit_mm, fps, warn_coarse_unit, sensor
         As for :class:`~fuse4d.io.FrameFolderWriter`.
     overwrite : bool
         Replace an existing ``path`` and discard an existing unfinished run.
@@ -288,6 +288,7 @@ class ResumableFolderWriter:
         resume: bool = False,
         checkpoint_every: int = CHECKPOINT_EVERY,
         warn_coarse_unit: bool = True,
+        sensor: str | None = None,
     ) -> None:
         if not (math.isfinite(depth_unit_mm) and depth_unit_mm > 0):
             raise ParameterError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
@@ -303,6 +304,7 @@ class ResumableFolderWriter:
         self.intrinsics = intrinsics
         self.depth_unit_mm = float(depth_unit_mm)
         self.fps = fps
+        self.sensor = sensor  # the camera kind, kept in camera.json (A36 on a later run)
         self.overwrite = overwrite
         self.resume = resume
         self.checkpoint_every = max(1, int(checkpoint_every))
@@ -521,7 +523,7 @@ class ResumableFolderWriter:
             )
         with write_errors(self.partial):
             (self.partial / "camera.json").write_text(
-                camera_json_text(self.intrinsics, self.depth_unit_mm, self.fps)
+                camera_json_text(self.intrinsics, self.depth_unit_mm, self.fps, self.sensor)
             )
             stamps_file = self.partial / "resume" / "timestamps.txt"
             stamps = stamps_file.read_text().split() if stamps_file.exists() else []

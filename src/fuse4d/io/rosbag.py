@@ -25,12 +25,13 @@ from typing import Any
 import numpy as np
 
 from ..camera import Intrinsics
-from ..errors import InputFileError
+from ..errors import InputFileError, ParameterError
 from ._align import align_to_depth
 from ._base import (
     Frame,
     IntrinsicsLike,
     SequentialReader,
+    depth_unit,
     resolve_intrinsics,
 )
 from ._extras import require
@@ -169,7 +170,7 @@ class RosbagReader(SequentialReader):
     ) -> None:
         self.path = Path(path)
         if intensity not in INTENSITY_CHOICES:
-            raise ValueError(
+            raise ParameterError(
                 f"intensity must be one of {', '.join(INTENSITY_CHOICES)}, got {intensity!r}"
             )
         self._reader: Any = None
@@ -496,9 +497,7 @@ class RosbagReader(SequentialReader):
         enc = self._depth.encoding.lower()
         self._float_depth = enc.split(";")[0].strip() == "32fc1"
         if override is not None:
-            if not (math.isfinite(override) and override > 0):
-                raise ValueError(f"depth_unit_mm must be > 0, got {override!r}")
-            self._unit, source = float(override), "given by the caller"
+            self._unit, source = depth_unit(override), "given by the caller"
         elif self._float_depth:
             self._unit, source = 1000.0, "32FC1 = metres"
         elif (opt := self._option_unit()) is not None:

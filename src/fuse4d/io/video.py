@@ -111,6 +111,9 @@ class DepthVideoWriter(StagedWriter):
             s = self._container.add_stream("ffv1", rate=Fraction(round(self.fps or 30)))
             s.width, s.height, s.pix_fmt = k.width, k.height, "gray16le"
             s.time_base = _MS
+            # the encoder's own time base too: it was 1/round(fps), onto which PyAV rescales
+            # each frame's ms pts (29.97 fps timestamps collided, frames went missing)
+            s.codec_context.time_base = _MS
             s.codec_context.gop_size = 1  # every frame a key frame: exact seeks, no carried state
             s.metadata["title"] = title
             streams.append(s)
