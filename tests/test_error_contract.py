@@ -248,4 +248,5 @@ def test_console_script_prints_each_warning_once(tmp_path):
         "baseline", "guided", str(tmp_path / "empty.npz"), "-o", str(tmp_path / "out.npz")
     )
     assert res.returncode == 0, res.stderr
-    assert res.stderr.count("fuse4d: warning: only 0.0 % of depth pixels are valid") == 1
+    assert res.stderr.count("only 0.0 % of depth pixels are valid") == 1
+    assert f"fuse4d: warning: {tmp_path / 'empty.npz'}: only 0.0 %" in res.stderr  # names it

@@ -323,3 +323,39 @@ def test_run_summary_says_what_each_number_means(tmp_path, capsys):
     assert summary["static_pixels"] > 0
     assert math.isfinite(summary["fused_flicker_mm"])
     assert summary["fused_flicker_mm"] < summary["raw_flicker_mm"]
+
+
+def test_deleting_the_worst_pixels_does_not_lower_the_rmse(tmp_path, capsys):
+    """The raw ball with its pixels > 0.25 mm off deleted (no value changed) was reported as
+    an RMSE of 0.20 -> 0.13 mm: each side was scored on its own pixels. Now both on the same
+    ones, and the deletion shows as bad pixels and a lower fill rate."""
+    seq = make_falling_ball(small=True, num_frames=4)
+    culled = seq.depth.copy()
+    culled[np.abs(culled - seq.ground_truth.depth) > 0.25] = np.nan
+    report = evaluate(seq.with_depth(culled), raw=seq)
+    assert report.output.rmse == pytest.approx(report.raw.rmse)
+    assert report.output.bad_1mm > report.raw.bad_1mm
+    assert report.output.fill_rate < report.raw.fill_rate == 1.0
+    raw_path, out_path = tmp_path / "raw.npz", tmp_path / "culled.npz"
+    write_npz(seq, raw_path)
+    write_npz(seq.with_depth(culled), out_path)
+    assert main(["metrics", str(raw_path), str(out_path), "--no-shape", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["output"]["rmse"] == pytest.approx(result["raw"]["rmse"])
+
+
+def test_an_output_without_depth_shows_its_bad_pixels(tmp_path, capsys):
+    """An all-NaN output's table hid the RMSE and bad-pixel rows (bad = 100 %)."""
+    seq = make_falling_ball(small=True, num_frames=3)
+    raw_path, out_path = tmp_path / "raw.npz", tmp_path / "empty.npz"
+    write_npz(seq, raw_path)
+    with pytest.warns(UserWarning, match="only 0.0 %"):
+        empty = seq.with_depth(np.full_like(seq.depth, np.nan))
+    write_npz(empty, out_path)
+    with pytest.warns(UserWarning, match=r"empty\.npz: only 0\.0 % of depth pixels are valid"):
+        assert main(["metrics", str(raw_path), str(out_path), "--no-shape"]) == 0
+    text = capsys.readouterr().out
+    bad = next(line for line in text.splitlines() if "pixels > 1 mm off" in line)
+    assert [c.strip() for c in bad.split("│")[2:4]] == ["0", "1"]
+    fill = next(line for line in text.splitlines() if "fill rate" in line)
+    assert [c.strip() for c in fill.split("│")[2:4]] == ["1", "0"]

@@ -255,6 +255,17 @@ def test_api_with_arrays_compare_column_and_roi(small_ball, small_fused, tmp_pat
     assert count_video_frames(out / "compare.mp4") == 4
 
 
+def test_one_frame_report_has_no_flicker(small_ball, small_fused, tmp_path):
+    """A one-frame report said "flicker 0 mm → 0 mm" over every pixel called static."""
+    one = small_ball.frames(0, 1)
+    write_report(one, small_fused.depth[:1], tmp_path / "rep")
+    m = _metrics(tmp_path / "rep")
+    assert m["flicker"]["static_pixels"] == 0
+    assert m["metrics"]["fused"]["flicker_median"] is None
+    page = (tmp_path / "rep" / "report.html").read_text()
+    assert "flicker n/a (it needs 2 frames and static pixels)" in page
+
+
 @pytest.mark.slow
 def test_chunked_equals_unchunked(small_ball, small_fused, tmp_path):
     a = write_report(small_ball, small_fused, tmp_path / "a", chunk_frames=1)

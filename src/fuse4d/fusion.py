@@ -674,6 +674,17 @@ class FusionEngine:
         quad = float(self._input_quad[index % self.ring])
         return None if math.isnan(quad) else quad
 
+    def input_noise_sigma(self, index: int) -> float | None:
+        """The depth noise σ₀ (mm, A22, :func:`~fuse4d.motion.estimate_depth_noise`'s
+        trimmed residual) of frame ``index``'s depth, while the frame is in the ring buffer;
+        None for a frame pushed as ``points``. ``fuse4d run``'s summary uses it to tell static
+        pixels from moving ones without estimating it again.
+        """
+        if not max(0, self._pushed - self.ring) <= index < self._pushed:
+            raise IndexError(f"frame {index} is not in the ring buffer")
+        slot = index % self.ring
+        return None if math.isnan(self._input_quad[slot]) else float(self._noise[slot, 0])
+
     def flush(self) -> list[FusedFrame]:
         """End of stream: emit the remaining frames with truncated windows."""
         self._dark.finish()  # a stream shorter than DARK_CHECK_FRAMES

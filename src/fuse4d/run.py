@@ -195,11 +195,15 @@ class _QualityTally:
         self.sources = _SourceTally()
 
     def add(
-        self, raw_points: np.ndarray, frame: FusedFrame, noise_quad: float | None = None
+        self,
+        raw_points: np.ndarray,
+        frame: FusedFrame,
+        noise_quad: float | None = None,
+        noise_sigma: float | None = None,
     ) -> None:
         from ._kernels.tally import FILLED, SOURCES, SUPPORTED, VALID, _frame_counts_kernel
 
-        self.scores.add(raw_points, frame.points, noise_quad=noise_quad)
+        self.scores.add(raw_points, frame.points, noise_quad=noise_quad, noise_sigma=noise_sigma)
         raw_depth = raw_points[..., 2]
         counts = np.zeros(SOURCES + len(self.sources.counts), np.int64)
         codes = frame.source if frame.source is not None else np.zeros((0, 0), np.uint8)
@@ -750,9 +754,10 @@ def _fuse_streaming(
                         continue
                     if tally is not None:
                         t0 = time.perf_counter()
-                        # q of the raw depth: the engine's, where it estimated it on that depth
+                        # q and σ₀ of the raw depth: the engine's, where it estimated them
                         quad = engine.input_noise_quad(fr.index)
-                        tally.add(depth_to_points(raw.depth, k), fr, quad)
+                        sigma = engine.input_noise_sigma(fr.index)
+                        tally.add(depth_to_points(raw.depth, k), fr, quad, sigma)
                         timings["summary"] += time.perf_counter() - t0
                     flags = (
                         {"source": fr.source, "confidence": fr.confidence} if stores_flags else {}

@@ -20,7 +20,6 @@ __all__ = [
     "SceneTruth",
     "Sequence",
     "SheetTruth",
-    "as_storable_intensity",
     "check_unit_intensity",
     "normalize_intensity",
     "sanitize_depth",

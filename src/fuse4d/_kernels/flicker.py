@@ -13,13 +13,14 @@ from ._numba import njit
 
 @njit
 def _temporal_tally_kernel(
-    raw, out, first, valid, zmin, zmax, zsum, raw_step, out_step, prev_raw, prev_out
+    raw, out, first, k, valid, zmin, zmax, zsum, ztsum, raw_step, out_step, prev_raw, prev_out
 ):  # pragma: no cover - compiled
     """Add frame (``raw``, ``out``) depth (H, W) mm, float32 or float64, to the state in place.
 
     ``valid`` (H, W) bool: both finite in every frame so far; ``zmin`` / ``zmax`` / ``zsum``
     (float64): the raw depth's range and sum over the frames where both are finite (+inf /
-    -inf / 0 elsewhere); ``raw_step`` / ``out_step``: the sums of |frame-to-frame change| of
+    -inf / 0 elsewhere); ``ztsum``: the sum of ``k * raw`` over the same frames, ``k`` the
+    frame's number since the first (for the least-squares trend); ``raw_step`` / ``out_step``: the sums of |frame-to-frame change| of
     the still-``valid`` pixels; ``prev_*``: the previous frame (float64). ``first``: the
     frame that starts the state (the sums begin at 0).
     """
@@ -35,6 +36,7 @@ def _temporal_tally_kernel(
                 zmin[v, u] = r if both else inf
                 zmax[v, u] = r if both else -inf
                 zsum[v, u] = r if both else 0.0
+                ztsum[v, u] = 0.0
                 raw_step[v, u] = 0.0
                 out_step[v, u] = 0.0
             else:
@@ -44,6 +46,7 @@ def _temporal_tally_kernel(
                     zmin[v, u] = min(zmin[v, u], r)
                     zmax[v, u] = max(zmax[v, u], r)
                     zsum[v, u] += r
+                    ztsum[v, u] += k * r
                 if ok:
                     raw_step[v, u] += abs(r - prev_raw[v, u])
                     out_step[v, u] += abs(o - prev_out[v, u])

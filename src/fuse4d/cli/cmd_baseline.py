@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 from typing import Annotated
 
@@ -159,8 +160,11 @@ def baseline_command(
     elapsed = time.perf_counter() - start
     depth = result[..., 2] if info.returns_points else result
     depth = np.where(np.isfinite(depth), depth, np.nan).astype(np.float32)
+    with warnings.catch_warnings():  # "only x % valid" of the output: the input's was said
+        warnings.simplefilter("ignore", UserWarning)
+        filtered = seq.with_depth(depth)
     written = save_sequence(
-        seq.with_depth(depth), output, overwrite=force, depth_unit_mm=unit,
+        filtered, output, overwrite=force, depth_unit_mm=unit,
         # in the input's own unit no "coarse" warning, as `fuse4d run` writes: the input was
         # stored at that precision (a unit chosen with --out-depth-unit-mm is still checked)
         warn_coarse_unit=out_depth_unit_mm is not None or own_unit is None,

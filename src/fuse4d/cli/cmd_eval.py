@@ -362,7 +362,9 @@ def _print_table(result: dict[str, Any]) -> None:
     for key in ("flicker_step_mean", "flicker_std_median"):
         label, unit = METRIC_MEANINGS[key]
         row(label, key, unit)
-    if result["output"].get("rmse") is not None:
+    row(*METRIC_MEANINGS["fill_rate"][:1], "fill_rate", METRIC_MEANINGS["fill_rate"][1])
+    # with ground truth, shown even where the output has no depth at all (bad = 100 %)
+    if result["output"].get("bad_1mm") is not None:
         for key in ("rmse_roi", "rmse", "bad_1mm"):
             label, unit = METRIC_MEANINGS[key]
             row(label, key, unit)

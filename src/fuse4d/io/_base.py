@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
@@ -82,6 +83,21 @@ class Frame:
     intensity: NDArray[np.float32]
     timestamp: float | None = None
     mask: NDArray[np.bool_] | None = None
+
+
+def file_sequence(path: Path, *args: Any, **kwargs: Any) -> Sequence:
+    r"""``Sequence(*args, **kwargs)`` read from the file ``path``: its warnings ("only 0.0 % of
+    depth pixels are valid") name the file, and its errors are :class:`InputFileError`\ s
+    naming it."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            seq = Sequence(*args, **kwargs)
+        except (TypeError, ValueError) as exc:
+            raise InputFileError(path, str(exc)) from None
+    for w in caught:
+        warnings.warn(f"{path}: {w.message}", w.category, stacklevel=3)
+    return seq
 
 
 class FrameReader(ABC):
@@ -202,19 +218,17 @@ class FrameReader(ABC):
         if masks is not None:
             gt = GroundTruth(mask=masks) if gt is None else _with_mask(gt, masks)
         ts = None if self.timestamps is None else self.timestamps[sel.start : sel.stop]
-        try:
-            return Sequence(
-                depth,
-                intensity,
-                self.intrinsics,
-                timestamps=ts,
-                fps=self.fps,
-                ground_truth=gt,
-                name=self.path.name,
-                sensor=self.sensor,
-            )
-        except (TypeError, ValueError) as exc:
-            raise InputFileError(self.path, str(exc)) from None
+        return file_sequence(
+            self.path,
+            depth,
+            intensity,
+            self.intrinsics,
+            timestamps=ts,
+            fps=self.fps,
+            ground_truth=gt,
+            name=self.path.name,
+            sensor=self.sensor,
+        )
 
 
 class SequentialReader(FrameReader):

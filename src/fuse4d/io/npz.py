@@ -39,7 +39,14 @@ from ..camera import Intrinsics
 from ..errors import InputFileError
 from ..sequence import GroundTruth, Sequence, check_sequence, split_scene_extra
 from ._atomic import atomic_file
-from ._base import Frame, FrameReader, FrameSelection, ProgressCallback, resolve_frames
+from ._base import (
+    Frame,
+    FrameReader,
+    FrameSelection,
+    ProgressCallback,
+    file_sequence,
+    resolve_frames,
+)
 
 __all__ = ["RESERVED_NPZ_KEYS", "NpzReader", "read_npz", "read_npz_extra", "write_npz"]
 
@@ -310,19 +317,17 @@ class NpzReader(FrameReader):
         intensity = np.array(self._array("intensity")[a:b])
         if progress is not None:
             progress(len(sel), len(sel))
-        try:
-            return Sequence(
-                depth,
-                intensity,
-                self.intrinsics,
-                timestamps=None if self.timestamps is None else self.timestamps[a:b],
-                fps=self.fps,
-                ground_truth=self._ground_truth(sel),
-                name=self._name,
-                sensor=self.sensor,
-            )
-        except (TypeError, ValueError) as exc:
-            raise InputFileError(self.path, str(exc)) from None
+        return file_sequence(
+            self.path,
+            depth,
+            intensity,
+            self.intrinsics,
+            timestamps=None if self.timestamps is None else self.timestamps[a:b],
+            fps=self.fps,
+            ground_truth=self._ground_truth(sel),
+            name=self._name,
+            sensor=self.sensor,
+        )
 
     def _ground_truth(self, selection: range) -> GroundTruth | None:
         if not self.ground_truth_keys:

@@ -37,8 +37,12 @@ from ..errors import ParameterError, ShapeError
 from ..sequence import BallTruth, GroundTruth, Sequence
 from .accuracy import FlickerStats, bad_pixel_fraction, depth_rmse, temporal_flicker
 from .roi import (
+    STATIC_LEVELS,
+    STATIC_NOISE_RANGE,
     _frame_quads,
+    _median_noise_sigma,
     default_roi,
+    depth_trend,
     is_static,
     scene_roi,
     static_mask_from_ground_truth,
@@ -75,9 +79,13 @@ class Scores:
         RMSE to GT depth on the ROI pixels valid in GT, output (and raw); NaN without GT.
     rmse : float
         RMSE to GT depth on all GT-valid pixels of the given ROI (of every pixel when no ROI
-        was given) where the depth is valid; NaN without GT.
+        was given) where the output (and raw) depth is valid: the same pixels for both (a
+        method that deleted its worst pixels looked better); NaN without GT.
     bad_1mm : float
-        Fraction of those GT-valid pixels more than 1 mm off (missing depth counts as bad).
+        Fraction of the GT-valid pixels of the given ROI (of every pixel) more than 1 mm off
+        (missing depth counts as bad, so deleting pixels does not help).
+    fill_rate : float
+        Fraction of the pixels of the given ROI (of every pixel), over all frames, with depth.
     shape : ShapeCorrectness or None
         Eq. 8 on the falling ball, when asked for.
     """
@@ -88,6 +96,7 @@ class Scores:
     rmse: float = math.nan
     bad_1mm: float = math.nan
     shape: ShapeCorrectness | None = None
+    fill_rate: float = math.nan
 
     def to_dict(self) -> dict[str, Any]:
         """Scalars, JSON friendly (NaN kept as float NaN)."""
@@ -98,6 +107,7 @@ class Scores:
             "rmse_roi": self.rmse_roi,
             "rmse": self.rmse,
             "bad_1mm": self.bad_1mm,
+            "fill_rate": self.fill_rate,
         }
         f = self.flicker
         out.update(
@@ -128,8 +138,9 @@ METRIC_MEANINGS: dict[str, tuple[str, str]] = {
         "mm, static pixels",
     ),
     "rmse_roi": ("RMSE to ground truth", "mm, on the ROI"),
-    "rmse": ("RMSE to ground truth, all pixels", "mm"),
+    "rmse": ("RMSE to ground truth, whole image", "mm, pixels with depth in every input"),
     "bad_1mm": ("pixels > 1 mm off ground truth", "fraction, missing = bad"),
+    "fill_rate": ("fill rate: pixels with depth", "fraction of the --roi (else all), all frames"),
 }
 
 
@@ -334,11 +345,9 @@ def evaluate(
             static_region = static_mask_from_ground_truth(gt)
             static_desc = "static in the ground truth"
         else:
-            static_region = static_pixels(ref_d, max_step=max_step)
-            static_desc = (
-                f"detected: valid in every frame, depth range over time <= 3 step limits "
-                f"({'raw' if raw_d is not None else 'input'})"
-            )
+            sigma = _median_noise_sigma(ref_d)
+            static_region = static_pixels(ref_d, noise_sigma=sigma)
+            static_desc = f"{_static_rule(sigma)} ({'raw' if raw_d is not None else 'input'})"
         if roi is not None:
             static_region = static_region & region.all(axis=0)
             static_desc += ", inside the given ROI"
@@ -365,7 +374,7 @@ def evaluate(
         rmse_roi = rmse = bad = math.nan
         if gt is not None and gt.depth is not None:
             rmse_roi = depth_rmse(gt.depth, depth, roi=region & depth_ok)
-            rmse = depth_rmse(gt.depth, depth, roi=whole)
+            rmse = depth_rmse(gt.depth, depth, roi=depth_ok if whole is None else whole & depth_ok)
             bad = bad_pixel_fraction(gt.depth, depth, threshold=BAD_PIXEL_MM, roi=whole)
         sc = None
         if shape and gt is not None and isinstance(gt.scene, BallTruth):
@@ -373,7 +382,9 @@ def evaluate(
             if shape_sel is not None:
                 g, p = gt.select(shape_sel, depth.shape[0]), points[shape_sel]
             sc = shape_correctness(g, p, rng=rng, progress=progress)
-        return Scores(stats_from_maps(*maps, scored), flick, rmse_roi, rmse, bad, sc)
+        has_depth = np.isfinite(depth) if whole is None else np.isfinite(depth)[whole]
+        fill = float(has_depth.mean()) if has_depth.size else math.nan
+        return Scores(stats_from_maps(*maps, scored), flick, rmse_roi, rmse, bad, sc, fill)
 
     return MetricsReport(
         output=score(out_d, out_p, out_maps),
@@ -386,6 +397,10 @@ def evaluate(
         static_description=static_desc,
         window=window,
     )
+
+
+#: The float64 per-pixel state of :class:`RunningEvaluation`'s flicker tally.
+_TALLY_ARRAYS = ("zmin", "zmax", "zsum", "ztsum", "raw_step", "out_step", "prev_raw", "prev_out")
 
 
 class RunningEvaluation:
@@ -431,19 +446,36 @@ class RunningEvaluation:
         self._out_rms: list[float] = []
         self._pixels = 0
         self._quads: list[float] = []
+        self._sigmas: list[float] = []
         self._state: dict[str, NDArray[Any]] | None = None
 
+    def _noise_sigma(self) -> float:
+        """The raw depth's noise σ₀ (mm): the median of the frames' estimates."""
+        return float(np.median(self._sigmas)) if self._sigmas else 0.0
+
     def add(
-        self, raw_points: ArrayLike, output_points: ArrayLike, *, noise_quad: float | None = None
+        self,
+        raw_points: ArrayLike,
+        output_points: ArrayLike,
+        *,
+        noise_quad: float | None = None,
+        noise_sigma: float | None = None,
     ) -> None:
-        """Score one frame: raw and output ``(H, W, 3)`` point maps (mm). ``noise_quad``: the
-        raw depth's noise coefficient q (1/mm) where the caller has it
-        (:meth:`~fuse4d.fusion.FusionEngine.input_noise_quad`); None: estimated here with
-        :func:`~fuse4d.motion.estimate_noise_quad`, the engine's estimator."""
+        """Score one frame: raw and output ``(H, W, 3)`` point maps (mm). ``noise_quad`` and
+        ``noise_sigma``: the raw depth's noise coefficient q (1/mm) and noise σ₀ (mm) where
+        the caller has them (:meth:`~fuse4d.fusion.FusionEngine.input_noise_quad`,
+        :meth:`~fuse4d.fusion.FusionEngine.input_noise_sigma`); None: estimated here with the
+        engine's estimators (σ₀ on the roughness frames only)."""
         rp = np.asarray(raw_points, dtype=np.float32)[None]
         op = np.asarray(output_points, dtype=np.float32)[None]
         rd, od = rp[..., 2], op[..., 2]
         quad = float(_frame_quads(rd, noise_quad)[0])
+        if noise_sigma is not None:
+            self._sigmas.append(float(noise_sigma))
+        elif self.frames % self.every == 0:
+            from ..motion import estimate_depth_noise
+
+            self._sigmas.append(estimate_depth_noise(rd[0]))
         if self.frames % self.every == 0:
             self.roughness_frames += 1
             region = default_roi(rd, window=self.window, max_step=self.max_step, noise_quad=quad)
@@ -467,18 +499,19 @@ class RunningEvaluation:
         if first:
             shape = rd.shape
             self._state = {"valid": np.empty(shape, np.bool_)} | {
-                name: np.empty(shape, np.float64)
-                for name in ("zmin", "zmax", "zsum", "raw_step", "out_step", "prev_raw", "prev_out")
+                name: np.empty(shape, np.float64) for name in _TALLY_ARRAYS
             }
         st = self._state
         _temporal_tally_kernel(
             rd,
             od,
             first,
+            float(self.frames),
             st["valid"],
             st["zmin"],
             st["zmax"],
             st["zsum"],
+            st["ztsum"],
             st["raw_step"],
             st["out_step"],
             st["prev_raw"],
@@ -516,21 +549,30 @@ class RunningEvaluation:
                     f"{self.every}, from frame 0)"
                 )
             ),
-            "static_description": (
-                "detected: valid in every frame, raw depth range over time <= 3 step limits"
-            ),
+            "static_description": _static_rule(self._noise_sigma()) + " (raw)",
         }
         st = self._state
         if st is not None and self.frames >= 2:
             quad = float(np.median(self._quads))
             with np.errstate(invalid="ignore"):
                 mean = st["zsum"] / self.frames
+                trend = depth_trend(st["zsum"], st["ztsum"], self.frames)
                 static = st["valid"] & is_static(
-                    st["zmin"], st["zmax"], mean, quad, max_step=self.max_step
-                )
+                    st["zmin"], st["zmax"], mean, quad, noise_sigma=self._noise_sigma(),
+                    trend=trend, frames=self.frames,
+                )  # fmt: skip
             if static.any():
                 pairs = self.frames - 1
                 res["raw_flicker"] = float(st["raw_step"][static].mean() / pairs)
                 res["output_flicker"] = float(st["out_step"][static].mean() / pairs)
             res["static_pixels"] = int(static.sum())
         return res
+
+
+def _static_rule(noise_sigma: float) -> str:
+    """How :func:`~fuse4d.metrics.static_pixels` found the static pixels, in words."""
+    return (
+        "detected: valid in every frame, depth range over time within the noise (<= "
+        f"{STATIC_LEVELS:g} quantisation steps or {STATIC_NOISE_RANGE:g} x the depth noise "
+        f"{noise_sigma:.3g} mm)"
+    )

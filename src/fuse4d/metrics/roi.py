@@ -75,8 +75,15 @@ def _window_inside(mask: NDArray[np.bool_], window: int) -> NDArray[np.bool_]:
 #: ``max(max_depth_step, 2.5 q z^2)`` (``fuse4d._kernels.fusion._step_limit``; a test pins the
 #: two together).
 STEP_NOISE_LEVELS = 2.5
-#: Tolerance of :func:`static_pixels`: depth range over time, in depth-step limits.
+#: Tolerance of :func:`static_pixels`: depth range over time, in quantisation step limits
+#: (``STEP_NOISE_LEVELS * q z^2``).
 STATIC_LEVELS = 3.0
+#: A static pixel's depth range over time may reach this many noise sigmas σ₀: the range of
+#: T Gaussian samples is about 4 σ at T = 30 and 6.5 σ at T = 1000.
+STATIC_NOISE_RANGE = 8.0
+#: ... and its least-squares trend over the clip at most this many of the trend's standard
+#: deviations under that noise.
+STATIC_TREND_SIGMAS = 4.0
 
 
 def step_limit(z: ArrayLike, *, max_step: float = 10.0, noise_quad: float = 0.0) -> NDArray:
@@ -341,29 +348,34 @@ def static_mask_from_ground_truth(gt: GroundTruth) -> NDArray[np.bool_]:
 def static_pixels(
     depth: ArrayLike,
     *,
-    max_step: float = 10.0,
     noise_quad: float | None = None,
+    noise_sigma: float | None = None,
     levels: float = STATIC_LEVELS,
 ) -> NDArray[np.bool_]:
     """``(H, W)`` pixels that see a static surface, detected from the depth video itself.
 
     A pixel is static if it is valid in every frame and the range (max - min) of its depth
-    over time is at most ``levels`` depth-step limits at its mean depth (:func:`step_limit`:
-    ``levels * max(max_step, 2.5 q z^2)``). People or objects crossing the pixel change its
-    depth by far more; sensor noise and quantisation steps do not (on
-    ``uva_cv2_person_turning``: 99.9 % of the never-masked background, none of the person).
+    over time is within what the sensor's noise explains (:func:`is_static`): ``levels``
+    quantisation step limits at its mean depth (``levels * 2.5 q z^2``, structured-light
+    steps) or :data:`STATIC_NOISE_RANGE` times the depth noise σ₀, whichever is larger.
+    People or objects crossing the pixel change its depth by far more (on
+    ``uva_cv2_person_turning``: 99.9 % of the never-masked background, none of the person);
+    so does a surface moving towards the camera by more than the noise (the synthetic ball's
+    0.9 mm a frame: a fixed 30 mm tolerance called its pixels static, and a lagging filter
+    then scored as steady there).
 
     Parameters
     ----------
     depth : (T, H, W) ndarray
         Depth in mm, NaN = invalid (the raw input: static is a property of the scene).
-    max_step : float, optional
-        Floor of the step limit (mm).
     noise_quad : float, optional
         Depth-noise coefficient q (mm^-1); default: the median over frames of
         :func:`fuse4d.motion.estimate_noise_quad`.
+    noise_sigma : float, optional
+        Depth noise σ₀ (mm); default: the median of :func:`fuse4d.motion.estimate_depth_noise`
+        over up to 8 evenly spaced frames.
     levels : float, optional
-        Tolerance in step limits.
+        Tolerance in quantisation step limits.
 
     Returns
     -------
@@ -373,19 +385,38 @@ def static_pixels(
     if d.ndim != 3:
         raise ShapeError("depth", ("T", "H", "W"), d.shape, "a (T, H, W) depth video")
     q = float(np.median(_frame_quads(d, None))) if noise_quad is None else float(noise_quad)
+    sigma = _median_noise_sigma(d) if noise_sigma is None else float(noise_sigma)
     valid = np.all(np.isfinite(d), axis=0)
     out = np.zeros(d.shape[1:], dtype=bool)
     if valid.any():
         vals = d[:, valid].astype(np.float64)
+        n = vals.shape[0]
+        trend = depth_trend(vals.sum(axis=0), np.arange(n, dtype=np.float64) @ vals, n)
         out[valid] = is_static(
-            vals.min(axis=0),
-            vals.max(axis=0),
-            vals.mean(axis=0),
-            q,
-            max_step=max_step,
-            levels=levels,
-        )
+            vals.min(axis=0), vals.max(axis=0), vals.mean(axis=0), q, noise_sigma=sigma,
+            levels=levels, trend=trend, frames=n,
+        )  # fmt: skip
     return out
+
+
+def depth_trend(zsum: ArrayLike, ztsum: ArrayLike, frames: int) -> NDArray[np.float64]:
+    """Least-squares change (mm) of each pixel's depth over a clip: the slope of the line
+    through its depths at frames t = 0 .. T-1, times T - 1, from ``zsum`` = Σ z and ``ztsum``
+    = Σ t z (running sums; 0 for T = 1)."""
+    n = int(frames)
+    if n < 2:
+        return np.zeros(np.shape(zsum))
+    sxx = n * (n * n - 1) / 12.0
+    slope = (np.asarray(ztsum, np.float64) - 0.5 * (n - 1) * np.asarray(zsum, np.float64)) / sxx
+    return slope * (n - 1)
+
+
+def _median_noise_sigma(d: NDArray[np.float32], frames: int = 8) -> float:
+    """Median depth noise σ₀ (mm) of up to ``frames`` evenly spaced frames of ``d``."""
+    from ..motion import estimate_depth_noise
+
+    picks = np.unique(np.linspace(0, d.shape[0] - 1, min(frames, d.shape[0])).round().astype(int))
+    return float(np.median([estimate_depth_noise(d[k]) for k in picks]))
 
 
 def is_static(
@@ -394,12 +425,27 @@ def is_static(
     zmean: ArrayLike,
     noise_quad: float,
     *,
-    max_step: float = 10.0,
+    noise_sigma: float = 0.0,
     levels: float = STATIC_LEVELS,
+    trend: ArrayLike | None = None,
+    frames: int = 0,
 ) -> NDArray[np.bool_]:
     """The static rule of :func:`static_pixels` on per-pixel temporal min, max and mean (mm).
 
-    Split out so that a streaming evaluation (running min/max/mean) applies the same rule.
+    ``max - min <= max(levels * 2.5 q mean^2, STATIC_NOISE_RANGE * noise_sigma)``, and where
+    ``trend`` (:func:`depth_trend` over ``frames`` frames) is given, no trend beyond
+    :data:`STATIC_TREND_SIGMAS` standard deviations of a line fitted to noise of σ(z) =
+    max(noise_sigma, q mean^2) (A22): a surface creeping by less than the noise each frame
+    (the ball's centre: 0.15 mm a frame under 0.2 mm noise) moves, and a faithful output
+    follows it. Split out so that a streaming evaluation (running sums) applies the same rule.
     """
-    limit = levels * step_limit(zmean, max_step=max_step, noise_quad=noise_quad)
-    return np.asarray(zmax, dtype=np.float64) - np.asarray(zmin, dtype=np.float64) <= limit
+    z = np.asarray(zmean, dtype=np.float64)
+    quant = float(noise_quad) * z * z
+    limit = np.maximum(levels * STEP_NOISE_LEVELS * quant, STATIC_NOISE_RANGE * float(noise_sigma))
+    static = np.asarray(zmax, dtype=np.float64) - np.asarray(zmin, dtype=np.float64) <= limit
+    if trend is not None and frames >= 2:
+        sigma = np.maximum(quant, float(noise_sigma))
+        n = int(frames)
+        trend_sd = sigma * (n - 1) / np.sqrt(n * (n * n - 1) / 12.0)
+        static &= np.abs(np.asarray(trend, dtype=np.float64)) <= STATIC_TREND_SIGMAS * trend_sd
+    return static

@@ -208,6 +208,7 @@ class _Scan:
             )
         self.raw_mean = np.where(dn > 0, mean, np.nan)
         self.all_valid = dn == t_total
+        self.frames = t_total
         self.depth_range = (float(np.median(lows)), float(np.median(highs))) if lows else (0.0, 1.0)
         if not self.depth_range[1] > self.depth_range[0]:
             self.depth_range = (self.depth_range[0] - 1.0, self.depth_range[0] + 1.0)
@@ -215,6 +216,8 @@ class _Scan:
 
     def static_mask(self) -> tuple[NDArray[np.bool_], str]:
         """Pixels seeing a static surface and how they were found."""
+        if self.frames < 2:  # every pixel was "static" in one frame, with a flicker of 0
+            return np.zeros_like(self.all_valid), "one frame: no flicker"
         if self.gt_static is not None:
             return self.gt_static & self.all_valid, "static in the ground truth"
         quiet = self.intensity_std[self.all_valid]
@@ -876,12 +879,14 @@ def _fmt_ratio(value: float) -> str:
 def _summary(methods: dict[str, dict[str, Any]], flicker_ratio: float) -> str:
     r = methods["raw"]
     f = methods["fused"]
+    flicker = f"flicker {_fmt_mm(r['flicker_median'])} → {_fmt_mm(f['flicker_median'])}"
+    if math.isfinite(flicker_ratio):
+        flicker += f" ({_fmt_ratio(flicker_ratio)} less)"
+    elif not math.isfinite(f["flicker_median"]):
+        flicker = "flicker n/a (it needs 2 frames and static pixels)"
     parts = [
         f"Roughness (Eq. 7) {_fmt_mm(r['roughness_mean'])} → {_fmt_mm(f['roughness_mean'])}",
-        (
-            f"flicker {_fmt_mm(r['flicker_median'])} → {_fmt_mm(f['flicker_median'])} "
-            f"({_fmt_ratio(flicker_ratio)} less)"
-        ),
+        flicker,
         f"fill rate {100 * r['fill_rate']:.1f} % → {100 * f['fill_rate']:.1f} %",
     ]
     if "rmse" in f:

@@ -137,9 +137,11 @@ def flicker_figure(
         fig.colorbar(image, ax=fig.axes, label="std over time (mm)", shrink=0.85)
     ax = fig.add_subplot(grid[0, -1])
     edges = np.linspace(0.0, vmax, 61)
+    drawn = False
     for j, name in enumerate(names):
         vals = std_maps[name][static & np.isfinite(std_maps[name])]
         if vals.size:
+            drawn = True
             ax.hist(
                 np.minimum(vals, vmax),
                 bins=edges,
@@ -150,7 +152,10 @@ def flicker_figure(
             )
     ax.set_xlabel("temporal std (mm), static pixels")
     ax.set_ylabel("pixels")
-    ax.legend(fontsize=8)
+    if drawn:
+        ax.legend(fontsize=8)
+    else:  # one frame, or no pixel static and valid throughout
+        ax.text(0.5, 0.5, "no static pixels", ha="center", va="center", transform=ax.transAxes)
     return png_bytes(fig)
 
 

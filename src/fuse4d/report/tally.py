@@ -199,7 +199,8 @@ class MetricTally:
             valid in every method) and ``bad_pixels`` (= :func:`~fuse4d.metrics.
             bad_pixel_fraction`, missing depth counted as bad).
         """
-        flicker_px = static & self.all_valid
+        # one frame has no flicker (its "std over time" was 0 on every pixel)
+        flicker_px = static & self.all_valid if self.frames >= 2 else np.zeros_like(static)
         total = self.frames * self.shape[0] * self.shape[1]
         methods: dict[str, dict[str, Any]] = {}
         for n in self.names:
