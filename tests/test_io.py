@@ -14,6 +14,7 @@ import pytest
 
 from fuse4d import (
     InputFileError,
+    Intrinsics,
     OutputExistsError,
     Sequence,
     depth_to_points,
@@ -46,6 +47,7 @@ from fuse4d.io import (
     write_npz,
     write_ply,
 )
+from fuse4d.io._base import resolve_intrinsics
 from fuse4d.sequence import GroundTruth
 
 
@@ -393,8 +395,11 @@ def test_folder_overrides_and_camera_presets(tmp_path, small_sequence):
     np.testing.assert_allclose(seq.depth, 2 * read_frame_folder(tmp_path / "s").depth)
     assert (seq.intrinsics.fx, seq.intrinsics.fy, seq.intrinsics.cx) == (70.0, 71.0, 15.0)
     k = load_sequence(tmp_path / "s", intrinsics="freiburg1").intrinsics
-    assert (k.fx, k.fy, k.cx, k.cy) == CAMERA_PRESETS["freiburg1"]
+    # a 4:3 image of another size gets the 640x480 preset scaled (its cx, cy lay outside)
+    assert k == Intrinsics(*CAMERA_PRESETS["freiburg1"], 640, 480).scaled(32 / 640)
     assert (k.width, k.height) == (32, 24)
+    with pytest.raises(ParameterError, match="preset 'freiburg1' is for a 640x480 image"):
+        resolve_intrinsics("freiburg1", width=64, height=40)  # not 4:3
 
 
 def test_frame_folder_writer_streams(tmp_path, small_sequence):
@@ -492,7 +497,7 @@ def test_tum_layout(tmp_path, small_sequence):
     # 1/5 mm units: quantisation step 0.2 mm
     np.testing.assert_allclose(seq.depth, small_sequence.depth, atol=0.1 + 1e-3)
     np.testing.assert_allclose(seq.timestamps - seq.timestamps[0], np.arange(4) / 30, atol=1e-6)
-    assert seq.intrinsics.fx == CAMERA_PRESETS["freiburg2"][0]
+    assert seq.intrinsics.fx == pytest.approx(CAMERA_PRESETS["freiburg2"][0] * 32 / 640)
     (tmp_path / "tum/camera.json").write_text('{"fx": 90, "fy": 91, "cx": 15, "cy": 11}')
     assert load_sequence(tmp_path / "tum").intrinsics.fy == 91.0
     # rgb 0.5 s after every depth frame: nothing associates

@@ -95,7 +95,7 @@ def test_info_tum_needs_intrinsics(tmp_path, small_sequence, capsys):
     assert main(["info", str(tmp_path / "tum"), "--intrinsics", "freiburg3", "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
     assert info["format"] == "tum"
-    assert info["intrinsics"]["fx"] == 535.4
+    assert info["intrinsics"]["fx"] == pytest.approx(535.4 * 32 / 640)  # scaled to the image
     assert info["depth_unit_mm"] == 0.2
 
 

@@ -518,6 +518,34 @@ def test_zarr_round_trip(tmp_path, float_sequence):
     assert group.attrs["intrinsics"]["fx"] == 50.0
 
 
+def test_truncated_mkv_warns_instead_of_reading_as_a_shorter_recording(tmp_path, rng):
+    k = Intrinsics(50.0, 51.0, 15.5, 11.5, width=32, height=24)
+    seq = Sequence(
+        rng.uniform(300, 5000, (12, 24, 32)).astype(np.float32),
+        rng.random((12, 24, 32)).astype(np.float32),
+        k,
+        fps=30.0,
+    )
+    path = save_sequence(seq, tmp_path / "d.mkv")
+    assert len(load_sequence(path).depth) == 12  # whole: no warning (they are errors here)
+    cut = tmp_path / "cut.mkv"
+    cut.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    with (
+        pytest.warns(UserWarning, match=r"cut\.mkv: the frames end at .* header says 0\.4"),
+        open_frames(cut) as reader,
+    ):
+        assert 0 < len(reader) < 12
+
+
+def test_zarr_damaged_chunk_names_store_and_frame(tmp_path, float_sequence):
+    """A truncated chunk raised blosc's RuntimeError (exit 70, 'a bug in fuse4d')."""
+    path = save_sequence(float_sequence, tmp_path / "s.zarr")
+    chunk = path / "depth" / "c" / "1" / "0" / "0"
+    chunk.write_bytes(chunk.read_bytes()[:40])
+    with pytest.raises(InputFileError, match=r"s\.zarr \(frame 1\): cannot read chunk"):
+        load_sequence(path)
+
+
 @pytest.mark.parametrize("cls", [DepthVideoWriter, ZarrWriter])
 def test_writers_atomic(tmp_path, float_sequence, cls):
     path = tmp_path / ("o.mkv" if cls is DepthVideoWriter else "o.zarr")

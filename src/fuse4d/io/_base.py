@@ -48,6 +48,8 @@ CAMERA_PRESETS: dict[str, tuple[float, float, float, float]] = {
     "freiburg3": (535.4, 539.2, 320.1, 247.6),
     "kinect-v1": (525.0, 525.0, 319.5, 239.5),
 }
+#: The image size (W, H) of every preset; a 4:3 image of another size gets the preset scaled.
+PRESET_SIZE = (640, 480)
 
 #: ``Intrinsics``, ``[fx, fy, cx, cy]``, a preset name from :data:`CAMERA_PRESETS`, the path of
 #: a ``camera.json``, or a string ``"fx,fy,cx,cy"``.
@@ -522,7 +524,16 @@ def resolve_intrinsics(
             )
         return spec
     if isinstance(spec, str) and spec.strip().lower() in CAMERA_PRESETS:
-        return Intrinsics(*CAMERA_PRESETS[spec.strip().lower()], width=width, height=height)
+        full = Intrinsics(*CAMERA_PRESETS[spec.strip().lower()], *PRESET_SIZE)
+        factor = width / PRESET_SIZE[0]
+        if width * PRESET_SIZE[1] != height * PRESET_SIZE[0]:  # not 4:3: cropped, or another camera
+            raise ParameterError(
+                f"{source} preset {spec.strip()!r} is for a {PRESET_SIZE[0]}x{PRESET_SIZE[1]} "
+                f"image (or one scaled from it) but the frames are {width}x{height} (WxH); give "
+                "'fx,fy,cx,cy' or a camera.json"
+            )
+        # the camera's image scaled (a 320x240 stream): its cx, cy used to lie outside it
+        return full if factor == 1 else full.scaled(factor)
     if isinstance(spec, str) and "," in spec and not Path(spec).exists():
         try:
             values = [float(v) for v in spec.split(",")]

@@ -15,6 +15,7 @@ bilinear) so that fuse4d's pinhole back-projection is exact. Timestamps are the 
 from __future__ import annotations
 
 import json
+import warnings
 from collections.abc import Iterator
 from os import PathLike
 from pathlib import Path
@@ -297,6 +298,27 @@ class MkvReader(SequentialReader):
             else:
                 rate = self._depth_s.average_rate
                 self.fps = float(rate) if rate else None
+        self._check_length(td[keep])
+
+    def _check_length(self, ts: np.ndarray) -> None:
+        """Warn where the frames end well before the duration the file's header states: a
+        truncated copy (a cut download, a full disk) read silently as a shorter recording."""
+        duration = self._container.duration  # microseconds, of the Segment header; None: unset
+        if not duration or duration <= 0:
+            return
+        # a frame's duration: the header's end is the last frame's pts plus it
+        period = max(
+            float(np.median(np.diff(ts))) if ts.size > 1 else 0.0,
+            1.0 / self.fps if self.fps else 1.0 / 30.0,
+        )
+        end, stated = float(ts[-1] - ts[0]), duration * 1e-6 - float(ts[0])
+        if stated - end > 2.0 * max(period, 0.0) + 0.05:
+            warnings.warn(
+                f"{self.path}: the frames end at {end:.3f} s but the file's header says "
+                f"{stated:.3f} s: truncated? ({ts.size} frames read)",
+                stacklevel=4,
+            )
+            self.notes = (*self.notes, f"frames end {stated - end:.3f} s before the stated end")
 
     # ------------------------------------------------------------------ frames
     def __len__(self) -> int:

@@ -210,6 +210,10 @@ class ZarrWriter(StagedWriter):
         self._discard_stage()
 
 
+#: What reading a damaged chunk raises (a truncated blosc chunk: RuntimeError).
+_READ_ERRORS = (OSError, ValueError, TypeError, LookupError, RuntimeError)
+
+
 class ZarrReader(FrameReader):
     """Frame reader for a zarr v3 store written by :class:`ZarrWriter` (or laid out alike)."""
 
@@ -240,7 +244,7 @@ class ZarrReader(FrameReader):
                     "`fuse4d report INPUT OUTPUT.zarr -o DIR`, or read its arrays with zarr",
                 ) from None
             raise InputFileError(self.path, f"zarr store has no array {exc}") from None
-        except (OSError, ValueError, TypeError, LookupError) as exc:
+        except _READ_ERRORS as exc:
             raise InputFileError(self.path, f"cannot open the zarr store ({exc})") from None
         if self._depth.ndim != 3 or self._inten.shape != self._depth.shape:
             raise InputFileError(
@@ -283,7 +287,7 @@ class ZarrReader(FrameReader):
         try:
             depth = np.asarray(self._depth[k], dtype=np.float32)
             inten = np.asarray(self._inten[k], dtype=np.float32)
-        except (OSError, ValueError, TypeError, LookupError) as exc:
+        except _READ_ERRORS as exc:
             raise InputFileError(self.path, f"cannot read chunk ({exc})", frame=k) from None
         ts = None if self.timestamps is None else float(self.timestamps[k])
         return Frame(k, depth, inten, timestamp=ts)
@@ -293,7 +297,7 @@ class ZarrReader(FrameReader):
         k = self._index(index)
         try:
             return np.asarray(self._inten[k], dtype=np.float32)
-        except (OSError, ValueError, TypeError, LookupError) as exc:
+        except _READ_ERRORS as exc:
             raise InputFileError(self.path, f"cannot read chunk ({exc})", frame=k) from None
 
     def read_source(self, start: int, stop: int) -> NDArray[np.uint8] | None:
@@ -302,7 +306,7 @@ class ZarrReader(FrameReader):
             return None
         try:
             return np.asarray(self._source[start:stop], dtype=np.uint8)
-        except (OSError, ValueError, TypeError, LookupError) as exc:
+        except _READ_ERRORS as exc:
             raise InputFileError(self.path, f"cannot read source ({exc})", frame=start) from None
 
 
