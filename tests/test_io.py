@@ -558,6 +558,20 @@ def test_check_output_refuses_input(tmp_path):
         check_output(tmp_path / "missing" / "x.npz")
 
 
+def test_overwrite_replaces_only_a_folder_fuse4d_wrote(tmp_path, small_sequence):
+    """``fuse4d convert in.npz ~/data --force`` deleted a folder of the user's own files."""
+    mine = tmp_path / "notes"
+    mine.mkdir()
+    (mine / "todo.txt").write_text("keep me")
+    with pytest.raises(ParameterError, match=r"not replaced: .*fuse4d did not write \(todo\.txt\)"):
+        save_sequence(small_sequence, mine, overwrite=True)
+    assert (mine / "todo.txt").read_text() == "keep me"
+    ours = write_frame_folder(small_sequence, tmp_path / "ours")
+    assert save_sequence(small_sequence, ours, overwrite=True) == ours  # camera.json: ours
+    (tmp_path / "empty").mkdir()
+    assert check_output(tmp_path / "empty", overwrite=True) == tmp_path / "empty"
+
+
 def test_an_output_named_like_a_foreign_file_is_refused_not_made_a_folder(tmp_path, small_sequence):
     """``-o out.mp4`` used to give a frame folder called out.mp4; a folder name with a dot
     that is no file format stays a folder."""

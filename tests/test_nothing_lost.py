@@ -55,6 +55,17 @@ def _commands(i: Path, o: Path) -> list[list[str]]:
         ["run", seq, "-o", str(o / "r"), "--window", "3", "--force"],
         ["run", seq, "-o", str(i / "seq" / "inside"), "--window", "3"],  # refused
         ["run", seq, "-o", str(o / "r"), "--resume"],  # refused: output complete
+        # refused: the flow cache wrote hash-named folders into the input
+        [
+            "run",
+            seq,
+            "-o",
+            str(o / "r3"),
+            "--window",
+            "3",
+            "--flow-cache",
+            str(i / "seq" / "depth"),
+        ],
         ["baseline", "temporal-mean", npz, "-o", str(o / "b.npz")],
         ["baseline", "guided", npz, "-o", npz, "--force"],  # refused (it used to replace it)
         ["baseline", "guided", seq, "-o", str(i / "seq" / "depth"), "--force"],  # refused

@@ -287,10 +287,11 @@ def test_killed_farneback_run_resumes_bit_identical(recording, tmp_path):
     assert _contents(out) == _contents(ref)
 
 
-def test_sigterm_stops_as_cleanly_as_ctrl_c(recording, reference, tmp_path):
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGHUP"])  # SIGHUP: a closed terminal or ssh
+def test_sigterm_stops_as_cleanly_as_ctrl_c(recording, reference, tmp_path, sig):
     out = tmp_path / "out"
     args = ["run", str(recording), "-o", str(out), *RUN_ARGS]
-    res = _child(5, "after", "SIGTERM", args)
+    res = _child(5, "after", sig, args)
     assert res.returncode == 130, res.stderr[-2000:]
     _check_partial(partial_path(out), _frames_done_after_signal(out, 5))
     assert main([*args, "--resume"]) == 0

@@ -56,8 +56,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     STATE.debug = False
     if argv is None and threading.current_thread() is threading.main_thread():
-        # console script: `kill` (SIGTERM) stops as cleanly as Ctrl-C (complete outputs only)
+        # console script: `kill` (SIGTERM) and a closed terminal or ssh session (SIGHUP) stop
+        # as cleanly as Ctrl-C (complete outputs only; SIGHUP left staged files behind)
         signal.signal(signal.SIGTERM, _terminate)
+        if hasattr(signal, "SIGHUP"):  # not on Windows
+            signal.signal(signal.SIGHUP, _terminate)
         if not _debug():  # a warning reads as one line, not Python's file, line and source
             warnings.showwarning = _show_warning
     try:

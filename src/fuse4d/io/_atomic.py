@@ -51,8 +51,9 @@ def check_output(
     OutputExistsError
         If ``path`` exists and ``overwrite`` is False.
     ValueError
-        If ``path`` is one of ``inputs`` or lies inside an input folder, or if its parent
-        folder does not exist.
+        If ``path`` is one of ``inputs`` or lies inside an input folder, if its parent folder
+        does not exist, or if ``overwrite`` would replace a non-empty folder that is not a
+        fuse4d output (no :data:`OUTPUT_MARKERS` file in it).
     """
     out = Path(path)
     resolved = out.resolve()
@@ -66,7 +67,29 @@ def check_output(
         raise ParameterError(f"{out}: output folder {out.parent} does not exist")
     if out.exists() and not overwrite:
         raise OutputExistsError(out)
+    if overwrite and out.is_dir() and not out.is_symlink():
+        _check_replaceable_folder(out)
     return out
+
+
+#: Files of which one marks a folder as an output fuse4d writes (frame folder, zarr store,
+#: report, demo, resumable run): only such a folder is replaced with ``overwrite``.
+OUTPUT_MARKERS = ("camera.json", "zarr.json", "report.html", "metrics.json", "fuse4d-run.json")
+
+
+def _check_replaceable_folder(out: Path) -> None:
+    """Refuse to replace a non-empty folder that holds no :data:`OUTPUT_MARKERS` file: a
+    mistyped ``-o ~/data --force`` deleted a folder of the user's own files."""
+    try:
+        entries = sorted(p.name for p in out.iterdir())
+    except OSError:
+        return  # not readable: the write fails later, naming the output
+    if entries and not any(name in entries for name in OUTPUT_MARKERS):
+        shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
+        raise ParameterError(
+            f"{out}: not replaced: the folder holds files that fuse4d did not write ({shown}); "
+            "remove it yourself or choose another output"
+        )
 
 
 #: errno values that mean "the output cannot be written here" (not a bug, not the input).
