@@ -566,8 +566,9 @@ def test_overwrite_replaces_only_a_folder_fuse4d_wrote(tmp_path, small_sequence)
     with pytest.raises(ParameterError, match=r"not replaced: .*fuse4d did not write \(todo\.txt\)"):
         save_sequence(small_sequence, mine, overwrite=True)
     assert (mine / "todo.txt").read_text() == "keep me"
-    ours = write_frame_folder(small_sequence, tmp_path / "ours")
-    assert save_sequence(small_sequence, ours, overwrite=True) == ours  # camera.json: ours
+    ours = write_frame_folder(small_sequence, tmp_path / "ours", depth_unit_mm=0.01)
+    again = save_sequence(small_sequence, ours, overwrite=True, depth_unit_mm=0.01)
+    assert again == ours  # camera.json: a folder fuse4d wrote
     (tmp_path / "empty").mkdir()
     assert check_output(tmp_path / "empty", overwrite=True) == tmp_path / "empty"
 
