@@ -173,6 +173,9 @@ def test_stop_event_ends_the_run(ball):
     source = _ListSource(seq, range(12), fps=30.0)
     stats = run_live(source, fusion=CAUSAL3, sink=sink, stop=stop, warmup=False)
     assert stats.frames_fused < 12
+    # every captured frame is accounted for (those waiting at the stop were not)
+    assert stats.frames_captured == stats.frames_fused + stats.dropped + stats.unfused_at_stop
+    assert stats.to_dict()["unfused_at_stop"] == stats.unfused_at_stop
 
 
 def test_recording_without_rate_needs_fps(tmp_path, ball):

@@ -429,6 +429,9 @@ class LiveStats:
         Frames fused and passed to the sink.
     dropped : int
         Frames the queue dropped (oldest first) because the fusion was behind.
+    unfused_at_stop : int
+        Frames captured but neither fused nor dropped: waiting or being fused when the run
+        was stopped (Ctrl-C); ``frames_captured = frames_fused + dropped + unfused_at_stop``.
     gaps : int
         Breaks in the frame numbers seen by the fusion (queue drops and camera drops).
     restarts : int
@@ -456,6 +459,7 @@ class LiveStats:
     frames_captured: int = 0
     frames_fused: int = 0
     dropped: int = 0
+    unfused_at_stop: int = 0
     gaps: int = 0
     restarts: int = 0
     tracked_gaps: int = 0
@@ -470,7 +474,7 @@ class LiveStats:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (no per-frame lists)."""
-        keys = ("frames_captured", "frames_fused", "dropped", "gaps", "restarts")
+        keys = ("frames_captured", "frames_fused", "dropped", "unfused_at_stop", "gaps", "restarts")
         out: dict[str, Any] = {k: getattr(self, k) for k in keys}
         out.update(
             tracked_gaps=self.tracked_gaps,
@@ -635,6 +639,7 @@ def run_live(
     if errors:
         raise errors[0]
     stats.dropped = queue.dropped
+    stats.unfused_at_stop = max(stats.frames_captured - stats.frames_fused - stats.dropped, 0)
     if first_capture:
         stats.seconds = max(last_output - first_capture[0], 0.0)
     if stats.frames_fused > 1 and last_output > first_output:

@@ -337,7 +337,8 @@ def _table(s: dict[str, Any]) -> Table:
         ),
         (
             "frames",
-            f"{s['frames_captured']} captured, {s['frames_fused']} fused, {s['dropped']} dropped",
+            f"{s['frames_captured']} captured, {s['frames_fused']} fused, {s['dropped']} dropped"
+            + (f", {s['unfused_at_stop']} not fused at the stop" if s["unfused_at_stop"] else ""),
         ),
         (
             "gaps",
