@@ -359,3 +359,20 @@ def test_an_output_without_depth_shows_its_bad_pixels(tmp_path, capsys):
     assert [c.strip() for c in bad.split("│")[2:4]] == ["0", "1"]
     fill = next(line for line in text.splitlines() if "fill rate" in line)
     assert [c.strip() for c in fill.split("│")[2:4]] == ["1", "0"]
+
+
+def test_an_empty_roi_mask_is_refused(tmp_path, capsys):
+    """An all-false --roi mask printed a table of n/a with no word why."""
+    seq = make_falling_ball(small=True, num_frames=2)
+    path = write_npz(seq, tmp_path / "b.npz")
+    np.savez(tmp_path / "roi.npz", roi=np.zeros((150, 150), bool))
+    assert main(["metrics", str(path), "--roi", str(tmp_path / "roi.npz")]) == 2
+    assert "--roi: the mask selects no pixel" in capsys.readouterr().err
+
+
+def test_one_frame_has_no_roughness_spread():
+    """The roughness std over frames of one frame printed as 0."""
+    seq = make_falling_ball(small=True, num_frames=2).frames(0, 1)
+    report = evaluate(seq)
+    assert math.isfinite(report.output.roughness.mean)
+    assert math.isnan(report.output.roughness.std)

@@ -286,6 +286,8 @@ def metrics_command(
     for name, mask in (("--roi", region), ("--static-mask", static)):
         if mask is not None and mask.shape[-2:] != (h, w):
             fail(f"{name}: mask is {mask.shape[-2]}x{mask.shape[-1]}, the input {h}x{w}")
+        if mask is not None and not mask.any():  # every number was n/a, with no word why
+            fail(f"{name}: the mask selects no pixel")
     if region is not None and region.ndim == 3 and region.shape[0] != t:
         fail(f"--roi: mask has {region.shape[0]} frames, the input {t}")
     with progress_bar("scoring", t) as bar:
@@ -345,9 +347,9 @@ def _print_table(result: dict[str, Any]) -> None:
         table.add_row(label, *([value, ""] if two else [value]), note)
 
     info("frames", f"{result['frames'][0]}:{result['frames'][1]}", "")
-    info("ROI", str(result["roi"]["pixels"]), result["roi"]["description"])
+    info("ROI pixels (all frames)", str(result["roi"]["pixels"]), result["roi"]["description"])
     info(
-        "ROI pixels scored",
+        "ROI pixels scored (all frames)",
         str(result["roi"]["pixels_scored"]),
         "Eq. 7 defined" + (" in both" if two else ""),
     )

@@ -202,7 +202,8 @@ def _mean_std(values: NDArray[np.float64]) -> tuple[float, float]:
     good = values[np.isfinite(values)]
     if good.size == 0:
         return math.nan, math.nan
-    return float(good.mean()), float(good.std(ddof=0))
+    # the spread over frames of one frame is undefined (it printed as 0)
+    return float(good.mean()), float(good.std(ddof=0)) if good.size > 1 else math.nan
 
 
 def roughness_stats(
