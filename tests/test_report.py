@@ -264,6 +264,9 @@ def test_one_frame_report_has_no_flicker(small_ball, small_fused, tmp_path):
     assert m["metrics"]["fused"]["flicker_median"] is None
     page = (tmp_path / "rep" / "report.html").read_text()
     assert "flicker n/a (it needs 2 frames and static pixels)" in page
+    # the page draws where the headline roughness comes from, and says the histogram clips
+    assert "pixels of this frame's roughness ROI" in page
+    assert "its last bin holds every value of" in page
 
 
 @pytest.mark.slow

@@ -602,6 +602,7 @@ def _write(
                         keep = {
                             "points": points,
                             "pis": pis,
+                            "roughness_roi": tally.last_roi.copy(),
                             "intensity": rseq.intensity[t - ra].copy(),
                             "support": sup,
                             "source": None if fch.source is None else fch.source[j],
@@ -700,7 +701,8 @@ def _write(
                     f"Π = |Σ_j (p_i − p_j)·n_i| over the 5×5 window (mm), fixed scale 0–"
                     f"{rough_max:g} mm; histogram over the ROI pixels of all frames "
                     f"({results['roughness_roi_pixels']} samples, the same pixels for every "
-                    "method); dotted: means."
+                    f"method; its last bin holds every value of {rough_max:g} mm or more); "
+                    "dotted: means."
                 ),
             ),
             "support": (
@@ -713,8 +715,13 @@ def _write(
                     source_frame=keep.get("source"),
                 ),
                 (
-                    "Support: number of other frames whose track passed every check and was fused "
-                    "into the pixel. "
+                    (
+                        "Support: number of other frames whose track passed every check and was "
+                        "fused into the pixel. "
+                        if keep["support"] is not None
+                        else "Support (frames fused per pixel) is not stored in this fused "
+                        "result (an .npz output keeps it). "
+                    )
                     + (
                         "Source: where each value of the frame comes from — measured (raw depth "
                         "without temporal support), fused (with support), sensor holes filled "
@@ -746,8 +753,11 @@ def _write(
                 line=line,
                 pixels=pixels,
                 roi=roi_box,
+                roughness_roi=keep["roughness_roi"],
             ),
-            f"Frame {frame}. Green: the {int(static_eval.sum())} static pixels of the flicker "
+            f"Frame {frame}. Blue: the {int(keep['roughness_roi'].sum())} pixels of this frame's "
+            "roughness ROI (Eq. 7 windows free of depth edges, defined for every method). Green: "
+            f"the {int(static_eval.sum())} static pixels of the flicker "
             f"(temporal precision). Coloured outlines: the {len(planes)} planar region(s) of the "
             "spatial precision "
             + ("(the given ROI). " if roi_box is not None else "(RANSAC on this raw frame). ")

@@ -238,17 +238,22 @@ def support_figure(
     """Support (frames fused per pixel) maps, and where frame ``frame``'s values come from
     (``source_frame``, :attr:`fuse4d.FusedFrame.source` codes) or, without it, the Eq. 6
     hole-filling map."""
-    fig = _figure(11.5, 3.6)
-    axes = fig.subplots(1, 3, squeeze=False)[0]
-    panels = (
+    panels = [
         (support_frame, f"support, frame {frame}", "viridis", max_support, "frames"),
         (support_mean, "support, mean over frames", "viridis", max_support, "frames"),
         (filled_fraction, "hole-filled (Eq. 6), fraction of frames", "inferno", 1.0, "fraction"),
-    )
-    for ax, (data, title, cmap, vmax, unit) in zip(axes, panels, strict=True):
+    ]
+    if source_frame is not None:
+        panels[2] = (source_frame, "source", "", 0.0, "")
+    # only what the fused result stores (a frame folder has no support maps: two empty
+    # "not stored" panels filled the row)
+    shown = [p for p in panels if p[0] is not None] or [panels[0]]
+    fig = _figure(11.5 * len(shown) / 3 + 0.8 * (len(shown) < 3), 3.6)
+    axes = fig.subplots(1, len(shown), squeeze=False)[0]
+    for ax, (data, title, cmap, vmax, unit) in zip(axes, shown, strict=True):
         ax.set_axis_off()
         ax.set_title(title, fontsize=10)
-        if source_frame is not None and ax is axes[2]:
+        if data is source_frame and source_frame is not None:
             _source_panel(ax, source_frame, frame)
             continue
         if data is None:
@@ -313,13 +318,17 @@ def regions_figure(
     line: int,
     pixels: list[tuple[int, int, str]],
     roi: tuple[int, int, int, int] | None,
+    roughness_roi: NDArray[np.bool_] | None = None,
 ) -> bytes:
-    """Where the numbers come from: static pixels, plane regions, x–t line, picked pixels."""
+    """Where the numbers come from: roughness ROI, static pixels, plane regions, x–t line,
+    picked pixels."""
     h, w = intensity.shape
     fig = _figure(6.4, 6.4 * h / w + 0.3)
     ax = fig.add_subplot(1, 1, 1)
     gray = np.clip(np.nan_to_num(np.asarray(intensity, dtype=np.float32)), 0, 1)
     rgb = np.repeat(0.25 + 0.6 * gray[..., None], 3, axis=-1)
+    if roughness_roi is not None:
+        rgb[roughness_roi] = 0.7 * rgb[roughness_roi] + 0.3 * np.array([0.15, 0.35, 0.95])
     rgb[static] = 0.55 * rgb[static] + 0.45 * np.array([0.1, 0.8, 0.2])
     ax.imshow(rgb, interpolation="nearest")
     import cv2

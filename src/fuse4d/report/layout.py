@@ -76,8 +76,11 @@ class VideoLayout:
         self.title_h = 22
         self.bar_h = 36
         self.header_h = 28
+        # an empty band under the panels: a browser's video controls cover the bottom ~45 px
+        # of the frame (they hid the support colour bar and the panels' lower edge)
+        self.footer_h = 48
         self.width = 3 * self.pw + 4 * self.gap
-        self.height = self.header_h + 2 * (self.title_h + self.ph + self.bar_h)
+        self.height = self.header_h + 2 * (self.title_h + self.ph + self.bar_h) + self.footer_h
         self.width += self.width % 2
         self.height += self.height % 2
         self._template = self._make_template()

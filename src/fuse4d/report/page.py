@@ -24,7 +24,7 @@ img, video { max-width: 100%; height: auto; display: block; border-radius: 4px; 
 video { background: #111; }
 table { border-collapse: collapse; margin: 8px 0 4px; font-size: 0.93em; }
 th, td { border: 1px solid #d6d6d6; padding: 4px 10px; text-align: right; }
-th:first-child, td:first-child, td.text { text-align: left; }
+th:first-child, td:first-child, td.text, th.text { text-align: left; }
 td.meaning { text-align: left; color: #555; max-width: 520px; }
 thead th { background: #eef1f5; }
 tr.better td.fused { font-weight: 600; }
@@ -81,7 +81,8 @@ def _metrics_table(rows: list[dict[str, Any]], names: list[str]) -> str:
     head = "".join(f"<th>{html.escape(n)}</th>" for n in names)
     out = [
         (
-            f"<table><thead><tr><th>metric</th>{head}<th>unit</th><th>what it means</th>"
+            f"<table><thead><tr><th>metric</th>{head}<th class='text'>unit</th>"
+            "<th class='text'>what it means</th>"
             "</tr></thead><tbody>"
         )
     ]

@@ -72,6 +72,7 @@ class MetricTally:
         self.frame_pi: dict[str, list[float]] = {n: [] for n in self.names}
         self.frame_rms: dict[str, list[float]] = {n: [] for n in self.names}
         self.roi_pixels: list[int] = []
+        self.last_roi: NDArray[np.bool_] | None = None
         self.hist = {n: np.zeros(self.bins.size - 1, dtype=np.int64) for n in self.names}
         self.valid_count = dict.fromkeys(self.names, 0)
         self.plane_rms: list[dict[str, list[float]]] = [{n: [] for n in self.names} for _ in planes]
@@ -118,6 +119,7 @@ class MetricTally:
             roi &= np.isfinite(pis[n])
         count = int(roi.sum())
         self.roi_pixels.append(count)
+        self.last_roi = roi  # the frame's roughness ROI (the report draws one frame's)
         for n in self.names:
             if count:
                 vals = pis[n][roi].astype(np.float64)
