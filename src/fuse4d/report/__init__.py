@@ -238,20 +238,36 @@ def _pick_pixels(
 ) -> list[tuple[int, int, str]]:
     """A typical and a noisy static pixel, and the busiest pixel on the x–t line."""
     out: list[tuple[int, int, str]] = []
-    std = np.where(static, scan.raw_std, np.nan)
+    import cv2
+
+    # inside the static region (2 px from any moving or invalid pixel) where it has room
+    core = cv2.erode(static.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    std = np.where(core if core.any() else static, scan.raw_std, np.nan)
+    h, w = std.shape
+    # away from the border where possible (the first match in raster order lay on row 0, its
+    # label outside the image), and of equal candidates the one nearest the centre
+    my, mx = max(1, h // 12), max(1, w // 12)
+    inner = np.full_like(std, np.nan)
+    inner[my : h - my, mx : w - mx] = std[my : h - my, mx : w - mx]
+    if np.isfinite(inner).any():
+        std = inner
     if np.isfinite(std).any():
         vals = std[np.isfinite(std)]
+        yy, xx = np.mgrid[0:h, 0:w]
+        centre = np.hypot((yy - h / 2) / h, (xx - w / 2) / w)
         for q, label in ((50, "static, typical"), (95, "static, noisy")):
             target = np.percentile(vals, q)
-            k = int(np.nanargmin(np.abs(std - target)))
-            r, c = divmod(k, std.shape[1])
-            out.append((r, c, label))
+            miss = np.abs(std - target)
+            best = np.nanmin(miss)
+            ties = np.where(miss <= best + 1e-9 * max(abs(target), 1.0), centre, np.inf)
+            r, c = np.unravel_index(int(np.argmin(ties)), std.shape)
+            out.append((int(r), int(c), label))
     busy = scan.intensity_std[line] if line_axis == "row" else scan.intensity_std[:, line]
     valid = scan.all_valid[line] if line_axis == "row" else scan.all_valid[:, line]
     if valid.any():
         k = int(np.argmax(np.where(valid, busy, -1.0)))
         r, c = (line, k) if line_axis == "row" else (k, line)
-        out.append((r, c, f"busiest pixel of the x–t {line_axis}"))
+        out.append((r, c, f"busiest on the x–t {line_axis}"))
     if not out:
         h, w = static.shape
         out.append((h // 2, w // 2, "image centre"))
@@ -843,7 +859,7 @@ def _write(
             video_file="compare.mp4",
             video_note=_video_note(video.codec, diff_max, lo, hi),
             figures=figs,
-            metric_rows=_metric_rows(results["methods"], names, timing, fill),
+            metric_rows=_metric_rows(results["methods"], names, timing, fill, params_dict),
             method_names=names,
             summary=_summary(results["methods"], ratio) + _quantization_note(fres.depth_unit_mm),
             facts={
@@ -933,7 +949,11 @@ def _video_note(codec: str, diff_max: float, lo: float, hi: float) -> str:
 
 
 def _metric_rows(
-    methods: dict[str, dict[str, Any]], names: list[str], timing: dict[str, Any], fill: dict
+    methods: dict[str, dict[str, Any]],
+    names: list[str],
+    timing: dict[str, Any],
+    fill: dict,
+    params: dict[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
     def row(key: str, label: str, unit: str, scale: float = 1.0) -> dict[str, Any]:
         return {
@@ -967,12 +987,15 @@ def _metric_rows(
                 "meaning": "valid pixels tracked into at least one other frame",
             }
         )
+        eq6_off = params is not None and params.get("fill_holes") is False
         rows.append(
             {
                 "name": "hole-filled",
-                "values": {"fused": 100.0 * fill["filled_fraction"]},
+                # "0 %" read as "Eq. 6 found nothing to do" where it was switched off
+                "values": {"fused": None if eq6_off else 100.0 * fill["filled_fraction"]},
                 "unit": "%",
-                "meaning": "valid pixels without support, filled by Eq. 6",
+                "meaning": "valid pixels without support, filled by Eq. 6"
+                + (" (off in this run: fill_holes = false, A35)" if eq6_off else ""),
             }
         )
     if fill.get("hole_time_fraction") is not None:

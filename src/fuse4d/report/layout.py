@@ -78,7 +78,7 @@ class VideoLayout:
         self.header_h = 28
         # an empty band under the panels: a browser's video controls cover the bottom ~45 px
         # of the frame (they hid the support colour bar and the panels' lower edge)
-        self.footer_h = 48
+        self.footer_h = 72  # two rows of controls where the video is narrow
         self.width = 3 * self.pw + 4 * self.gap
         self.height = self.header_h + 2 * (self.title_h + self.ph + self.bar_h) + self.footer_h
         self.width += self.width % 2
