@@ -357,8 +357,10 @@ def static_pixels(
     A pixel is static if it is valid in every frame and the range (max - min) of its depth
     over time is within what the sensor's noise explains (:func:`is_static`): ``levels``
     quantisation step limits at its mean depth (``levels * 2.5 q z^2``, structured-light
-    steps) or :data:`STATIC_NOISE_RANGE` times the depth noise σ₀, whichever is larger.
-    People or objects crossing the pixel change its depth by far more (on
+    steps) or :data:`STATIC_NOISE_RANGE` times the depth noise σ₀, whichever is larger, and
+    its least-squares trend over the clip is within :data:`STATIC_TREND_SIGMAS` standard
+    deviations of a line fitted to that noise (``docs/method_notes.md``, "Evaluation: static
+    pixels"). People or objects crossing the pixel change its depth by far more (on
     ``uva_cv2_person_turning``: 99.9 % of the never-masked background, none of the person);
     so does a surface moving towards the camera by more than the noise (the synthetic ball's
     0.9 mm a frame: a fixed 30 mm tolerance called its pixels static, and a lagging filter
