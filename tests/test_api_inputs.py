@@ -204,3 +204,14 @@ def test_engine_and_motion_reference_refuse_odd_numbers():
 def test_non_numeric_arrays_are_a_parameter_type_error():
     with pytest.raises(ParameterTypeError, match="depth must be a numeric array"):
         fuse4d.depth_to_points(np.array([["a"]]), Intrinsics(1, 1, 0, 0, 1, 1))
+
+
+def test_frames_one_pixel_wide_say_what_is_wrong():
+    """The flow's 'image0 must have shape (H, W)' used to be the answer."""
+    k = Intrinsics(10.0, 10.0, 0.0, 3.5, width=1, height=8)
+    depth = np.full((3, 8, 1), 1000.0, np.float32)
+    gray = np.full((3, 8, 1), 0.5, np.float32)
+    with pytest.raises(ShapeError, match=r"depth frames must have shape \(H >= 2, W >= 2\)"):
+        fuse4d.fuse_sequence(depth, gray, k)
+    one = fuse4d.fuse_sequence(depth, gray, k, fusion=fuse4d.FusionParams(num_frames=1))
+    assert one.depth.shape == (3, 8, 1)

@@ -300,6 +300,14 @@ class FusionEngine:
             raise ParameterTypeError(f"ring_size must be an integer, got {ring_size!r}")
         self.ring = max(ring_size or 0, p.num_frames)
         h, w = intrinsics.height, intrinsics.width
+        if p.num_frames > 1 and min(h, w) < 2:  # the flow said "image0 must have shape ..."
+            raise ShapeError(
+                "depth frames",
+                ("H >= 2", "W >= 2"),
+                (h, w),
+                "A frame 1 px wide or high has no optical flow; fuse a window of 1 frame "
+                "(num_frames=1) or give larger frames",
+            )
         s = self.ring
         # every ring buffer is written now (committed), not during the first frames
         self._depth = committed((s, h, w), np.float32, np.nan)
