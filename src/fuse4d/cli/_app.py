@@ -47,6 +47,26 @@ class _State:
 STATE = _State()
 
 
+def _print_version(value: bool) -> None:
+    """``fuse4d --version``: fuse4d's version and those of the packages behind its numbers
+    (read from the installed metadata, so nothing heavy is imported)."""
+    if not value:
+        return
+    import platform
+    from importlib import metadata
+
+    from .._version import __version__
+
+    parts = []
+    for package in ("numpy", "numba", "opencv-contrib-python-headless", "scipy"):
+        try:
+            parts.append(f"{package} {metadata.version(package)}")
+        except metadata.PackageNotFoundError:
+            continue
+    print(f"fuse4d {__version__} (Python {platform.python_version()}; {', '.join(parts)})")
+    raise typer.Exit()
+
+
 @app.callback()
 def _root(
     debug: Annotated[
@@ -54,6 +74,15 @@ def _root(
         typer.Option(
             "--debug",
             help="Show the full traceback of any error (also: environment FUSE4D_DEBUG=1).",
+        ),
+    ] = False,
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version",
+            help="Print fuse4d's version (and numpy's, numba's, OpenCV's) and exit.",
+            callback=_print_version,
+            is_eager=True,
         ),
     ] = False,
 ) -> None:

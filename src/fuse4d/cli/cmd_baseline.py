@@ -115,7 +115,7 @@ def baseline_command(
         bool, typer.Option("--list", help="List the methods and exit.")
     ] = False,
 ) -> None:
-    """Run a comparison method (BASELINES.md) on a recording and save the filtered depth.
+    """Run one of the paper's comparison methods on a recording and save the filtered depth.
 
     6D methods return 3D points; their Z (depth along the optical axis) is saved. --size is
     each method's own size knob (a pixel radius, a frame count, a temporal radius or a kernel

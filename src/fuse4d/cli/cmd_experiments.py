@@ -55,7 +55,7 @@ def experiments_command(
         Path | None, typer.Option("--log", help="Append one line per finished unit to this file.")
     ] = None,
 ) -> None:
-    """Reproduce the paper's experiments (EVALUATION.md §4) into OUT/<name>/: tidy CSV,
+    """Reproduce the paper's experiments (its Section 4; REPRODUCTION.md) into OUT/<name>/: tidy CSV,
     Markdown summary, PNG plots and a JSON of every parameter. Ctrl-C and rerun to resume."""
     from ..experiments.paper import EXPERIMENTS, publish, run_experiment
     from ..experiments.paper.verdicts import compute_verdicts, update_report, verdict_table
