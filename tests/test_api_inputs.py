@@ -215,3 +215,23 @@ def test_frames_one_pixel_wide_say_what_is_wrong():
         fuse4d.fuse_sequence(depth, gray, k)
     one = fuse4d.fuse_sequence(depth, gray, k, fusion=fuse4d.FusionParams(num_frames=1))
     assert one.depth.shape == (3, 8, 1)
+
+
+@pytest.mark.parametrize(
+    "field",
+    ["sigma_distance", "sigma_intensity", "sigma_temporal", "motion_sigma", "base_smoothing"],
+)
+def test_huge_finite_sigmas_act_as_their_limit(field):
+    """1e300 raised OverflowError (sigma ** 2), 1e20 an integer numba could not type (box
+    radius): an internal error (exit 70). Now the limit of a wide kernel."""
+    from fuse4d.synthetic import make_falling_ball
+
+    seq = make_falling_ball(small=True, num_frames=3)
+    params = fuse4d.FusionParams(num_frames=3, **{field: 1e300})
+    out = fuse4d.fuse_sequence(seq.depth, seq.intensity, seq.intrinsics, fusion=params)
+    assert np.isfinite(out.depth).mean() > 0.99
+    if field == "base_smoothing":
+        again = fuse4d.fuse_sequence(
+            seq.depth, seq.intensity, seq.intrinsics, fusion=params.replace(base_smoothing=1e20)
+        )
+        np.testing.assert_array_equal(again.depth, out.depth)

@@ -129,10 +129,17 @@ def _segment_smooth(
     return out
 
 
+#: Largest box radius (px): beyond any image, so a larger sigma smooths the same (each box
+#: stops at its segment's ends); ``--set motion_sigma=1e20`` gave an integer numba could not
+#: type, 1e300 an OverflowError.
+MAX_BOX_RADIUS = 1 << 20
+
+
 def _box_radius(sigma: float) -> int:
     """Box radius r (px) of the two-pass triangle with the variance of a Gaussian of ``sigma``
-    px: (2r+1)^2 = 6 sigma^2 + 1, at least 1."""
-    return max(1, round((np.sqrt(6.0 * sigma**2 + 1.0) - 1.0) / 2.0))
+    px: (2r+1)^2 = 6 sigma^2 + 1, at least 1, at most :data:`MAX_BOX_RADIUS`."""
+    s = min(float(sigma), float(MAX_BOX_RADIUS))
+    return max(1, min(MAX_BOX_RADIUS, round((math.sqrt(6.0 * s * s + 1.0) - 1.0) / 2.0)))
 
 
 def estimate_noise_quad(depth: ArrayLike) -> float:

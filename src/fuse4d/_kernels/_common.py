@@ -59,7 +59,8 @@ def gauss_factor(sigma: float) -> float:
     emptied the whole result). With it, a vanishing sigma is the limit it should be: only
     equal values weigh.
     """
-    two_var = 2.0 * float(sigma) ** 2  # 0.0 for sigma < ~1e-162
+    s = float(sigma)
+    two_var = 2.0 * s * s  # 0.0 for sigma < ~1e-162; inf (factor 0) past ~1e154, not an error
     return MAX_GAUSS_FACTOR if two_var * MAX_GAUSS_FACTOR <= 1.0 else 1.0 / two_var
 
 
