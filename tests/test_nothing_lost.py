@@ -30,6 +30,7 @@ def inputs(tmp_path, small_sequence: Sequence) -> Path:
         image = (small_sequence.intensity[k] * 255).astype(np.uint8)
         assert cv2.imwrite(str(root / f"i{k}.png"), image)
     (root / "c.toml").write_text("[fusion]\nspatial_radius = 2\n")
+    (root / "cache_in.toml").write_text(f"[flow]\ncache_dir = '{root / 'seq' / 'depth'}'\n")
     return root
 
 
@@ -56,16 +57,8 @@ def _commands(i: Path, o: Path) -> list[list[str]]:
         ["run", seq, "-o", str(i / "seq" / "inside"), "--window", "3"],  # refused
         ["run", seq, "-o", str(o / "r"), "--resume"],  # refused: output complete
         # refused: the flow cache wrote hash-named folders into the input
-        [
-            "run",
-            seq,
-            "-o",
-            str(o / "r3"),
-            "--window",
-            "3",
-            "--flow-cache",
-            str(i / "seq" / "depth"),
-        ],
+        ["run", seq, "-o", str(o / "r3"), "--flow-cache", str(i / "seq" / "depth")],
+        ["run", seq, "-o", str(o / "r4"), "--config", str(i / "cache_in.toml")],  # the same
         ["baseline", "temporal-mean", npz, "-o", str(o / "b.npz")],
         ["baseline", "guided", npz, "-o", npz, "--force"],  # refused (it used to replace it)
         ["baseline", "guided", seq, "-o", str(i / "seq" / "depth"), "--force"],  # refused

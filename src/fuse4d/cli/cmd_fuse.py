@@ -236,12 +236,13 @@ def run_command(
     )
     if engine not in ("stream", "dask") or (engine == "stream" and len(inputs) != 1):
         fail("--engine must be stream or dask; several inputs need --engine dask")
-    if flow_cache is not None:  # it writes folders of flows: never into an input or the output
-        cache = flow_cache.resolve()
+    if flow.cache_dir:  # it writes folders of flows: never into an input or the output
+        named = "--flow-cache" if flow_cache is not None else "the config's [flow] cache_dir"
+        cache = Path(flow.cache_dir).expanduser().resolve()
         for place in (*inputs, output):
             where = Path(place).resolve()
             if cache == where or where in cache.parents:
-                fail(f"--flow-cache {flow_cache}: it lies inside {place}; choose another folder")
+                fail(f"{named} {flow.cache_dir}: it lies inside {place}; choose another folder")
     all_options = options if frames is None else {**options, "frames": frames}
     if report is not None:
         from ..io import check_output
