@@ -316,6 +316,22 @@ def test_cli_many_inputs_share_one_run(ball, tmp_path, capsys):
     assert "need --engine dask" in capsys.readouterr().err
 
 
+def test_cli_checks_every_input_and_the_output_kind_before_writing(ball, tmp_path, capsys):
+    """A bad second input left the first one's staging store (the next run then asked for
+    --resume); -o x.npz made a folder called x.npz."""
+    save_sequence(ball, tmp_path / "a.npz")
+    (tmp_path / "bad.npz").write_bytes(b"garbage")
+    out = tmp_path / "fused"
+    args = ["run", str(tmp_path / "a.npz"), str(tmp_path / "bad.npz"), "-o", str(out)]
+    assert main([*args, "--engine", "dask"]) == 2
+    assert "bad.npz: not a valid .npz file" in capsys.readouterr().err
+    assert not out.exists()
+    npz_out = tmp_path / "m.npz"
+    assert main(["run", str(tmp_path / "a.npz"), "-o", str(npz_out), "--engine", "dask"]) == 2
+    assert "--engine dask writes zarr stores" in capsys.readouterr().err
+    assert not npz_out.exists()
+
+
 def test_cli_chunk_frames_default_is_run_dasks(ball, tmp_path, monkeypatch):
     """`fuse4d run --engine dask` without --chunk-frames uses run_dask's default (the CLI
     spells the number out so that --help does not import dask)."""

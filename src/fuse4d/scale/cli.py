@@ -69,18 +69,23 @@ def output_paths(inputs: list[Path], output: Path) -> list[Path]:
     Raises
     ------
     ParameterError
-        If several inputs target one ``.zarr`` path, or two inputs share a stem (a
-        ValueError).
+        If several inputs target one ``.zarr`` path, if the output is another kind of file
+        (``.npz``, ``.mkv``: a folder of that name was made), or if two inputs share a stem.
     """
     from ..io.api import output_layout
 
-    if output_layout(output) == "zarr":
+    layout = output_layout(output)
+    if layout == "zarr":
         if len(inputs) != 1:
             raise ParameterError(
                 f"{len(inputs)} inputs need an output folder, not the single store {output}"
             )
         return [output]
-    output.mkdir(parents=True, exist_ok=True)
+    if layout != "folder":
+        raise ParameterError(
+            f"{output}: --engine dask writes zarr stores: give OUT.zarr (one input) or a "
+            "folder (one OUT/<input>.zarr per input)"
+        )
     paths = [output / f"{Path(p).stem}.zarr" for p in inputs]
     if len(set(paths)) != len(paths):
         raise ParameterError("inputs with the same name would write the same store; rename them")
@@ -188,8 +193,14 @@ def run_dask(
     tasks: list[Any] = []
     processes, threads = _worker_pool(scheduler, workers)
     lookahead = 2 + threads
-    for src, dst in zip(inputs, targets, strict=True):
-        rec = open_lazy(src, frames_per_task=chunk_frames, **(reader_options or {}))
+    # every input opened (and so checked) before any output is made: a bad second input left
+    # the first one's staging store, and the next run then asked for --resume
+    recs = [
+        open_lazy(src, frames_per_task=chunk_frames, **(reader_options or {})) for src in inputs
+    ]
+    if len(targets) > 1 or targets[0] != output:
+        output.mkdir(parents=True, exist_ok=True)
+    for src, dst, rec in zip(inputs, targets, recs, strict=True):
         params = resolve_flying_pixels(fusion, rec.sensor)  # A36
         frames = even_chunk_frames(rec.num_frames, chunk_frames)
         out = ZarrOutput(
