@@ -474,6 +474,35 @@ def test_resume_after_killed_cli_run_equals_uninterrupted(tmp_path):
 
 
 @pytest.mark.slow
+def test_ctrl_c_of_a_process_cluster_run_is_one_line(tmp_path):
+    """Ctrl-C reaches the whole process group: each worker printed a KeyboardInterrupt
+    traceback, and the clean-up met dead workers ("Stream is closed", exit 2 instead of
+    130)."""
+    pytest.importorskip("distributed")
+    seq = _crop(make_falling_ball(small=True, num_frames=40), 40)
+    save_sequence(seq, tmp_path / "rec.npz")
+    out = tmp_path / "o.zarr"
+    markers = tmp_path / "o.zarr.partial" / ".fuse4d-done"
+    args = [sys.executable, "-m", "fuse4d", "run", str(tmp_path / "rec.npz"), "-o", str(out),
+            "--engine", "dask", "--scheduler", "processes", "--workers", "2",
+            "--chunk-frames", "4", "--flow", "pmbp"]  # fmt: skip
+    proc = subprocess.Popen(args, env=_cli_env(), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if markers.is_dir() and _done_markers(markers):
+            os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole group
+            break
+        time.sleep(0.02)
+    _, err = proc.communicate(timeout=120)
+    if out.exists():
+        pytest.skip("the run finished before it could be interrupted")
+    assert proc.returncode == 130, err[-2000:]
+    assert "Traceback" not in err
+    assert err.rstrip().endswith("fuse4d: interrupted")
+
+
+@pytest.mark.slow
 def test_local_cluster_with_two_worker_processes(ball, reference, tmp_path):
     pytest.importorskip("distributed")
     from fuse4d.scale.cluster import local_cluster

@@ -20,7 +20,9 @@ from __future__ import annotations
 import contextlib
 import importlib.util
 import os
+import signal
 import sys
+import threading
 import warnings
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -150,21 +152,51 @@ def local_cluster(workers: int, **kwargs: Any) -> Iterator[Any]:
     # The workers are spawned by the time LocalCluster returns: restore the caller's environment.
     saved = dict(os.environ)
     try:
-        with dask.config.set(
-            {
-                "distributed.nanny.pre-spawn-environ": spawn_env,
-                "distributed.scheduler.work-stealing-interval": STEALING_INTERVAL,
-                **QUIET_CONFIG,
-            }
+        with (
+            dask.config.set(
+                {
+                    "distributed.nanny.pre-spawn-environ": spawn_env,
+                    "distributed.scheduler.work-stealing-interval": STEALING_INTERVAL,
+                    **QUIET_CONFIG,
+                }
+            ),
+            _workers_ignore_ctrl_c(),
         ):
             cluster = LocalCluster(**options)
     finally:
         _restore_environ(saved)
     try:
         with cluster, Client(cluster) as client:
+            # a task cancelled by Ctrl-C logged "Async instruction ... ended with
+            # CancelledError" in each worker, between the progress bar and "interrupted"
+            client.run(_quiet_cancellations)
             yield client
     finally:
         _restore_environ(saved)
+
+
+def _quiet_cancellations() -> None:
+    """In a worker: log only errors of distributed's task state machine."""
+    import logging
+
+    logging.getLogger("distributed.worker.state_machine").setLevel(logging.ERROR)
+
+
+@contextlib.contextmanager
+def _workers_ignore_ctrl_c() -> Iterator[None]:
+    """Spawn the worker processes with SIGINT ignored (inherited through exec; Python then
+    installs no KeyboardInterrupt handler). Ctrl-C reaches the whole process group: each
+    worker printed a KeyboardInterrupt traceback, and the client's clean-up then met dead
+    workers. This process stops the run and closes the cluster. SIGINT is ignored here only
+    while the cluster starts (main thread only: elsewhere nothing changes)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _restore_environ(saved: dict[str, str]) -> None:
@@ -213,6 +245,22 @@ def check_scheduler(scheduler: str, workers: int | None = None) -> None:
 
 
 @contextlib.contextmanager
+def _on_exit(on_exit: Callable[[Any], object] | None, client: Any) -> Iterator[None]:
+    """Run ``on_exit(client)`` when the block ends. After an exception (Ctrl-C: the workers
+    may be gone) its own failure is not raised: it replaced the KeyboardInterrupt with a
+    "Stream is closed" error, exit 2 instead of 130."""
+    try:
+        yield
+    except BaseException:
+        if on_exit is not None:
+            with contextlib.suppress(Exception):
+                on_exit(client)
+        raise
+    if on_exit is not None:
+        on_exit(client)
+
+
+@contextlib.contextmanager
 def open_compute(
     scheduler: str = "threads",
     workers: int | None = None,
@@ -250,19 +298,12 @@ def open_compute(
 
         with Client(scheduler) as client:
             warn_if_slow_allocator(client)
-            try:
+            with _on_exit(on_exit, client):
                 yield _compute_with(client, progress)
-            finally:
-                if on_exit is not None:
-                    on_exit(client)
         return
     if scheduler == "processes" and importlib.util.find_spec("distributed") is not None:
-        with local_cluster(n) as client:
-            try:
-                yield _compute_with(client, progress)
-            finally:
-                if on_exit is not None:
-                    on_exit(client)
+        with local_cluster(n) as client, _on_exit(on_exit, client):
+            yield _compute_with(client, progress)
         return
     # (no distributed: "processes" is dask's multiprocessing pool)
     from dask.diagnostics import ProgressBar
