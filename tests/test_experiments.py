@@ -318,3 +318,24 @@ def test_c12_judges_the_full_literal_configuration(tmp_path):
     write_rows(tmp_path / "E6" / "E6.csv", rows)
     v = next(v for v in compute_verdicts(tmp_path) if v.claim == "C12")
     assert v.verdict == "N/A"  # an E6 run without the literal variant cannot judge C12
+
+
+def test_compute_total_counts_an_interrupted_call(tmp_path, monkeypatch):
+    """The total came from the last JSON, written only at the end: the time of a call
+    stopped with Ctrl-C was lost from the resumed run's seconds_compute_total."""
+    from fuse4d.experiments import paper
+
+    real = paper.run_units
+
+    def interrupted(*args, **kwargs):
+        import time
+
+        time.sleep(0.3)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(paper, "run_units", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_experiment("E1", tmp_path, profile="quick")
+    monkeypatch.setattr(paper, "run_units", real)
+    payload = run_experiment("E1", tmp_path, profile="quick")
+    assert payload["seconds_compute_total"] >= payload["seconds_this_call"] + 0.3 - 0.05

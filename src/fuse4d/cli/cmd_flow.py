@@ -161,6 +161,10 @@ def bench_flow_command(
             skipped["ball"] = str(exc)
             eprint(f"bench-flow: skipping the synthetic ball: {exc}")
     if not pairs:
+        if skip_middlebury:
+            skipped.setdefault("middlebury", "--no-middlebury")
+        if skip_ball:
+            skipped.setdefault("ball", "--no-ball")
         fail("no benchmark data: " + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
     with progress_bar("bench-flow", len(entries) * len(pairs)) as bar:
         results = run_flow_benchmark(entries, pairs, progress=progress_callback(bar))

@@ -80,9 +80,15 @@ def run_experiment(
     exp_dir = ctx.exp_dir(name)
     exp_dir.mkdir(parents=True, exist_ok=True)
     units = mod.units(ctx)
-    before = _previous_seconds(exp_dir / f"{name}.json")
+    ledger = exp_dir / f".{name}-seconds"  # every call's compute time, an interrupted one too
+    before = _previous_seconds(ledger, exp_dir / f"{name}.json")
     t0 = time.perf_counter()
-    rows, seconds = run_units(name, units, exp_dir, jobs=jobs, console=console, log=log)
+    try:
+        rows, seconds = run_units(name, units, exp_dir, jobs=jobs, console=console, log=log)
+    except BaseException:  # Ctrl-C: its time counts in the resumed run's total
+        _add_seconds(ledger, before + time.perf_counter() - t0)
+        raise
+    _add_seconds(ledger, before + seconds)
     write_rows(exp_dir / f"{name}.csv", rows)
     summary = mod.summarize(ctx, rows)
     payload = {
@@ -102,13 +108,27 @@ def run_experiment(
     return payload
 
 
-def _previous_seconds(path: Path) -> float:
+def _previous_seconds(ledger: Path, json_path: Path) -> float:
+    """Compute seconds of the earlier calls on this run folder: the ledger, else (a folder
+    from before it) the last JSON's total."""
     import json
 
-    if not path.exists():
+    if ledger.exists():
+        try:
+            return float(ledger.read_text().strip() or 0.0)
+        except ValueError:
+            return 0.0
+    if not json_path.exists():
         return 0.0
-    old = json.loads(path.read_text())
+    old = json.loads(json_path.read_text())
     return float(old.get("seconds_compute_total", old.get("seconds_this_call", 0.0)))
+
+
+def _add_seconds(ledger: Path, total: float) -> None:
+    """Record the compute seconds of every call so far (a one-number file, replaced whole)."""
+    tmp = ledger.with_name(ledger.name + ".tmp")
+    tmp.write_text(f"{total:.3f}\n")
+    tmp.replace(ledger)
 
 
 def publish(out: str | Path, dest: str | Path) -> list[Path]:
