@@ -175,6 +175,9 @@ def test_toml_goes_through_the_coercer(tmp_path):
     path.write_text("[fusion]\nnum_frames = 300\n", encoding="utf-8")
     with pytest.raises(InputFileError, match=r"FusionParams\.num_frames must be an integer in"):
         load_config(path)
+    path.write_text("fusion = 5\n", encoding="utf-8")  # was "'int' object is not iterable"
+    with pytest.raises(InputFileError, match=r"fusion must be a table \(\[fusion\] and key"):
+        load_config(path)
 
 
 # ------------------------------------------------------------------------------- CLI, end to end

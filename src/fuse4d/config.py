@@ -479,6 +479,13 @@ def load_config(path: str | PathLike[str], *, base: str | None = None) -> Preset
         raise InputFileError(
             p, f"unknown top-level key(s) {sorted(unknown)}; expected preset, [fusion], [flow]"
         )
+    for table in ("fusion", "flow"):  # `fusion = 5` said "'int' object is not iterable"
+        if table in data and not isinstance(data[table], dict):
+            raise InputFileError(
+                p,
+                f"{table} must be a table ([{table}] and key = value lines below it), got "
+                f"{type(data[table]).__name__} {data[table]!r}",
+            )
     try:
         start = preset(str(data.get("preset", base or "fast")))
         fusion_data = coerce_fields(
