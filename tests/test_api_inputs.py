@@ -43,13 +43,18 @@ def test_bilateral_refuses_an_out_buffer_it_cannot_write_through():
 
 # ----------------------------------------------------------------- integer intensity
 def test_bilateral_takes_uint8_intensity_as_the_engine_does():
+    """A uint8 texture was taken as 0-255: every intensity weight but the equal pixels' ~0."""
+    from fuse4d.sequence import normalize_intensity
+
     rng = np.random.default_rng(0)
     depth = (1000.0 + rng.normal(0.0, 1.0, (32, 32))).astype(np.float32)
     points = fuse4d.depth_to_points(depth, K32)
-    u8 = _ramp_u8()
-    a = bilateral_filter_points(points, u8)
-    b = bilateral_filter_points(points, u8 / np.float32(255))
-    np.testing.assert_allclose(a, b, atol=1e-4)
+    u8 = rng.integers(100, 110, (32, 32)).astype(np.uint8)  # gray levels 2-40 apart (x 1/255)
+    a = bilateral_filter_points(points, u8, sigma_distance=40.0)  # pixels 10 mm apart
+    b = bilateral_filter_points(points, normalize_intensity(u8), sigma_distance=40.0)
+    np.testing.assert_array_equal(a, b)
+    smoothed = np.nanstd(a[..., 2]) < 0.5 * np.nanstd(points[..., 2])
+    assert smoothed  # 10 gray levels apart at sigma_intensity 0.1 (25 levels): it averages
 
 
 def test_writers_take_uint8_intensity_as_the_engine_does(tmp_path):
