@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fuse4d import depth_to_points, fuse_sequence, load_sequence
+from fuse4d import Sequence, depth_to_points, fuse_sequence, load_sequence
 from fuse4d.cli import main
 from fuse4d.errors import OutputExistsError
 from fuse4d.metrics import (
@@ -444,3 +444,28 @@ def test_report_reads_the_parameters_of_a_run_folder(tmp_path):
     assert fused.params["flow_method"] == "dis"
     assert fused.chunk(0, 4).source is not None
     fused.close()
+
+
+def test_video_shows_the_source_codes_where_support_is_not_stored(small_ball, tmp_path):
+    """A frame-folder output stores source codes but no support maps: the video's sixth panel
+    said "not stored"; it now shows the codes, in the page's colours."""
+    from fuse4d.io import write_frame_folder
+    from fuse4d.report import _sixth_panel
+    from fuse4d.report.layout import SOURCE_RGB, VideoLayout, source_rgb
+
+    layout = VideoLayout((150, 150), depth_range=(500, 1000), diff_max=1.0, support_max=4.0,
+                         show_support=False, show_source=True)  # fmt: skip
+    codes = np.full((1, 150, 150), 2, np.uint8)
+    codes[0, :10] = 6
+    panel = _sixth_panel(layout, None, np.ones((150, 150), bool), 4.0, codes, 0)
+    assert panel.shape == (layout.ph, layout.pw, 3)
+    assert (panel[-1, -1] == SOURCE_RGB[2]).all()
+    assert (panel[0, 0] == SOURCE_RGB[6]).all()
+    np.testing.assert_array_equal(source_rgb(np.array([[0, 9]])), SOURCE_RGB[[0, 6]][None])
+    bare = Sequence(small_ball.depth, small_ball.intensity, small_ball.intrinsics)
+    rec = write_frame_folder(bare, tmp_path / "rec", depth_unit_mm=0.05)
+    out = tmp_path / "fused"
+    assert main(["run", str(rec), "-o", str(out), "--window", "3", "--no-summary"]) == 0
+    write_report(rec, out, tmp_path / "rep")
+    page = (tmp_path / "rep" / "report.html").read_text()
+    assert "where each value comes from (the fused result stores no support maps)" in page

@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable, Iterable, Mapping
 from os import PathLike
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -36,6 +36,9 @@ from .planes import Plane, detect_planes, given_plane
 from .render import colorize, normal_map, shade_points, splat_points
 from .video import Mp4Writer, choose_codec, count_video_frames
 from .xt import MotionProfile, XtSlice, choose_line
+
+if TYPE_CHECKING:
+    from .layout import VideoLayout
 
 __all__ = ["DEFINITIONS", "choose_codec", "count_video_frames", "parse_roi", "write_report"]
 
@@ -231,6 +234,25 @@ class _Scan:
                 "(2.5 x its 10th percentile, at least 0.01)"
             ),
         )
+
+
+def _sixth_panel(
+    layout: VideoLayout,
+    support: NDArray[Any] | None,
+    valid: NDArray[np.bool_],
+    support_max: float,
+    source: NDArray[np.uint8] | None,
+    j: int,
+) -> NDArray[np.uint8] | None:
+    """The video's sixth panel: the frame's support, else its source codes, else None."""
+    from .layout import source_rgb
+
+    if support is not None:
+        values = layout.fit_values(np.where(valid, support.astype(np.float32), np.nan))
+        return colorize(values, vmin=0.0, vmax=support_max, cmap="viridis")
+    if layout.show_source and source is not None:
+        return source_rgb(layout.fit_values(source[j].astype(np.float32)).astype(np.uint8))
+    return None
 
 
 def _pick_pixels(
@@ -533,6 +555,8 @@ def _write(
         diff_max=diff_max,
         support_max=support_max,
         show_support=fres.has_support,
+        # without support maps (a frame folder) the panel shows the source codes it stores
+        show_source=not fres.has_support and fres.chunk(0, 1).source is not None,
     )
     rate = fps or raw.fps or 10.0
     halo = 8 if compare else 0
@@ -604,14 +628,7 @@ def _write(
                         ),
                         shade_points(points["raw"]),  # normals need the full resolution
                         shade_points(points["fused"]),
-                        None
-                        if sup is None
-                        else colorize(
-                            fit(np.where(ok, sup.astype(np.float32), np.nan)),
-                            vmin=0.0,
-                            vmax=support_max,
-                            cmap="viridis",
-                        ),
+                        _sixth_panel(layout, sup, ok, support_max, fch.source, j),
                     )
                     video.write(layout.compose(t, total, panels, label=raw.name[-60:]))
                     if t == frame:
@@ -857,7 +874,7 @@ def _write(
             title=f"fuse4d report: {Path(raw.name).name}",
             subtitle=f"{total} frames{_part(raw.part)}, {h}×{w} px; fused: {fres.name}",
             video_file="compare.mp4",
-            video_note=_video_note(video.codec, diff_max, lo, hi),
+            video_note=_video_note(video.codec, diff_max, lo, hi, layout),
             figures=figs,
             metric_rows=_metric_rows(results["methods"], names, timing, fill, params_dict),
             method_names=names,
@@ -933,11 +950,16 @@ def _quantization_note(unit_mm: float | None) -> str:
     )
 
 
-def _video_note(codec: str, diff_max: float, lo: float, hi: float) -> str:
+def _video_note(codec: str, diff_max: float, lo: float, hi: float, layout: VideoLayout) -> str:
+    sixth = (
+        "where each value comes from (the fused result stores no support maps)"
+        if layout.show_source
+        else "temporal support of each pixel"
+    )
     note = (
         f"Top: raw depth | fused depth (colour range fixed at {lo:.4g}–{hi:.4g} mm) | "
         f"|raw − fused| (0–{diff_max:g} mm). Bottom: raw | fused shaded by per-pixel normals "
-        "(surface noise shows as texture) | temporal support of each pixel. Gray: no depth. "
+        f"(surface noise shows as texture) | {sixth}. Gray: no depth. "
         "<a href='compare.mp4'>compare.mp4</a>"
     )
     if codec != "libx264":

@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .layout import SOURCE_STYLE
+
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
@@ -262,18 +264,6 @@ def support_figure(
         im = ax.imshow(_masked(data), cmap=_cmap(cmap), vmin=0.0, vmax=max(vmax, 1e-6))
         fig.colorbar(im, ax=ax, label=unit, shrink=0.85)
     return png_bytes(fig)
-
-
-#: Colours and names of the source codes (``fuse4d.holes.SOURCE_*``, 0-6), for the legend.
-SOURCE_STYLE = (
-    ("no depth", "#000000"),
-    ("measured", "#b4b4b4"),
-    ("fused", "#3c9a5a"),
-    ("hole, from time", "#f0a02a"),
-    ("hole, in space", "#2a78e6"),
-    ("rejected (ToF)", "#e62a2a"),
-    ("outside the field of view", "#4b3c78"),
-)
 
 
 def _source_panel(ax: Any, source: NDArray[np.uint8], frame: int) -> None:

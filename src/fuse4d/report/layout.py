@@ -20,6 +20,29 @@ from .render import colorize
 
 __all__ = ["VideoLayout"]
 
+#: Names and colours of the ``source`` codes 0-6 (:attr:`fuse4d.FusedFrame.source`,
+#: ``fuse4d.holes.SOURCE_*``): the page's source map and the video's sixth panel.
+SOURCE_STYLE = (
+    ("no depth", "#000000"),
+    ("measured", "#b4b4b4"),
+    ("fused", "#3c9a5a"),
+    ("hole, from time", "#f0a02a"),
+    ("hole, in space", "#2a78e6"),
+    ("rejected (ToF)", "#e62a2a"),
+    ("outside the field of view", "#4b3c78"),
+)
+#: The same colours as RGB, and short names for the video's legend.
+SOURCE_RGB = np.array(
+    [[int(c[i : i + 2], 16) for i in (1, 3, 5)] for _, c in SOURCE_STYLE], dtype=np.uint8
+)
+SOURCE_SHORT = ("no depth", "measured", "fused", "from time", "in space", "rejected", "outside")
+
+
+def source_rgb(codes: NDArray[np.integer]) -> NDArray[np.uint8]:
+    """(H, W, 3) uint8 RGB of a frame's ``source`` codes (clipped to 0-6)."""
+    return SOURCE_RGB[np.clip(np.asarray(codes), 0, len(SOURCE_RGB) - 1)]
+
+
 _BG = (16, 16, 20)
 _FG = (235, 235, 235)
 _FONT = 0  # cv2.FONT_HERSHEY_SIMPLEX
@@ -46,6 +69,9 @@ class VideoLayout:
         Panels are scaled (nearest neighbour up, area down) to a width in this range (px).
     show_support : bool, optional
         Draw the support colour bar (False when the fused result stores no support).
+    show_source : bool, optional
+        Without support: the sixth panel shows where each value comes from (the
+        ``source`` codes, :func:`source_rgb`) with their legend, instead of "not stored".
     """
 
     def __init__(
@@ -57,6 +83,7 @@ class VideoLayout:
         support_max: float,
         panel_width: tuple[int, int] = (300, 400),
         show_support: bool = True,
+        show_source: bool = False,
     ) -> None:
         h, w = shape
         lo, hi = panel_width
@@ -72,6 +99,7 @@ class VideoLayout:
         self.diff_max = diff_max
         self.support_max = max(support_max, 1.0)
         self.show_support = show_support
+        self.show_source = show_source and not show_support
         self.gap = 6
         self.title_h = 22
         self.bar_h = 36
@@ -122,9 +150,10 @@ class VideoLayout:
     def _make_template(self) -> NDArray[np.uint8]:
         img = np.empty((self.height, self.width, 3), dtype=np.uint8)
         img[:] = _BG
+        sixth = "source of each value" if self.show_source else "support (frames fused)"
         titles = (
             ("raw depth", "fused depth", "|raw - fused|"),
-            ("raw, normal-shaded", "fused, normal-shaded", "support (frames fused)"),
+            ("raw, normal-shaded", "fused, normal-shaded", sixth),
         )
         for row, names in enumerate(titles):
             for col, name in enumerate(names):
@@ -136,7 +165,19 @@ class VideoLayout:
         if self.show_support:
             by = self._y(1) + self.ph
             self._bar(img, self._x(2), by, self.pw, 0.0, self.support_max, "viridis", "frames")
+        elif self.show_source:
+            self._source_legend(img, self._x(2), self._y(1) + self.ph)
         return img
+
+    def _source_legend(self, img: NDArray[np.uint8], x: int, y: int) -> None:
+        """The source codes' colours and short names, in two rows under the panel."""
+        per_row = (len(SOURCE_SHORT) + 1) // 2
+        step = self.pw // per_row
+        for k, name in enumerate(SOURCE_SHORT):
+            row, col = divmod(k, per_row)
+            bx, by = x + col * step, y + 5 + 15 * row
+            img[by : by + 9, bx : bx + 9] = SOURCE_RGB[k]
+            self._text(img, name, bx + 12, by + 9, 0.33)
 
     def fit_values(self, values: NDArray[np.floating]) -> NDArray[np.float32]:
         """A scalar map (H, W) resampled (nearest neighbour) to the panel size.
