@@ -43,6 +43,31 @@ def folder(tmp_path_factory) -> Path:
     )
 
 
+@pytest.mark.parametrize(
+    ("frames", "says"), [("2:6", "4 frames (frames 2:6 of"), ("4:99", "3 frames (frames 4:7 of"),
+                         (":2", "2 frames (frames 0:2 of"), ("-3:", "3 frames (frames -3: of")],
+)  # fmt: skip
+def test_convert_names_the_part_it_wrote_without_reading_the_input_again(
+    folder, tmp_path, capsys, monkeypatch, frames, says
+):
+    from fuse4d.io import api
+
+    opened = []
+    real = api.open_frames
+
+    def counting(path, *args, **kwargs):
+        opened.append(str(path))
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(api, "open_frames", counting)
+    import fuse4d.io
+
+    monkeypatch.setattr(fuse4d.io, "open_frames", counting)
+    assert main(["convert", str(folder), str(tmp_path / "p.npz"), "--frames", frames]) == 0
+    assert says in capsys.readouterr().out.replace("\n", "")
+    assert opened.count(str(folder)) == 1  # a bag's reader passes over all its messages
+
+
 @pytest.mark.parametrize("suffix", [".npz", "", ".zarr", ".mkv"])
 def test_a_part_converts_losslessly_to_every_layout(folder, tmp_path, suffix, capsys):
     if suffix == ".mkv" and importlib.util.find_spec("av") is None:

@@ -236,7 +236,7 @@ def convert_command(
     E.g. a RealSense .bag into a frame folder to share, a part of a long recording into a
     small .npz, or any input into the .npz that --set iterations=2 needs.
     """
-    from ..io import convert_recording, open_frames, resolve_frames
+    from ..io import convert_recording, open_frames
 
     options = reader_options(
         depth_topic, intensity_topic, intensity, no_undistort,
@@ -257,15 +257,26 @@ def convert_command(
         n, (h, w), fmt = len(written), written.shape, written.format
     part = ""
     if frames is not None:  # the frames written (a range past the end is cut, as in Python)
-        with open_frames(input_path, format=input_format, **options) as src:
-            sel = resolve_frames(frames, len(src))
-        part = f" (frames {sel.start}:{sel.stop} of {input_path})"
+        part = f" (frames {_written_part(frames, n)} of {input_path})"
     out_console.print(
         f"wrote {path}: {fmt}, {n} frame{'' if n == 1 else 's'}{part}, {h}x{w}",
         highlight=False,
         markup=False,
         soft_wrap=True,
     )
+
+
+def _written_part(frames: str, count: int) -> str:
+    """The input's frames that ``convert --frames`` wrote, from the selection and the count
+    written, without opening the input again (a bag's reader passes over its messages): A:A+n
+    for a start counted from the beginning; the selection itself for one counted from the end."""
+    from ..io._base import _parse_frame_string
+
+    start = _parse_frame_string(frames).start
+    if start is None or start >= 0:
+        first = start or 0
+        return f"{first}:{first + count}"
+    return frames.strip()
 
 
 @app.command("export-ply")
