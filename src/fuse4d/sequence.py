@@ -137,12 +137,19 @@ def as_storable_intensity(intensity: ArrayLike, *, name: str = "intensity") -> N
     if not (np.isfinite(lo) and np.isfinite(hi)):  # NaN or inf present: the finite values
         finite = arr[np.isfinite(arr)]
         lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+    check_unit_slack(lo, hi, name=name)
+    return arr
+
+
+def check_unit_slack(lo: float, hi: float, *, name: str) -> None:
+    """Refuse float intensity whose range [``lo``, ``hi``] lies farther than
+    :data:`UNIT_RANGE_SLACK` outside [0, 1] (0-255 data): the one rule and message of the
+    writers, point colours and the flow input."""
     if lo < -UNIT_RANGE_SLACK or hi > 1.0 + UNIT_RANGE_SLACK:
         raise ParameterError(
             f"{name} is float with values in [{lo:.4g}, {hi:.4g}], not [0, 1]; rescale it "
             "(e.g. divide 8-bit values by 255) or pass integers, divided by their dtype maximum"
         )
-    return arr
 
 
 def as_unit_intensity(intensity: np.ndarray, *, name: str = "intensity") -> NDArray[np.float32]:

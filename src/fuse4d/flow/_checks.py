@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from .._validation import as_float32, check_shape
 from ..errors import ParameterError, ShapeError
-from ..sequence import UNIT_RANGE_SLACK, normalize_intensity
+from ..sequence import check_unit_slack, normalize_intensity
 from ._registry import Roi
 
 __all__ = ["check_flow_field", "check_image", "check_roi", "to_uint8"]
@@ -21,7 +21,7 @@ def check_image(image: Any, name: str) -> NDArray[np.float32]:
 
     Integers are divided by their dtype's maximum, as :class:`fuse4d.FusionEngine` does (a
     ``cv2.imread`` uint8 frame was taken as 0-255 and saturated: a near-zero flow). Floats
-    must be finite and within :data:`UNIT_RANGE_SLACK` of [0, 1] (0-255 floats were
+    must be finite and within ``sequence.UNIT_RANGE_SLACK`` of [0, 1] (0-255 floats were
     saturated the same way).
     """
     arr = np.asarray(image)
@@ -35,11 +35,7 @@ def check_image(image: Any, name: str) -> NDArray[np.float32]:
     if not (math.isfinite(lo) and math.isfinite(hi)):
         bad = int(np.count_nonzero(~np.isfinite(arr)))
         raise ParameterError(f"{name} has {bad} NaN or inf pixel(s); intensity must be finite")
-    if lo < -UNIT_RANGE_SLACK or hi > 1.0 + UNIT_RANGE_SLACK:
-        raise ParameterError(
-            f"{name} is float with values in [{lo:.4g}, {hi:.4g}], not [0, 1]; rescale it "
-            "(e.g. divide 8-bit values by 255) or pass integers, divided by their dtype maximum"
-        )
+    check_unit_slack(lo, hi, name=name)
     return arr
 
 
