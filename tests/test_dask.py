@@ -500,6 +500,8 @@ def test_ctrl_c_of_a_process_cluster_run_is_one_line(tmp_path):
     assert proc.returncode == 130, err[-2000:]
     assert "Traceback" not in err
     assert err.rstrip().endswith("fuse4d: interrupted")
+    assert err.rstrip().split("\n")[-1] == "fuse4d: interrupted"  # the progress bar's line ended
+    assert "still alive" not in err  # the nanny's warnings on killing workers busy in a kernel
 
 
 @pytest.mark.slow

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib.util
+import logging
 import os
 import signal
 import sys
@@ -165,20 +166,27 @@ def local_cluster(workers: int, **kwargs: Any) -> Iterator[Any]:
             cluster = LocalCluster(**options)
     finally:
         _restore_environ(saved)
+    nanny_log = logging.getLogger("distributed.nanny")
+    nanny_level = nanny_log.level
     try:
         with cluster, Client(cluster) as client:
             # a task cancelled by Ctrl-C logged "Async instruction ... ended with
             # CancelledError" in each worker, between the progress bar and "interrupted"
             client.run(_quiet_cancellations)
-            yield client
+            try:
+                yield client
+            except BaseException:
+                # closing kills the workers still inside a kernel ("Worker process still
+                # alive after 4.0 seconds, killing", once per worker): expected after Ctrl-C
+                nanny_log.setLevel(logging.ERROR)
+                raise
     finally:
+        nanny_log.setLevel(nanny_level)
         _restore_environ(saved)
 
 
 def _quiet_cancellations() -> None:
     """In a worker: log only errors of distributed's task state machine."""
-    import logging
-
     logging.getLogger("distributed.worker.state_machine").setLevel(logging.ERROR)
 
 
@@ -212,8 +220,12 @@ def _compute_with(client: Any, show: bool) -> Callable[..., tuple[Any, ...]]:
 
         futures = client.compute(list(tasks))
         if show:
-            with contextlib.redirect_stdout(sys.stderr):
-                progress(futures)
+            try:
+                with contextlib.redirect_stdout(sys.stderr):
+                    progress(futures)
+            except BaseException:  # Ctrl-C: end the bar's line before "fuse4d: interrupted"
+                print(file=sys.stderr, flush=True)
+                raise
         return tuple(client.gather(futures))
 
     return compute
