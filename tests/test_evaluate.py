@@ -11,6 +11,7 @@ import pytest
 from rich.console import Console
 
 from fuse4d import FusionParams, Sequence, depth_to_points
+from fuse4d.baselines.temporal import temporal_mean
 from fuse4d.cli import main
 from fuse4d.cli.cmd_fuse import run_summary_table
 from fuse4d.io import load_sequence, write_npz
@@ -22,6 +23,8 @@ from fuse4d.metrics import (
     roughness_stats,
     shape_correctness,
 )
+from fuse4d.motion import estimate_noise_quad
+from fuse4d.range_scenes import make_range_scene
 from fuse4d.sequence import BallTruth, GroundTruth
 from fuse4d.synthetic import make_falling_ball, make_static_plane
 
@@ -342,6 +345,25 @@ def test_deleting_the_worst_pixels_does_not_lower_the_rmse(tmp_path, capsys):
     assert main(["metrics", str(raw_path), str(out_path), "--no-shape", "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["output"]["rmse"] == pytest.approx(result["raw"]["rmse"])
+
+
+def test_bad_pixels_at_the_step_limit_see_a_trailing_mean_on_sensor_depth():
+    """On Kinect-model depth at metres nearly every pixel is > 1 mm off, and a 9-frame mean
+    (trails behind the ball, RMSE 68 -> 120 mm) counted fewer such pixels than raw: the
+    fixed threshold called it better. At the noise model's step limit it is worse."""
+    seq = make_range_scene("ball", sensor="kinect", small=True, num_frames=12, rng=0)
+    mean = temporal_mean(seq.depth, None, seq.intrinsics, size=9)
+    report = evaluate(mean, raw=seq)
+    assert report.output.rmse > 1.5 * report.raw.rmse
+    assert report.output.bad_1mm < report.raw.bad_1mm  # the fixed threshold's blind spot
+    assert report.output.bad_steps > 1.2 * report.raw.bad_steps
+    assert report.raw.bad_steps < 0.2  # raw is mostly within its own steps
+    q = float(np.median([estimate_noise_quad(d) for d in seq.depth]))
+    assert report.noise_quad == pytest.approx(q, rel=1e-12)
+    # the paper's 0.2 mm noise at 1 m: the step limit is below 1 mm, the two agree
+    ball = make_falling_ball(small=True, num_frames=3)
+    paper = evaluate(ball.ground_truth.depth + 0.0, raw=ball, intrinsics=ball.intrinsics)
+    assert paper.raw.bad_steps == paper.raw.bad_1mm
 
 
 def test_an_output_without_depth_shows_its_bad_pixels(tmp_path, capsys):

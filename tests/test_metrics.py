@@ -12,6 +12,7 @@ from fuse4d import Intrinsics, Sequence, ShapeError, depth_to_points, fuse_seque
 from fuse4d._kernels.roughness import _smallest_eigvec_newton
 from fuse4d._kernels.sphere_fit import _mlesac_score_kernel
 from fuse4d.cli import main
+from fuse4d.errors import ParameterError
 from fuse4d.metrics import (
     bad_pixel_fraction,
     ball_roi,
@@ -389,6 +390,7 @@ def test_depth_rmse_and_bad_pixels():
     assert depth_rmse(truth, test) == pytest.approx(math.sqrt(9 / 2))
     assert bad_pixel_fraction(truth, test) == pytest.approx(2 / 3)  # NaN counts as bad
     assert bad_pixel_fraction(truth, test, threshold=5.0) == pytest.approx(1 / 3)
+    assert bad_pixel_fraction(truth, test, noise_quad=0.0) == pytest.approx(2 / 3)
     mask = np.array([[True, False], [True, True]])
     assert depth_rmse(truth, test, roi=mask) == 0.0
     assert math.isnan(depth_rmse(truth, test, roi=np.zeros((2, 2), bool)))
@@ -398,6 +400,18 @@ def test_depth_rmse_and_bad_pixels():
         depth_rmse(truth, test, roi=mask, mask=mask)
     with pytest.raises(ShapeError, match="depth_test must have shape"):
         depth_rmse(truth, np.zeros((3, 2)))
+
+
+def test_bad_pixels_with_the_noise_models_step_limit():
+    """``noise_quad`` q: the threshold at true depth z is max(threshold, 2.5 q z^2)."""
+    truth = np.array([[1000.0, 1000.0], [3000.0, 3000.0]])
+    test = truth + np.array([[2.0, 3.0], [22.0, 23.0]])  # limits at q = 1e-6: 2.5, 22.5 mm
+    assert bad_pixel_fraction(truth, test) == 1.0
+    assert bad_pixel_fraction(truth, test, noise_quad=1e-6) == pytest.approx(0.5)
+    assert bad_pixel_fraction(truth, test, threshold=2.0, noise_quad=1e-7) == pytest.approx(0.75)
+    for bad in (-1e-6, math.nan, math.inf):
+        with pytest.raises(ParameterError, match="noise_quad must be"):
+            bad_pixel_fraction(truth, test, noise_quad=bad)
 
 
 def test_temporal_flicker_matches_std(rng):

@@ -30,6 +30,7 @@ from fuse4d.metrics import (
     static_mask_from_ground_truth,
     temporal_flicker,
 )
+from fuse4d.motion import estimate_noise_quad
 from fuse4d.report import count_video_frames, parse_roi, write_report
 from fuse4d.report.render import (
     INVALID_RGB,
@@ -143,9 +144,13 @@ def test_metrics_equal_the_library_functions_on_the_same_pixels(run_with_report)
     # ground truth: RMSE on pixels valid in both, bad pixels with missing = bad
     gt = raw.ground_truth.depth
     common = np.isfinite(raw.depth) & np.isfinite(fused.depth)
+    q = float(np.median([estimate_noise_quad(d) for d in raw.depth]))
+    assert _metrics(rep)["noise_quad"] == pytest.approx(q, rel=1e-12)
     for name, seq in (("raw", raw), ("fused", fused)):
         assert m[name]["rmse"] == pytest.approx(depth_rmse(gt, seq.depth, roi=common), rel=1e-9)
         assert m[name]["bad_pixels"] == pytest.approx(bad_pixel_fraction(gt, seq.depth), rel=1e-12)
+        steps = bad_pixel_fraction(gt, seq.depth, noise_quad=q)
+        assert m[name]["bad_steps"] == pytest.approx(steps, rel=1e-12)
         assert m[name]["fill_rate"] == pytest.approx(float(np.isfinite(seq.depth).mean()))
 
 
@@ -160,6 +165,7 @@ def test_metrics_agree_with_fuse4d_metrics_cli(run_with_report, capsys):
         assert m[name]["flicker_median"] == pytest.approx(cli["flicker_std_median"], rel=1e-6)
         assert m[name]["rmse"] == pytest.approx(cli["rmse"], rel=1e-9)
         assert m[name]["bad_pixels"] == pytest.approx(cli["bad_1mm"], rel=1e-12)
+        assert m[name]["bad_steps"] == pytest.approx(cli["bad_steps"], rel=1e-12)
 
 
 # --------------------------------------------------------------------------- the browser

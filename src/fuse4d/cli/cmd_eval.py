@@ -367,8 +367,10 @@ def _print_table(result: dict[str, Any]) -> None:
     row(*METRIC_MEANINGS["fill_rate"][:1], "fill_rate", METRIC_MEANINGS["fill_rate"][1])
     # with ground truth, shown even where the output has no depth at all (bad = 100 %)
     if result["output"].get("bad_1mm") is not None:
-        for key in ("rmse_roi", "rmse", "bad_1mm"):
+        for key in ("rmse_roi", "rmse", "bad_1mm", "bad_steps"):
             label, unit = METRIC_MEANINGS[key]
+            if key == "bad_steps":
+                unit += f"; q = {result.get('noise_quad', math.nan):.3g} /mm"
             row(label, key, unit)
     if "shape" in result["output"]:
         for key, label in (

@@ -146,6 +146,7 @@ def print_report_summary(page: Path, *, as_json: bool = False) -> None:
         ("fill rate (%)", "fill_rate", 100.0),
         ("RMSE to GT (mm)", "rmse", 1.0),
         ("bad pixels > 1 mm (%)", "bad_pixels", 100.0),
+        ("bad pixels > step limit (%)", "bad_steps", 100.0),
     )
     for label, key, scale in rows:
         values = [metrics["metrics"][n].get(key, "absent") for n in names]

@@ -88,6 +88,13 @@ class Scores:
         Fraction of the pixels of the given ROI (of every pixel), over all frames, with depth.
     shape : ShapeCorrectness or None
         Eq. 8 on the falling ball, when asked for.
+    bad_steps : float
+        As ``bad_1mm``, with the threshold ``max(1 mm, 2.5 q z^2)`` at the true depth z: the
+        depth-noise model's step limit (A22; q of the raw video), 1.5 quantisation steps of
+        structured-light depth. On sensor depth at metres a fixed 1 mm calls nearly every
+        pixel bad, and any averaging that moves values by less than a step "better" (a
+        trailing 9-frame mean had fewer pixels > 1 mm off than raw); on the paper's 0.2 mm
+        noise at 1 m it equals ``bad_1mm``.
     """
 
     roughness: RoughnessStats
@@ -97,6 +104,7 @@ class Scores:
     bad_1mm: float = math.nan
     shape: ShapeCorrectness | None = None
     fill_rate: float = math.nan
+    bad_steps: float = math.nan
 
     def to_dict(self) -> dict[str, Any]:
         """Scalars, JSON friendly (NaN kept as float NaN)."""
@@ -107,6 +115,7 @@ class Scores:
             "rmse_roi": self.rmse_roi,
             "rmse": self.rmse,
             "bad_1mm": self.bad_1mm,
+            "bad_steps": self.bad_steps,
             "fill_rate": self.fill_rate,
         }
         f = self.flicker
@@ -140,6 +149,10 @@ METRIC_MEANINGS: dict[str, tuple[str, str]] = {
     "rmse_roi": ("RMSE to ground truth", "mm, on the ROI"),
     "rmse": ("RMSE to ground truth, whole image", "mm, pixels with depth in every input"),
     "bad_1mm": ("pixels > 1 mm off ground truth", "fraction, missing = bad"),
+    "bad_steps": (
+        "pixels off ground truth by > max(1 mm, 2.5 q z^2), the noise model's step limit",
+        "fraction, missing = bad",
+    ),
     "fill_rate": ("fill rate: pixels with depth", "fraction of the --roi (else all), all frames"),
 }
 
@@ -164,6 +177,9 @@ class MetricsReport:
         Where they came from.
     window : int
         Roughness window n (px).
+    noise_quad : float
+        Depth-noise coefficient q (mm^-1) of the raw video (else the output), median over
+        frames: the step limit of ``bad_steps``; NaN without ground truth.
     """
 
     output: Scores
@@ -173,6 +189,7 @@ class MetricsReport:
     static: NDArray[np.bool_] | None
     static_description: str
     window: int
+    noise_quad: float = math.nan
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly form: regions, then the output's and the raw's scores."""
@@ -190,6 +207,7 @@ class MetricsReport:
                 "description": self.static_description,
                 "pixels": 0 if self.static is None else int(self.static.sum()),
             },
+            "noise_quad": self.noise_quad,
             "output": self.output.to_dict(),
         }
         if self.raw is not None:
@@ -367,15 +385,23 @@ def evaluate(
     whole = None if roi is None else region
     shape_sel = None if shape_frames is None else np.asarray(shape_frames, dtype=np.int64)
 
+    # the step limit of bad_steps: one q for raw and output, from the raw video
+    quad = math.nan
+    if gt is not None and gt.depth is not None:
+        quad = float(np.median(_frame_quads(ref_d, None)))
+
     def score(depth: NDArray, points: NDArray, maps: tuple[NDArray, NDArray]) -> Scores:
         flick = None
         if static_region is not None:
             flick = temporal_flicker(depth, static=static_region)
-        rmse_roi = rmse = bad = math.nan
+        rmse_roi = rmse = bad = bad_steps = math.nan
         if gt is not None and gt.depth is not None:
             rmse_roi = depth_rmse(gt.depth, depth, roi=region & depth_ok)
             rmse = depth_rmse(gt.depth, depth, roi=depth_ok if whole is None else whole & depth_ok)
             bad = bad_pixel_fraction(gt.depth, depth, threshold=BAD_PIXEL_MM, roi=whole)
+            bad_steps = bad_pixel_fraction(
+                gt.depth, depth, threshold=BAD_PIXEL_MM, roi=whole, noise_quad=quad
+            )
         sc = None
         if shape and gt is not None and isinstance(gt.scene, BallTruth):
             g, p = gt, points
@@ -384,7 +410,9 @@ def evaluate(
             sc = shape_correctness(g, p, rng=rng, progress=progress)
         has_depth = np.isfinite(depth) if whole is None else np.isfinite(depth)[whole]
         fill = float(has_depth.mean()) if has_depth.size else math.nan
-        return Scores(stats_from_maps(*maps, scored), flick, rmse_roi, rmse, bad, sc, fill)
+        return Scores(
+            stats_from_maps(*maps, scored), flick, rmse_roi, rmse, bad, sc, fill, bad_steps
+        )
 
     return MetricsReport(
         output=score(out_d, out_p, out_maps),
@@ -396,6 +424,7 @@ def evaluate(
         static=static_region,
         static_description=static_desc,
         window=window,
+        noise_quad=quad,
     )
 
 

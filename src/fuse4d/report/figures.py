@@ -185,7 +185,8 @@ def timeseries_figure(
                 linewidth=2.0 if name == "fused" else 1,
                 label=name,
             )
-        ax.set_title(f"{k + 1}: pixel (row {r}, col {c}), {label}", fontsize=9)
+        # two lines: "busiest on the x–t row" ran past the figure's right edge
+        ax.set_title(f"{k + 1}: pixel (row {r}, col {c})\n{label}", fontsize=9)
         ax.ticklabel_format(axis="y", useOffset=False, style="plain")
         ax.set_xlabel("frame")
         ax.set_ylabel("depth (mm)")

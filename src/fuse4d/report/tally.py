@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..metrics import default_roi, roughness_maps
+from ..metrics import default_roi, roughness_maps, step_limit
 from .planes import Plane, plane_fit_rms
 
 __all__ = ["MetricTally"]
@@ -42,6 +42,10 @@ class MetricTally:
         Default-ROI depth-range limit (mm).
     bad_threshold_mm : float, optional
         Bad-pixel threshold against ground truth (mm).
+    noise_quad : float, optional
+        Depth-noise coefficient q (mm^-1) of the raw video: ``bad_steps`` counts the pixels
+        off by more than ``max(bad_threshold_mm, 2.5 q z^2)`` at the true depth z
+        (:func:`~fuse4d.metrics.bad_pixel_fraction`'s ``noise_quad``).
     """
 
     def __init__(
@@ -55,12 +59,14 @@ class MetricTally:
         window: int = 5,
         edge_mm: float = 10.0,
         bad_threshold_mm: float = 1.0,
+        noise_quad: float = 0.0,
     ) -> None:
         self.names = list(names)
         self.shape = shape
         self.window = window
         self.edge_mm = edge_mm
         self.bad_threshold_mm = bad_threshold_mm
+        self.noise_quad = noise_quad
         self.planes = planes
         self.bins = np.asarray(roughness_bins, dtype=np.float64)
         self._ref = np.nan_to_num(np.asarray(reference, dtype=np.float64), nan=0.0)
@@ -81,6 +87,7 @@ class MetricTally:
         self._sq = dict.fromkeys(self.names, 0.0)
         self._sq_count = 0
         self._bad = dict.fromkeys(self.names, 0)
+        self._bad_steps = dict.fromkeys(self.names, 0)
         self._gt_valid = 0
 
     def add(
@@ -154,14 +161,18 @@ class MetricTally:
             self._sq_count += int(common.sum())
             self._gt_valid += int(gt_ok.sum())
             gt32 = np.asarray(depth_gt, dtype=np.float32)
+            limit = step_limit(
+                gt32[gt_ok], max_step=self.bad_threshold_mm, noise_quad=self.noise_quad
+            ).astype(np.float32)  # as bad_pixel_fraction
             for n in self.names:
                 err = gt32[common].astype(np.float64) - depths[n][common]
                 self._sq[n] += float(np.sum(err**2))
                 with np.errstate(invalid="ignore"):  # float32, as bad_pixel_fraction
-                    good = np.abs(gt32[gt_ok] - depths[n][gt_ok]) <= np.float32(
-                        self.bad_threshold_mm
+                    off = np.abs(gt32[gt_ok] - depths[n][gt_ok])
+                    self._bad[n] += int(
+                        gt_ok.sum() - (off <= np.float32(self.bad_threshold_mm)).sum()
                     )
-                self._bad[n] += int(gt_ok.sum() - good.sum())
+                    self._bad_steps[n] += int(gt_ok.sum() - (off <= limit).sum())
         return pis
 
     def _bin_counts(self, values: NDArray[np.float64]) -> NDArray[np.int64]:
@@ -199,7 +210,8 @@ class MetricTally:
             ``spatial_precision`` (mean over frames and planes of the plane-fit RMS), and
             with ground truth ``rmse`` (= :func:`~fuse4d.metrics.depth_rmse` with ``mask`` =
             valid in every method) and ``bad_pixels`` (= :func:`~fuse4d.metrics.
-            bad_pixel_fraction`, missing depth counted as bad).
+            bad_pixel_fraction`, missing depth counted as bad) and ``bad_steps`` (the same
+            with the noise model's step limit, ``noise_quad``).
         """
         # one frame has no flicker (its "std over time" was 0 on every pixel)
         flicker_px = static & self.all_valid if self.frames >= 2 else np.zeros_like(static)
@@ -227,6 +239,7 @@ class MetricTally:
             if self.gt_frames:
                 m["rmse"] = math.sqrt(self._sq[n] / self._sq_count) if self._sq_count else math.nan
                 m["bad_pixels"] = self._bad[n] / self._gt_valid if self._gt_valid else math.nan
+                m["bad_steps"] = self._bad_steps[n] / self._gt_valid if self._gt_valid else math.nan
             methods[n] = m
         return {
             "methods": methods,
