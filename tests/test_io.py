@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import stat
@@ -486,6 +487,20 @@ def test_npz_rejects_depth_unit(tmp_path, small_sequence):
     path = write_npz(small_sequence, tmp_path / "s.npz")
     with pytest.raises(ValueError, match=r"depth_unit_mm does not apply to \.npz files"):
         load_sequence(path, depth_unit_mm=1.0)
+
+
+@pytest.mark.parametrize("kind", ["kinect", "TOF"])
+def test_npz_and_sequence_refuse_an_unknown_camera_kind(tmp_path, small_sequence, kind):
+    """'kinect' (fuse4d synth's --sensor name) or 'TOF' read as an unknown camera: flying
+    pixels silently off, and `convert` wrote a folder fuse4d then refused to read."""
+    path = write_npz(small_sequence, tmp_path / "s.npz")
+    arrays = dict(np.load(path))
+    arrays["sensor"] = np.str_(kind)
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(InputFileError, match=f"bad.npz: key 'sensor' must be one of .*{kind}"):
+        load_sequence(tmp_path / "bad.npz")
+    with pytest.raises(ParameterError, match=f"sensor must be one of .*'{kind}'"):
+        dataclasses.replace(small_sequence, sensor=kind)
 
 
 # ----------------------------------------------------------------------------- TUM

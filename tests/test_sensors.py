@@ -86,6 +86,44 @@ def test_range_limits_and_names():
         get_sensor("lidar")
 
 
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [
+        ({"baseline_mm": 0.0}, "baseline_mm"),
+        ({"baseline_mm": -75.0}, "baseline_mm"),
+        ({"dropout": 2.0}, "dropout"),
+        ({"flying_pixels": -0.1}, "flying_pixels"),
+        ({"disparity_noise_px": float("nan")}, "disparity_noise_px"),
+        ({"subpixel": -0.125}, "subpixel"),
+        ({"min_range_mm": 6000.0, "max_range_mm": 500.0}, "min_range_mm < max_range_mm"),
+        ({"correlation_px": 2.5}, "correlation_px"),
+        ({"correlation_px": 0}, "correlation_px"),
+    ],
+)
+def test_an_impossible_sensor_model_is_refused(change, field):
+    """Each gave depth without one valid pixel (or OpenCV's "Overload resolution failed")."""
+    import dataclasses
+
+    from fuse4d.errors import ParameterError
+
+    with pytest.raises(ParameterError, match=f"sensor model 'kinect': .*{field}"):
+        dataclasses.replace(KINECT_V1, **change)
+
+
+def test_range_scene_arguments_are_checked():
+    """A Generator seed, and intensity noise as the paper scenes check it (inf gave a binary
+    image, -0.5 and 5 were accepted, NaN blamed the intensity)."""
+    from fuse4d.errors import ParameterError
+
+    gen = make_range_scene("room", small=True, num_frames=2, rng=np.random.default_rng(0))
+    assert np.isfinite(gen.depth).any()
+    with pytest.raises(TypeError, match="rng must be a non-negative int seed"):
+        make_range_scene("room", small=True, num_frames=2, rng=-1)
+    for noise in (float("inf"), float("nan"), -0.5, 5.0):
+        with pytest.raises(ParameterError, match="intensity_noise"):
+            make_range_scene("room", small=True, num_frames=2, intensity_noise=noise)
+
+
 @pytest.mark.parametrize("scene", ["ball", "body", "room"])
 def test_range_scenes_have_ground_truth(scene):
     seq = make_range_scene(scene, sensor="kinect", small=True, num_frames=3, rng=2)

@@ -38,7 +38,7 @@ from .camera import Intrinsics
 from .errors import ParameterError
 from .sensors import SensorModel, apply_sensor, get_sensor
 from .sequence import GroundTruth, Sequence
-from .synthetic import _Texture
+from .synthetic import _check_intensity_noise, _seed_of, _Texture
 
 __all__ = ["RANGE_SCENES", "make_range_scene", "range_intrinsics"]
 
@@ -279,7 +279,7 @@ def make_range_scene(
     small: bool = False,
     num_frames: int = 30,
     intensity_noise: float = 0.01,
-    rng: int | None = 0,
+    rng: int | np.random.Generator | None = 0,
 ) -> Sequence:
     """A scene at 1–5 m recorded by a sensor model, with ground truth.
 
@@ -295,8 +295,9 @@ def make_range_scene(
         Frames (30 fps), at least 2.
     intensity_noise : float
         Standard deviation of the Gaussian noise on the registered intensity ([0, 1] units).
-    rng : int, optional
-        Seed: textures, sensor noise and intensity noise derive from it.
+    rng : int, Generator or None, optional
+        Seed (a non-negative int; a Generator contributes one draw; None: fresh entropy):
+        textures, sensor noise and intensity noise derive from it.
 
     Returns
     -------
@@ -311,8 +312,9 @@ def make_range_scene(
         )
     if isinstance(num_frames, bool) or int(num_frames) != num_frames or num_frames < 2:
         raise ParameterError(f"num_frames must be an integer >= 2, got {num_frames!r}")
+    _check_intensity_noise(intensity_noise)
     model = get_sensor(sensor)
-    seeds = np.random.SeedSequence(rng).spawn(3)
+    seeds = np.random.SeedSequence(_seed_of(rng)).spawn(3)  # an int seed: the same scene
     texture_streams = [np.random.default_rng(s) for s in seeds[0].spawn(12)]
     prims = RANGE_SCENES[name](texture_streams, int(num_frames))
     k = range_intrinsics(small=small)

@@ -8,7 +8,7 @@ ground truth:
 * **structured light** (Kinect v1, Xtion; :data:`KINECT_V1`): depth from the disparity between
   the IR camera and a projector ``baseline_mm`` to its side, ``z = f b / d``. The disparity is
   found by block matching, so its noise is *spatially correlated* over the matching window,
-  and it is quantised to ``1/8`` px: depth comes in steps ``Δz = z² q / (f b)`` (≈ 4 mm at
+  and it is quantised to ``1/8`` px: depth comes in steps ``Δz = z² q / (f b)`` (≈ 6.5 mm at
   1.5 m, ≈ 26 mm at 3 m for f = 580 px, b = 75 mm). Beside every foreground edge, on the side
   away from the projector, the projector's pattern is shadowed: a band of holes whose width is
   the disparity difference. Dark and grazing surfaces drop out.
@@ -98,11 +98,19 @@ class SensorModel:
         Pixels whose IR return (albedo · cos θ) is below this value drop out.
     tof_noise_mm : float
         ToF only: depth noise (mm) at amplitude 1 (albedo 1, facing, at 1 m); grows as
-        1 / amplitude.
+        1 / sqrt(amplitude).
     flying_pixels : float
         ToF only: probability that a pixel at a depth edge returns a mix of the two depths.
     min_range_mm, max_range_mm : float
         Valid depth range of the camera, mm.
+
+    Raises
+    ------
+    ParameterError
+        A value no camera has (each check names the field): a disparity sensor without a
+        positive baseline, negative or non-finite noise or quantisation, a matching window
+        that is not a positive integer, a probability outside [0, 1], or an empty range. Such
+        a model gave depth without a single valid pixel, silently.
     """
 
     name: str
@@ -120,6 +128,29 @@ class SensorModel:
     min_range_mm: float = 500.0
     max_range_mm: float = 6000.0
     notes: str = field(default="", compare=False)
+
+    def __post_init__(self) -> None:
+        def bad(what: str, value: object) -> ParameterError:
+            return ParameterError(f"sensor model {self.name!r}: {what}, got {value!r}")
+
+        if self.kind not in ("structured-light", "active-stereo", "tof"):
+            raise bad("kind must be structured-light, active-stereo or tof", self.kind)
+        for name in ("subpixel", "disparity_noise_px", "static_noise_px", "tof_noise_mm"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+                raise bad(f"{name} must be a finite number >= 0", value)
+        if self.kind != "tof" and not (math.isfinite(self.baseline_mm) and self.baseline_mm > 0):
+            raise bad("baseline_mm must be > 0 for a disparity sensor (mm)", self.baseline_mm)
+        c = self.correlation_px
+        if isinstance(c, bool) or not isinstance(c, int | np.integer) or c < 1:
+            raise bad("correlation_px must be an integer >= 1 (px)", c)
+        for name in ("dropout", "dark_dropout", "flying_pixels"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and 0.0 <= value <= 1.0):
+                raise bad(f"{name} must be in [0, 1]", value)
+        lo, hi = self.min_range_mm, self.max_range_mm
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0 <= lo < hi):
+            raise bad("the range must satisfy 0 <= min_range_mm < max_range_mm (mm)", (lo, hi))
 
 
 #: Kinect v1 / Asus Xtion-class structured light (Khoshelham & Elberink 2012: 1/8-px

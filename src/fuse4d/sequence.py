@@ -37,6 +37,10 @@ def sanitize_depth(depth: np.ndarray) -> NDArray[np.float32]:
     return d
 
 
+#: The camera kinds of :attr:`Sequence.sensor` (the values of :data:`fuse4d.sensors.SensorKind`,
+#: written out so that sequences and readers do not import the models).
+_SENSOR_KINDS = ("structured-light", "active-stereo", "tof")
+
 #: Why fuse4d needs an intensity video (said where None was passed).
 INTENSITY_REQUIRED = (
     "intensity is required: fuse4d tracks every pixel through the registered intensity (IR or "
@@ -429,7 +433,8 @@ class Sequence:
     ShapeError
         If depth and intensity differ in shape, are not 3-D, or disagree with the intrinsics.
     ValueError
-        If T < 1, intensity is outside [0, 1], timestamps are not increasing, or fps <= 0.
+        If T < 1, intensity is outside [0, 1], timestamps are not increasing, fps <= 0, or
+        sensor is not a known camera kind.
     TypeError
         If intrinsics is not an :class:`Intrinsics`.
 
@@ -507,6 +512,12 @@ class Sequence:
             if not (np.isfinite(fps) and fps > 0):
                 raise ParameterError(f"fps must be a positive number, got {self.fps!r}")
             object.__setattr__(self, "fps", fps)
+        if self.sensor is not None and self.sensor not in _SENSOR_KINDS:
+            # "kinect" or "TOF" read as an unknown camera: A36's flying-pixel removal was
+            # silently off, and a frame folder written from it could not be read back
+            raise ParameterError(
+                f"sensor must be one of {', '.join(_SENSOR_KINDS)} or None, got {self.sensor!r}"
+            )
         if self.ground_truth is not None:
             self._check_ground_truth(self.ground_truth)
         valid_fraction = float(np.isfinite(d).mean()) if d.size else 0.0

@@ -163,6 +163,19 @@ def _rays(intrinsics: Intrinsics) -> tuple[NDArray[np.float64], NDArray[np.float
     return xn, yn
 
 
+def _check_intensity_noise(intensity_noise: float) -> None:
+    """A Gaussian intensity noise std in [0, 1] (fractions of the maximum intensity)."""
+    if not (math.isfinite(float(intensity_noise)) and float(intensity_noise) >= 0.0):
+        raise ParameterError(
+            f"intensity_noise must be a finite number >= 0, got {intensity_noise!r}"
+        )
+    if float(intensity_noise) > 1.0:
+        raise ParameterError(
+            f"intensity_noise is a fraction of the maximum intensity 1.0 (e.g. 0.02 = 2 %), "
+            f"got {intensity_noise!r}"
+        )
+
+
 def _check_common(
     depth_noise: float,
     intensity_noise: float,
@@ -170,18 +183,10 @@ def _check_common(
     num_frames: int,
     background: str,
 ) -> None:
-    for name, value in (
-        ("depth_noise", depth_noise),
-        ("intensity_noise", intensity_noise),
-        ("structural_noise", structural_noise),
-    ):
+    for name, value in (("depth_noise", depth_noise), ("structural_noise", structural_noise)):
         if not (math.isfinite(float(value)) and float(value) >= 0.0):
             raise ParameterError(f"{name} must be a finite number >= 0, got {value!r}")
-    if float(intensity_noise) > 1.0:
-        raise ParameterError(
-            f"intensity_noise is a fraction of the maximum intensity 1.0 (e.g. 0.02 = 2 %), "
-            f"got {intensity_noise!r}"
-        )
+    _check_intensity_noise(intensity_noise)
     if isinstance(num_frames, bool) or int(num_frames) != num_frames or int(num_frames) < 2:
         raise ParameterError(f"num_frames must be an integer >= 2, got {num_frames!r}")
     if background not in ("plane", "none"):

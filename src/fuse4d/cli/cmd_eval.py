@@ -89,7 +89,8 @@ def synth_command(
         typer.Option(help="Intensity-noise std as a fraction of 1.0 (0.02 = 2 %)."),
     ] = None,
     frames: Annotated[
-        int | None, typer.Option(help="Number of frames (default 50; 12 small).")
+        int | None,
+        typer.Option(help="Number of frames (default 50, 12 with --small; 30 with --sensor)."),
     ] = None,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
     small: Annotated[

@@ -22,7 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..camera import Intrinsics
 from ..errors import InputFileError, ParameterError
-from ..sequence import GroundTruth, Sequence
+from ..sequence import _SENSOR_KINDS, GroundTruth, Sequence
 
 __all__ = [
     "CAMERA_PRESETS",
@@ -436,9 +436,9 @@ def _number(value: Any, key: str, path: Path) -> float:
     return float(value)
 
 
-#: The camera kinds a recording may state (:attr:`FrameReader.sensor`; the values of
-#: :data:`fuse4d.sensors.SensorKind`, written out so that the readers do not import the models).
-SENSOR_KINDS = ("structured-light", "active-stereo", "tof")
+#: The camera kinds a recording may state (:attr:`FrameReader.sensor`; one home with
+#: :attr:`Sequence.sensor`'s check).
+SENSOR_KINDS = _SENSOR_KINDS
 
 
 def check_sensor_kind(value: object, path: Path, where: str) -> str | None:

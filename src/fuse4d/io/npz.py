@@ -44,6 +44,7 @@ from ._base import (
     FrameReader,
     FrameSelection,
     ProgressCallback,
+    check_sensor_kind,
     file_sequence,
     resolve_frames,
 )
@@ -150,7 +151,7 @@ class NpzReader(FrameReader):
             sensor = self._array("sensor")
             if sensor.ndim != 0 or sensor.dtype.kind not in "US":
                 raise InputFileError(self.path, "key 'sensor' must hold one string")
-            self.sensor = str(sensor)
+            self.sensor = check_sensor_kind(str(sensor), self.path, "key 'sensor'")
         gt = [k[:-3] for k in ("depth_gt", "mask_gt", "flow_gt") if k in names]
         gt += [k for k in names if k.startswith("gt_")]
         self.ground_truth_keys = tuple(gt)
