@@ -8,6 +8,7 @@ drops frames and keeps its latency bounded.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import threading
 import time
@@ -18,6 +19,7 @@ import pytest
 
 from fuse4d import FusionParams, Sequence, fuse_sequence
 from fuse4d.cli import main
+from fuse4d.errors import ParameterError
 from fuse4d.io import load_sequence, write_npz
 from fuse4d.live import (
     CapturedFrame,
@@ -25,6 +27,7 @@ from fuse4d.live import (
     LiveWriter,
     RecordingSource,
     display_available,
+    display_problem,
     run_live,
     side_by_side,
 )
@@ -283,10 +286,25 @@ def test_cli_live_writes_the_causal_fusion(ball, reference, tmp_path, capsys):
     assert summary["window"] == 3
     assert summary["realtime"] is True
     if not display_available():
-        assert "no display: --show skipped" in captured.err
+        assert f"{display_problem()}: --show skipped" in captured.err
     np.testing.assert_array_equal(load_sequence(out).depth, reference)
     assert main([*args]) == 2  # the output exists: one error line, no fusion
     assert capsys.readouterr().err.count("fuse4d: error:") == 1
+
+
+def test_show_with_a_headless_opencv_is_skipped_not_a_crash(ball, capsys, monkeypatch):
+    """With DISPLAY set, `cv2.imshow` of the headless OpenCV that fuse4d depends on raised
+    "The function is not implemented" on the first frame: an internal error, output lost."""
+    import cv2
+
+    if "GUI:                           NONE" not in cv2.getBuildInformation():
+        pytest.skip("this OpenCV has a GUI")
+    monkeypatch.setenv("DISPLAY", ":99")
+    path, _ = ball
+    assert main(["live", str(path), "--window", "3", "--frames", "3", "--show", "--json"]) == 0
+    captured = capsys.readouterr()
+    assert "this OpenCV has no GUI (a headless build" in captured.err
+    assert json.loads(captured.out)["frames_fused"] == 3
 
 
 def test_cli_live_says_what_to_do_when_the_fusion_falls_behind(ball, capsys):
@@ -340,7 +358,7 @@ def test_cli_live_bad_options_are_one_line_and_write_nothing(
 class _FakeRealSense:
     """The parts of the pyrealsense2 API that RealSenseSource uses, replaying the ball."""
 
-    def __init__(self, seq) -> None:
+    def __init__(self, seq, *, fail_after: int | None = None, modes=None) -> None:
         import types
 
         self.seq = seq
@@ -409,10 +427,14 @@ class _FakeRealSense:
                 self.k = 0
 
             def start(self, config):
+                if modes is not None and not set(fake.enabled) <= set(modes):
+                    raise RuntimeError("Couldn't resolve requests")
                 return profile
 
             def wait_for_frames(self, timeout_ms: int):
                 time.sleep(1 / 30)
+                if fail_after is not None and self.k >= fail_after:
+                    raise RuntimeError(f"Frame didn't arrive within {timeout_ms}")
                 self.k += 1
                 return _Frameset((self.k - 1) % len(fake.seq.depth))
 
@@ -455,6 +477,132 @@ def test_realsense_source_against_a_fake_pipeline(ball, monkeypatch):
     source.close()
     assert fake.stopped
     assert stats.frames_fused == 6
+
+
+def test_a_camera_lost_mid_run_keeps_what_was_fused(ball, tmp_path, monkeypatch, capsys):
+    """A camera that stopped delivering (pyrealsense2's RuntimeError "Frame didn't arrive")
+    was an internal error, and the frames fused until then were lost. Now one error line,
+    exit 2, and the output holds them (a camera's frames cannot be played again)."""
+    import sys
+
+    _, seq = ball
+    monkeypatch.setitem(sys.modules, "pyrealsense2", _FakeRealSense(seq, fail_after=5))
+    out = tmp_path / "cam.npz"
+    args = ["live", "--width", "150", "--height", "150", "--window", "3", "-o", str(out)]
+    assert main([*args, "--json"]) == 2
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out)
+    assert summary["frames_fused"] == 5
+    assert "no frame within 5000 ms (disconnected?)" in summary["source_error"]
+    err = captured.err.strip().splitlines()[-1]
+    assert err.startswith("fuse4d: error: RealSense camera: no frame within 5000 ms")
+    assert err.endswith(f"the 5 frames fused before it are in {out}")
+    assert load_sequence(out).num_frames == 5
+
+
+def test_a_camera_mode_it_cannot_stream_is_one_error(ball, monkeypatch, capsys):
+    import sys
+
+    _, seq = ball
+    modes = [("depth", 150, 150, "z16", 30), ("infrared", 1, 150, 150, "y8", 30)]
+    monkeypatch.setitem(sys.modules, "pyrealsense2", _FakeRealSense(seq, modes=modes))
+    assert main(["live", "--width", "150", "--height", "150", "--fps", "15"]) == 2
+    err = capsys.readouterr().err
+    assert (
+        "fuse4d: error: RealSense camera: cannot stream depth z16 + IR y8 at 150x150, 15 fps" in err
+    )
+    assert "Traceback" not in err
+    assert "internal error" not in err
+    # 29.97 was truncated to 29, a rate no RealSense streams
+    assert main(["live", "--fps", "29.97"]) == 2
+    assert "a camera streams at a whole number of frames per second, got 29.97" in (
+        capsys.readouterr().err
+    )
+
+
+def test_ctrl_c_stops_the_run_with_what_was_fused(ball):
+    """Ctrl-C, SIGTERM, SIGHUP set the stop event (a KeyboardInterrupt raised while the numba
+    kernels loaded was swallowed by a ctypes callback, and the run went on); a second one
+    interrupts."""
+    import os
+    import signal
+
+    _, seq = ball
+    sent = []
+
+    def sink(captured, fused) -> None:
+        sent.append(captured.index)
+        if len(sent) == 3:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    stats = run_live(_ListSource(seq, range(12), fps=30.0), fusion=CAUSAL3, sink=sink)
+    assert stats.interrupted
+    assert stats.frames_fused == 3  # the loop ends at the stop
+    assert stats.to_dict()["interrupted"] is True
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+
+    def twice(captured, fused) -> None:
+        os.kill(os.getpid(), signal.SIGTERM)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    with pytest.raises(KeyboardInterrupt):
+        run_live(_ListSource(seq, range(12), fps=30.0), fusion=CAUSAL3, sink=twice)
+
+
+def test_ctrl_c_during_the_warm_up_interrupts_before_capture(ball, monkeypatch):
+    import os
+    import signal
+
+    from fuse4d import live
+
+    _, seq = ball
+    monkeypatch.setattr(live, "_warm_up", lambda *a: os.kill(os.getpid(), signal.SIGINT))
+    source = _ListSource(seq, range(12), fps=30.0)
+    with pytest.raises(KeyboardInterrupt):
+        run_live(source, fusion=CAUSAL3)
+
+
+def test_a_jump_in_the_timestamps_is_played_without_the_wait(tmp_path, ball):
+    """time.sleep(1e10) raised OverflowError: an internal error (a paused recording, or ns
+    stored as s, hung for the length of the jump)."""
+    _, seq = ball
+    path = tmp_path / "jump.npz"
+    three = seq.frames(0, 3)
+    ts = np.array([0.0, 1e10, 1e10 + 0.03])
+    write_npz(dataclasses.replace(three, timestamps=ts, fps=None), path)
+    source = RecordingSource(path, realtime=True)
+    t0 = time.perf_counter()
+    try:
+        with pytest.warns(
+            UserWarning, match=r"jump.npz \(frame 1\): the timestamps jump by 1e\+10 s"
+        ):
+            frames = list(source)
+    finally:
+        source.close()
+    assert [f.index for f in frames] == [0, 1, 2]
+    assert time.perf_counter() - t0 < 2.0
+    assert source.pace == "its recorded timestamps"
+
+
+def test_live_output_states_the_recordings_rate_not_the_playback_rate(tmp_path, ball):
+    """--fps 60 on a 30 Hz recording with timestamps wrote fps 60 beside 30 Hz times."""
+    _, seq = ball
+    path, out = tmp_path / "ts.npz", tmp_path / "o.npz"
+    write_npz(dataclasses.replace(seq, timestamps=5.0 + np.arange(12) / 30.0, fps=None), path)
+    assert main(["live", str(path), "--fps", "60", "--window", "3", "-o", str(out)]) == 0
+    written = load_sequence(out)
+    assert written.fps == pytest.approx(30.0)
+    np.testing.assert_allclose(np.diff(written.timestamps), 1 / 30.0, rtol=1e-6)
+
+
+def test_an_npz_live_output_without_frames_is_an_error(tmp_path, ball):
+    _, seq = ball
+    with (
+        pytest.raises(ParameterError, match=r"empty\.npz: no frame was written"),
+        LiveWriter(tmp_path / "empty.npz", seq.intrinsics),
+    ):
+        pass
+    assert not (tmp_path / "empty.npz").exists()
 
 
 def test_window_sink_keeps_the_first_frames_scale(ball, monkeypatch):

@@ -19,6 +19,7 @@ from os import PathLike
 from typing import Any, Self
 
 __all__ = [
+    "CameraError",
     "Fuse4dError",
     "InputFileError",
     "InputNotFoundError",
@@ -139,6 +140,11 @@ def _rebuild_input_error(
 class InputNotFoundError(InputFileError, FileNotFoundError):
     """An input file or folder does not exist (an :class:`InputFileError` and a
     :class:`FileNotFoundError`)."""
+
+
+class CameraError(Fuse4dError, OSError):
+    """A camera could not be started or stopped delivering frames (disconnected, a mode it
+    cannot stream, a timeout). The message names the camera and what it was asked for."""
 
 
 class OutputExistsError(Fuse4dError, FileExistsError):

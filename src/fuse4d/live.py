@@ -28,11 +28,14 @@ sink (shown, or queued for writing: :class:`LiveWriter` writes in a background t
 from __future__ import annotations
 
 import collections
+import contextlib
 import math
 import os
+import signal
 import sys
 import threading
 import time
+import warnings
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from os import PathLike
@@ -45,7 +48,7 @@ from numpy.typing import NDArray
 from ._background import LOWER_AFTER_FRAMES
 from .camera import Intrinsics
 from .config import FlowConfig, FusionParams, fusion_params
-from .errors import ParameterError
+from .errors import CameraError, ParameterError
 from .flying_pixels import resolve_flying_pixels
 from .fusion import FusedFrame, FusionEngine
 
@@ -59,11 +62,16 @@ __all__ = [
     "RealSenseSource",
     "RecordingSource",
     "display_available",
+    "display_problem",
     "display_range",
     "realsense_available",
     "run_live",
     "side_by_side",
 ]
+
+#: Longest wait (s) between two frames of a recording played in real time; a longer jump in
+#: its timestamps is played without the wait (with a warning).
+MAX_PLAYBACK_WAIT_S = 5.0
 
 
 @dataclass
@@ -158,10 +166,22 @@ class RecordingSource:
         self._frames = frames
         timestamps = self._reader.timestamps
         self._timestamps = None if fps is not None else timestamps
-        self.fps = fps if fps is not None else self._reader.fps
-        if self.fps is None and timestamps is not None and len(timestamps) > 1:
+        recorded = self._reader.fps
+        if recorded is None and timestamps is not None and len(timestamps) > 1:
             span = float(timestamps[-1] - timestamps[0])
-            self.fps = (len(timestamps) - 1) / span if span > 0 else None
+            recorded = (len(timestamps) - 1) / span if span > 0 else None
+        #: the playback rate (frames/s): ``fps``, else the recording's own
+        self.fps = fps if fps is not None else recorded
+        #: the rate an output states: the recording's own where its frames carry their
+        #: recorded times (``--fps 10`` wrote fps 10 beside 30 Hz timestamps), else ``fps``
+        self.output_fps = recorded if timestamps is not None else self.fps
+        #: how playback is paced, in words (the banner said "at 30 fps" while a recording
+        #: with uneven timestamps played at 20)
+        self.pace = (
+            "its recorded timestamps"
+            if self._timestamps is not None
+            else (f"{self.fps:g} fps" if self.fps else "")
+        )
         if realtime and self._timestamps is None and self.fps is None:
             self._reader.close()
             raise ParameterError(
@@ -187,7 +207,16 @@ class RecordingSource:
             if self.realtime:
                 assert start is not None
                 wait = start + self._due(order, frame.index) - time.perf_counter()
-                if wait > 0:
+                if wait > MAX_PLAYBACK_WAIT_S:
+                    # a jump in the timestamps (a paused recording, ns stored as s): played
+                    # without the wait; time.sleep(1e10) raised OverflowError, or hung
+                    warnings.warn(
+                        f"{self.path} (frame {frame.index}): the timestamps jump by "
+                        f"{wait:.4g} s; played on without waiting",
+                        stacklevel=2,
+                    )
+                    start -= wait
+                elif wait > 0:
                     time.sleep(wait)
             timestamp = frame.timestamp
             if timestamp is None and self.fps is not None:
@@ -231,6 +260,8 @@ class DecimatedSource:
         self.factor = int(factor)
         self.intrinsics = decimate_intrinsics(source.intrinsics, self.factor)
         self.fps = source.fps
+        self.output_fps = getattr(source, "output_fps", source.fps)
+        self.pace = getattr(source, "pace", f"{source.fps:g} fps" if source.fps else "")
         self.depth_unit_mm = source.depth_unit_mm
         self.sensor = getattr(source, "sensor", None)
 
@@ -313,7 +344,15 @@ class RealSenseSource:
             config.enable_device(serial)
         config.enable_stream(rs.stream.depth, width, height, rs.format.z16, fps)
         config.enable_stream(rs.stream.infrared, 1, width, height, rs.format.y8, fps)
-        profile = self._pipeline.start(config)
+        #: the camera, for messages
+        self.name = f"RealSense camera{'' if serial is None else ' ' + serial}"
+        try:
+            profile = self._pipeline.start(config)
+        except RuntimeError as exc:  # pyrealsense2's error for a mode the camera lacks
+            raise CameraError(
+                f"{self.name}: cannot stream depth z16 + IR y8 at {width}x{height}, {fps} fps "
+                f"({exc})"
+            ) from None
         from .io._realsense import realsense_sensor_kind
 
         device = profile.get_device()
@@ -330,11 +369,20 @@ class RealSenseSource:
             height=k.height,
         )  # fmt: skip
         self.fps: float | None = float(fps)
+        self.output_fps = self.fps
+        self.pace = f"{fps} fps"
         self._stopped = False
 
     def __iter__(self) -> Iterator[CapturedFrame]:
         while not self._stopped:
-            frames = self._pipeline.wait_for_frames(self._timeout_ms)
+            try:
+                frames = self._pipeline.wait_for_frames(self._timeout_ms)
+            except RuntimeError as exc:  # "Frame didn't arrive within 5000"
+                if self._stopped:
+                    return
+                raise CameraError(
+                    f"{self.name}: no frame within {self._timeout_ms} ms (disconnected?): {exc}"
+                ) from None
             captured = time.perf_counter()
             depth_frame = frames.get_depth_frame()
             ir_frame = frames.get_infrared_frame(1)
@@ -454,6 +502,11 @@ class LiveStats:
     window_frames : list of int
         Frames of history each output frame was fused with (itself included): ``n`` once
         the window is full, fewer after a start or a restart.
+    interrupted : bool
+        Stopped by Ctrl-C, SIGTERM or SIGHUP (the frames fused until then are complete).
+    source_error : str
+        Why the source stopped delivering frames when it failed after the first one (a
+        camera disconnected: :class:`~fuse4d.errors.CameraError`); empty otherwise.
     """
 
     frames_captured: int = 0
@@ -471,6 +524,10 @@ class LiveStats:
     indices: list[int] = field(default_factory=list)
     window_frames: list[int] = field(default_factory=list)
     latencies_s: list[float] = field(default_factory=list, repr=False)
+    interrupted: bool = False
+    source_error: str = ""
+    first_output_s: float = field(default=0.0, repr=False)  # perf_counter times
+    last_output_s: float = field(default=0.0, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (no per-frame lists)."""
@@ -484,6 +541,8 @@ class LiveStats:
             latency_ms=dict(self.latency_ms),
             step_ms=dict(self.step_ms),
             mean_window=(float(np.mean(self.window_frames)) if self.window_frames else 0.0),
+            interrupted=self.interrupted,
+            source_error=self.source_error,
         )
         return out
 
@@ -589,18 +648,94 @@ def run_live(
         finally:
             queue.close()
 
-    if warmup:
-        _warm_up(source.intrinsics, params, flow, overlap_flow)
+    with _stop_on_signals(stop, stats):
+        if warmup:
+            _warm_up(source.intrinsics, params, flow, overlap_flow)
+        if stats.interrupted:  # during the warm-up: nothing was captured
+            raise KeyboardInterrupt
+        _fuse_live(source, params, flow, overlap_flow, queue, capture, sink, on_gap, stop,
+                   stats, steps, extra_delay_s)  # fmt: skip
+    if errors:
+        if isinstance(errors[0], CameraError) and stats.frames_captured:
+            # a camera lost mid-run: the frames fused so far are kept (a recording can be
+            # played again; a camera's frames cannot)
+            stats.source_error = str(errors[0])
+        else:
+            raise errors[0]
+    stats.dropped = queue.dropped
+    stats.unfused_at_stop = max(stats.frames_captured - stats.frames_fused - stats.dropped, 0)
+    if first_capture:
+        stats.seconds = max(stats.last_output_s - first_capture[0], 0.0)
+    if stats.frames_fused > 1 and stats.last_output_s > stats.first_output_s:
+        stats.fps = (stats.frames_fused - 1) / (stats.last_output_s - stats.first_output_s)
+    if stats.frames_captured > 1 and last_capture[0] > first_capture[0]:
+        stats.input_fps = (stats.frames_captured - 1) / (last_capture[0] - first_capture[0])
+    if stats.latencies_s:
+        lat = np.asarray(stats.latencies_s) * 1000.0
+        stats.latency_ms = {
+            "p50": float(np.percentile(lat, 50)),
+            "p95": float(np.percentile(lat, 95)),
+            "max": float(lat.max()),
+            "mean": float(lat.mean()),
+        }
+    if steps:
+        step = np.asarray(steps) * 1000.0
+        stats.step_ms = {"p50": float(np.median(step)), "mean": float(step.mean())}
+    return stats
+
+
+@contextlib.contextmanager
+def _stop_on_signals(stop: threading.Event, stats: LiveStats) -> Iterator[None]:
+    """Ctrl-C, SIGTERM and SIGHUP set ``stop`` (and ``stats.interrupted``) instead of raising:
+    the run ends as after q, with the frames fused until then. Raised in the middle of
+    loading the numba kernels, a KeyboardInterrupt was swallowed by a ctypes callback and the
+    run went on. A second signal raises KeyboardInterrupt. Main thread only (elsewhere no
+    signal is delivered)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        if stats.interrupted:
+            raise KeyboardInterrupt
+        stats.interrupted = True
+        stop.set()
+
+    names = ("SIGINT", "SIGTERM", "SIGHUP")
+    sigs = [getattr(signal, n) for n in names if hasattr(signal, n)]
+    previous = {s: signal.signal(s, handler) for s in sigs}
+    try:
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
+def _fuse_live(
+    source: FrameSource,
+    params: FusionParams,
+    flow: FlowConfig | str | None,
+    overlap_flow: bool,
+    queue: DropOldestQueue,
+    capture: Callable[[], None],
+    sink: Sink | None,
+    on_gap: str,
+    stop: threading.Event,
+    stats: LiveStats,
+    steps: list[float],
+    extra_delay_s: float,
+) -> None:
+    """The fusion loop of :func:`run_live` (capture runs in its own thread)."""
     thread = threading.Thread(target=capture, name="fuse4d-live-capture", daemon=True)
     engine = FusionEngine(source.intrinsics, fusion=params, flow=flow, overlap_flow=overlap_flow)
     last_index: int | None = None
     history = 0
-    last_output = first_output = time.perf_counter()
+    stats.last_output_s = stats.first_output_s = time.perf_counter()
     thread.start()
     try:
         while True:
             frame = queue.get()
-            if frame is None:
+            if frame is None or stop.is_set():
                 break
             if last_index is not None and frame.index != last_index + 1:
                 stats.gaps += 1
@@ -620,15 +755,13 @@ def run_live(
             for out in fused:  # causal: exactly the frame just pushed
                 if sink is not None:
                     sink(frame, out)
-                last_output = time.perf_counter()
+                stats.last_output_s = time.perf_counter()
                 if stats.frames_fused == 0:
-                    first_output = last_output
-                stats.latencies_s.append(last_output - frame.captured)
+                    stats.first_output_s = stats.last_output_s
+                stats.latencies_s.append(stats.last_output_s - frame.captured)
                 stats.indices.append(frame.index)
                 stats.window_frames.append(history)
                 stats.frames_fused += 1
-    except KeyboardInterrupt:
-        pass
     finally:
         stop.set()
         queue.close()
@@ -636,28 +769,6 @@ def run_live(
         while queue.get(timeout=0) is not None:  # let a blocked capture thread finish
             pass
         thread.join(timeout=10.0)
-    if errors:
-        raise errors[0]
-    stats.dropped = queue.dropped
-    stats.unfused_at_stop = max(stats.frames_captured - stats.frames_fused - stats.dropped, 0)
-    if first_capture:
-        stats.seconds = max(last_output - first_capture[0], 0.0)
-    if stats.frames_fused > 1 and last_output > first_output:
-        stats.fps = (stats.frames_fused - 1) / (last_output - first_output)
-    if stats.frames_captured > 1 and last_capture[0] > first_capture[0]:
-        stats.input_fps = (stats.frames_captured - 1) / (last_capture[0] - first_capture[0])
-    if stats.latencies_s:
-        lat = np.asarray(stats.latencies_s) * 1000.0
-        stats.latency_ms = {
-            "p50": float(np.percentile(lat, 50)),
-            "p95": float(np.percentile(lat, 95)),
-            "max": float(lat.max()),
-            "mean": float(lat.mean()),
-        }
-    if steps:
-        step = np.asarray(steps) * 1000.0
-        stats.step_ms = {"p50": float(np.median(step)), "mean": float(step.mean())}
-    return stats
 
 
 def _warm_up(
@@ -681,10 +792,32 @@ def _warm_up(
 
 
 def display_available() -> bool:
-    """True when an OpenCV window can be opened (a display on Linux; always elsewhere)."""
-    if sys.platform.startswith("linux"):
-        return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-    return True
+    """True when an OpenCV window can be opened: OpenCV was built with a GUI, and on Linux a
+    display is set (:func:`display_problem` says which is missing)."""
+    return display_problem() is None
+
+
+def display_problem() -> str | None:
+    """Why no OpenCV window can be opened, in words (None: one can).
+
+    fuse4d depends on the headless OpenCV build (no GUI: ``cv2.imshow`` raised "The function
+    is not implemented" on a desktop, and the run's output was lost).
+    """
+    import re
+
+    import cv2
+
+    gui = re.search(r"^\s*GUI:\s*(\S+)", cv2.getBuildInformation(), re.MULTILINE)
+    if gui is not None and gui.group(1).upper() == "NONE":
+        return (
+            "this OpenCV has no GUI (a headless build; `pip install opencv-contrib-python` "
+            "in place of opencv-contrib-python-headless gives one)"
+        )
+    if sys.platform.startswith("linux") and not (
+        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    ):
+        return "no display"
+    return None
 
 
 def display_range(depth: NDArray[np.float32]) -> tuple[float, float] | None:
@@ -841,8 +974,10 @@ class LiveWriter:
                     raise
             self._writer.__exit__(*exc)
             return
-        if exc[0] is not None or not self._frames:
+        if exc[0] is not None:
             return
+        if not self._frames:  # as the streamed writers say (it exited 0 naming no file)
+            raise ParameterError(f"{self.path}: no frame was written")
         from .io import save_sequence
         from .sequence import Sequence
 

@@ -138,7 +138,7 @@ def live_command(
         LiveWriter,
         RealSenseSource,
         RecordingSource,
-        display_available,
+        display_problem,
         realsense_available,
         run_live,
     )
@@ -165,6 +165,8 @@ def live_command(
             fail(f"{name} must be >= 1 px, got {value}")
     if not 1 <= decimate <= MAX_DECIMATION:
         fail(f"--decimate must be 1..{MAX_DECIMATION}, got {decimate}")
+    if input_path is None and fps is not None and fps != int(fps):
+        fail(f"--fps: a camera streams at a whole number of frames per second, got {fps:g}")
     fusion, flow = _resolve(preset_name, config, window, True, sets, flow_method, flow_params)
     if input_path is None:
         if not realsense_available():
@@ -198,15 +200,16 @@ def live_command(
                 output,
                 source.intrinsics,
                 depth_unit_mm=source.depth_unit_mm,
-                fps=source.fps,
+                fps=source.output_fps,
                 overwrite=force,
                 # the camera's own unit: no "coarse unit" warning (see QuantizationReport)
                 warn_coarse_unit=source.depth_unit_mm is None,
                 sensor=getattr(source, "sensor", None),
             )
             sinks.append(stack.enter_context(writer))
-        if show and not display_available():
-            eprint("fuse4d live: no display: --show skipped")
+        no_window = display_problem() if show else None
+        if no_window:
+            eprint(f"fuse4d live: {no_window}: --show skipped")
         elif show:
             sinks.append(_window_sink(stop))
             stack.callback(_close_windows)
@@ -218,7 +221,7 @@ def live_command(
         eprint(
             "fuse4d live: "
             + ("camera" if input_path is None else str(input_path))
-            + (f" at {source.fps:g} fps" if realtime and source.fps else "")
+            + (f" at {source.pace}" if realtime and source.pace else "")
             + (
                 f", decimated {decimate}x to {source.intrinsics.width}x{source.intrinsics.height}"
                 if decimate > 1
@@ -259,8 +262,14 @@ def live_command(
         eprint(advice)
     if as_json:
         print(json.dumps(summary, indent=2))
-        return
-    out_console.print(_table(summary))
+    else:
+        out_console.print(_table(summary))
+    if stats.source_error:  # the camera failed mid-run: what was fused is written, exit 2
+        kept = (
+            f"; the {stats.frames_fused} frames fused before it are in {output}" if output else ""
+        )
+        eprint(f"fuse4d: error: {stats.source_error}{kept}")
+        raise typer.Exit(2)
 
 
 #: Dropped frames (fraction of the captured ones) above which ``fuse4d live`` says what to do.
@@ -338,7 +347,8 @@ def _table(s: dict[str, Any]) -> Table:
         (
             "frames",
             f"{s['frames_captured']} captured, {s['frames_fused']} fused, {s['dropped']} dropped"
-            + (f", {s['unfused_at_stop']} not fused at the stop" if s["unfused_at_stop"] else ""),
+            + (f", {s['unfused_at_stop']} not fused at the stop" if s["unfused_at_stop"] else "")
+            + (" (stopped by Ctrl-C or a signal)" if s["interrupted"] else ""),
         ),
         (
             "gaps",
