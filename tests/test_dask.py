@@ -316,6 +316,44 @@ def test_cli_many_inputs_share_one_run(ball, tmp_path, capsys):
     assert "need --engine dask" in capsys.readouterr().err
 
 
+def test_a_run_killed_inside_finalize_resumes_and_report_refuses_an_unfinished_store(
+    ball, tmp_path, capsys
+):
+    """A kill after the store was marked complete and its chunk markers removed, before the
+    rename: --resume recomputed every chunk and then failed on the missing marker folder,
+    on every retry. And `fuse4d report` scored an unfinished store's unwritten chunks (all
+    NaN) as the fused result."""
+    import json
+    import shutil
+
+    save_sequence(ball, tmp_path / "a.npz")
+    out = tmp_path / "o.zarr"
+    args = ["run", str(tmp_path / "a.npz"), "-o", str(out), "--engine", "dask",
+            "--chunk-frames", "4", "--workers", "1"]  # fmt: skip
+    assert main(args) == 0
+    reference = zarr.open_group(str(out), mode="r")["depth"][:]
+    partial = tmp_path / "o.zarr.partial"
+    shutil.copytree(out, partial)
+    meta = json.loads((partial / "zarr.json").read_text())
+    # the state a kill between finalize's marking and its rename leaves
+    out_moved = tmp_path / "done.zarr"
+    out.rename(out_moved)
+    assert meta["attributes"]["fuse4d"]["complete"] is True
+    assert main([*args, "--resume", "--json"]) == 0
+    capsys.readouterr()
+    assert not partial.exists()
+    assert _same(zarr.open_group(str(out), mode="r")["depth"][:], reference)
+    # an unfinished store: refused by the report
+    shutil.copytree(out_moved, partial)
+    meta["attributes"]["fuse4d"]["complete"] = False
+    (partial / "zarr.json").write_text(json.dumps(meta))
+    rep = tmp_path / "rep"
+    assert main(["report", str(tmp_path / "a.npz"), str(partial), "-o", str(rep)]) == 2
+    err = capsys.readouterr().err
+    assert "o.zarr.partial: unfinished fuse4d run --engine dask" in err
+    assert not rep.exists()
+
+
 def test_cli_checks_every_input_and_the_output_kind_before_writing(ball, tmp_path, capsys):
     """A bad second input left the first one's staging store (the next run then asked for
     --resume); -o x.npz made a folder called x.npz."""

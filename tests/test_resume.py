@@ -210,6 +210,9 @@ def test_resume_of_a_finished_run_does_nothing_and_of_another_refuses(
     assert not partial_path(out).exists()
     assert main(["run", str(recording), "-o", str(out), "--window", "7", "--resume"]) == 2
     assert "holds a finished run whose fusion differ" in capsys.readouterr().err
+    # another flow ROI (was "already complete", and resumed an unfinished run with it)
+    assert main([*args, "--flow-roi", "0:20,0:20"]) == 2
+    assert "holds a finished run whose flow differ" in capsys.readouterr().err
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == before
     stranger = tmp_path / "stranger"
     stranger.mkdir()
@@ -228,6 +231,32 @@ def test_resume_refuses_other_options_and_force_starts_over(recording, reference
     assert main([*args, "--force"]) == 0
     assert _contents(out) == _contents(reference)
     assert main([*args, "--resume"]) == 0  # the same run, finished: nothing to do
+
+
+def test_a_run_killed_inside_close_resumes(recording, reference, tmp_path, capsys):
+    """Every frame on disk, the checkpoint's seed removed with resume/, the manifest not yet
+    complete (a kill, or a full disk, inside close): every --resume failed with "[Errno 2]
+    No such file or directory: .../resume/seed-000016.npy"."""
+    import shutil
+
+    out = tmp_path / "out"
+    partial = partial_path(out)
+    shutil.copytree(reference, partial)
+    manifest = json.loads((partial / MANIFEST_NAME).read_text())
+    manifest.update(complete=False, checkpoint={"frame": 16, "seed": "stored"})
+    (partial / MANIFEST_NAME).write_text(json.dumps(manifest))
+    assert not (partial / "resume").exists()
+    args = ["run", str(recording), "-o", str(out), *RUN_ARGS]
+    assert main([*args, "--resume"]) == 0, capsys.readouterr().err
+    assert not partial.exists()
+    assert _contents(out) == _contents(reference)
+    # a partial run whose seed is gone: one error naming the file
+    res = _child(10, "after", "SIGKILL", ["run", str(recording), "-o", str(tmp_path / "b")])
+    assert res.returncode == -signal.SIGKILL
+    for seed in (partial_path(tmp_path / "b") / "resume").glob("seed-*.npy"):
+        seed.unlink()
+    assert main(["run", str(recording), "-o", str(tmp_path / "b"), "--resume"]) == 2
+    assert "the checkpoint's warm-start flow is missing" in capsys.readouterr().err
 
 
 def test_resume_without_unfinished_run_just_runs(recording, reference, tmp_path):

@@ -660,7 +660,12 @@ def _fuse_streaming(
             shape=(k.height, k.width),
             depth_unit_mm=reader.depth_unit_mm,
             fusion=params.to_dict(),
-            flow={"method": flow_config.method, "params": flow_config.params},
+            # the ROI too (as --engine dask's): a resume with another --flow-roi mixed the two
+            flow={
+                "method": flow_config.method,
+                "params": flow_config.params,
+                **({"roi": list(flow_config.roi)} if flow_config.roi else {}),
+            },
         )
         summary = RunSummary(
             input=src,

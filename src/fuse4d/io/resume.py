@@ -404,12 +404,22 @@ class ResumableFolderWriter:
         self._seconds_before = float(seconds) if isinstance(seconds, int | float) else 0.0
         self._has_mask = data.get("has_mask")
         self._checkpoint = checkpoint if isinstance(checkpoint, dict) else None
-        if self._checkpoint is not None:
+        if self._checkpoint is not None and done == self.identity["frames"]:
+            # every frame on disk (a kill inside close, which removes resume/): nothing is
+            # fused again, and the seed is not needed (its absence failed every resume)
+            self._checkpoint = None
+            self.restart_frame = done
+        elif self._checkpoint is not None:
             self.restart_frame = int(self._checkpoint["frame"])
             seed = self._checkpoint.get("seed")
             if seed is not None:
                 # fixed names only: the manifest never points outside the folder
                 seed_path = self.partial / "resume" / f"seed-{self.restart_frame:06d}.npy"
+                if not seed_path.is_file():
+                    raise InputFileError(
+                        seed_path,
+                        "the checkpoint's warm-start flow is missing; use --force to start over",
+                    )
                 self.seed = np.load(seed_path, allow_pickle=False)
         self._clean()
 
@@ -529,8 +539,10 @@ class ResumableFolderWriter:
             stamps = stamps_file.read_text().split() if stamps_file.exists() else []
             if stamps and all(s != "nan" for s in stamps):
                 (self.partial / "timestamps.txt").write_text("".join(s + "\n" for s in stamps))
-            shutil.rmtree(self.partial / "resume")
             self._checkpoint = None
+            self._save_manifest()  # no checkpoint names resume/ once it is gone
+            if (self.partial / "resume").is_dir():  # gone after a kill just past this line
+                shutil.rmtree(self.partial / "resume")
             self._save_manifest(complete=True)
             if self.path.exists():
                 _replace_existing(self.partial, self.path)

@@ -228,7 +228,20 @@ def _dask_output(path: Path) -> Any:
         group = zarr.open_group(str(path), mode="r")
     except (ImportError, OSError, ValueError, TypeError, LookupError):
         return None
-    return group if "depth" in group and "intensity" not in group else None
+    if "depth" not in group or "intensity" in group:
+        return None
+    meta = dict(group.attrs).get("fuse4d")
+    if isinstance(meta, dict) and meta.get("complete") is False:
+        # an interrupted run's OUT.zarr.partial: its unwritten chunks read as all-NaN frames,
+        # and the report scored them as fuse4d's result
+        from ..errors import InputFileError
+
+        raise InputFileError(
+            path,
+            "unfinished fuse4d run --engine dask (its missing chunks read as empty frames); "
+            "finish it with the same command and --resume",
+        )
+    return group
 
 
 def open_raw(data: PathOrSequence, reader_options: dict[str, Any] | None = None) -> RawSource:

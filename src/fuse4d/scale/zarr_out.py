@@ -84,6 +84,7 @@ def write_chunk(
     for name, block in blocks:
         root[name][start : start + block.shape[0]] = block  # type: ignore[index]
     marker = _marker(Path(staging), k)
+    marker.parent.mkdir(exist_ok=True)
     tmp = marker.with_suffix(".tmp")
     tmp.write_text(json.dumps({"start": start, "stop": stop}))
     tmp.replace(marker)
@@ -248,8 +249,18 @@ class ZarrOutput:
             return set(range(len(self.bounds)))
         folder = self.staging / _MARKERS
         if not folder.is_dir():
-            return set()
+            # killed inside finalize (marked complete, markers removed, not yet renamed): the
+            # resume recomputed every chunk and then failed writing into the missing folder
+            return set(range(len(self.bounds))) if self._staging_complete() else set()
         return {int(p.name.split("-")[1]) for p in folder.glob("chunk-*") if p.suffix == ""}
+
+    def _staging_complete(self) -> bool:
+        """Whether the staging store is already marked complete (a finalize cut short)."""
+        try:
+            meta = dict(zarr.open_group(str(self.staging), mode="r").attrs).get("fuse4d")
+        except (OSError, ValueError, LookupError):
+            return False
+        return isinstance(meta, dict) and meta.get("complete") is True
 
     def tasks(self, result: DaskFusion) -> list[Any]:
         """One delayed write per unfinished time chunk of ``result``."""
@@ -301,7 +312,7 @@ class ZarrOutput:
             raise RuntimeError(f"{self.staging}: chunks {missing} were not written")
         root = zarr.open_group(str(self.staging), mode="r+")
         root.attrs["fuse4d"] = {**json.loads(json.dumps(self.metadata)), "complete": True}
-        shutil.rmtree(self.staging / _MARKERS)
+        shutil.rmtree(self.staging / _MARKERS, ignore_errors=True)  # gone if killed after this
         if (self.staging / _SCRATCH).is_dir():  # pair flows of fuse4d.scale.streamed
             shutil.rmtree(self.staging / _SCRATCH)
         if self.path.exists():  # overwrite: replace only now that the new output is complete
