@@ -115,6 +115,13 @@ def test_e1_quick_subset_writes_every_output(tmp_path):
     # nothing recomputed: no unit's rows were written again
     assert len(unit_files) == 9 * 2  # methods x levels
     assert all(p.stat().st_mtime_ns == t for p, t in unit_files.items())
+    # another profile in the same folder took these rows as its own (a --profile reduced run
+    # in a --quick run's folder mixed 150x150 and 600x600 rows)
+    from fuse4d.errors import ParameterError
+
+    other = dataclasses.replace(prof, num_frames=7)
+    with pytest.raises(ParameterError, match=r"holds the rows of a E1 run with another profile"):
+        run_experiment("E1", tmp_path, profile=other)
 
 
 def test_real_crop_keeps_the_geometry():

@@ -79,6 +79,7 @@ def run_experiment(
     mod = _module(name)
     exp_dir = ctx.exp_dir(name)
     exp_dir.mkdir(parents=True, exist_ok=True)
+    _claim_folder(exp_dir, name, prof)
     units = mod.units(ctx)
     ledger = exp_dir / f".{name}-seconds"  # every call's compute time, an interrupted one too
     before = _previous_seconds(ledger, exp_dir / f"{name}.json")
@@ -106,6 +107,42 @@ def run_experiment(
     }
     write_json(exp_dir / f"{name}.json", payload)
     return payload
+
+
+def _claim_folder(exp_dir: Path, name: str, prof: Profile) -> None:
+    """Record which profile and fuse4d version fill ``exp_dir`` (``.<name>-run.json``), and
+    refuse another: a unit's rows are kept by key alone, so a ``--profile reduced`` run in a
+    ``--quick`` run's folder took its 150x150 rows as done and mixed them with 600x600 ones.
+
+    Raises
+    ------
+    ParameterError
+        The folder holds rows of another profile or fuse4d version.
+    """
+    import json
+
+    from ..._version import __version__
+    from ...errors import ParameterError
+
+    stamp = exp_dir / f".{name}-run.json"
+    mine = {"profile": prof.to_dict(), "fuse4d": __version__}
+    mine = json.loads(json.dumps(mine))  # tuples as lists, as read back
+    if stamp.exists():
+        try:
+            theirs = json.loads(stamp.read_text())
+        except ValueError:
+            theirs = None
+        if theirs != mine:
+            was = theirs.get("profile", {}).get("name") if isinstance(theirs, dict) else None
+            raise ParameterError(
+                f"{exp_dir}: holds the rows of a {name} run with another profile "
+                f"({was or 'unknown'}) or fuse4d version, which this {prof.name} run would "
+                "take as its own; use another --out (or delete the folder)"
+            )
+        return
+    tmp = stamp.with_name(stamp.name + ".tmp")
+    tmp.write_text(json.dumps(mine, indent=2) + "\n")
+    tmp.replace(stamp)
 
 
 def _previous_seconds(ledger: Path, json_path: Path) -> float:
@@ -147,7 +184,8 @@ def publish(out: str | Path, dest: str | Path) -> list[Path]:
             continue
         (dst / name).mkdir(parents=True, exist_ok=True)
         for f in sorted(d.iterdir()):
-            if f.is_file() and f.suffix in (".csv", ".md", ".json", ".png"):
+            # not the hidden bookkeeping (.<name>-run.json, .<name>-seconds)
+            if f.is_file() and f.suffix in (".csv", ".md", ".json", ".png") and f.name[0] != ".":
                 shutil.copy2(f, dst / name / f.name)
                 copied.append(dst / name / f.name)
     return copied
