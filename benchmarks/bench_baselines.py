@@ -56,6 +56,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     infos = available_baselines()
     names = list(infos) if args.methods == "all" else args.methods.split(",")
+    unknown = [n for n in names if n not in infos]
+    if unknown:
+        parser.error(f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(infos)}")
     seq_full = _scene(args.scene, max(args.frames, args.frames_6d))
     print(
         f"scene={args.scene} {seq_full.shape} cpus={os.cpu_count()} "

@@ -62,6 +62,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="rounds of the three runs")
     parser.add_argument("--json", action="store_true", help="print JSON")
     args = parser.parse_args()
+    if args.repeats < 1:
+        parser.error(f"--repeats must be >= 1, got {args.repeats}")
     rec = args.input or data_dir() / RECORDINGS["person"]
     if not rec.exists():
         raise SystemExit(f"{rec}: no such recording (give --input or set FUSE4D_DATA)")

@@ -172,6 +172,23 @@ def test_bench_small_reports_every_stage(capsys):
     assert set(result["stage_ms"]) == BENCH_STAGES
     assert result["ms_per_frame"] > 0
     assert result["peak_rss_mb"] > 0
+    assert result["input_mb"] == pytest.approx(6 * 150 * 150 * 4 * 2 / 2**20)  # depth+intensity
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--quality", "--small", "--frames", "3"], "--quality scores the fixed ball"),
+        (["--quality", "--small", "--input", "x"], "--quality scores the fixed ball"),
+        (["--small", "--intensity-noise", "0.05"], "--intensity-noise applies to --quality"),
+        (["--small", "--no-summary"], "--no-summary applies to --input only"),
+        (["--small", "--input", "x"], "--small is the synthetic ball's size"),
+    ],
+)
+def test_bench_options_its_mode_does_not_use_are_refused(capsys, args, says):
+    """Each was accepted and ignored: exit 0, another run measured than asked for."""
+    assert main(["bench", *args]) == 2
+    assert says in capsys.readouterr().err
 
 
 def test_bench_causal_times_the_causal_engine_stage_by_stage(monkeypatch, capsys):

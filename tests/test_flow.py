@@ -592,6 +592,27 @@ def test_cli_flow_refuses_to_overwrite(png_pair, tmp_path, capsys):
     assert read_flo(out).shape == (90, 110, 2)
 
 
+def test_cli_flow_checks_max_magnitude_before_the_solve(png_pair, tmp_path, capsys):
+    """--max-magnitude 0 was refused by the PNG writer after the .flo was written (the rerun
+    then said "output exists"); without --vis any value was ignored."""
+    out, vis = tmp_path / "x.flo", tmp_path / "x.png"
+    args = ["flow", str(png_pair[0]), str(png_pair[1]), "-o", str(out)]
+    assert main([*args, "--vis", str(vis), "--max-magnitude", "0"]) == 2
+    assert "--max-magnitude must be a number of pixels > 0, got 0" in capsys.readouterr().err
+    assert main([*args, "--max-magnitude", "5"]) == 2
+    assert "give --vis too" in capsys.readouterr().err
+    assert not out.exists()
+    assert not vis.exists()
+
+
+def test_cli_bench_flow_refuses_no_method_and_a_missing_data_folder(tmp_path, capsys):
+    assert main(["bench-flow", "--methods", "", "--no-middlebury", "--small"]) == 2
+    assert "names no flow method" in capsys.readouterr().err
+    missing = tmp_path / "nope"
+    assert main(["bench-flow", "--data", str(missing), "--small", "--methods", "dis"]) == 2
+    assert f"--data {missing}: folder not found" in capsys.readouterr().err
+
+
 def test_cli_flow_unknown_method(png_pair, tmp_path, capsys):
     args = ["flow", str(png_pair[0]), str(png_pair[1]), "-o", str(tmp_path / "f.flo")]
     assert main([*args, "--method", "hornschunck"]) == 2

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 from typing import Annotated
@@ -68,6 +69,11 @@ def flow_command(
     with user_values():
         m = get_flow_method(method.strip().lower())
         params = _parse_params(m.name, param or [])
+    if max_magnitude is not None:  # checked after the solve and the .flo were written
+        if vis is None:
+            fail("--max-magnitude sets the --vis colour scale; give --vis too")
+        if not (math.isfinite(max_magnitude) and max_magnitude > 0):
+            fail(f"--max-magnitude must be a number of pixels > 0, got {max_magnitude:g}")
     _check_out(output, force, (image0, image1))
     if vis is not None:
         _check_out(vis, force, (image0, image1))
@@ -136,6 +142,7 @@ def bench_flow_command(
     import cv2
 
     from ..experiments.flow_accuracy import (
+        ball_interior_erosion,
         ball_pairs,
         default_bench_entries,
         middlebury_pairs,
@@ -145,6 +152,10 @@ def bench_flow_command(
 
     with user_values():
         entries = default_bench_entries(None if methods is None else methods.split(","))
+    if not entries:  # an empty table, exit 0
+        fail(f"--methods {methods!r} names no flow method")
+    if data is not None and not skip_middlebury and not data.exists():
+        fail(f"--data {data}: folder not found")
     pairs = []
     skipped = {}
     if not skip_middlebury:
@@ -184,8 +195,13 @@ def bench_flow_command(
     out_console.print(
         f"EPE px / AAE deg, mean over pairs; ms = one forward solve per pair "
         f"(OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads). "
-        f"Middlebury: frame10→11, unknown GT excluded; ball: interior (GT mask eroded 6 px). "
-        f"* = not the paper's tracker."
+        + ("" if skip_middlebury else "Middlebury: frame10→11, unknown GT excluded; ")
+        + (
+            ""
+            if skip_ball
+            else f"ball: interior (GT mask eroded {ball_interior_erosion(small=small)} px); "
+        )
+        + "pairs: the number averaged per dataset (--json). * = not the paper's tracker."
     )
 
 

@@ -41,6 +41,7 @@ __all__ = [
     "BenchEntry",
     "BenchResult",
     "FlowPair",
+    "ball_interior_erosion",
     "ball_pairs",
     "default_bench_entries",
     "middlebury_pairs",
@@ -170,8 +171,7 @@ def ball_pairs(*, intensity_noise: float, small: bool = False) -> list[FlowPair]
     gt = seq.ground_truth
     if gt is None or gt.flow is None or gt.mask is None:
         raise ValueError("make_falling_ball returned no ground-truth flow/mask")
-    scale = gt.scene.pixel_scale if gt.scene is not None else 1.0
-    erosion = max(1, round(6 * scale))
+    erosion = ball_interior_erosion(small=small)
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * erosion + 1, 2 * erosion + 1))
     label = f"ball {intensity_noise * 100:g}%"
     out = []
@@ -258,6 +258,14 @@ def run_flow_benchmark(
     return results
 
 
+def ball_interior_erosion(*, small: bool = False) -> int:
+    """Erosion (px) of the ball's GT mask that leaves the interior where flow errors are
+    scored: 6 px at 600x600, scaled with the image (``pixel_scale = fx / 1000``)."""
+    from ..synthetic import scene_intrinsics
+
+    return max(1, round(6 * scene_intrinsics(small=small).fx / 1000.0))
+
+
 def summarize_flow_benchmark(results: Iterable[BenchResult]) -> list[dict[str, Any]]:
     """Per (entry, dataset): mean EPE, mean AAE, mean ms over its pairs; entry order kept."""
     groups: dict[tuple[str, str], list[BenchResult]] = {}
@@ -275,7 +283,8 @@ def summarize_flow_benchmark(results: Iterable[BenchResult]) -> list[dict[str, A
                 "epe_px": float(np.mean([r.epe for r in rs])),
                 "aae_deg": float(np.mean([r.aae for r in rs])),
                 "ms": float(np.mean([r.ms for r in rs])),
-                "size": f"{rs[0].size[1]}x{rs[0].size[0]}",
+                # every size of the group (Middlebury's pairs differ: 584x388, 420x380, ...)
+                "size": ", ".join(dict.fromkeys(f"{r.size[1]}x{r.size[0]}" for r in rs)),
             }
         )
     return rows

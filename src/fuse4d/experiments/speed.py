@@ -12,6 +12,8 @@ time the centred engine or, with ``causal=True`` (``fuse4d bench --causal``), th
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import resource
 import sys
 import tempfile
@@ -19,6 +21,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from ..config import preset as get_preset
 from ..errors import ParameterError
@@ -55,7 +59,12 @@ class BenchResult:
     warmup_s : float
         Wall time of the warm-up run (numba compilation or cache load included).
     peak_rss_mb : float
-        Peak resident set size of the process so far, MiB.
+        Peak resident set size of the process during the timed run, MiB (Linux: the
+        kernel's high-water mark reset before it; elsewhere the process's peak so far). It
+        includes the frames held in memory (``input_mb``).
+    input_mb : float
+        The timed frames held in memory (depth and intensity, MiB; 0 for a recording, read
+        frame by frame).
     """
 
     preset: str
@@ -68,6 +77,7 @@ class BenchResult:
     warmup_s: float = 0.0
     peak_rss_mb: float = 0.0
     input: str = ""
+    input_mb: float = 0.0
     causal: bool = False
 
     @property
@@ -88,14 +98,30 @@ class BenchResult:
             "stage_ms": self.stage_ms,
             "warmup_s": self.warmup_s,
             "peak_rss_mb": self.peak_rss_mb,
+            "input_mb": self.input_mb,
             "input": self.input,
             "us_per_pixel": self.us_per_pixel,
         }
 
 
 def _peak_rss_mb() -> float:
+    """Peak RSS (MiB) since :func:`_reset_peak_rss` (Linux), else of the process so far."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return float(line.split()[1]) / 1024.0  # kB
+    except (OSError, ValueError, IndexError):
+        pass
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return peak / (1024.0 * 1024.0) if sys.platform == "darwin" else peak / 1024.0
+
+
+def _reset_peak_rss() -> None:
+    """Reset the kernel's peak-RSS mark of this process (Linux >= 4.0), so that the peak
+    reported is the timed run's: it was the process's, and grew with ``--frames`` by the
+    whole synthetic scene (ground truth included) rendered before the run."""
+    with contextlib.suppress(OSError):
+        Path("/proc/self/clear_refs").write_text("5")
 
 
 def benchmark_pipeline(
@@ -127,18 +153,31 @@ def benchmark_pipeline(
         :func:`benchmark_recording`.
     """
     chosen = get_preset(preset)
-    seq = make_falling_ball(small=small, num_frames=num_frames) if sequence is None else sequence
+    try:
+        seq = (
+            make_falling_ball(small=small, num_frames=num_frames) if sequence is None else sequence
+        )
+    except MemoryError:  # rendered whole, with its ground truth (--frames 100000000)
+        raise ParameterError(
+            f"num_frames={num_frames}: the synthetic ball of that many frames does not fit in "
+            "memory; time fewer frames"
+        ) from None
     # A36 as `fuse4d run` decides it for the recording's camera (the ball: none, "off")
     fusion = resolve_flying_pixels(
         chosen.fusion.replace(num_frames=window, causal=causal), seq.sensor
     )
-    frames = list(zip(seq.depth[:num_frames], seq.intensity[:num_frames], strict=True))
+    # the timed frames only (copies): the scene's ground truth is not part of the run
+    depth = np.ascontiguousarray(seq.depth[:num_frames])
+    intensity = np.ascontiguousarray(seq.intensity[:num_frames])
+    intrinsics, shape = seq.intrinsics, seq.shape
+    del seq
+    frames = list(zip(depth, intensity, strict=True))
     if not frames:
         raise ParameterError("benchmark_pipeline: the sequence has no frame to time")
 
     def run_once() -> tuple[float, dict[str, float]]:
         timings = dict.fromkeys(STAGES, 0.0)
-        engine = FusionEngine(seq.intrinsics, fusion=fusion, flow=chosen.flow, timings=timings)
+        engine = FusionEngine(intrinsics, fusion=fusion, flow=chosen.flow, timings=timings)
         start = time.perf_counter()
         emitted = 0
         for depth, intensity in frames:
@@ -147,18 +186,20 @@ def benchmark_pipeline(
         return time.perf_counter() - start, timings
 
     warm_start = time.perf_counter()
-    engine = FusionEngine(seq.intrinsics, fusion=fusion, flow=chosen.flow)
-    for depth, intensity in frames[: min(3, len(frames))]:
-        engine.push(depth, intensity)
+    engine = FusionEngine(intrinsics, fusion=fusion, flow=chosen.flow)
+    for d, i in frames[: min(3, len(frames))]:
+        engine.push(d, i)
     engine.flush()
     del engine  # (its ring buffers are not part of the timed run's memory)
     warmup = time.perf_counter() - warm_start
+    gc.collect()
+    _reset_peak_rss()
     seconds, timings = run_once()
     n = len(frames)
     return BenchResult(
         preset=preset,
         flow_method=chosen.flow.method,
-        size=seq.shape,
+        size=shape,
         frames=n,
         window=window,
         ms_per_frame=1000.0 * seconds / n,
@@ -166,6 +207,7 @@ def benchmark_pipeline(
         warmup_s=warmup,
         peak_rss_mb=_peak_rss_mb(),
         causal=causal,
+        input_mb=(depth.nbytes + intensity.nbytes) / 2**20,
     )
 
 
@@ -230,6 +272,7 @@ def benchmark_recording(
         warm_start = time.perf_counter()
         _fuse_streaming(**common, dst=Path(tmp) / "warm", limit=3)
         warmup = time.perf_counter() - warm_start
+        _reset_peak_rss()
         start = time.perf_counter()
         run = _fuse_streaming(**common, dst=Path(tmp) / "out", limit=num_frames)
         seconds = time.perf_counter() - start
