@@ -402,6 +402,20 @@ def test_depth_rmse_and_bad_pixels():
         depth_rmse(truth, np.zeros((3, 2)))
 
 
+@pytest.mark.parametrize("scale", [1e-2, 1.0, 1e5])
+def test_roughness_of_collinear_points_is_zero(scale):
+    """Every plane through a line fits points on it: with a double smallest eigenvalue the
+    normal came from rounding noise and two points scored 1-2 % of their distance."""
+    p = np.full((3, 3, 3), np.nan, np.float32)
+    p[1, 1] = np.array([545.16522, -2862.5295, 98489.13]) * scale / 1e5
+    p[1, 2] = np.array([0.0, -2308.7449, 99294.3]) * scale / 1e5
+    p[0, 0] = 2 * p[1, 1] - p[1, 2]  # a third point on the line
+    pi, rms = roughness_maps(p, window=3, min_valid_fraction=2 / 9)
+    length = float(np.linalg.norm(p[1, 2] - p[1, 1]))
+    assert pi[1, 1] <= 1e-6 * length
+    assert rms[1, 1] <= 1e-6 * length
+
+
 def test_bad_pixels_with_the_noise_models_step_limit():
     """``noise_quad`` q: the threshold at true depth z is max(threshold, 2.5 q z^2)."""
     truth = np.array([[1000.0, 1000.0], [3000.0, 3000.0]])

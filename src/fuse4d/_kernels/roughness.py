@@ -81,6 +81,53 @@ def _eigvec_of(a00, a01, a02, a11, a12, a22, q, p2, lam):
     return (nx * s if ok else 0.0), (ny * s if ok else 0.0), (nz * s if ok else 1.0), lam
 
 
+@njit(inline="always", error_model="numpy")
+def _eigvec_of_rank1_safe(a00, a01, a02, a11, a12, a22, q, p2, lam):
+    """:func:`_eigvec_of`, also where ``A - lam I`` has rank 1 (a double ``lam``).
+
+    Collinear points (A of rank 1) have a double smallest eigenvalue: every cross product of
+    two rows of ``A - lam I`` is rounding noise, and the normal was not perpendicular to the
+    points' line (two points scored 1-2 % of their distance). Any unit vector perpendicular
+    to the largest row is then an eigenvector: that row crossed with the axis least along it.
+    Only the scalar path needs it (a double smallest root has r = 1, beyond the Newton
+    path's range); there the extra selects cost a third of the vectorised kernel's time.
+    """
+    nx, ny, nz, lam = _eigvec_of(a00, a01, a02, a11, a12, a22, q, p2, lam)
+    m00 = a00 - lam
+    m11 = a11 - lam
+    m22 = a22 - lam
+    x0 = a01 * a12 - a02 * m11
+    y0 = a02 * a01 - m00 * a12
+    z0 = m00 * m11 - a01 * a01
+    x1 = a01 * m22 - a02 * a12
+    y1 = a02 * a02 - m00 * m22
+    z1 = m00 * a12 - a01 * a02
+    x2 = m11 * m22 - a12 * a12
+    y2 = a12 * a02 - a01 * m22
+    z2 = a01 * a12 - m11 * a02
+    nn = max(x0 * x0 + y0 * y0 + z0 * z0, x1 * x1 + y1 * y1 + z1 * z1,
+             x2 * x2 + y2 * y2 + z2 * z2)  # fmt: skip
+    s0 = m00 * m00 + a01 * a01 + a02 * a02
+    s1 = a01 * a01 + m11 * m11 + a12 * a12
+    s2 = a02 * a02 + a12 * a12 + m22 * m22
+    if p2 <= 0.0 or nn > 1e-20 * max(s0, s1, s2) ** 2:  # |r_i x r_j|^2 <= max |r|^4
+        return nx, ny, nz, lam
+    f0 = (s0 >= s1) & (s0 >= s2)
+    f1 = (not f0) & (s1 >= s2)
+    vx = m00 if f0 else (a01 if f1 else a02)
+    vy = a01 if f0 else (m11 if f1 else a12)
+    vz = a02 if f0 else (a12 if f1 else m22)
+    kx = (abs(vx) <= abs(vy)) & (abs(vx) <= abs(vz))
+    ky = (not kx) & (abs(vy) <= abs(vz))
+    px = 0.0 if kx else (-vz if ky else vy)  # v x e_x, v x e_y, v x e_z
+    py = vz if kx else (0.0 if ky else -vx)
+    pz = -vy if kx else (vx if ky else 0.0)
+    norm = math.sqrt(px * px + py * py + pz * pz)
+    if norm == 0.0:  # A - lam I = 0 (A = lam I): any direction, as _eigvec_of
+        return nx, ny, nz, lam
+    return px / norm, py / norm, pz / norm, lam
+
+
 @njit
 def _smallest_eigvec_kernel(a00, a01, a02, a11, a12, a22):
     """Unit eigenvector of the smallest eigenvalue of a symmetric PSD 3x3 matrix.
@@ -93,7 +140,7 @@ def _smallest_eigvec_kernel(a00, a01, a02, a11, a12, a22):
         return 0.0, 0.0, 1.0, q
     phi = math.acos(r) / 3.0
     lam = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)  # smallest eigenvalue
-    return _eigvec_of(a00, a01, a02, a11, a12, a22, q, p2, lam)
+    return _eigvec_of_rank1_safe(a00, a01, a02, a11, a12, a22, q, p2, lam)
 
 
 @njit(inline="always", error_model="numpy")
