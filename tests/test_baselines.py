@@ -420,6 +420,35 @@ def test_cli_runs_baseline_and_refuses_overwrite(tmp_path, plane, intrinsics, rn
     assert "exists" in capsys.readouterr().err
     assert main(["baseline", "nope", str(src), "-o", str(tmp_path / "x.npz")]) == 2
     assert "unknown baseline" in capsys.readouterr().err
+    # --size and -p size both given: the -p value was dropped silently
+    other = str(tmp_path / "y.npz")
+    assert main(["baseline", "adjbf", str(src), "-o", other, "--size", "2", "-p", "size=1"]) == 2
+    assert "give --size or --param size=..., not both" in capsys.readouterr().err
+
+
+def test_cli_realsense_runs_in_the_recordings_own_unit(tmp_path, plane, intrinsics, rng):
+    """A 0.1 mm-unit recording (a D405's) ran the chain at 0.02 mm: the SDK's 20-unit delta
+    was 0.4 mm, not the 2 mm a RealSense user gets."""
+    from fuse4d import Sequence
+    from fuse4d.cli import main
+    from fuse4d.io import load_sequence, save_sequence
+
+    if not available_baselines()["realsense"].available:
+        pytest.skip("pyrealsense2 not installed (pip install 'fuse4d[realsense]')")
+    depth, tex = plane
+    noisy = depth[:3] + rng.normal(0, 0.5, depth[:3].shape).astype(np.float32)
+    src = save_sequence(Sequence(noisy, tex[:3], intrinsics), tmp_path / "in", depth_unit_mm=0.1)
+    outs = [tmp_path / "default.npz", tmp_path / "given.npz", tmp_path / "fine.npz"]
+    assert main(["baseline", "realsense", str(src), "-o", str(outs[0])]) == 0
+    assert (
+        main(["baseline", "realsense", str(src), "-o", str(outs[1]), "-p", "depth_unit=0.1"]) == 0
+    )
+    assert (
+        main(["baseline", "realsense", str(src), "-o", str(outs[2]), "-p", "depth_unit=0.02"]) == 0
+    )
+    default, given, fine = (load_sequence(p).depth for p in outs)
+    np.testing.assert_array_equal(default, given)
+    assert not np.array_equal(default, fine)
 
 
 def test_cli_baseline_writes_a_folder_in_the_inputs_own_unit(
@@ -513,12 +542,28 @@ def test_region_grow_kernel_matches_on_a_real_frame(shared_data):
         ("stmf", {"search": 10**6}, r"search must be an integer in \[0, 64\]"),
         ("realsense", {"spatial_alpha": 0.0}, r"spatial_alpha: 0 is outside the SDK's range"),
         ("realsense", {"persistence": 9}, r"persistence: 9 is outside the SDK's range \[0, 8\]"),
-        ("realsense", {"depth_unit": -1.0}, r"depth_unit -1 mm cannot represent"),
+        ("realsense", {"depth_unit": -1.0}, r"depth_unit must be a finite number > 0, got -1"),
+        # NaN / inf an internal error, -5 one step, inf baseline or unit an all-NaN output
+        ("realsense", {"spatial_delta": np.nan}, "spatial_delta must be a finite number > 0"),
+        ("realsense", {"spatial_delta": np.inf}, "spatial_delta must be a finite number > 0"),
+        ("realsense", {"temporal_delta": -5.0}, "temporal_delta must be a finite number > 0"),
+        ("realsense", {"baseline_mm": np.inf}, "baseline_mm must be a finite number"),
+        ("realsense", {"depth_unit": np.inf}, "depth_unit must be a finite number"),
+        ("realsense", {"depth_unit": 1e6}, "rounds the nearest depth"),
+        # inf / tiny sizes ran for hours in compiled code that only SIGKILL stopped
+        ("kinectfusion", {"noise_sigma": np.inf}, "noise_sigma must be a finite number"),
+        ("kinectfusion", {"voxel_size": np.inf}, "voxel_size must be a finite number"),
+        ("kinectfusion", {"trunc_voxels": 1e9}, "ray steps across the recording's depth range"),
+        ("kinectfusion", {"voxel_size": 1e-9}, "ray steps across the recording's depth range"),
+        ("adgf", {"size": 1e6}, r"adaptive_gaussian.size must be a finite number in \(0, 19"),
+        ("ed", {"band": np.inf}, "band must be a finite number"),
+        ("ta", {"noise_sigma": np.inf}, "noise_sigma must be a finite number"),
     ],
 )
 def test_baseline_knobs_out_of_range_are_parameter_errors(plane, intrinsics, name, params, says):
-    """Each hung (a radius of a million px), ran out of memory (STMF's block) or surfaced
-    pyrealsense2's bare 'out of range value for argument' as an internal error."""
+    """Each hung (a radius of a million px; kinectfusion's ray march with an infinite or
+    tiny voxel), ran out of memory (STMF's block), surfaced pyrealsense2's bare 'out of
+    range value for argument' as an internal error, or gave an all-NaN output."""
     from fuse4d.errors import ParameterError
 
     depth, inten = plane

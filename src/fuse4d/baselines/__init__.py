@@ -16,7 +16,7 @@ one meaning per name, accepted by :func:`run_baseline` and ``fuse4d baseline -p`
 ``size_name``       meaning                                 methods
 =================== ======================================= ==================================
 ``kernel_scale``    scale s of the noise-model kernel       adgf
-``spatial_radius``  pixel radius r of the (2r+1)^2 window   adbf, guided, dnbf, adjbf
+``spatial_radius``  pixel radius r (disc; guided: a box)    adbf, guided, dnbf, adjbf
 ``num_frames``      frames in the temporal window           ta, temporal-mean
 ``temporal_radius`` k frames either side (2k+1 frames)      stmf, kinectfusion, ed
 ``filter_passes``   passes of the spatial filter (1..5)     realsense
@@ -184,7 +184,7 @@ _REGISTRY: dict[str, BaselineInfo] = {
             default_size=4,
             size_sweep=(1, 2, 3, 4, 6, 8, 12),
             size_name="spatial_radius",
-            size_meaning="pixel radius r of the (2r+1)^2 window, px (sigma_s = r/2)",
+            size_meaning="pixel radius r of the disc window, px (sigma_s = r/2)",
             reference="Chen, Lin, Li, ICPR 2012",
             fills_holes=True,
         ),
@@ -205,7 +205,7 @@ _REGISTRY: dict[str, BaselineInfo] = {
             default_size=3,
             size_sweep=(1, 2, 3, 4, 6, 8, 12),
             size_name="spatial_radius",
-            size_meaning="pixel radius r of the (2r+1)^2 window, px (sigma_s = 2r/3)",
+            size_meaning="pixel radius r of the disc window, px (sigma_s = 2r/3)",
             reference="Fu, Wang, Lu, Li, Zeng, ISCAS 2012",
         ),
         BaselineInfo(
@@ -225,7 +225,7 @@ _REGISTRY: dict[str, BaselineInfo] = {
             default_size=4,
             size_sweep=(1, 2, 3, 4, 6, 8, 12),
             size_name="spatial_radius",
-            size_meaning="pixel radius r of the (2r+1)^2 window, px (sigma_s = r/2)",
+            size_meaning="pixel radius r of the disc window, px (sigma_s = r/2)",
             reference="Camplani, Mantecon, Salgado, IEEE T-Cybernetics 2013",
         ),
         BaselineInfo(

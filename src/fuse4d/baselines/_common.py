@@ -221,7 +221,7 @@ def resolve_noise_sigma(
     if noise_sigma is None:
         # A noise-free input estimates 0: sigma_median keeps a tiny positive scale.
         return estimate_noise_model(depth).sigma_median
-    return check_number(owner, "noise_sigma", noise_sigma, gt=0)
+    return check_number(owner, "noise_sigma", noise_sigma, gt=0, finite=True)
 
 
 def frame_median_depth(frame: NDArray[np.float32]) -> float:

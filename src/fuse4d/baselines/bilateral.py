@@ -129,12 +129,18 @@ def joint_bilateral_frame(
 # Ad-GF (BASELINES §1)
 
 
+#: View angle clamp (rad) of :func:`_view_angle`, and ADGF's lateral sigma there (px, 1.08):
+#: the largest sigma_L(theta) = 0.8 + 0.035 theta / (pi/2 - theta) per unit of ``size``.
+MAX_VIEW_ANGLE = float(np.deg2rad(80.0))
+ADGF_MAX_LATERAL_SIGMA_PX = 0.8 + 0.035 * MAX_VIEW_ANGLE / (np.pi / 2 - MAX_VIEW_ANGLE)
+
+
 def _view_angle(points: F32) -> F32:
     """Angle θ (rad) between the PCA normal (5×5 window) and the camera ray, clamped ≤ 80°."""
     pts = np.ascontiguousarray(points, dtype=np.float32)
     out = np.empty(points.shape[:2], np.float32)
     _pca_view_angle_kernel(pts, 2, 3, out)
-    return np.minimum(out, np.float32(np.deg2rad(80.0)))
+    return np.minimum(out, np.float32(MAX_VIEW_ANGLE))
 
 
 def _kinect_sigma_z(z_m: float, theta: np.ndarray) -> np.ndarray:
@@ -184,11 +190,16 @@ def adaptive_gaussian(
     σ_z(i) = σ̂_d(D_i) · σ_z^K(1 m, θ_i) / σ_z^K(1 m, 0); depth gate 3 σ_z(i).
     """
     d, _ = check_inputs(depth, intensity, intrinsics)
-    scale = check_number("adaptive_gaussian", "size", size, gt=0, finite=True)
+    # the largest lateral sigma is 1.08 px at the 80 degree clamp: radius ceil(3 * 1.08 s)
+    # stays within MAX_WINDOW_RADIUS (size 1e6 looped over 3e6 px per pixel: hours)
+    scale = check_number(
+        "adaptive_gaussian", "size", size, gt=0, finite=True,
+        le=MAX_WINDOW_RADIUS / (3.0 * ADGF_MAX_LATERAL_SIGMA_PX),
+    )  # fmt: skip
     if noise_sigma is None:
         model = estimate_noise_model(d)
     else:
-        sigma = check_number("adaptive_gaussian", "noise_sigma", noise_sigma, gt=0)
+        sigma = check_number("adaptive_gaussian", "noise_sigma", noise_sigma, gt=0, finite=True)
         model = DepthNoiseModel(sigma0=sigma, quad=0.0, z_med=float("nan"))
     points = depth_to_points(d, intrinsics)
     params = []

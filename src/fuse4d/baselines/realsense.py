@@ -200,15 +200,26 @@ def realsense_chain(
     magnitude = check_int("realsense_chain", "size", size, minimum=1, maximum=5)
     check_choice("realsense_chain", "hole_filling", hole_filling, (*_HOLE_MODES, None))
     check_choice("realsense_chain", "domain", domain, ("auto", "depth", "disparity"))
-    check_number("realsense_chain", "baseline_mm", baseline_mm, gt=0)
+    check_number("realsense_chain", "baseline_mm", baseline_mm, gt=0, finite=True)
+    for name, value in (("spatial_delta", spatial_delta), ("temporal_delta", temporal_delta)):
+        if value is not None:  # NaN / inf were internal errors, -5 acted as one step
+            check_number("realsense_chain", name, value, gt=0, finite=True)
     rs = _import_rs()
     finite = d[np.isfinite(d)]
     finite_max = float(finite.max()) if finite.size else 1.0
+    finite_min = float(finite.min()) if finite.size else 1.0
+    if depth_unit is not None:
+        check_number("realsense_chain", "depth_unit", depth_unit, gt=0, finite=True)
     unit_mm = float(depth_unit) if depth_unit is not None else recording_depth_unit(d)
     if not unit_mm > 0 or finite_max / unit_mm > 65535:
         raise ParameterError(
             f"realsense_chain.depth_unit {unit_mm:g} mm cannot represent depth up to "
             f"{finite_max:.0f} mm in 16 bits; give a unit > {finite_max / 65535:.3g} mm"
+        )
+    if finite.size and finite_min / unit_mm < 0.5:  # rounded to 0 = no depth: all NaN out
+        raise ParameterError(
+            f"realsense_chain.depth_unit {unit_mm:g} mm rounds the nearest depth "
+            f"({finite_min:.4g} mm) to 0 (no depth); give a unit < {2 * finite_min:.4g} mm"
         )
     if domain == "auto":
         domain = "disparity" if unit_mm == 1.0 else "depth"

@@ -69,6 +69,28 @@ def _import_open3d():
     return open3d
 
 
+#: Most ray-march steps of one pixel (KinectFusion's ray casting, one voxel a step).
+MAX_RAY_STEPS = 100_000
+
+
+def _check_ray_steps(depth: NDArray[np.float32], voxel: float, trunc: float) -> None:
+    """Refuse a voxel size so small, or a truncation so wide, that one pixel's ray would take
+    more than :data:`MAX_RAY_STEPS` steps across the recording's depth range: ``voxel_size``
+    1e-9 mm or ``trunc_voxels`` 1e9 ran for hours in compiled code that no signal but
+    SIGKILL stops."""
+    finite = depth[np.isfinite(depth)]
+    if finite.size == 0:
+        return
+    span = float(finite.max() - finite.min()) + 3.0 * trunc
+    steps = span / voxel
+    if not steps <= MAX_RAY_STEPS:
+        raise ParameterError(
+            f"kinectfusion: voxel_size {voxel:g} mm with a truncation of {trunc:g} mm gives "
+            f"{steps:.3g} ray steps across the recording's depth range (at most "
+            f"{MAX_RAY_STEPS}); use a larger voxel_size or fewer trunc_voxels"
+        )
+
+
 def _resolve_backend(backend: str) -> str:
     """Fusion backend: "auto" is the numba projective TSDF (it never hangs; module docstring)."""
     check_choice("kinectfusion", "backend", backend, _BACKENDS)
@@ -388,9 +410,10 @@ def kinectfusion(
         sigma_d = resolve_noise_sigma(d, noise_sigma, owner="kinectfusion")
         voxel_size = 2.5 * sigma_d if voxel_size is None else voxel_size
         max_distance = 10.0 * sigma_d if max_distance is None else max_distance
-    check_number("kinectfusion", "voxel_size", voxel_size, gt=0)
-    check_number("kinectfusion", "trunc_voxels", trunc_voxels, gt=0)
-    check_number("kinectfusion", "max_distance", max_distance, gt=0)
+    check_number("kinectfusion", "voxel_size", voxel_size, gt=0, finite=True)
+    check_number("kinectfusion", "trunc_voxels", trunc_voxels, gt=0, finite=True)
+    check_number("kinectfusion", "max_distance", max_distance, gt=0, finite=True)
+    _check_ray_steps(d, float(voxel_size), float(trunc_voxels) * float(voxel_size))
     resolved = _resolve_backend(backend)
     resolved_icp = _resolve_icp(icp)
     trunc = float(trunc_voxels) * float(voxel_size)

@@ -59,7 +59,7 @@ def temporal_average(
     check_number("temporal_average", "sigma_temporal", sigma_temporal, gt=0)
     coeff_t = 0.0 if np.isinf(sigma_temporal) else 0.5 / float(sigma_temporal) ** 2
     if noise_sigma is not None:
-        sigma = check_number("temporal_average", "noise_sigma", noise_sigma, gt=0)
+        sigma = check_number("temporal_average", "noise_sigma", noise_sigma, gt=0, finite=True)
         model = None
     else:
         model = estimate_noise_model(d)

@@ -140,10 +140,15 @@ def baseline_command(
     # (--force used to replace the input itself, or a folder inside it)
     check_output(output, overwrite=force, inputs=[input_path])
     params: dict[str, str] = parse_assignments(knobs, what="--param")
-    if size is not None:
-        params["size"] = size
-    if iterations is not None:
-        params["iterations"] = iterations
+    for option, key, value in (
+        ("--size", "size", size),
+        ("--iterations", "iterations", iterations),
+    ):
+        if value is None:
+            continue
+        if key in params:  # the -p value was dropped silently
+            fail(f"give {option} or --param {key}=..., not both")
+        params[key] = value
     kwargs = info.knobs(params)  # strings to the method's keyword types, before reading input
     if out_depth_unit_mm is not None:
         check_number("baseline", "out_depth_unit_mm", out_depth_unit_mm, gt=0, finite=True)
@@ -155,6 +160,10 @@ def baseline_command(
         own_unit = reader.depth_unit_mm  # written back in it (below)
         seq = reader.read_sequence()
     unit = out_depth_unit_mm or own_unit or 1.0
+    if name == "realsense" and "depth_unit" not in kwargs and own_unit is not None:
+        # the chain in the recording's own Z16 unit, as a RealSense user runs it (a 0.1 mm
+        # D405 recording ran at 0.02 mm: the SDK's 20-unit delta became 0.4 mm, not 2 mm)
+        kwargs["depth_unit"] = own_unit
     start = time.perf_counter()
     result = info.function(seq.depth, seq.intensity, seq.intrinsics, **kwargs)
     elapsed = time.perf_counter() - start
