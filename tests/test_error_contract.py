@@ -126,6 +126,28 @@ def _inject_bug(monkeypatch, exc: BaseException) -> None:
     monkeypatch.setattr(fuse4d.io, "open_frames", broken)
 
 
+def test_ctrl_c_turned_into_another_error_by_numba_is_an_interrupt(
+    npz_path, monkeypatch, tmp_path, capsys
+):
+    """A Ctrl-C raised inside numba's compiler (a ctypes callback) surfaced as "RuntimeError:
+    no compiled object yet for <Library ...>": exit 70 and a crash report for an interrupt."""
+    import fuse4d.cli
+    import fuse4d.io
+
+    monkeypatch.setenv("FUSE4D_CRASH_DIR", str(tmp_path / "crashes"))
+
+    def interrupted_while_compiling(*args, **kwargs):
+        fuse4d.cli._INTERRUPTED.set()  # what the console script's SIGINT handler does
+        raise RuntimeError("no compiled object yet for <Library '_roughness_row'>")
+
+    monkeypatch.setattr(fuse4d.io, "open_frames", interrupted_while_compiling)
+    assert main(["info", str(npz_path)]) == EXIT_INTERRUPTED
+    assert capsys.readouterr().err.strip() == "fuse4d: interrupted"
+    assert not (tmp_path / "crashes").exists()
+    assert not fuse4d.cli._INTERRUPTED.is_set() or main(["--version"]) == 0  # cleared per run
+    assert not fuse4d.cli._INTERRUPTED.is_set()
+
+
 @pytest.mark.parametrize("exc", [KeyError("oops"), ValueError("shapes (3,) (4,)"), TypeError("x")])
 def test_cli_internal_bug_gives_crash_report_exit_70(npz_path, monkeypatch, tmp_path, capsys, exc):
     monkeypatch.setenv("FUSE4D_CRASH_DIR", str(tmp_path / "crashes"))

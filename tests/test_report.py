@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fuse4d import Sequence, depth_to_points, fuse_sequence, load_sequence
+from fuse4d import Sequence, depth_to_points, fuse_sequence, load_sequence, save_sequence
 from fuse4d.cli import main
 from fuse4d.errors import OutputExistsError
 from fuse4d.metrics import (
@@ -475,3 +475,55 @@ def test_video_shows_the_source_codes_where_support_is_not_stored(small_ball, tm
     write_report(rec, out, tmp_path / "rep")
     page = (tmp_path / "rep" / "report.html").read_text()
     assert "where each value comes from (the fused result stores no support maps)" in page
+
+
+def test_summary_says_more_flicker_when_fusion_added_some():
+    """A ratio below 1 printed "(0.5× less)", and raw flicker 0 "(0× less)"."""
+    from fuse4d.report import _summary
+
+    def methods(raw, fused):
+        row = {"roughness_mean": 1.0, "fill_rate": 1.0}
+        return {"raw": {**row, "flicker_median": raw}, "fused": {**row, "flicker_median": fused}}
+
+    assert "(4× less)" in _summary(methods(2.0, 0.5), 4.0)
+    assert "(2× more)" in _summary(methods(1.0, 2.0), 0.5)
+    assert "(more: raw was still on these pixels)" in _summary(methods(0.0, 2.5), 0.0)
+    assert "less" not in _summary(methods(0.0, 2.5), 0.0)
+
+
+def test_report_refuses_a_result_of_other_frames_or_another_input(tmp_path, capsys):
+    """`--frames 50:56` replaced the range a run folder records (raw frames 50-55 scored
+    against fused 10-15), and a result of another recording was scored against this one."""
+    seq = make_falling_ball(small=True, num_frames=10)
+    other = make_falling_ball(small=True, num_frames=10, rng=7)
+    a, b = tmp_path / "a", tmp_path / "b.npz"
+    with pytest.warns(UserWarning, match="does not store ground-truth"):
+        save_sequence(seq, a, depth_unit_mm=0.05)  # a frame folder: run writes one, manifest
+    save_sequence(other, b)
+    run = tmp_path / "run"
+    assert main(["run", str(a), "-o", str(run), "--frames", "2:8", "--window", "3"]) == 0
+    capsys.readouterr()
+    assert main(["report", str(a), str(run), "-o", str(tmp_path / "r1"), "--frames", "3:9"]) == 2
+    assert "--frames 3:9: " in capsys.readouterr().err
+    assert main(["report", str(b), str(run), "-o", str(tmp_path / "r2")]) == 2
+    err = capsys.readouterr().err
+    assert "its intensity (frame 0) is not that of " in err
+    assert "b.npz's first frame (mean |difference|" in err
+    fused = tmp_path / "fused.npz"
+    assert main(["run", str(b), "-o", str(fused), "--window", "3", "--no-summary"]) == 0
+    save_sequence(seq, tmp_path / "a.npz")
+    assert main(["report", str(tmp_path / "a.npz"), str(fused), "-o", str(tmp_path / "r3")]) == 2
+    assert "a.npz's first frame (mean |difference|" in capsys.readouterr().err
+    assert not any((tmp_path / n).exists() for n in ("r1", "r2", "r3"))
+
+
+def test_video_rate_is_the_rate_asked_for():
+    """--fps 7.5 played at 8 and 0.4 at 1 (rounded to a whole number, at least 1)."""
+    from fractions import Fraction
+
+    from fuse4d.report.video import video_rate
+
+    assert video_rate(7.5) == Fraction(15, 2)
+    assert video_rate(0.4) == Fraction(2, 5)
+    assert float(video_rate(29.97)) == pytest.approx(29.97, abs=1e-9)
+    assert video_rate(30) == 30

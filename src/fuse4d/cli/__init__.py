@@ -55,9 +55,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     _tidy_help(command)
     args = list(sys.argv[1:] if argv is None else argv)
     STATE.debug = False
+    _INTERRUPTED.clear()
     if argv is None and threading.current_thread() is threading.main_thread():
         # console script: `kill` (SIGTERM) and a closed terminal or ssh session (SIGHUP) stop
-        # as cleanly as Ctrl-C (complete outputs only; SIGHUP left staged files behind)
+        # as cleanly as Ctrl-C (complete outputs only; SIGHUP left staged files behind); each
+        # is remembered, since one raised inside numba's compiler is turned into another error
+        signal.signal(signal.SIGINT, _terminate)
         signal.signal(signal.SIGTERM, _terminate)
         if hasattr(signal, "SIGHUP"):  # not on Windows
             signal.signal(signal.SIGHUP, _terminate)
@@ -79,6 +82,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"fuse4d: error: {_one_line(exc)}", file=sys.stderr)
         return _finish(EXIT_USAGE, argv)
     except Exception as exc:  # an internal bug: report it as one, never as a user error
+        if _INTERRUPTED.is_set():
+            # Ctrl-C inside numba's compiler (a ctypes callback) surfaced as "RuntimeError: no
+            # compiled object yet for <Library ...>": an interrupt, not a bug
+            print("fuse4d: interrupted", file=sys.stderr)
+            return _finish(EXIT_INTERRUPTED, argv)
         if _debug():
             raise
         report = write_crash_report(exc, args)
@@ -102,7 +110,12 @@ EXIT_BUG = 70
 EXIT_INTERRUPTED = 130
 
 
+#: Set by the console script's Ctrl-C / SIGTERM / SIGHUP handler (cleared by each main()).
+_INTERRUPTED = threading.Event()
+
+
 def _terminate(signum: int, frame: object) -> None:
+    _INTERRUPTED.set()
     raise KeyboardInterrupt
 
 

@@ -83,10 +83,11 @@ def report_command(
     """Write DIR/report.html (self-contained), DIR/compare.mp4 and DIR/metrics.json.
 
     A frame folder written by `fuse4d run` records how the run read INPUT (streams, camera,
-    frame range); the report reads it the same way.
+    frame range), an --engine dask store its frame range; the report reads it the same way.
+    FUSED's stored intensity must be INPUT's (a result of another recording is refused).
     """
-    from ..io.resume import run_reader_options
     from ..report import parse_roi
+    from ..report._sources import recorded_reader_options
 
     if rerun is not None:
         from ..io import check_output
@@ -95,8 +96,14 @@ def report_command(
         if not have_rerun():
             fail("--rerun needs rerun-sdk: pip install 'fuse4d[viz]'")
         check_output(rerun, overwrite=force, inputs=[input, fused])  # fail before the report
-    options = run_reader_options(fused) if fused.is_dir() else {}
+    options = recorded_reader_options(fused)
     if frames is not None:
+        recorded = options.get("frames")
+        if recorded is not None and str(recorded) != frames:  # raw and fused frames mismatched
+            fail(
+                f"--frames {frames}: {fused} was fused from frames {recorded} of its input "
+                "(its run records them); drop --frames"
+            )
         options["frames"] = frames
     page = make_report(
         input,

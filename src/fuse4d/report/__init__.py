@@ -35,7 +35,7 @@ from ..sequence import Sequence
 from ._sources import RawSource, open_fused, open_raw
 from .planes import Plane, detect_planes, given_plane
 from .render import colorize, normal_map, shade_points, splat_points
-from .video import Mp4Writer, choose_codec, count_video_frames
+from .video import Mp4Writer, choose_codec, count_video_frames, video_rate
 from .xt import MotionProfile, XtSlice, choose_line
 
 if TYPE_CHECKING:
@@ -883,7 +883,7 @@ def _write(
                 "file": "compare.mp4",
                 "codec": video.codec,
                 "frames": video.num_frames,
-                "fps": float(max(1, round(rate))),
+                "fps": float(video_rate(rate)),
                 "size": [video.height, video.width],
             },
         }
@@ -943,8 +943,12 @@ def _summary(methods: dict[str, dict[str, Any]], flicker_ratio: float) -> str:
     r = methods["raw"]
     f = methods["fused"]
     flicker = f"flicker {_fmt_mm(r['flicker_median'])} → {_fmt_mm(f['flicker_median'])}"
-    if math.isfinite(flicker_ratio):
+    if math.isfinite(flicker_ratio) and flicker_ratio >= 1.0:
         flicker += f" ({_fmt_ratio(flicker_ratio)} less)"
+    elif math.isfinite(flicker_ratio) and flicker_ratio > 0.0:  # "(0.5× less)" read backwards
+        flicker += f" ({_fmt_ratio(1.0 / flicker_ratio)} more)"
+    elif r["flicker_median"] == 0.0 and f["flicker_median"] > 0.0:  # was "(0× less)"
+        flicker += " (more: raw was still on these pixels)"
     elif not math.isfinite(f["flicker_median"]):
         flicker = "flicker n/a (it needs 2 frames and static pixels)"
     parts = [

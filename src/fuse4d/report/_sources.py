@@ -192,6 +192,14 @@ class FusedSource:
             return None
         return np.array(self._reader._array(key)[start:stop])  # memory-mapped npz member
 
+    def first_intensity(self) -> NDArray[np.float32] | None:
+        """Frame 0's intensity where the result stores one (``fuse4d run`` copies its
+        input's), else None."""
+        if self._reader is None:
+            return None
+        with _quiet_chunks():
+            return np.asarray(self._reader.read_frame(0).intensity, dtype=np.float32)
+
     def chunk(self, start: int, stop: int) -> FusedChunk:
         """Fused frames ``start:stop``."""
         if self._reader is not None:
@@ -215,6 +223,24 @@ class FusedSource:
         """Close the file reader (if any)."""
         if self._reader is not None:
             self._reader.close()
+
+
+def recorded_reader_options(fused: str | PathLike[str]) -> dict[str, Any]:
+    """How the run that wrote ``fused`` read its input: a ``fuse4d run`` folder's manifest
+    (streams, camera, frame range), or the frame range an ``--engine dask`` store records
+    (its other options are stored as text); ``{}`` for anything else."""
+    from ..io.resume import run_reader_options
+
+    path = Path(fused)
+    if not path.is_dir():
+        return {}
+    store = _dask_output(path)
+    if store is None:
+        return run_reader_options(path)
+    meta = dict(store.attrs).get("fuse4d") or {}
+    recorded = meta.get("reader_options") if isinstance(meta, dict) else None
+    frames = recorded.get("frames") if isinstance(recorded, dict) else None
+    return {"frames": str(frames)} if frames else {}
 
 
 def _dask_output(path: Path) -> Any:
@@ -272,4 +298,24 @@ def open_fused(
         if isinstance(data, str | PathLike):
             raise InputFileError(Path(data), problem)
         raise ParameterError(f"{name}: {problem}")
+    mine = fused.first_intensity()
+    if mine is not None:
+        theirs = np.asarray(raw.chunk(0, 1).intensity[0], dtype=np.float32)
+        differ = float(np.mean(np.abs(mine - theirs)))
+        # a result of another recording (or of other frames) was scored against this one:
+        # the stored copy of the input's intensity equals it up to 8-bit rounding
+        if differ > SAME_INTENSITY_TOLERANCE:
+            fused.close()
+            raise InputFileError(
+                Path(data),
+                f"its intensity (frame 0) is not that of {raw.name}'s first frame (mean "
+                f"|difference| {differ:.3f}): give the result of fusing this input (for a run "
+                "of part of it, the same --frames)",
+            )
     return fused
+
+
+#: Mean |difference| of frame 0's intensity (in [0, 1]) between a fused result's stored copy
+#: and its input, above which they are different frames: 8-bit storage rounds by <= 0.002,
+#: the intensity noise of two frames of one scene differs by ~0.01.
+SAME_INTENSITY_TOLERANCE = 0.004

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from fractions import Fraction
 from os import PathLike
 from pathlib import Path
 from types import TracebackType
@@ -12,7 +13,7 @@ from numpy.typing import NDArray
 
 from ..errors import ParameterError
 
-__all__ = ["Mp4Writer", "choose_codec", "count_video_frames"]
+__all__ = ["Mp4Writer", "choose_codec", "count_video_frames", "video_rate"]
 
 
 def choose_codec() -> str:
@@ -27,6 +28,12 @@ def choose_codec() -> str:
     import av
 
     return "libx264" if "libx264" in av.codecs_available else "mpeg4"
+
+
+def video_rate(fps: float) -> Fraction:
+    """The frame rate a video is written at: ``fps`` as a fraction (29.97 → 2997/100, as
+    asked; it was rounded to a whole number, at least 1: 7.5 played at 8, 0.4 at 1)."""
+    return Fraction(float(fps)).limit_denominator(1001)
 
 
 class Mp4Writer:
@@ -67,8 +74,7 @@ class Mp4Writer:
         self._container = av.open(
             str(self.path), mode="w", format="mp4", options={"movflags": "+faststart"}
         )
-        rate = max(1, round(fps))
-        self._stream = self._container.add_stream(self.codec, rate=rate)
+        self._stream = self._container.add_stream(self.codec, rate=video_rate(fps))
         self._stream.width = self.width
         self._stream.height = self.height
         self._stream.pix_fmt = "yuv420p"
