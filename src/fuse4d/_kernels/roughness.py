@@ -53,7 +53,8 @@ def _eig_setup(a00, a01, a02, a11, a12, a22):
 def _eigvec_of(a00, a01, a02, a11, a12, a22, q, p2, lam):
     """Unit eigenvector of eigenvalue ``lam``: the largest cross product of two rows of
     ``A - lam I``; Z where A = q I (``p2`` <= 0) or the rows are degenerate. Branch-free
-    (selects), so that a loop over pixels vectorises. Returns ``(nx, ny, nz, lam)``."""
+    (selects), so that a loop over pixels vectorises. Returns ``(nx, ny, nz, lam, nn)``,
+    ``nn`` the squared norm of that cross product (unused where inlined: no cost)."""
     m00 = a00 - lam
     m11 = a11 - lam
     m22 = a22 - lam
@@ -78,7 +79,7 @@ def _eigvec_of(a00, a01, a02, a11, a12, a22, q, p2, lam):
     nn = n0 if first else (n1 if second else n2)
     ok = (nn > 0.0) & (p2 > 0.0)
     s = 1.0 / math.sqrt(nn) if ok else 0.0
-    return (nx * s if ok else 0.0), (ny * s if ok else 0.0), (nz * s if ok else 1.0), lam
+    return (nx * s if ok else 0.0), (ny * s if ok else 0.0), (nz * s if ok else 1.0), lam, nn
 
 
 @njit(inline="always", error_model="numpy")
@@ -92,21 +93,10 @@ def _eigvec_of_rank1_safe(a00, a01, a02, a11, a12, a22, q, p2, lam):
     Only the scalar path needs it (a double smallest root has r = 1, beyond the Newton
     path's range); there the extra selects cost a third of the vectorised kernel's time.
     """
-    nx, ny, nz, lam = _eigvec_of(a00, a01, a02, a11, a12, a22, q, p2, lam)
+    nx, ny, nz, lam, nn = _eigvec_of(a00, a01, a02, a11, a12, a22, q, p2, lam)
     m00 = a00 - lam
     m11 = a11 - lam
     m22 = a22 - lam
-    x0 = a01 * a12 - a02 * m11
-    y0 = a02 * a01 - m00 * a12
-    z0 = m00 * m11 - a01 * a01
-    x1 = a01 * m22 - a02 * a12
-    y1 = a02 * a02 - m00 * m22
-    z1 = m00 * a12 - a01 * a02
-    x2 = m11 * m22 - a12 * a12
-    y2 = a12 * a02 - a01 * m22
-    z2 = a01 * a12 - m11 * a02
-    nn = max(x0 * x0 + y0 * y0 + z0 * z0, x1 * x1 + y1 * y1 + z1 * z1,
-             x2 * x2 + y2 * y2 + z2 * z2)  # fmt: skip
     s0 = m00 * m00 + a01 * a01 + a02 * a02
     s1 = a01 * a01 + m11 * m11 + a12 * a12
     s2 = a02 * a02 + a12 * a12 + m22 * m22
@@ -155,7 +145,7 @@ def _smallest_eigvec_newton(a00, a01, a02, a11, a12, a22):
         # g' > 0 left of the root (r <= 0.8); the floor only keeps an r near 1 finite
         c -= (4.0 * c * c * c - 3.0 * c - r) / max(12.0 * c * c - 3.0, 1e-300)
     lam = q + 2.0 * p * c if p2 > 0.0 else q
-    nx, ny, nz, lam = _eigvec_of(a00, a01, a02, a11, a12, a22, q, p2, lam)
+    nx, ny, nz, lam, _ = _eigvec_of(a00, a01, a02, a11, a12, a22, q, p2, lam)
     return nx, ny, nz, lam, (r <= _NEWTON_MAX_R) | (p2 <= 0.0)
 
 
