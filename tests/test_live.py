@@ -549,6 +549,45 @@ def test_ctrl_c_stops_the_run_with_what_was_fused(ball):
         run_live(_ListSource(seq, range(12), fps=30.0), fusion=CAUSAL3, sink=twice)
 
 
+def test_ctrl_c_before_the_first_frame_interrupts(ball):
+    """A camera's first frame can take seconds: a Ctrl-C then ended "normally" with 0 frames
+    (with -o: "no frame was written", exit 2)."""
+    import os
+    import signal
+
+    _, seq = ball
+
+    class _Slow(_ListSource):
+        def __iter__(self):
+            time.sleep(1.0)
+            yield from super().__iter__()
+
+    timer = threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGINT))
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_live(_Slow(seq, range(12)), fusion=CAUSAL3, warmup=False)
+    finally:
+        timer.cancel()
+
+
+def test_a_slow_playback_rate_is_kept(tmp_path, ball, monkeypatch):
+    """--fps 0.1: every wait of 10 s was taken for a jump in the timestamps and skipped."""
+    from fuse4d import live
+
+    _, seq = ball
+    path = tmp_path / "norate.npz"
+    write_npz(Sequence(depth=seq.depth, intensity=seq.intensity, intrinsics=seq.intrinsics), path)
+    monkeypatch.setattr(live, "MAX_PLAYBACK_WAIT_S", 0.05)  # waits of 0.1 s are "long"
+    source = RecordingSource(path, realtime=True, fps=10.0, frames="0:4")
+    t0 = time.perf_counter()
+    try:
+        assert len(list(source)) == 4
+    finally:
+        source.close()
+    assert time.perf_counter() - t0 >= 0.29
+
+
 def test_ctrl_c_during_the_warm_up_interrupts_before_capture(ball, monkeypatch):
     import os
     import signal

@@ -313,7 +313,9 @@ def test_baseline_size_by_name_and_from_strings(tiny):
         run_baseline("guided", d, i, k, radius=3)
     with pytest.raises(ValueError, match=r"guided\.size must be an integer in \[1, 64\], got 0"):
         run_baseline("guided", d, i, k, size=0)
-    with pytest.raises(ValueError, match=r"adaptive_gaussian\.size must be a finite number > 0"):
+    with pytest.raises(
+        ValueError, match=r"adaptive_gaussian\.size must be a finite number in \(0, "
+    ):
         run_baseline("adgf", d, i, k, kernel_scale=0.0)
 
 

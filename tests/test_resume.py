@@ -250,6 +250,25 @@ def test_a_run_killed_inside_close_resumes(recording, reference, tmp_path, capsy
     assert main([*args, "--resume"]) == 0, capsys.readouterr().err
     assert not partial.exists()
     assert _contents(out) == _contents(reference)
+    # killed a step later (the checkpoint dropped, resume/ gone): nothing is fused again
+    # (without a checkpoint the resume fused every frame again)
+    import fuse4d.run
+
+    out.rename(partial)
+    manifest.update(complete=False, checkpoint=None)
+    (partial / MANIFEST_NAME).write_text(json.dumps(manifest))
+    pushed = []
+    real_push = fuse4d.run.FusionEngine.push
+
+    def counting_push(self, *a, **kw):
+        pushed.append(1)
+        return real_push(self, *a, **kw)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(fuse4d.run.FusionEngine, "push", counting_push)
+        assert main([*args, "--resume"]) == 0
+    assert len(pushed) <= 5  # the window's past frames at most, not all 20
+    assert _contents(out) == _contents(reference)
     # a partial run whose seed is gone: one error naming the file
     res = _child(10, "after", "SIGKILL", ["run", str(recording), "-o", str(tmp_path / "b")])
     assert res.returncode == -signal.SIGKILL

@@ -683,10 +683,12 @@ class FusionEngine:
         return None if math.isnan(quad) else quad
 
     def input_noise_sigma(self, index: int) -> float | None:
-        """The depth noise σ₀ (mm, A22, :func:`~fuse4d.motion.estimate_depth_noise`'s
-        trimmed residual) of frame ``index``'s depth, while the frame is in the ring buffer;
-        None for a frame pushed as ``points``. ``fuse4d run``'s summary uses it to tell static
-        pixels from moving ones without estimating it again.
+        """The depth noise σ₀ (mm, A22) of frame ``index``'s depth, while the frame is in the
+        ring buffer; None for a frame pushed as ``points``. It is
+        :func:`~fuse4d.motion.estimate_depth_noise`'s trimmed residual against the engine's
+        quad-aware reference z~ (not the default sigma-2 reference: on quantised depth that
+        one stops at every step and reads far less, 0.19 against 5.3 mm on
+        ``uva_cv2_person_turning``), the σ₀ of the fusion's own noise model.
         """
         if not max(0, self._pushed - self.ring) <= index < self._pushed:
             raise IndexError(f"frame {index} is not in the ring buffer")

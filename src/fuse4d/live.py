@@ -207,7 +207,7 @@ class RecordingSource:
             if self.realtime:
                 assert start is not None
                 wait = start + self._due(order, frame.index) - time.perf_counter()
-                if wait > MAX_PLAYBACK_WAIT_S:
+                if wait > MAX_PLAYBACK_WAIT_S and self._timestamps is not None:
                     # a jump in the timestamps (a paused recording, ns stored as s): played
                     # without the wait; time.sleep(1e10) raised OverflowError, or hung
                     warnings.warn(
@@ -648,13 +648,16 @@ def run_live(
         finally:
             queue.close()
 
-    with _stop_on_signals(stop, stats):
+    with _stop_on_signals(stop, stats) as armed:
         if warmup:
             _warm_up(source.intrinsics, params, flow, overlap_flow)
         if stats.interrupted:  # during the warm-up: nothing was captured
             raise KeyboardInterrupt
+        armed.set()  # from now on a second signal interrupts at once
         _fuse_live(source, params, flow, overlap_flow, queue, capture, sink, on_gap, stop,
                    stats, steps, extra_delay_s)  # fmt: skip
+    if stats.interrupted and stats.frames_fused == 0:  # before the first frame: nothing out
+        raise KeyboardInterrupt
     if errors:
         if isinstance(errors[0], CameraError) and stats.frames_captured:
             # a camera lost mid-run: the frames fused so far are kept (a recording can be
@@ -685,18 +688,23 @@ def run_live(
 
 
 @contextlib.contextmanager
-def _stop_on_signals(stop: threading.Event, stats: LiveStats) -> Iterator[None]:
+def _stop_on_signals(stop: threading.Event, stats: LiveStats) -> Iterator[threading.Event]:
     """Ctrl-C, SIGTERM and SIGHUP set ``stop`` (and ``stats.interrupted``) instead of raising:
     the run ends as after q, with the frames fused until then. Raised in the middle of
     loading the numba kernels, a KeyboardInterrupt was swallowed by a ctypes callback and the
-    run went on. A second signal raises KeyboardInterrupt. Main thread only (elsewhere no
-    signal is delivered)."""
+    run went on. Once the caller sets the event yielded (the kernels are loaded), a second
+    signal raises KeyboardInterrupt; before, it only stops (raised inside numba's compiler it
+    printed a ctypes traceback). Main thread only (elsewhere no signal is delivered)."""
+    armed = threading.Event()
     if threading.current_thread() is not threading.main_thread():
-        yield
+        yield armed
         return
 
     def handler(signum: int, frame: object) -> None:
-        if stats.interrupted:
+        from ._signals import INTERRUPTED
+
+        INTERRUPTED.set()  # the CLI reads an error raised meanwhile as the interrupt
+        if stats.interrupted and armed.is_set():
             raise KeyboardInterrupt
         stats.interrupted = True
         stop.set()
@@ -705,7 +713,7 @@ def _stop_on_signals(stop: threading.Event, stats: LiveStats) -> Iterator[None]:
     sigs = [getattr(signal, n) for n in names if hasattr(signal, n)]
     previous = {s: signal.signal(s, handler) for s in sigs}
     try:
-        yield
+        yield armed
     finally:
         for s, h in previous.items():
             signal.signal(s, h)

@@ -26,6 +26,7 @@ from collections.abc import Sequence
 
 import typer
 
+from .._signals import INTERRUPTED as _INTERRUPTED
 from ..errors import Fuse4dError
 from ._app import STATE, app
 from ._crash import write_crash_report
@@ -108,10 +109,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 EXIT_USAGE = 2
 EXIT_BUG = 70
 EXIT_INTERRUPTED = 130
-
-
-#: Set by the console script's Ctrl-C / SIGTERM / SIGHUP handler (cleared by each main()).
-_INTERRUPTED = threading.Event()
 
 
 def _terminate(signum: int, frame: object) -> None:

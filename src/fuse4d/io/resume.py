@@ -404,9 +404,10 @@ class ResumableFolderWriter:
         self._seconds_before = float(seconds) if isinstance(seconds, int | float) else 0.0
         self._has_mask = data.get("has_mask")
         self._checkpoint = checkpoint if isinstance(checkpoint, dict) else None
-        if self._checkpoint is not None and done == self.identity["frames"]:
+        if done == self.identity["frames"]:
             # every frame on disk (a kill inside close, which removes resume/): nothing is
-            # fused again, and the seed is not needed (its absence failed every resume)
+            # fused again (without a checkpoint every frame was), and the seed is not needed
+            # (its absence failed every resume)
             self._checkpoint = None
             self.restart_frame = done
         elif self._checkpoint is not None:

@@ -492,9 +492,11 @@ class RunningEvaluation:
     ) -> None:
         """Score one frame: raw and output ``(H, W, 3)`` point maps (mm). ``noise_quad`` and
         ``noise_sigma``: the raw depth's noise coefficient q (1/mm) and noise σ₀ (mm) where
-        the caller has them (:meth:`~fuse4d.fusion.FusionEngine.input_noise_quad`,
-        :meth:`~fuse4d.fusion.FusionEngine.input_noise_sigma`); None: estimated here with the
-        engine's estimators (σ₀ on the roughness frames only)."""
+        the caller has them (:meth:`~fuse4d.fusion.FusionEngine.input_noise_quad`); None:
+        estimated here, q with the engine's estimator, σ₀ with
+        :func:`~fuse4d.motion.estimate_depth_noise` as :func:`evaluate` does (on the roughness
+        frames only; the engine's own σ₀ is measured against another reference and is not
+        the same number)."""
         rp = np.asarray(raw_points, dtype=np.float32)[None]
         op = np.asarray(output_points, dtype=np.float32)[None]
         rd, od = rp[..., 2], op[..., 2]

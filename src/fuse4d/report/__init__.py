@@ -423,6 +423,8 @@ def write_report(
     chunk_frames = int(chunk_frames)
     if fps is not None and not (math.isfinite(fps) and fps > 0):  # 0 silently meant the default
         raise ParameterError(f"fps must be a video frame rate > 0, got {fps}")
+    if fps is not None:
+        video_rate(fps)  # one the encoders can write, before any work
     methods_compare = _check_compare(compare)
     roi_box = parse_roi(roi) if isinstance(roi, str) else roi
     inputs = [p for p in (input, fused, ground_truth) if isinstance(p, str | PathLike)]

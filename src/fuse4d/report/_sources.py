@@ -303,14 +303,16 @@ def open_fused(
         theirs = np.asarray(raw.chunk(0, 1).intensity[0], dtype=np.float32)
         differ = float(np.mean(np.abs(mine - theirs)))
         # a result of another recording (or of other frames) was scored against this one:
-        # the stored copy of the input's intensity equals it up to 8-bit rounding
+        # the stored copy of the input's intensity equals it up to 8-bit rounding. A warning,
+        # not an error: an .mkv or .zarr output does not record how its input was read
+        # (--no-undistort, --intensity, topics), so a true result can differ too
         if differ > SAME_INTENSITY_TOLERANCE:
-            fused.close()
-            raise InputFileError(
-                Path(data),
-                f"its intensity (frame 0) is not that of {raw.name}'s first frame (mean "
-                f"|difference| {differ:.3f}): give the result of fusing this input (for a run "
-                "of part of it, the same --frames)",
+            warnings.warn(
+                f"{data}: its intensity (frame 0) is not that of {raw.name}'s first frame "
+                f"(mean |difference| {differ:.3f}): a result of another recording or other "
+                "frames, or of this input read otherwise (--no-undistort, --intensity, "
+                "topics)? The report compares different frames if so",
+                stacklevel=2,
             )
     return fused
 

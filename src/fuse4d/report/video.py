@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from fractions import Fraction
 from os import PathLike
 from pathlib import Path
@@ -30,10 +31,28 @@ def choose_codec() -> str:
     return "libx264" if "libx264" in av.codecs_available else "mpeg4"
 
 
+#: Largest numerator or denominator of a video's time base (MPEG-4 part 2, the fallback
+#: encoder, refuses more: 90091/1001 failed with "avcodec_open2 returned 22").
+MAX_RATE_TERM = 65535
+
+
 def video_rate(fps: float) -> Fraction:
-    """The frame rate a video is written at: ``fps`` as a fraction (29.97 → 2997/100, as
-    asked; it was rounded to a whole number, at least 1: 7.5 played at 8, 0.4 at 1)."""
-    return Fraction(float(fps)).limit_denominator(1001)
+    """The frame rate a video is written at: ``fps`` as a fraction whose terms fit every
+    encoder (29.97 → 2997/100, as asked; it was rounded to a whole number, at least 1: 7.5
+    played at 8, 0.4 at 1).
+
+    Raises
+    ------
+    ParameterError
+        ``fps`` not in [1/1000, 65535] frames per second.
+    """
+    fps = float(fps)
+    if not (1e-3 <= fps <= MAX_RATE_TERM):  # 0.0004 became 0/1: PyAV's default 24 fps
+        raise ParameterError(f"fps must be in [0.001, {MAX_RATE_TERM}] frames/s, got {fps:g}")
+    rate = Fraction(fps).limit_denominator(min(1001, int(MAX_RATE_TERM // math.ceil(fps))))
+    if rate == 0:  # cannot happen in the range above; a rate of 0 is never written
+        raise ParameterError(f"fps {fps:g} rounds to 0 frames/s")
+    return rate
 
 
 class Mp4Writer:
