@@ -268,6 +268,7 @@ def test_one_frame_report_has_no_flicker(small_ball, small_fused, tmp_path):
     m = _metrics(tmp_path / "rep")
     assert m["flicker"]["static_pixels"] == 0
     assert m["metrics"]["fused"]["flicker_median"] is None
+    assert m["metrics"]["raw"]["roughness_std"] is None  # one frame has no spread (it said 0)
     page = (tmp_path / "rep" / "report.html").read_text()
     assert "flicker n/a (it needs 2 frames and static pixels)" in page
     # the page draws where the headline roughness comes from, and says the histogram clips
@@ -529,3 +530,16 @@ def test_video_rate_is_the_rate_asked_for():
     assert video_rate(90.0009).numerator <= 65535  # the mpeg4 fallback's limit (was 90091)
     with pytest.raises(ParameterError, match=r"fps must be in \[0.001, 65535\]"):
         video_rate(0.0004)  # was 0/1: PyAV's default 24 fps, and "fps": 0.0 in metrics.json
+
+
+def test_quiet_intensity_static_pixels_need_a_guide_signal(tmp_path):
+    """Colour resampled onto a wider depth grid is 0 outside the colour camera's view: those
+    pixels were "quiet" and scored as static for the flicker (58 % of a RealSense bag)."""
+    seq = make_falling_ball(small=True, num_frames=4)
+    inten = seq.intensity.copy()
+    inten[:, :, :110] = 0.0  # no guide signal in the left 110 columns, in every frame
+    seq = Sequence(seq.depth, inten, seq.intrinsics)  # no ground truth: the quiet rule
+    write_report(seq, seq.depth, tmp_path / "rep")
+    m = _metrics(tmp_path / "rep")
+    assert "where the intensity is not 0 in every frame" in m["flicker"]["static_source"]
+    assert 0 < m["flicker"]["static_pixels"] <= 150 * 40  # (16500 + before: the blank ones)

@@ -212,6 +212,9 @@ class _Scan:
                     gt_static &= np.all(np.asarray(flow)[: b - a] == 0, axis=(0, 3))
         n = float(t_total)
         self.intensity_std = np.sqrt(np.maximum(i2 / n - (i1 / n) ** 2, 0.0))
+        #: pixels where the guide image has any signal (colour resampled onto a wider depth
+        #: grid is 0 outside the colour camera's view: "quiet", but not seen)
+        self.intensity_seen = i1 > 0
         with np.errstate(invalid="ignore", divide="ignore"):
             mean = d1 / dn
             self.raw_std = np.where(
@@ -232,15 +235,17 @@ class _Scan:
             return np.zeros_like(self.all_valid), "one frame: no flicker"
         if self.gt_static is not None:
             return self.gt_static & self.all_valid, "static in the ground truth"
-        quiet = self.intensity_std[self.all_valid]
+        candidates = self.all_valid & self.intensity_seen
+        quiet = self.intensity_std[candidates]
         if quiet.size == 0:
             return np.zeros_like(self.all_valid), "no pixel valid in every frame"
         thr = max(2.5 * float(np.percentile(quiet, 10)), 0.01)
         return (
-            self.all_valid & (self.intensity_std <= thr),
+            candidates & (self.intensity_std <= thr),
             (
                 f"quiet intensity: temporal std of the intensity <= {thr:.3g} "
-                "(2.5 x its 10th percentile, at least 0.01)"
+                "(2.5 x its 10th percentile, at least 0.01), where the intensity is not "
+                "0 in every frame"
             ),
         )
 

@@ -255,5 +255,7 @@ def _nanmean(x: NDArray[np.float64]) -> float:
 
 
 def _nanstd(x: NDArray[np.float64]) -> float:
+    """Spread over frames (ddof 0); NaN for fewer than two (one frame printed 0, as
+    :func:`fuse4d.metrics.roughness_stats` did before it said n/a)."""
     good = x[np.isfinite(x)]
-    return float(good.std(ddof=0)) if good.size else math.nan
+    return float(good.std(ddof=0)) if good.size >= 2 else math.nan
