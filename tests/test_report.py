@@ -532,14 +532,30 @@ def test_video_rate_is_the_rate_asked_for():
         video_rate(0.0004)  # was 0/1: PyAV's default 24 fps, and "fps": 0.0 in metrics.json
 
 
-def test_quiet_intensity_static_pixels_need_a_guide_signal(tmp_path):
-    """Colour resampled onto a wider depth grid is 0 outside the colour camera's view: those
-    pixels were "quiet" and scored as static for the flicker (58 % of a RealSense bag)."""
-    seq = make_falling_ball(small=True, num_frames=4)
+def test_report_static_pixels_are_those_of_fuse4d_metrics(tmp_path, capsys):
+    """Without ground truth the report found its static pixels by quiet intensity, another
+    set than `fuse4d metrics` and the run summary (colour resampled onto a wider depth grid
+    is 0, quiet, outside the colour camera's view: 58 % of a RealSense bag was "static").
+    Now the depth rule of all three: the same pixels, the same per-pixel std."""
+    import dataclasses
+
+    from fuse4d.range_scenes import make_range_scene
+
+    seq = make_range_scene("body", sensor="kinect", small=True, num_frames=6, rng=3)
     inten = seq.intensity.copy()
-    inten[:, :, :110] = 0.0  # no guide signal in the left 110 columns, in every frame
-    seq = Sequence(seq.depth, inten, seq.intrinsics)  # no ground truth: the quiet rule
-    write_report(seq, seq.depth, tmp_path / "rep")
+    inten[:, :, :60] = 0.0  # no guide signal in the left columns
+    seq = dataclasses.replace(seq, intensity=inten, ground_truth=None)
+    raw, fused = tmp_path / "raw.npz", tmp_path / "fused.npz"
+    save_sequence(seq, raw)
+    assert main(["run", str(raw), "-o", str(fused), "--window", "3", "--no-summary"]) == 0
+    assert main(["report", str(raw), str(fused), "-o", str(tmp_path / "rep")]) == 0
     m = _metrics(tmp_path / "rep")
-    assert "where the intensity is not 0 in every frame" in m["flicker"]["static_source"]
-    assert 0 < m["flicker"]["static_pixels"] <= 150 * 40  # (16500 + before: the blank ones)
+    capsys.readouterr()
+    assert main(["metrics", str(raw), str(fused), "--no-shape", "--json"]) == 0
+    cli = json.loads(capsys.readouterr().out)
+    assert m["flicker"]["static_pixels"] == cli["static"]["pixels"] > 0
+    assert m["flicker"]["static_source"] == cli["static"]["description"].split(";")[0]
+    for name, key in (("raw", "raw"), ("fused", "output")):
+        assert m["metrics"][name]["flicker_median"] == pytest.approx(
+            cli[key]["flicker_std_median"], rel=1e-6
+        )

@@ -28,9 +28,10 @@ from numpy.typing import ArrayLike, NDArray
 from ..camera import depth_to_points
 from ..errors import ParameterError, ShapeError
 from ..holes import _SourceTally
-from ..metrics.roi import box_mask
+from ..metrics.evaluate import _static_rule
+from ..metrics.roi import box_mask, depth_trend, is_static
 from ..metrics.roi import parse_box as parse_roi
-from ..motion import estimate_noise_quad
+from ..motion import estimate_depth_noise, estimate_noise_quad
 from ..sequence import Sequence
 from ._sources import RawSource, open_fused, open_raw
 from .planes import Plane, detect_planes, given_plane
@@ -170,6 +171,15 @@ class _Scan:
         d1 = np.zeros((h, w))
         d2 = np.zeros((h, w))
         dn = np.zeros((h, w), dtype=np.int64)
+        # the depth rule of fuse4d.metrics.static_pixels (as `fuse4d metrics` and the run
+        # summary apply it): running min, max and sum of t z, and sigma0 of the same frames
+        zmin = np.full((h, w), np.inf)
+        zmax = np.full((h, w), -np.inf)
+        ztsum = np.zeros((h, w))
+        sigma_frames = set(
+            np.unique(np.linspace(0, t_total - 1, min(8, t_total)).round().astype(int)).tolist()
+        )
+        sigmas: list[float] = []
         lows: list[float] = []
         highs: list[float] = []
         quads: list[float] = []  # depth-noise q of each frame (bad_steps' step limit)
@@ -193,6 +203,11 @@ class _Scan:
                 d1 += x
                 d2 += x * x
                 dn += ok
+                ztsum += t * x
+                np.fmin(zmin, d, out=zmin, where=ok)
+                np.fmax(zmax, d, out=zmax, where=ok)
+                if t in sigma_frames:
+                    sigmas.append(estimate_depth_noise(d))
                 if t % step == 0 and ok.any():
                     lo, hi = np.percentile(d[ok], [1.0, 99.0])
                     lows.append(float(lo))
@@ -212,9 +227,6 @@ class _Scan:
                     gt_static &= np.all(np.asarray(flow)[: b - a] == 0, axis=(0, 3))
         n = float(t_total)
         self.intensity_std = np.sqrt(np.maximum(i2 / n - (i1 / n) ** 2, 0.0))
-        #: pixels where the guide image has any signal (colour resampled onto a wider depth
-        #: grid is 0 outside the colour camera's view: "quiet", but not seen)
-        self.intensity_seen = i1 > 0
         with np.errstate(invalid="ignore", divide="ignore"):
             mean = d1 / dn
             self.raw_std = np.where(
@@ -228,6 +240,12 @@ class _Scan:
             self.depth_range = (self.depth_range[0] - 1.0, self.depth_range[0] + 1.0)
         self.gt_static = gt_static
         self.noise_quad = float(np.median(quads)) if quads else 0.0
+        self.noise_sigma = float(np.median(sigmas)) if sigmas else 0.0
+        self._depth_static = self.all_valid & is_static(
+            zmin, zmax, np.where(self.all_valid, mean, 0.0), self.noise_quad,
+            noise_sigma=self.noise_sigma, trend=depth_trend(d1, ztsum, t_total),
+            frames=t_total,
+        )  # fmt: skip
 
     def static_mask(self) -> tuple[NDArray[np.bool_], str]:
         """Pixels seeing a static surface and how they were found."""
@@ -235,19 +253,12 @@ class _Scan:
             return np.zeros_like(self.all_valid), "one frame: no flicker"
         if self.gt_static is not None:
             return self.gt_static & self.all_valid, "static in the ground truth"
-        candidates = self.all_valid & self.intensity_seen
-        quiet = self.intensity_std[candidates]
-        if quiet.size == 0:
+        if not self.all_valid.any():
             return np.zeros_like(self.all_valid), "no pixel valid in every frame"
-        thr = max(2.5 * float(np.percentile(quiet, 10)), 0.01)
-        return (
-            candidates & (self.intensity_std <= thr),
-            (
-                f"quiet intensity: temporal std of the intensity <= {thr:.3g} "
-                "(2.5 x its 10th percentile, at least 0.01), where the intensity is not "
-                "0 in every frame"
-            ),
-        )
+        # the rule of `fuse4d metrics` and the run summary (it was "quiet intensity", another
+        # set of pixels: colour resampled onto a wider depth grid is 0, quiet, outside the
+        # colour camera's view, 58 % of a RealSense bag)
+        return self._depth_static, _static_rule(self.noise_sigma) + " (raw)"
 
 
 def _sixth_panel(
