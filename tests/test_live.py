@@ -535,8 +535,13 @@ def test_ctrl_c_stops_the_run_with_what_was_fused(ball):
         if len(sent) == 3:
             os.kill(os.getpid(), signal.SIGINT)
 
+    from fuse4d._signals import INTERRUPTED
+
+    INTERRUPTED.clear()
     stats = run_live(_ListSource(seq, range(12), fps=30.0), fusion=CAUSAL3, sink=sink)
     assert stats.interrupted
+    # a normal stop: a bug while writing afterwards must not read as the interrupt
+    assert not INTERRUPTED.is_set()
     assert stats.frames_fused == 3  # the loop ends at the stop
     assert stats.to_dict()["interrupted"] is True
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored

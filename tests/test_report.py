@@ -559,3 +559,16 @@ def test_report_static_pixels_are_those_of_fuse4d_metrics(tmp_path, capsys):
         assert m["metrics"][name]["flicker_median"] == pytest.approx(
             cli[key]["flicker_std_median"], rel=1e-6
         )
+
+
+def test_an_input_rate_no_video_can_have_falls_back_with_a_warning(
+    small_ball, small_fused, tmp_path
+):
+    """A recording's own rate of 100000 fps (a misread timestamp unit) failed the report after
+    all its work, naming an option the user never gave."""
+    import dataclasses
+
+    fast = dataclasses.replace(small_ball.frames(0, 3), fps=100000.0)
+    with pytest.warns(UserWarning, match="its frame rate 100000 fps is not one a video"):
+        write_report(fast, small_fused.depth[:3], tmp_path / "rep")
+    assert _metrics(tmp_path / "rep")["video"]["fps"] == 10.0

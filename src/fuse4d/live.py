@@ -701,9 +701,12 @@ def _stop_on_signals(stop: threading.Event, stats: LiveStats) -> Iterator[thread
         return
 
     def handler(signum: int, frame: object) -> None:
-        from ._signals import INTERRUPTED
+        if not armed.is_set():
+            # while the kernels load, numba may turn an interrupt into another error: the
+            # CLI reads that as the interrupt (later, a bug during the stop stays a bug)
+            from ._signals import INTERRUPTED
 
-        INTERRUPTED.set()  # the CLI reads an error raised meanwhile as the interrupt
+            INTERRUPTED.set()
         if stats.interrupted and armed.is_set():
             raise KeyboardInterrupt
         stats.interrupted = True

@@ -96,7 +96,8 @@ def report_command(
 
     A frame folder written by `fuse4d run` records how the run read INPUT (streams, camera,
     frame range), an --engine dask store its frame range; the report reads it the same way.
-    FUSED's stored intensity must be INPUT's (a result of another recording is refused).
+    Where FUSED's stored intensity is not INPUT's (a result of another recording, other
+    frames, or of INPUT read with other options), a warning says so.
     """
     from ..report import parse_roi
     from ..report._sources import recorded_reader_options

@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import math
 import time
+import warnings
 from collections.abc import Callable, Iterable, Mapping
 from os import PathLike
 from pathlib import Path
@@ -43,6 +44,9 @@ if TYPE_CHECKING:
     from .layout import VideoLayout
 
 __all__ = ["DEFINITIONS", "choose_codec", "count_video_frames", "parse_roi", "write_report"]
+
+#: Frame rate (frames/s) of the video where neither --fps nor the input gives a usable one.
+DEFAULT_VIDEO_FPS = 10.0
 
 #: Meaning of each metric, as written into the page and ``metrics.json``.
 DEFINITIONS = {
@@ -585,7 +589,17 @@ def _write(
         # without support maps (a frame folder) the panel shows the source codes it stores
         show_source=not fres.has_support and fres.chunk(0, 1).source is not None,
     )
-    rate = fps or raw.fps or 10.0
+    rate = fps or raw.fps or DEFAULT_VIDEO_FPS
+    if fps is None:
+        try:
+            video_rate(rate)
+        except ParameterError:  # the input's own rate (a misread timestamp unit): not fatal
+            warnings.warn(
+                f"{raw.name}: its frame rate {rate:g} fps is not one a video can be written "
+                f"at; the video plays at {DEFAULT_VIDEO_FPS:g} fps (--fps sets it)",
+                stacklevel=2,
+            )
+            rate = DEFAULT_VIDEO_FPS
     halo = 8 if compare else 0
     edges = np.linspace(0.0, rough_max, 61)
 
