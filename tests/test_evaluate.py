@@ -184,23 +184,32 @@ def test_run_summary_every_default_matches_the_cli():
     assert default == SUMMARY_EVERY
 
 
+def _summary_and_metrics(capsys, raw, fused, *extra: str) -> tuple[dict, dict]:
+    """`fuse4d run RAW -o FUSED` (every frame scored) and `fuse4d metrics RAW FUSED`, JSON."""
+    run = ["run", str(raw), "-o", str(fused), "--summary-every", "1", *extra, "--json"]
+    assert main(run) == 0
+    summary = json.loads(capsys.readouterr().out)
+    frames = ["--frames", extra[extra.index("--frames") + 1]] if "--frames" in extra else []
+    assert main(["metrics", str(raw), str(fused), "--no-shape", *frames, "--json"]) == 0
+    return summary.get("summary", summary), json.loads(capsys.readouterr().out)
+
+
+def _body_without_truth(frames: int):
+    """The Kinect-model body; no ground truth, so `metrics` detects static pixels too."""
+    import dataclasses
+
+    seq = make_range_scene("body", sensor="kinect", small=True, num_frames=frames, rng=3)
+    return dataclasses.replace(seq, ground_truth=None)
+
+
 def test_run_summary_and_metrics_find_the_same_static_pixels(tmp_path, capsys):
     """Both print the same static rule; the summary took the engine's sigma0 (measured
     against another reference), which on quantised depth let moving pixels pass as static
     (uva, frames 0:8: 138067 pixels and fused flicker 0.916 mm against metrics' 120723 and
     0.692 mm). Every frame scored, so both see the same frames' noise estimates."""
-    import dataclasses
-
-    seq = make_range_scene("body", sensor="kinect", small=True, num_frames=8, rng=3)
-    seq = dataclasses.replace(seq, ground_truth=None)  # metrics detects, as the summary does
     raw, fused = tmp_path / "raw.npz", tmp_path / "fused.npz"
-    write_npz(seq, raw)
-    args = ["run", str(raw), "-o", str(fused), "--window", "3", "--summary-every", "1", "--json"]
-    assert main(args) == 0
-    summary = json.loads(capsys.readouterr().out)
-    summary = summary.get("summary", summary)
-    assert main(["metrics", str(raw), str(fused), "--no-shape", "--json"]) == 0
-    metrics = json.loads(capsys.readouterr().out)
+    write_npz(_body_without_truth(8), raw)
+    summary, metrics = _summary_and_metrics(capsys, raw, fused, "--window", "3")
     assert summary["static_pixels"] == metrics["static"]["pixels"] > 0
     assert summary["raw_flicker_mm"] == pytest.approx(metrics["raw"]["flicker_step_mean"])
     assert summary["fused_flicker_mm"] == pytest.approx(metrics["output"]["flicker_step_mean"])
@@ -209,18 +218,9 @@ def test_run_summary_and_metrics_find_the_same_static_pixels(tmp_path, capsys):
 def test_run_summary_scores_what_a_frame_folder_stores(tmp_path, capsys):
     """A frame folder stores whole units of depth: the summary scored the float result
     (uva: 8.889 mm roughness, its files 11.27 mm with `fuse4d metrics`)."""
-    import dataclasses
-
-    seq = make_range_scene("body", sensor="kinect", small=True, num_frames=6, rng=3)
-    seq = dataclasses.replace(seq, ground_truth=None)
     raw, fused = tmp_path / "raw", tmp_path / "fused"
-    save_sequence(seq, raw)
-    args = ["run", str(raw), "-o", str(fused), "--window", "3", "--summary-every", "1", "--json"]
-    assert main(args) == 0
-    summary = json.loads(capsys.readouterr().out)
-    summary = summary.get("summary", summary)
-    assert main(["metrics", str(raw), str(fused), "--no-shape", "--json"]) == 0
-    metrics = json.loads(capsys.readouterr().out)
+    save_sequence(_body_without_truth(6), raw)
+    summary, metrics = _summary_and_metrics(capsys, raw, fused, "--window", "3")
     assert summary["fused_roughness_mm"] == pytest.approx(metrics["output"]["roughness_mean"])
     assert summary["fused_flicker_mm"] == pytest.approx(metrics["output"]["flicker_step_mean"])
 
@@ -232,13 +232,7 @@ def test_run_summary_and_metrics_agree_on_the_real_kinect_clip(shared_data, tmp_
     clip = shared_data / "uva_cv2_person_turning"
     if not clip.is_dir():
         pytest.skip(f"{clip} not present (the shared data)")
-    out = tmp_path / "fused.zarr"
-    args = ["run", str(clip), "--frames", "0:8", "-o", str(out), "--summary-every", "1"]
-    assert main([*args, "--json"]) == 0
-    summary = json.loads(capsys.readouterr().out)
-    summary = summary.get("summary", summary)
-    assert main(["metrics", str(clip), str(out), "--frames", "0:8", "--json"]) == 0
-    metrics = json.loads(capsys.readouterr().out)
+    summary, metrics = _summary_and_metrics(capsys, clip, tmp_path / "f.zarr", "--frames", "0:8")
     assert summary["static_pixels"] == metrics["static"]["pixels"] > 0
     assert summary["fused_flicker_mm"] == pytest.approx(metrics["output"]["flicker_step_mean"])
 
