@@ -198,8 +198,8 @@ class _QualityTally:
     """Before/after scores over streamed frames (:class:`~fuse4d.metrics.RunningEvaluation`)
     plus the fusion's own support and fill fractions."""
 
-    def __init__(self, every: int = 1) -> None:
-        self.scores = RunningEvaluation(every=every)
+    def __init__(self, every: int = 1, total_frames: int | None = None) -> None:
+        self.scores = RunningEvaluation(every=every, total_frames=total_frames)
         self.valid = 0
         self.supported = 0
         self.filled = 0
@@ -419,7 +419,7 @@ def _fuse_npz(
         timings=result.timings,
     )
     if quality:
-        tally = _QualityTally(summary_every)
+        tally = _QualityTally(summary_every, seq.num_frames)
         raw_points = seq.points()
         for t in range(seq.num_frames):
             frame = FusedFrame(
@@ -690,7 +690,7 @@ def _fuse_streaming(
             params=params,
             timings=timings,
         )
-        tally = _QualityTally(summary_every) if quality else None
+        tally = _QualityTally(summary_every, total) if quality else None
         unit = reader.depth_unit_mm or 1.0  # float-depth inputs (32FC1 bags, zarr): 1 mm steps
         # written back in the input's own unit: no "coarse unit" warning (the input already
         # had that precision; the smoothed output is less noisy than it on near surfaces)

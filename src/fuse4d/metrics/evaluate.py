@@ -44,6 +44,7 @@ from .roi import (
     default_roi,
     depth_trend,
     is_static,
+    noise_sigma_frames,
     scene_roi,
     static_mask_from_ground_truth,
     static_pixels,
@@ -453,6 +454,11 @@ class RunningEvaluation:
         flicker always uses every frame. 1 = all frames. ``fuse4d run`` uses 4: the two
         roughness maps of a frame cost almost as much as its fusion stage (uva 640 x 480: 2 x
         6.5 ms against 16 ms, stop 40).
+    total_frames : int, optional
+        Frames the stream will have, where known: the noise σ₀ of the static rule is then
+        estimated on the frames :func:`evaluate` uses (:func:`~fuse4d.metrics.roi.
+        noise_sigma_frames`, at most 8), so that both find the same static pixels; else on
+        the roughness frames.
 
     Notes
     -----
@@ -461,9 +467,19 @@ class RunningEvaluation:
     scored.
     """
 
-    def __init__(self, *, window: int = 5, max_step: float = 10.0, every: int = 1) -> None:
+    def __init__(
+        self,
+        *,
+        window: int = 5,
+        max_step: float = 10.0,
+        every: int = 1,
+        total_frames: int | None = None,
+    ) -> None:
         if isinstance(every, bool) or int(every) != every or every < 1:
             raise ParameterError(f"every must be an integer >= 1, got {every!r}")
+        self._sigma_frames = (
+            None if total_frames is None else set(noise_sigma_frames(int(total_frames)))
+        )
         self.window = window
         self.max_step = max_step
         self.every = int(every)
@@ -503,7 +519,11 @@ class RunningEvaluation:
         quad = float(_frame_quads(rd, noise_quad)[0])
         if noise_sigma is not None:
             self._sigmas.append(float(noise_sigma))
-        elif self.frames % self.every == 0:
+        elif (
+            self.frames in self._sigma_frames
+            if self._sigma_frames is not None
+            else self.frames % self.every == 0
+        ):
             from ..motion import estimate_depth_noise
 
             self._sigmas.append(estimate_depth_noise(rd[0]))

@@ -413,11 +413,19 @@ def depth_trend(zsum: ArrayLike, ztsum: ArrayLike, frames: int) -> NDArray[np.fl
     return slope * (n - 1)
 
 
+def noise_sigma_frames(total: int, frames: int = 8) -> list[int]:
+    """The frames (of ``total``) whose depth noise σ₀ is estimated for the static rule: up
+    to ``frames`` evenly spaced ones. One choice for :func:`static_pixels` (``fuse4d
+    metrics``), the run summary and the report, so that the three find the same pixels."""
+    picks = np.linspace(0, total - 1, min(frames, total)).round().astype(int)
+    return [int(k) for k in np.unique(picks)]
+
+
 def _median_noise_sigma(d: NDArray[np.float32], frames: int = 8) -> float:
     """Median depth noise σ₀ (mm) of up to ``frames`` evenly spaced frames of ``d``."""
     from ..motion import estimate_depth_noise
 
-    picks = np.unique(np.linspace(0, d.shape[0] - 1, min(frames, d.shape[0])).round().astype(int))
+    picks = noise_sigma_frames(d.shape[0], frames)
     return float(np.median([estimate_depth_noise(d[k]) for k in picks]))
 
 

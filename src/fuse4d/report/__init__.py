@@ -30,7 +30,7 @@ from ..camera import depth_to_points
 from ..errors import ParameterError, ShapeError
 from ..holes import _SourceTally
 from ..metrics.evaluate import _static_rule
-from ..metrics.roi import box_mask, depth_trend, is_static
+from ..metrics.roi import box_mask, depth_trend, is_static, noise_sigma_frames
 from ..metrics.roi import parse_box as parse_roi
 from ..motion import estimate_depth_noise, estimate_noise_quad
 from ..sequence import Sequence
@@ -180,9 +180,7 @@ class _Scan:
         zmin = np.full((h, w), np.inf)
         zmax = np.full((h, w), -np.inf)
         ztsum = np.zeros((h, w))
-        sigma_frames = set(
-            np.unique(np.linspace(0, t_total - 1, min(8, t_total)).round().astype(int)).tolist()
-        )
+        sigma_frames = set(noise_sigma_frames(t_total))
         sigmas: list[float] = []
         lows: list[float] = []
         highs: list[float] = []
