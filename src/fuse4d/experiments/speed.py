@@ -166,7 +166,8 @@ def benchmark_pipeline(
     fusion = resolve_flying_pixels(
         chosen.fusion.replace(num_frames=window, causal=causal), seq.sensor
     )
-    # the timed frames only (copies): the scene's ground truth is not part of the run
+    # the timed frames only (views of depth and intensity): the scene's ground truth, freed
+    # with ``seq``, is not part of the run
     depth = np.ascontiguousarray(seq.depth[:num_frames])
     intensity = np.ascontiguousarray(seq.intensity[:num_frames])
     intrinsics, shape = seq.intrinsics, seq.shape

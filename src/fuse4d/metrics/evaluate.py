@@ -338,6 +338,10 @@ def evaluate(
     ref_d = out_d if raw_d is None else raw_d
     full = out_d.shape
 
+    # the noise model's q of each raw frame (A22), estimated once: the default ROI's step
+    # limit, the static rule (their median) and the step limit of bad_steps
+    quads = _frame_quads(ref_d, None)
+
     # ---- the ROI: one, for raw and output
     if roi is not None:
         region = _user_roi(roi, full)
@@ -345,7 +349,7 @@ def evaluate(
     elif gt is not None and gt.scene is not None:
         region, roi_desc = scene_roi(gt, intrinsics=k, window=window)
     else:
-        region = default_roi(ref_d, window=window, max_step=max_step)
+        region = default_roi(ref_d, window=window, max_step=max_step, noise_quad=quads)
         roi_desc = (
             f"{window}x{window} windows fully valid in the {'raw' if raw_d is not None else ''}"
             f"{' ' if raw_d is not None else ''}depth, no step between neighbours above "
@@ -365,7 +369,9 @@ def evaluate(
             static_desc = "static in the ground truth"
         else:
             sigma = _median_noise_sigma(ref_d)
-            static_region = static_pixels(ref_d, noise_sigma=sigma)
+            static_region = static_pixels(
+                ref_d, noise_quad=float(np.median(quads)), noise_sigma=sigma
+            )
             static_desc = f"{_static_rule(sigma)} ({'raw' if raw_d is not None else 'input'})"
         if roi is not None:
             static_region = static_region & region.all(axis=0)
@@ -387,9 +393,7 @@ def evaluate(
     shape_sel = None if shape_frames is None else np.asarray(shape_frames, dtype=np.int64)
 
     # the step limit of bad_steps: one q for raw and output, from the raw video
-    quad = math.nan
-    if gt is not None and gt.depth is not None:
-        quad = float(np.median(_frame_quads(ref_d, None)))
+    quad = float(np.median(quads)) if gt is not None and gt.depth is not None else math.nan
 
     def score(depth: NDArray, points: NDArray, maps: tuple[NDArray, NDArray]) -> Scores:
         flick = None

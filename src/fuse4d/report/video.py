@@ -49,10 +49,7 @@ def video_rate(fps: float) -> Fraction:
     fps = float(fps)
     if not (1e-3 <= fps <= MAX_RATE_TERM):  # 0.0004 became 0/1: PyAV's default 24 fps
         raise ParameterError(f"fps must be in [0.001, {MAX_RATE_TERM}] frames/s, got {fps:g}")
-    rate = Fraction(fps).limit_denominator(min(1001, int(MAX_RATE_TERM // math.ceil(fps))))
-    if rate == 0:  # cannot happen in the range above; a rate of 0 is never written
-        raise ParameterError(f"fps {fps:g} rounds to 0 frames/s")
-    return rate
+    return Fraction(fps).limit_denominator(min(1001, int(MAX_RATE_TERM // math.ceil(fps))))
 
 
 class Mp4Writer:
