@@ -200,6 +200,13 @@ def test_fuse_stream_takes_reader_frames_and_names_a_bad_item(tmp_path):
 def test_engine_and_motion_reference_refuse_odd_numbers():
     with pytest.raises(ParameterTypeError, match=r"ring_size must be an integer, got 10\.5"):
         fuse4d.FusionEngine(K32, ring_size=10.5)
+    with pytest.raises(ParameterError, match="ring_size must be >= 0"):
+        fuse4d.FusionEngine(K32, ring_size=-3)
+    engine = fuse4d.FusionEngine(K32)
+    with pytest.raises(ParameterTypeError, match=r"first must be an integer, got 1\.5"):
+        engine.set_output_range(1.5, 3)  # was truncated to 1
+    with pytest.raises(ParameterTypeError, match=r"stop must be an integer, got 3\.0"):
+        engine.set_output_range(1, 3.0)
     from fuse4d.motion import motion_reference_depth
 
     with pytest.raises(ParameterError, match="sigma must be a finite number > 0 px, got inf"):

@@ -1030,7 +1030,7 @@ def test_engine_emits_with_latency_and_bounded_ring():
     assert counts == [0, 0, 1, 1, 1, 1, 1, 1]
     assert len(engine.flush()) == 2
     assert engine._depth.shape[0] == 5  # memory does not grow with the stream
-    with pytest.raises(RuntimeError, match="engine was flushed"):
+    with pytest.raises(RuntimeError, match=r"engine was flushed; call reset\(\)"):
         engine.push(depth[0], inten)
 
 

@@ -414,3 +414,95 @@ def test_spatial_fill_on_a_slanted_surface_still_stops_at_an_edge():
     out, filled = fill_small_holes(d, inten, max_area_px=64, radius=4)
     assert filled[6:9, 12:14].all()
     np.testing.assert_allclose(out[6:9, 12:14], wall[6:9, 12:14], atol=0.5)
+
+
+# ------------------------------------------------------ flags and fills of the whole engine
+@pytest.fixture(scope="module")
+def kinect_body():
+    """A small Kinect-model body: shadow holes, rim dropouts, a moving foreground."""
+    from fuse4d.range_scenes import make_range_scene
+
+    return make_range_scene("body", sensor="kinect", small=True, num_frames=6)
+
+
+def _fused(seq, **params):
+    from fuse4d import FusionParams, fuse_sequence
+
+    return fuse_sequence(
+        seq.depth, seq.intensity, seq.intrinsics, fusion=FusionParams(**params), flow="dis"
+    )
+
+
+def _assert_flags_describe_the_output(seq, res):
+    """Codes 1 and 2 only where the sensor measured depth and the output has some; codes
+    0, 5 and 6 only where the output has none; confidence 0 where there is no depth."""
+    from fuse4d.holes import SOURCE_FUSED, SOURCE_MEASURED, SOURCE_SPACE, SOURCE_TIME
+
+    raw = np.isfinite(seq.depth)
+    out = np.isfinite(res.depth)
+    raw_codes = np.isin(res.source, [SOURCE_MEASURED, SOURCE_FUSED])
+    assert not (raw_codes & ~raw).any(), "a sensor hole flagged measured or fused"
+    assert not (raw_codes & ~out).any(), "a pixel without output depth flagged measured/fused"
+    fills = np.isin(res.source, [SOURCE_TIME, SOURCE_SPACE])
+    assert not (fills & raw).any()
+    assert out[fills].all()
+    assert not out[~raw_codes & ~fills].any()
+    assert (res.confidence[~out] == 0).all()
+    assert ((res.source == SOURCE_FUSED) == (raw_codes & (res.support > 0))).all()
+
+
+def test_a_second_iteration_flags_the_recordings_holes_as_the_first(kinect_body):
+    """iterations=2 used to fuse the first pass's filled holes as measured depth: thousands of
+    sensor holes flagged measured/fused, the field of view taken from filled depth."""
+    from fuse4d.holes import SOURCE_OUTSIDE
+
+    one = _fused(kinect_body)
+    two = _fused(kinect_body, iterations=2)
+    _assert_flags_describe_the_output(kinect_body, two)
+    np.testing.assert_array_equal(two.source == SOURCE_OUTSIDE, one.source == SOURCE_OUTSIDE)
+    raw_holes = ~np.isfinite(kinect_body.depth)
+    filled_one = np.isfinite(one.depth) & raw_holes
+    filled_two = np.isfinite(two.depth) & raw_holes
+    assert abs(int(filled_two.sum()) - int(filled_one.sum())) < 0.1 * filled_one.sum()
+
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        {"fill_fallback": "nan"},
+        {"fill_fallback": "nan", "min_temporal_support": 3},
+        {"fill_fallback": "nan", "fill_holes": True},
+        {"min_temporal_support": 3},
+    ],
+)
+def test_flags_follow_the_output_under_fallback_and_minimum_support(kinect_body, params):
+    """fill_fallback="nan" used to leave empty pixels flagged measured (confidence 1/n), and
+    pixels below min_temporal_support (not fused: B^t) were flagged fused."""
+    from fuse4d.holes import SOURCE_MEASURED, SOURCE_NONE
+
+    res = _fused(kinect_body, **params)
+    _assert_flags_describe_the_output(kinect_body, res)
+    if params.get("min_temporal_support", 1) > 1:
+        assert not ((res.support > 0) & (res.support < 3)).any()
+        plain = _fused(kinect_body)
+        below = (plain.support > 0) & (plain.support < 3) & np.isfinite(kinect_body.depth)
+        assert below.any()
+        if params.get("fill_fallback") == "nan":
+            assert np.isnan(res.depth[below]).all()
+            assert (res.source[below] == SOURCE_NONE).all()
+        else:
+            assert (res.source[below] == SOURCE_MEASURED).all()
+
+
+def test_space_fill_size_limit_is_measured_on_the_sensor_holes(kinect_body):
+    """The fill from time breaks a large hole into pieces; A27's size and border limits are
+    the sensor hole's, so none of those pieces is filled in space."""
+    from fuse4d.holes import SOURCE_SPACE
+
+    res = _fused(kinect_body)
+    limit = 64
+    space = res.source == SOURCE_SPACE
+    assert space.any()
+    for t in range(kinect_body.num_frames):
+        small = small_hole_mask(~np.isfinite(kinect_body.depth[t]), limit)
+        assert not (space[t] & ~small).any(), f"frame {t}: space fill in a large sensor hole"

@@ -127,16 +127,19 @@ def test_source_confidence_kernel_matches_numpy():
     depth = rng.random((17, 23)).astype(np.float32)
     depth[rng.random(depth.shape) < 0.3] = np.nan
     support = rng.integers(0, 9, depth.shape).astype(np.uint8)
+    out = depth + 1.0
+    out[rng.random(depth.shape) < 0.2] = np.nan  # fill_fallback="nan": no output depth
     for n in (9.0, 7.0, 1.0):
         measured = ~np.isnan(depth)
-        source = np.where(measured, SOURCE_MEASURED, SOURCE_NONE).astype(np.uint8)
-        source[measured & (support > 0)] = SOURCE_FUSED
-        confidence = np.where(measured, (1.0 + support) / n, 0.0).astype(np.float32)
+        output = measured & ~np.isnan(out)
+        source = np.where(output, SOURCE_MEASURED, SOURCE_NONE).astype(np.uint8)
+        source[output & (support > 0)] = SOURCE_FUSED
+        confidence = np.where(output, (1.0 + support) / n, 0.0).astype(np.float32)
         got = (np.empty_like(source), np.empty_like(confidence), np.empty(depth.shape, bool))
-        assert _source_confidence_kernel(depth, support, n, *got)
+        assert _source_confidence_kernel(depth, out, support, n, *got)
         np.testing.assert_array_equal(got[0], source)
         np.testing.assert_array_equal(got[1], confidence)
         np.testing.assert_array_equal(got[2], ~measured)
     full = np.ones((3, 4), np.float32)
     bufs = (np.empty((3, 4), np.uint8), np.empty((3, 4), np.float32), np.empty((3, 4), bool))
-    assert not _source_confidence_kernel(full, np.zeros((3, 4), np.uint8), 9.0, *bufs)
+    assert not _source_confidence_kernel(full, full, np.zeros((3, 4), np.uint8), 9.0, *bufs)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from fuse4d import Intrinsics, Sequence, ShapeError
+from fuse4d.errors import ParameterTypeError
 from fuse4d.sequence import GroundTruth, normalize_intensity
 
 
@@ -66,6 +67,8 @@ def test_sequence_timestamps_and_fps(k):
         Sequence(np.ones((2, 4, 5)), np.zeros((2, 4, 5)), k, timestamps=[1.0, 1.0])
     with pytest.raises(ValueError, match="fps must be a positive number, got -3"):
         Sequence(np.ones((2, 4, 5)), np.zeros((2, 4, 5)), k, fps=-3)
+    with pytest.raises(ParameterTypeError, match="fps must be a number, got 'abc'"):
+        Sequence(np.ones((2, 4, 5)), np.zeros((2, 4, 5)), k, fps="abc")
 
 
 def test_frames_slices_ground_truth(k):

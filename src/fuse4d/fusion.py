@@ -141,7 +141,8 @@ class FusedFrame:
     points : (H, W, 3) ndarray of float32
         Fused 3D points p^_i^t in mm (NaN where the raw depth was invalid).
     support : (H, W) ndarray of uint8
-        Number of other frames whose track passed all checks (temporal support).
+        Number of other frames fused into the pixel (Eq. 5): those whose track passed all
+        checks; 0 where fewer than ``min_temporal_support`` did (the pixel keeps B^t).
     filled : (H, W) ndarray of bool
         Pixels without temporal support whose value comes from hole filling (Eq. 6).
     unfilled : (H, W) ndarray of bool
@@ -298,6 +299,8 @@ class FusionEngine:
             isinstance(ring_size, bool) or not isinstance(ring_size, int | np.integer)
         ):
             raise ParameterTypeError(f"ring_size must be an integer, got {ring_size!r}")
+        if ring_size is not None and ring_size < 0:
+            raise ParameterError(f"ring_size must be >= 0 (0: the window), got {ring_size}")
         self.ring = max(ring_size or 0, p.num_frames)
         h, w = intrinsics.height, intrinsics.width
         if p.num_frames > 1 and min(h, w) < 2:  # the flow said "image0 must have shape ..."
@@ -442,6 +445,11 @@ class FusionEngine:
                 f"set_output_range must come before the first push ({self._pushed} frames "
                 "pushed); call reset() to start a new stream"
             )
+        for name, value in (("first", first), ("stop", stop)):
+            if value is not None and (
+                isinstance(value, bool) or not isinstance(value, int | np.integer)
+            ):
+                raise ParameterTypeError(f"output range: {name} must be an integer, got {value!r}")
         if first < 0 or (stop is not None and stop <= first):
             raise ParameterError(f"output range needs 0 <= first < stop, got [{first}, {stop})")
         self._emitted = int(first)
@@ -486,7 +494,10 @@ class FusionEngine:
             two neighbouring chunks both push (the halo) this way.
         """
         if self._closed:
-            raise RuntimeError("engine was flushed; create a new FusionEngine for a new stream")
+            raise RuntimeError(
+                "engine was flushed; call reset() to start a new stream (or create a new "
+                "FusionEngine)"
+            )
         if intensity is None:
             raise ParameterTypeError(INTENSITY_REQUIRED)
         if pair_flow is not None and not (
@@ -587,6 +598,13 @@ class FusionEngine:
             self._last_points = None
             pts = as_float32(points, name="points")
             check_shape(pts, (h, w, 3), name=f"points (frame {index})")
+            # a later iteration fuses the previous output where the sensor measured depth:
+            # its filled holes go back to holes, so that the hole fills, the field of view
+            # and the source codes describe the recording's own holes, as in iteration 1
+            sensor_hole = np.isnan(d)
+            if sensor_hole.any():
+                pts = pts.copy() if np.may_share_memory(pts, points) else pts
+                pts[sensor_hole] = np.nan
             d = np.ascontiguousarray(pts[..., 2])
         quad = estimate_noise_quad(d)  # depth-noise model, part 1 (A22)
         z_med = _finite_median32(d)  # np.median of the valid depth, bit for bit (issue 13)
@@ -886,6 +904,8 @@ class FusionEngine:
             hole,
             base,
         )
+        if p.min_temporal_support > 1:  # below the minimum: not fused (B^t), support 0
+            support[hole] = 0
         if p.base_smoothing > 0 and p.base != "frame":
             _smooth_base(
                 points,
@@ -983,7 +1003,9 @@ class FusionEngine:
         source = np.empty(shape, np.uint8)
         confidence = np.empty(shape, np.float32)
         holes = np.empty(shape, np.bool_)
-        if not _source_confidence_kernel(self._depth[slot], support, n, source, confidence, holes):
+        if not _source_confidence_kernel(
+            self._depth[slot], points[..., 2], support, n, source, confidence, holes
+        ):
             return source, confidence
         source[~inside] = SOURCE_OUTSIDE
         rejected = None if self._rejected is None else self._rejected[slot]
@@ -997,6 +1019,7 @@ class FusionEngine:
         sides = _hole_sides(
             self._depth[slot], focal_px=self.intrinsics.fx, max_step=p.max_depth_step, quad=quad
         )
+        sensor_holes = holes.copy() if fill_time and p.fill_max_hole_px > 0 else None
         if fill_time:
             if time_fill is not None:  # chained by the tracking pass (its targets: these holes)
                 targets = time_fill.target
@@ -1055,6 +1078,7 @@ class FusionEngine:
                 sigma_intensity=p.sigma_intensity,
                 max_step=p.max_depth_step,
                 quad=quad,
+                sensor_holes=sensor_holes,
             )
             got &= inside  # (a hole outside joins the image border: A27 leaves it anyway)
             if got.any():
@@ -1303,15 +1327,15 @@ def fuse_sequence(
     ------
     ShapeError
         If depth, intensity, intrinsics or flows disagree in shape.
+    ParameterError
+        If T < 1.
 
     Notes
     -----
     Each pair's flow is computed in a worker thread while the frame is filtered
     (:class:`FusionEngine` ``overlap_flow``): the same result bit for bit, the flow stage of
-    ``timings`` only the wait for it.
-    ValueError
-        If T < 1 or a frame has no valid depth at all (all-NaN frames are allowed but warned
-        about by :class:`fuse4d.Sequence`; here they simply stay NaN).
+    ``timings`` only the wait for it. A frame without any valid depth is allowed: its pixels
+    are sensor holes, which the fill from other frames (A26) may reach.
 
     Examples
     --------

@@ -413,11 +413,19 @@ def _fill_small_holes(
     max_step: float,
     quad: float,
     sigma_space: float = 2.0,
+    sensor_holes: NDArray[np.bool_] | None = None,
 ) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
     """Unvalidated A27: fill the small components of ``holes`` in ``depth`` (mm); a fill of
     a rim or a projector shadow (``sides``, :func:`_hole_sides`) on the surface it cannot
-    belong to is refused."""
-    target = small_hole_mask(holes, int(max_area_px))
+    belong to is refused. ``sensor_holes``: the frame's holes before any other fill (default
+    ``holes``); the size and border limits apply to its components, and only their pixels
+    still in ``holes`` are filled (a large hole that the fill from time broke into pieces
+    stays a large hole)."""
+    if sensor_holes is None:
+        target = small_hole_mask(holes, int(max_area_px))
+    else:
+        target = small_hole_mask(sensor_holes, int(max_area_px))
+        target &= holes
     out = depth.copy()
     if target.any():
         _spatial_fill_kernel(

@@ -508,7 +508,10 @@ class Sequence:
                 raise ParameterError("timestamps must be strictly increasing")
             object.__setattr__(self, "timestamps", ts)
         if self.fps is not None:
-            fps = float(self.fps)
+            try:
+                fps = float(self.fps)
+            except (TypeError, ValueError):
+                raise ParameterTypeError(f"fps must be a number, got {self.fps!r}") from None
             if not (np.isfinite(fps) and fps > 0):
                 raise ParameterError(f"fps must be a positive number, got {self.fps!r}")
             object.__setattr__(self, "fps", fps)

@@ -616,6 +616,7 @@ def engine_frame(depth, intensity, fwd, bwd, intrinsics, params, t):
         constant=static,
     )
     hole = np.isfinite(ref_all[t, ..., 2]) & (support < p.min_temporal_support)
+    support = np.where(hole, 0, support)  # frames fused into the pixel: none below the minimum
     if p.base_smoothing > 0 and p.base != "frame" and not math.isinf(p.base_fine_limit):
         smooth_base(
             out,
