@@ -73,7 +73,11 @@ def test_a_part_converts_losslessly_to_every_layout(folder, tmp_path, suffix, ca
     if suffix == ".mkv" and importlib.util.find_spec("av") is None:
         pytest.skip("PyAV not installed (the sensors extra)")
     out = tmp_path / f"part{suffix}"
-    assert main(["convert", str(folder), str(out), "--frames", "2:6"]) == 0
+    if suffix in (".zarr", ".mkv"):  # the masks are dropped, with a warning (was silent)
+        with pytest.warns(UserWarning, match=rf"{suffix} format does not store ground-truth mask;"):
+            assert main(["convert", str(folder), str(out), "--frames", "2:6"]) == 0
+    else:
+        assert main(["convert", str(folder), str(out), "--frames", "2:6"]) == 0
     assert "4 frames (frames 2:6 of" in capsys.readouterr().out.replace("\n", "")
     want = load_sequence(folder, frames="2:6")
     got = load_sequence(out)
@@ -98,6 +102,53 @@ def test_npz_ground_truth_survives_conversion_to_npz(tmp_path):
     got = load_sequence(out)
     np.testing.assert_array_equal(got.ground_truth.depth, seq.ground_truth.depth[1:4])
     np.testing.assert_array_equal(got.depth, seq.depth[1:4])
+
+
+@pytest.mark.parametrize(
+    ("name", "dropped"),
+    [("f", "depth, flow, 16 gt_* values"), ("o.zarr", "depth, mask, flow, 16 gt_* values"),
+     ("o.mkv", "depth, mask, flow, 16 gt_* values")],
+)  # fmt: skip
+def test_npz_ground_truth_dropped_by_a_streamed_layout_is_named(tmp_path, name, dropped):
+    """Ground truth went missing silently in .zarr / .mkv outputs (and, but for the masks, in
+    a folder output, which convert writes frame by frame, not by write_frame_folder)."""
+    from fuse4d.synthetic import make_falling_ball
+
+    if name.endswith(".mkv") and importlib.util.find_spec("av") is None:
+        pytest.skip("PyAV not installed (the sensors extra)")
+    src = write_npz(make_falling_ball(small=True, num_frames=3), tmp_path / "ball.npz")
+    out = tmp_path / name
+    unit = None if name.endswith(".zarr") else 0.1
+    with pytest.warns(UserWarning, match="ground-truth") as rec:
+        convert_recording(src, out, out_depth_unit_mm=unit)
+    said = [str(w.message) for w in rec if "ground-truth" in str(w.message)]
+    want = f"{out}: {_LAYOUT[out.suffix]} format does not store ground-truth {dropped}; use .npz"
+    assert said == [f"{want} to keep them"]
+    if name == "f":  # the masks are kept
+        masks = load_sequence(src).ground_truth.mask
+        np.testing.assert_array_equal(load_sequence(out).ground_truth.mask, masks)
+
+
+_LAYOUT = {"": "the frame-folder", ".zarr": "the .zarr", ".mkv": "the .mkv"}
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".zarr"])
+def test_an_output_depth_unit_for_a_float_depth_output_is_refused(tmp_path, capsys, suffix):
+    """``--out-depth-unit-mm`` was silently ignored for an output that stores float depth."""
+    src = write_npz(_sequence(), tmp_path / "s.npz")
+    out = tmp_path / f"o{suffix}"
+    assert main(["convert", str(src), str(out), "--out-depth-unit-mm", "0.5"]) == 2
+    err = capsys.readouterr().err
+    assert f"{out}: out_depth_unit_mm applies to frame-folder and .mkv outputs" in err
+    assert "Traceback" not in err
+    assert not out.exists()
+
+
+def test_an_output_inside_a_file_says_the_file_is_no_folder(tmp_path, capsys):
+    src = write_npz(_sequence(), tmp_path / "s.npz")
+    (tmp_path / "mk.py").write_text("x = 1\n")
+    assert main(["convert", str(src), str(tmp_path / "mk.py" / "x.npz")]) == 2
+    assert f"{tmp_path / 'mk.py'} is not a folder" in capsys.readouterr().err
 
 
 def test_float_depth_to_a_folder_uses_the_unit_asked_for(tmp_path):

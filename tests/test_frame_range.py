@@ -83,6 +83,17 @@ def test_a_range_that_selects_nothing_is_one_clear_error(recording, capsys):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("frames", [(1.5, 3), (0, "3"), slice(True, 3)])
+def test_a_bound_that_is_not_a_whole_number_is_a_parameter_type_error(frames):
+    """(1.5, 3) raised range's bare TypeError ('slice indices must be integers')."""
+    from fuse4d.errors import ParameterTypeError
+    from fuse4d.io import resolve_frames
+
+    with pytest.raises(ParameterTypeError, match=r"frames: start, stop and step must be whole"):
+        resolve_frames(frames, 10)
+    assert resolve_frames((np.int64(1), 3), 10) == range(1, 3)
+
+
 def test_fusing_a_part_equals_fusing_a_recording_of_only_those_frames(
     recording, part_only, tmp_path
 ):

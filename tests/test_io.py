@@ -723,3 +723,144 @@ def test_writers_of_a_sequence_refuse_an_array(tmp_path):
         with pytest.raises(ParameterTypeError, match=rf"^{name} takes a fuse4d\.Sequence, got "):
             write(depth, tmp_path / "out")
     assert not list(tmp_path.iterdir())
+
+
+# ----------------------------------------------------------------------------- writer errors
+def _noisy_sequence(t: int = 4, h: int = 48, w: int = 64, **kwargs) -> Sequence:
+    rng = np.random.default_rng(7)
+    depth = (500.0 + 1000.0 * rng.random((t, h, w))).astype(np.float32)
+    intensity = rng.random((t, h, w)).astype(np.float32)
+    k = Intrinsics(60.0, 60.0, (w - 1) / 2, (h - 1) / 2, width=w, height=h)
+    return Sequence(depth, intensity, k, fps=30.0, **kwargs)
+
+
+@pytest.mark.parametrize("name", ["f", "s.zarr", "s.mkv"])
+def test_a_full_disk_while_streaming_is_an_output_write_error_naming_the_output(tmp_path, name):
+    """A full disk during a folder / .zarr / .mkv write gave a bare OSError (for .mkv naming the
+    hidden temporary file): the writers' own I/O ran outside the atomic context's error
+    handling. A file size limit (EFBIG, as ENOSPC a write error) fails the real writes."""
+    resource = pytest.importorskip("resource")
+    from fuse4d.errors import OutputWriteError
+
+    if name.endswith(".mkv"):
+        pytest.importorskip("av")
+    out = tmp_path / name
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (4096, hard))  # each frame is larger
+    try:
+        with pytest.raises(OutputWriteError) as err:
+            save_sequence(_noisy_sequence(), out, depth_unit_mm=0.1)
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+    assert str(err.value).startswith(f"{out}: cannot write the output (File too large)")
+    assert ".tmp-" not in str(err.value)
+    assert _listing(tmp_path) == []  # no output, no temporary
+
+
+@pytest.mark.parametrize("name", ["f", "s.zarr"])
+def test_an_output_that_cannot_be_set_up_leaves_no_temporary(tmp_path, monkeypatch, name):
+    """An error in ``open`` (``__enter__``) left the temporary folder behind: ``with`` does
+    not call ``__exit__`` when ``__enter__`` fails."""
+    import errno
+
+    from fuse4d.errors import OutputWriteError
+    from fuse4d.io.zarrstore import ZarrWriter
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    if name.endswith(".zarr"):
+        monkeypatch.setattr(ZarrWriter, "_add_array", full)
+    else:
+        mkdir = Path.mkdir
+        monkeypatch.setattr(
+            Path, "mkdir", lambda p, *a, **kw: full() if p.name == "depth" else mkdir(p, *a, **kw)
+        )
+    out = tmp_path / name
+    with pytest.raises(OutputWriteError) as err:
+        save_sequence(_noisy_sequence(t=1), out)
+    # checked while the traceback (and the writer with it) is alive: the garbage collector
+    # removed the temporary only once the writer was dropped
+    assert _listing(tmp_path) == []
+    assert str(err.value).startswith(f"{out}: cannot write the output (No space left")
+
+
+def test_an_output_inside_a_file_is_not_a_missing_folder(tmp_path):
+    (tmp_path / "mk.py").write_text("x = 1\n")
+    with pytest.raises(ParameterError, match=r"x\.npz: .*mk\.py is not a folder$"):
+        check_output(tmp_path / "mk.py" / "x.npz")
+
+
+@pytest.mark.parametrize("suffix", [".zarr", ".mkv"])
+def test_save_sequence_names_the_ground_truth_a_layout_drops(tmp_path, small_sequence, suffix):
+    """The masks (and any ground truth) went missing silently in .zarr and .mkv outputs."""
+    if suffix == ".mkv":
+        pytest.importorskip("av")
+    mask = np.zeros(small_sequence.depth.shape, bool)
+    mask[:, 5:9, 6:12] = True
+    seq = dataclasses.replace(small_sequence, ground_truth=GroundTruth(mask=mask))
+    out = tmp_path / f"s{suffix}"
+    with pytest.warns(UserWarning, match="ground-truth") as rec:
+        save_sequence(seq, out, depth_unit_mm=0.01)
+    said = [str(w.message) for w in rec if "ground-truth" in str(w.message)]
+    want = f"{out}: the {suffix} format does not store ground-truth mask; use .npz to keep them"
+    assert said == [want]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        write_frame_folder(seq, tmp_path / "f", depth_unit_mm=0.01)  # keeps the masks: silent
+
+
+def test_a_frame_folder_names_the_scene_it_drops(tmp_path):
+    from fuse4d.synthetic import make_falling_ball
+
+    seq = make_falling_ball(small=True, num_frames=2)
+    with pytest.warns(UserWarning, match=r"ground-truth depth, flow, extra\[.*\], scene; use"):
+        write_frame_folder(seq, tmp_path / "f", depth_unit_mm=0.1)
+
+
+def test_mkv_names_the_frames_whose_time_it_moves(tmp_path, small_intrinsics):
+    """The .mkv writer moved a non-increasing pts silently (up to 100 ms here)."""
+    pytest.importorskip("av")
+    from fuse4d.io import DepthVideoWriter
+
+    def write(path: Path, stamps: tuple[float, ...]) -> None:
+        depth, intensity = np.full((24, 32), 500.0), np.full((24, 32), 0.5)
+        with DepthVideoWriter(path, small_intrinsics) as writer:
+            for ts in stamps:
+                writer.write(depth, intensity, timestamp=ts)
+
+    out = tmp_path / "t.mkv"
+    with pytest.warns(UserWarning, match="1 ms time resolution") as rec:
+        write(out, (10.0, 10.0333, 10.0334, 10.0335, 9.9333, 10.2))
+    said = f"{out}: 2 frames (first: frame 3) did not come after the previous frame at the "
+    said += ".mkv's 1 ms time resolution and were stored later, by up to 102.7 ms (frame 4)"
+    assert [str(w.message) for w in rec] == [said]
+    with open_frames(out) as reader:
+        np.testing.assert_allclose(reader.timestamps, [10, 10.033, 10.034, 10.035, 10.036, 10.2])
+    with warnings.catch_warnings():  # moved within the 1 ms rounding: silent
+        warnings.simplefilter("error")
+        write(tmp_path / "r.mkv", (0.0, 0.0004, 0.0011))
+
+
+def test_zarr_stores_nan_intensity_as_zero(tmp_path, small_sequence):
+    """NaN intensity went into the store as NaN, which load_sequence then refused."""
+    from fuse4d.io import ZarrWriter
+
+    k = small_sequence.intrinsics
+    intensity = np.full(k.shape, 0.5, np.float32)
+    intensity[2, 3] = np.nan
+    with ZarrWriter(tmp_path / "s.zarr", k) as writer:
+        writer.write(small_sequence.depth[0], intensity)
+    got = load_sequence(tmp_path / "s.zarr").intensity[0]
+    assert got[2, 3] == 0.0
+    assert np.isfinite(got).all()
+
+
+def test_a_one_pixel_wide_mkv_is_a_parameter_error(tmp_path):
+    """FFmpeg's FFV1 encoder refuses a 1-px-wide frame: NotImplementedError from PyAV."""
+    pytest.importorskip("av")
+    k = Intrinsics(10.0, 10.0, 0.0, 3.0, width=1, height=7)
+    seq = Sequence(np.full((2, 7, 1), 500.0, np.float32), np.zeros((2, 7, 1), np.float32), k)
+    with pytest.raises(ParameterError, match=r"1 px wide cannot be stored as FFV1 \.mkv"):
+        save_sequence(seq, tmp_path / "x.mkv")
+    assert _listing(tmp_path) == []

@@ -69,6 +69,20 @@ def test_missing_intrinsics_key(folder):
     assert _message(exc) == f"{folder}/camera.json: missing key 'fx'"
 
 
+def test_camera_json_without_camera_keys_takes_given_intrinsics(folder, small_sequence):
+    """A camera.json holding only the unit made intrinsics= useless ("missing key 'fx'")."""
+    (folder / "camera.json").write_text('{"depth_unit_mm": 0.01}')
+    seq = load_sequence(folder, intrinsics="50,51,15.5,11.5")
+    assert tuple(seq.intrinsics.as_array()) == (50.0, 51.0, 15.5, 11.5)
+    np.testing.assert_allclose(seq.depth, small_sequence.depth, atol=0.01)
+    tum = folder.parent / "tum"
+    _write_tum(tum, small_sequence)
+    (tum / "camera.json").write_text('{"depth_unit_mm": 0.2, "fx": 1}')  # fx alone: ignored
+    assert read_tum(tum, intrinsics="50,51,15.5,11.5").intrinsics.fx == 50.0
+    with pytest.raises(InputFileError, match=r"camera.json: missing key 'fy'"):
+        read_tum(tum)
+
+
 def test_missing_depth_unit_key(folder):
     cam = json.loads((folder / "camera.json").read_text())
     del cam["depth_unit_mm"]
@@ -316,6 +330,43 @@ def test_tum_truncated_and_bad_list(tmp_path, small_sequence):
         read_tum(root, intrinsics="freiburg1")
     assert _message(exc) == (
         f"{root}/depth.txt: file not found (a TUM folder needs rgb.txt and depth.txt)"
+    )
+
+
+def test_tum_list_order_bom_and_repeated_stamp(tmp_path, small_sequence):
+    """Frames follow the depth timestamps as documented (an unsorted depth.txt was refused
+    without naming a line); a BOM is ignored; a timestamp listed twice names both lines."""
+    root = tmp_path / "tum"
+    _write_tum(root, small_sequence)
+    want = read_tum(root, intrinsics="freiburg1")
+    lines = (root / "depth.txt").read_text().splitlines()  # a comment, then frames 0..3
+    lines[2], lines[3] = lines[3], lines[2]
+    (root / "depth.txt").write_text("\ufeff" + "\n".join(lines) + "\n", encoding="utf-8")
+    with open_frames(root, intrinsics="freiburg1") as reader:
+        assert "depth.txt is not in time order: frames ordered by timestamp" in reader.notes
+    got = read_tum(root, intrinsics="freiburg1")
+    np.testing.assert_array_equal(got.timestamps, want.timestamps)
+    np.testing.assert_array_equal(got.depth, want.depth)
+    lines[4] = lines[2].split()[0] + " " + lines[4].split()[1]  # frame 3 at frame 2's time
+    (root / "depth.txt").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputFileError) as exc:
+        read_tum(root, intrinsics="freiburg1")
+    stamp = float(lines[2].split()[0])
+    assert (
+        _message(exc) == f"{root}/depth.txt: lines 3 and 5: timestamp {stamp:.6f} is listed twice"
+    )
+
+
+def test_tum_folder_without_rgb_list(tmp_path, small_sequence):
+    """depth.txt without rgb.txt is not a TUM folder to detection; the frame-folder reader
+    said 'no intensity frames found'."""
+    root = tmp_path / "tum"
+    _write_tum(root, small_sequence)
+    (root / "rgb.txt").unlink()
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(root, intrinsics="freiburg1")
+    assert _message(exc) == (
+        f"{root}: TUM folder: rgb.txt not found (a TUM folder needs rgb.txt and depth.txt)"
     )
 
 

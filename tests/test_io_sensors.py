@@ -379,6 +379,23 @@ def test_truncated_bag(tmp_path, kind, capsys):
     assert not (tmp_path / "out.mkv").exists()
 
 
+def test_db3_cut_near_its_end_is_an_input_error(tmp_path):
+    """A .db3 that opens but whose last pages are gone fails while walking the messages, in
+    apsw (which rosbags reads SQLite through), not in sqlite3: still a clear InputFileError."""
+    data = write_generic_bag(tmp_path / "rec", "ros2", frames=8).read_bytes()
+    bad = tmp_path / "cut.db3"
+    errors = []
+    for cut in range(len(data) - 8192, len(data), 512):
+        bad.write_bytes(data[:cut])
+        try:
+            load_sequence(bad)
+        except InputFileError as exc:
+            errors.append(str(exc))
+    assert all(e.startswith(f"{bad}: cannot ") for e in errors)
+    assert all("(truncated or corrupt: " in e for e in errors)
+    assert any("cannot read messages" in e for e in errors)
+
+
 def test_random_access_matches_streaming(tmp_path):
     path = write_generic_bag(tmp_path / "rec.bag", "ros1", frames=6)
     with open_frames(path) as reader:
@@ -407,6 +424,26 @@ def test_pairing_skips_unmatched(tmp_path):
         assert len(reader) == 4  # tolerance 2 periods: frame 0 skipped, frame 1 kept
         assert any("skipped" in n for n in reader.notes)
         np.testing.assert_allclose(reader[0].intensity, ir[3] / 255.0, atol=1e-6)
+
+
+@pytest.mark.parametrize(("stamps", "prev"), [((0, 1, 1, 2), 1), ((0, 2, 1, 3), 2)])
+def test_bag_refuses_depth_stamps_that_do_not_increase(tmp_path, capsys, stamps, prev):
+    """A repeated or backwards depth header stamp is refused, naming the frame (it used to
+    pair two depth frames with one IR frame and write times nothing could read back)."""
+    from rosbag_factory import BagWriter
+
+    d, ir = depth_frames(4), ir_frames(4)
+    path = tmp_path / "rec"
+    with BagWriter(path, "ros2") as bag:
+        for k in range(4):
+            t, stamp = 10**18 + k * 10**8, 10**18 + stamps[k] * 10**8
+            bag.write(DEPTH_TOPIC, bag.image(d[k], "16UC1", stamp), t)
+            bag.write("/camera/depth/camera_info", bag.camera_info(32, 24, t), t)
+            bag.write(IR_TOPIC, bag.image(ir[k], "mono8", stamp), t + 1000)
+    code, _, err = _run(["info", path], capsys)
+    assert code == 2
+    assert f"{path} (frame 2): depth topic {DEPTH_TOPIC}: header stamp" in err
+    assert f"is not after frame 1's ({1e9 + prev / 10:.6f} s)" in err
 
 
 # ----------------------------------------------------------------- RVL codec
@@ -500,6 +537,66 @@ def test_ffv1_unit(tmp_path, float_sequence):
         assert reader[0].depth[0, 0] == 1000.25
 
 
+@pytest.mark.parametrize("fps", [None, 15.0])
+def test_ffv1_of_frames_without_times_reads_back_without_times(tmp_path, float_sequence, fps):
+    """The writer makes pts up for frames without timestamps; they used to come back as
+    timestamps (and a 29.85 fps measured from them)."""
+    seq = Sequence(float_sequence.depth, float_sequence.intensity, float_sequence.intrinsics,
+                   fps=fps)  # fmt: skip
+    back = load_sequence(save_sequence(seq, tmp_path / "d.mkv"))
+    assert back.num_frames == 3
+    assert back.timestamps is None
+    assert back.fps == fps
+
+
+def _k4a_like_mkv(path: Path, depth_pts: list[int], ir_pts: list[int]) -> Path:
+    """A tiny DEPTH + IR Matroska (pts in ms) read as an Azure Kinect recording."""
+    from fractions import Fraction
+
+    with av.open(str(path), "w", format="matroska") as out:
+        streams = []
+        for title in ("DEPTH", "IR"):  # all tracks before the first packet (the header)
+            s = out.add_stream("ffv1", rate=30)
+            s.width, s.height, s.pix_fmt = 32, 24, "gray16le"
+            s.metadata["title"] = title
+            s.time_base = Fraction(1, 1000)
+            streams.append(s)
+        for s, pts in zip(streams, (depth_pts, ir_pts), strict=True):
+            for p in pts:
+                fr = av.VideoFrame.from_ndarray(np.full((24, 32), 1000, "<u2"), format="gray16le")
+                fr.pts, fr.time_base = p, s.time_base
+                for packet in s.encode(fr):
+                    out.mux(packet)
+            for packet in s.encode():
+                out.mux(packet)
+    return path
+
+
+def test_mkv_pts_pairing_problems_are_named(tmp_path):
+    """A repeated DEPTH pts was 'frame 0: frame missing (truncated file?)'; an IR track that
+    ends early, or no IR frame at all, said nothing or 'no ... equal pts'; unpaired frames
+    were dropped silently."""
+    spec = "50,50,15.5,11.5"
+    path = _k4a_like_mkv(tmp_path / "dup.mkv", [100, 133, 133, 167], [100, 133, 167, 200])
+    with pytest.raises(
+        InputFileError, match=r"dup\.mkv \(frame 2\): DEPTH track: pts 0\.133000 s is not after"
+    ):
+        open_frames(path, intrinsics=spec)
+    path = _k4a_like_mkv(tmp_path / "short.mkv", [100, 133, 167, 200], [100, 133, 167])
+    with open_frames(path, intrinsics=spec) as reader:
+        assert len(reader) == 3
+        assert "the IR track ends before the DEPTH track (truncated file?): the last 1 " in "".join(
+            reader.notes
+        )
+    path = _k4a_like_mkv(tmp_path / "gap.mkv", [100, 133, 167, 200], [100, 167, 200])
+    with open_frames(path, intrinsics=spec) as reader:
+        assert [f.timestamp for f in reader] == [0.1, 0.167, 0.2]
+        assert "1 DEPTH frames without an IR frame of equal pts skipped" in reader.notes
+    path = _k4a_like_mkv(tmp_path / "noir.mkv", [100, 133], [])
+    with pytest.raises(InputFileError, match=r"noir\.mkv: the IR track holds no frame"):
+        open_frames(path, intrinsics=spec)
+
+
 def test_zarr_round_trip(tmp_path, float_sequence):
     seq = float_sequence
     path = save_sequence(seq, tmp_path / "s.zarr")
@@ -544,6 +641,53 @@ def test_zarr_damaged_chunk_names_store_and_frame(tmp_path, float_sequence):
     chunk.write_bytes(chunk.read_bytes()[:40])
     with pytest.raises(InputFileError, match=r"s\.zarr \(frame 1\): cannot read chunk"):
         load_sequence(path)
+
+
+@pytest.mark.parametrize(
+    ("timestamps", "problem"),
+    [
+        ([0.0, 0.1], "'timestamps' has 2 values for 3 frames"),
+        ([0.0, 0.1, 0.1], "'timestamps' must be strictly increasing"),
+        ([0.0, np.nan, 0.2], "'timestamps' holds NaN or inf"),
+    ],
+)
+def test_zarr_bad_timestamps_are_refused_at_open(tmp_path, float_sequence, timestamps, problem):
+    """Checked as the npz reader checks them (a short array was an IndexError at frame 2)."""
+    path = save_sequence(float_sequence, tmp_path / "s.zarr")
+    group = zarr.open_group(str(path), mode="r+")
+    group.create_array("timestamps", data=np.array(timestamps), overwrite=True)
+    with pytest.raises(InputFileError, match=rf"s\.zarr: {problem}"):
+        open_frames(path)
+
+
+def test_zarr_without_intrinsics_says_so_once(tmp_path, float_sequence):
+    path = save_sequence(float_sequence, tmp_path / "s.zarr")
+    group = zarr.open_group(str(path), mode="r+")
+    del group.attrs["intrinsics"]
+    with pytest.raises(InputFileError) as exc:
+        open_frames(path)
+    assert str(exc.value) == f"{path}: no 'intrinsics' attribute; pass --intrinsics"
+
+
+def test_zarr_reader_sanitises_depth_and_checks_intensity(tmp_path, float_sequence):
+    """Depth <= 0 is invalid (NaN) as in every reader; float intensity outside [0, 1] is
+    refused naming the store and frame, integer intensity is scaled to [0, 1]."""
+    path = save_sequence(float_sequence, tmp_path / "s.zarr")
+    group = zarr.open_group(str(path), mode="r+")
+    depth = float_sequence.depth.copy()
+    depth[1, 5, :3] = [0.0, -5.0, np.inf]
+    group["depth"][:] = depth
+    frame = load_sequence(path).depth[1]
+    assert np.isnan(frame[5, :3]).all()
+    np.testing.assert_array_equal(frame[6], float_sequence.depth[1, 6])
+    inten = float_sequence.intensity.copy()
+    inten[2] *= 255
+    group["intensity"][:] = inten
+    with pytest.raises(InputFileError, match=r"s\.zarr \(frame 2\): 'intensity' must hold"):
+        load_sequence(path)
+    gray = np.round(float_sequence.intensity * 255).astype(np.uint8)
+    group.create_array("intensity", data=gray, chunks=(1, 24, 32), overwrite=True)
+    np.testing.assert_allclose(load_sequence(path).intensity, gray / 255, atol=1e-7)
 
 
 @pytest.mark.parametrize("cls", [DepthVideoWriter, ZarrWriter])

@@ -9,16 +9,21 @@ is removed and the destination is left untouched.
 from __future__ import annotations
 
 import errno
+import functools
 import secrets
 import shutil
 import tempfile
-from collections.abc import Iterable, Iterator
+import warnings
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from os import PathLike
 from pathlib import Path
-from typing import Any, Self
+from typing import TYPE_CHECKING, Any, Concatenate, ParamSpec, Self, TypeVar
 
 from ..errors import OutputExistsError, OutputWriteError, ParameterError
+
+if TYPE_CHECKING:
+    from ..sequence import GroundTruth
 
 __all__ = ["atomic_dir", "atomic_file", "check_output", "write_errors"]
 
@@ -52,8 +57,8 @@ def check_output(
         If ``path`` exists and ``overwrite`` is False.
     ValueError
         If ``path`` is one of ``inputs`` or lies inside an input folder, if its parent folder
-        does not exist, or if ``overwrite`` would replace a non-empty folder that is not a
-        fuse4d output (no :data:`OUTPUT_MARKERS` file in it).
+        does not exist or is not a folder, or if ``overwrite`` would replace a non-empty
+        folder that is not a fuse4d output (no :data:`OUTPUT_MARKERS` file in it).
     """
     out = Path(path)
     resolved = out.resolve()
@@ -64,6 +69,8 @@ def check_output(
                 f"{out}: output would overwrite the input {inp}; choose another path"
             )
     if not resolved.parent.is_dir():
+        if resolved.parent.exists():  # e.g. mk.py/x.npz with mk.py a file
+            raise ParameterError(f"{out}: {out.parent} is not a folder")
         raise ParameterError(f"{out}: output folder {out.parent} does not exist")
     if out.exists() and not overwrite:
         raise OutputExistsError(out)
@@ -110,6 +117,27 @@ def write_errors(path: str | PathLike[str]) -> Iterator[None]:
         if exc.errno in _WRITE_ERRNOS:
             raise OutputWriteError(path, exc) from exc
         raise
+
+
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
+_W = TypeVar("_W")
+
+
+def reports_write_errors(
+    method: Callable[Concatenate[_W, _P], _R],
+) -> Callable[Concatenate[_W, _P], _R]:
+    """Decorate a streaming writer's method (``open``, ``write``, ``close``) so that a full
+    disk, a read-only folder, ... while it runs raises :class:`~fuse4d.OutputWriteError` naming
+    the output ``self.path``, not the bare ``OSError`` naming the temporary (the atomic context
+    sees only the synthetic exception of ``abort``)."""
+
+    @functools.wraps(method)
+    def wrapper(self: _W, *args: _P.args, **kwargs: _P.kwargs) -> _R:
+        with write_errors(self.path):  # type: ignore[attr-defined]
+            return method(self, *args, **kwargs)
+
+    return wrapper
 
 
 def _create_temp(dest: Path, *, directory: bool) -> Path:
@@ -220,7 +248,11 @@ class StagedWriter:
     _stack: Any = None
 
     def __enter__(self) -> Self:
-        self.open()
+        try:
+            self.open()
+        except BaseException:
+            self.abort()  # ``with`` does not call __exit__ when __enter__ fails
+            raise
         return self
 
     def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
@@ -248,3 +280,30 @@ class StagedWriter:
                 raise _Abort
         except _Abort:
             pass
+
+
+def unstored_ground_truth(gt: GroundTruth | None, *, keeps_mask: bool) -> list[str]:
+    """The parts of ``gt`` that a layout without ground truth (but the object ``mask`` where
+    ``keeps_mask``) drops, as :func:`warn_unstored_ground_truth` names them."""
+    if gt is None:
+        return []
+    parts = [("depth", gt.depth), ("mask", None if keeps_mask else gt.mask), ("flow", gt.flow)]
+    dropped = [name for name, value in parts if value is not None]
+    dropped += [f"extra[{k!r}]" for k in gt.extra]
+    if gt.scene is not None:
+        dropped.append("scene")
+    return dropped
+
+
+def warn_unstored_ground_truth(
+    path: str | PathLike[str], layout: str, dropped: list[str], *, stacklevel: int = 3
+) -> None:
+    """One ``UserWarning``: the ``layout`` output ``path`` does not store the ground truth
+    ``dropped`` (nothing when it is empty)."""
+    if dropped:
+        warnings.warn(
+            f"{path}: {layout} does not store ground-truth {', '.join(dropped)}; use .npz to "
+            "keep them",
+            UserWarning,
+            stacklevel=stacklevel,
+        )

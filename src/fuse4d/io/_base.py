@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..camera import Intrinsics
-from ..errors import InputFileError, ParameterError
+from ..errors import InputFileError, ParameterError, ParameterTypeError
 from ..sequence import _SENSOR_KINDS, GroundTruth, Sequence
 
 __all__ = [
@@ -297,6 +297,8 @@ def resolve_frames(frames: FrameSelection, total: int) -> range:
 
     Raises
     ------
+    ParameterTypeError
+        If a bound is not a whole number or None (``(1.5, 3)``).
     ValueError
         If the selection is malformed, has a step other than 1, or selects no frame.
     """
@@ -314,6 +316,12 @@ def resolve_frames(frames: FrameSelection, total: int) -> range:
         raise ParameterError(
             f"frames must be None, a slice, a range, (start, stop) or 'start:stop', got {frames!r}"
         )
+    for bound in (sel.start, sel.stop, sel.step):
+        if bound is not None and (isinstance(bound, bool) or not hasattr(bound, "__index__")):
+            raise ParameterTypeError(
+                f"frames: start, stop and step must be whole numbers or None, got {bound!r} "
+                f"(in {frames!r})"
+            )
     if sel.step not in (None, 1):
         raise ParameterError(f"frames must be a contiguous range (step 1), got step {sel.step}")
     idx = range(total)[sel]
@@ -453,18 +461,29 @@ def check_sensor_kind(value: object, path: Path, where: str) -> str | None:
 
 
 def read_camera_json(
-    path: str | PathLike[str], *, require_unit: bool = True
+    path: str | PathLike[str], *, require_unit: bool = True, require_camera: bool = True
 ) -> dict[str, float | None]:
     """Read a ``camera.json``: ``fx, fy, cx, cy`` (px), ``depth_unit_mm``, optional ``fps``.
 
     Optional ``width``/``height`` (px) are returned too (and checked by the readers), and the
     camera kind ``sensor`` (one of :data:`SENSOR_KINDS`).
 
+    Parameters
+    ----------
+    path : str or PathLike
+        The ``camera.json``.
+    require_unit : bool, optional
+        Whether ``depth_unit_mm`` must be present (False where the caller was given the unit).
+    require_camera : bool, optional
+        Whether ``fx, fy, cx, cy`` must be present (False where the caller was given the
+        intrinsics).
+
     Returns
     -------
     dict
         Keys ``fx, fy, cx, cy, depth_unit_mm, fps, width, height, sensor`` (absent optional
-        values are None; ``depth_unit_mm`` is None when absent and ``require_unit`` is False).
+        values are None; ``depth_unit_mm`` is None when absent and ``require_unit`` is False,
+        ``fx, fy, cx, cy`` likewise with ``require_camera``).
 
     Raises
     ------
@@ -482,12 +501,14 @@ def read_camera_json(
         raise InputFileError(p, f"not valid JSON ({exc.msg} at line {exc.lineno})") from None
     if not isinstance(data, dict):
         raise InputFileError(p, "must hold a JSON object with keys fx, fy, cx, cy, depth_unit_mm")
-    required = ["fx", "fy", "cx", "cy"] + (["depth_unit_mm"] if require_unit else [])
+    required = (["fx", "fy", "cx", "cy"] if require_camera else []) + (
+        ["depth_unit_mm"] if require_unit else []
+    )
     for key in required:
         if data.get(key) is None:
             raise InputFileError(p, f"missing key '{key}'")
-    out: dict[str, float | None] = {k: _number(data[k], k, p) for k in ("fx", "fy", "cx", "cy")}
-    for key in ("depth_unit_mm", "fps", "width", "height"):
+    out: dict[str, float | None] = {}
+    for key in ("fx", "fy", "cx", "cy", "depth_unit_mm", "fps", "width", "height"):
         out[key] = _number(data[key], key, p) if data.get(key) is not None else None
     for key in ("fx", "fy", "depth_unit_mm", "fps", "width", "height"):
         value = out[key]

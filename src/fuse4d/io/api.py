@@ -11,7 +11,7 @@ from typing import Any
 from ..camera import Intrinsics
 from ..errors import InputFileError, ParameterError
 from ..sequence import Sequence, check_sequence
-from ._atomic import check_output
+from ._atomic import check_output, warn_unstored_ground_truth
 from ._base import Frame, FrameReader, FrameSelection, IntrinsicsLike, ProgressCallback
 from .cv2xml import Cv2XmlReader, is_cv2_xml_folder
 from .folder import FolderReader, FrameFolderWriter, write_frame_folder
@@ -296,6 +296,9 @@ def save_sequence(
     """Write a sequence atomically as ``.npz`` (lossless, keeps ground truth), a frame folder,
     an FFV1 ``.mkv`` (lossless 16-bit depth video) or a ``.zarr`` v3 store (float, lossless).
 
+    Ground truth is kept by ``.npz`` only (a frame folder keeps the object masks); a
+    ``UserWarning`` names what another layout drops.
+
     Parameters
     ----------
     seq : Sequence
@@ -404,6 +407,22 @@ def stream_writer(path: str | PathLike[str]) -> tuple[type, str]:
     return writers[fmt], fmt
 
 
+#: How a ground-truth warning names a streamed output layout.
+_LAYOUT_NAMES = {"folder": "the frame-folder format", "mkv": "the .mkv format",
+                 "zarr": "the .zarr format"}  # fmt: skip
+
+
+def _unstored_keys(keys: tuple[str, ...], layout: str) -> list[str]:
+    """The ground truth of a reader (its ``ground_truth_keys``) that a ``layout`` output
+    drops: all of it, but the object mask for a frame folder; an npz's ``gt_*`` values (scene
+    geometry and settings) are counted, not listed."""
+    dropped = [k for k in keys if not k.startswith("gt_") and (k, layout) != ("mask", "folder")]
+    extra = sum(k.startswith("gt_") for k in keys)
+    if extra:
+        dropped.append(f"{extra} gt_* value{'' if extra == 1 else 's'}")
+    return dropped
+
+
 def convert_recording(
     input: str | PathLike[str],
     output: str | PathLike[str],
@@ -429,13 +448,15 @@ def convert_recording(
         ``.npz`` (lossless; keeps ground truth), ``.mkv`` (FFV1, 16-bit depth), ``.zarr``
         (float, lossless), else a frame folder (16-bit PNGs). Depth, intensity, timestamps,
         frame rate, the camera kind (``sensor``, which decides A36's flying-pixel removal)
-        and the object masks of a layout that stores them (folder output) are carried over.
+        and the object masks of a layout that stores them (folder output) are carried over;
+        other ground truth only to ``.npz`` (a ``UserWarning`` names what is dropped).
     frames : slice, range, (start, stop) or "A:B", optional
         Only this contiguous part (numbered from 0 in the output). Default: all frames.
     out_depth_unit_mm : float, optional
         Folder and ``.mkv`` outputs: millimetres per stored unit. Default: the input's own
         unit (lossless from 16-bit depth), or 1 mm for float depth (``.npz``, ``.zarr``, a
-        32-bit float depth topic; a warning says where that rounding is coarse).
+        32-bit float depth topic; a warning says where that rounding is coarse). Refused
+        for ``.npz`` and ``.zarr`` outputs, which store float depth in mm.
     overwrite : bool, optional
         Replace an existing ``output``.
     progress : callable, optional
@@ -461,10 +482,17 @@ def convert_recording(
         math.isfinite(out_depth_unit_mm) and out_depth_unit_mm > 0
     ):  # 0 used to mean "the input's unit" silently
         raise ParameterError(f"out_depth_unit_mm must be > 0 mm, got {out_depth_unit_mm}")
+    if out_depth_unit_mm is not None and layout in ("npz", "zarr"):  # was silently ignored
+        raise ParameterError(
+            f"{dst}: out_depth_unit_mm applies to frame-folder and .mkv outputs (16-bit depth) "
+            "only; .npz and .zarr outputs store float depth in mm"
+        )
     with open_frames(src, frames=frames, **reader_options) as reader:
         if layout == "npz":
             return write_npz(reader.read_sequence(progress=progress), dst, overwrite=overwrite)
         writer_cls, _ = stream_writer(dst)
+        dropped = _unstored_keys(reader.ground_truth_keys, layout)
+        warn_unstored_ground_truth(dst, _LAYOUT_NAMES[layout], dropped, stacklevel=2)
         unit = out_depth_unit_mm or reader.depth_unit_mm or 1.0
         total = len(reader)
         with writer_cls(

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import json
 import re
-import warnings
 from contextlib import ExitStack
 from os import PathLike
 from pathlib import Path
@@ -30,7 +29,13 @@ from numpy.typing import NDArray
 from ..camera import Intrinsics, check_intrinsics
 from ..errors import InputFileError, ParameterError
 from ..sequence import Sequence, as_storable_intensity, check_sequence
-from ._atomic import atomic_dir, check_output
+from ._atomic import (
+    atomic_dir,
+    check_output,
+    reports_write_errors,
+    unstored_ground_truth,
+    warn_unstored_ground_truth,
+)
 from ._base import (
     Frame,
     FrameReader,
@@ -125,6 +130,7 @@ class FolderReader(FrameReader):
         _refuse_unfinished_run(root)
         self._depth = _numbered_files(root / "depth", (".png",))
         if not self._depth:
+            _refuse_half_tum(root)
             raise InputFileError(
                 root, "no depth frames found (expected depth/000000.png, depth/000001.png, ...)"
             )
@@ -132,6 +138,7 @@ class FolderReader(FrameReader):
         n = len(self._depth)
         self._intensity = _numbered_files(root / "intensity", _INTENSITY_EXT)
         if not self._intensity:
+            _refuse_half_tum(root)
             raise InputFileError(
                 root, "no intensity frames found (expected intensity/000000.png, ...)"
             )
@@ -165,7 +172,9 @@ class FolderReader(FrameReader):
                     "file not found (a frame folder needs camera.json with fx, fy, cx, cy, "
                     "depth_unit_mm)",
                 )
-            cam = read_camera_json(cam_path, require_unit=depth_unit_mm is None)
+            cam = read_camera_json(
+                cam_path, require_unit=depth_unit_mm is None, require_camera=intrinsics is None
+            )
             _check_size(cam, w, h, cam_path)
         unit = depth_unit_mm if depth_unit_mm is not None else cam["depth_unit_mm"]
         self.depth_unit_mm = depth_unit(unit, None if depth_unit_mm is not None else cam_path)
@@ -224,6 +233,16 @@ def _refuse_unfinished_run(root: Path) -> None:
     message = unfinished_run_message(root)
     if message:
         raise InputFileError(root, message)
+
+
+def _refuse_half_tum(root: Path) -> None:
+    """A TUM folder with one of its two lists, found lacking as a frame folder: say so."""
+    lists = [(root / name).is_file() for name in ("depth.txt", "rgb.txt")]
+    if any(lists) and not all(lists):
+        missing = "rgb.txt" if lists[0] else "depth.txt"
+        raise InputFileError(
+            root, f"TUM folder: {missing} not found (a TUM folder needs rgb.txt and depth.txt)"
+        )
 
 
 def _read_timestamps(path: Path, n: int) -> np.ndarray:
@@ -339,9 +358,14 @@ class FrameFolderWriter:
         self._tmp: Path | None = None
 
     def __enter__(self) -> Self:
-        self.open()
+        try:
+            self.open()
+        except BaseException:
+            self.abort()  # ``with`` does not call __exit__ when __enter__ fails
+            raise
         return self
 
+    @reports_write_errors
     def open(self) -> None:
         """Create the temporary folder (called by ``with``)."""
         if self._stack is not None:
@@ -352,6 +376,7 @@ class FrameFolderWriter:
         (self._tmp / "depth").mkdir()
         (self._tmp / "intensity").mkdir()
 
+    @reports_write_errors
     def write(
         self,
         depth: np.ndarray,
@@ -419,6 +444,7 @@ class FrameFolderWriter:
     def _intensity_image(self, intensity: np.ndarray) -> np.ndarray:
         return intensity_image(intensity, self.intensity_bits)
 
+    @reports_write_errors
     def close(self) -> None:
         """Finish: write ``camera.json`` (+ ``timestamps.txt``) and move the folder into place."""
         if self._stack is None or self._tmp is None:
@@ -529,16 +555,8 @@ def write_frame_folder(
         The written folder.
     """
     gt = check_sequence(seq, "write_frame_folder").ground_truth
-    if gt is not None:
-        dropped = [n for n, v in (("depth", gt.depth), ("flow", gt.flow)) if v is not None]
-        dropped += [f"extra[{k!r}]" for k in gt.extra]
-        if dropped:
-            warnings.warn(
-                f"{path}: the frame-folder format does not store ground-truth "
-                f"{', '.join(dropped)}; use .npz to keep them",
-                UserWarning,
-                stacklevel=2,
-            )
+    dropped = unstored_ground_truth(gt, keeps_mask=True)
+    warn_unstored_ground_truth(path, "the frame-folder format", dropped)
     masks = None if gt is None else gt.mask
     stamps = seq.timestamps
     writer = FrameFolderWriter(

@@ -9,7 +9,8 @@ sensor calibration to the recorded depth mode (tag ``K4A_DEPTH_MODE``; see
 k1..k6, p1, p2): by default frames are **undistorted** onto a pinhole grid with the same
 ``fx, fy, cx, cy`` (depth nearest-neighbour, so no depth is invented between surfaces; IR
 bilinear) so that fuse4d's pinhole back-projection is exact. Timestamps are the tracks'
-``pts`` (µs).
+``pts`` (µs); in a fuse4d video only when it has a ``FUSE4D_T0`` tag (its writer makes pts up
+for frames without times). DEPTH and intensity frames are paired by equal pts.
 """
 
 from __future__ import annotations
@@ -146,7 +147,7 @@ class MkvReader(SequentialReader):
             else:
                 self._setup_k4a(meta, depth_unit_mm, intrinsics, undistort, notes)
                 self.sensor = "tof"  # the Azure Kinect's depth camera
-            self._scan()
+            self._scan(notes)
         except BaseException:
             self.close()
             raise
@@ -264,8 +265,9 @@ class MkvReader(SequentialReader):
         self.fps = fps
         notes.append(f"fuse4d FFV1 depth video, {self.depth_unit_mm:g} mm per unit")
 
-    def _scan(self) -> None:
-        """Index the packets of both tracks (no decoding) and pair them by pts."""
+    def _scan(self, notes: list[str]) -> None:
+        """Index the packets of both tracks (no decoding) and pair them by pts; what was
+        skipped is added to ``notes``."""
         d_pts: list[int] = []
         i_pts: list[int] = []
         try:
@@ -277,30 +279,60 @@ class MkvReader(SequentialReader):
             raise InputFileError(
                 self.path, f"cannot read the packets (truncated or corrupt: {exc})"
             ) from None
-        if not d_pts:
-            raise InputFileError(self.path, "the DEPTH track holds no frame (truncated file?)")
+        inten_name = "INTENSITY" if self.fuse4d else "IR"
+        for name, pts in (("DEPTH", d_pts), (inten_name, i_pts)):
+            if not pts:
+                raise InputFileError(
+                    self.path, f"the {name} track holds no frame (truncated file?)"
+                )
         tb_d, tb_i = float(self._depth_s.time_base), float(self._inten_s.time_base)
         td = np.asarray(d_pts, dtype=np.float64) * tb_d
         ti = np.asarray(i_pts, dtype=np.float64) * tb_i
+        for name, times in (("DEPTH", td), (inten_name, ti)):
+            # frames are paired and decoded by pts: a repeated one would be ambiguous
+            bad = np.nonzero(~(np.diff(times) > 0))[0]
+            if bad.size:
+                k = int(bad[0]) + 1
+                raise InputFileError(
+                    self.path,
+                    f"{name} track: pts {times[k]:.6f} s is not after frame {k - 1}'s "
+                    f"({times[k - 1]:.6f} s); the frames' times must increase",
+                    frame=k,
+                )
         pairs = {round(t, 6): j for j, t in enumerate(ti)}
         keep = [k for k, t in enumerate(td) if round(t, 6) in pairs]
         if not keep:
-            raise InputFileError(self.path, "no DEPTH frame has an intensity frame with equal pts")
+            raise InputFileError(
+                self.path, f"no DEPTH frame has an {inten_name} frame with equal pts"
+            )
+        skipped = td.size - len(keep)
+        if skipped and keep[-1] == len(keep) - 1 and td[len(keep)] > ti[-1]:
+            notes.append(
+                f"the {inten_name} track ends before the DEPTH track (truncated file?): "
+                f"the last {skipped} DEPTH frames skipped"
+            )
+        elif skipped:
+            notes.append(
+                f"{skipped} DEPTH frames without an {inten_name} frame of equal pts skipped"
+            )
         self._d_pts = np.asarray(d_pts, dtype=np.int64)[keep]
         self._i_pts = np.asarray([i_pts[pairs[round(td[k], 6)]] for k in keep], dtype=np.int64)
         ts = td[keep]
-        if getattr(self, "_t0", None) is not None:
-            ts = ts + self._t0
-        self.timestamps = ts
-        if self.fps is None:
+        if self.fuse4d:
+            # fuse4d's writer makes pts up (at its fps, or 30) for frames without times: only
+            # the FUSE4D_T0 tag says they are the frames' times, only FUSE4D_FPS gives a rate
+            self.timestamps = None if self._t0 is None else ts + self._t0
+        else:
+            self.timestamps = ts
+        if self.fps is None and not self.fuse4d:
             if ts.size > 1 and np.median(np.diff(ts)) > 0:
                 self.fps = float(1.0 / np.median(np.diff(ts)))
             else:
                 rate = self._depth_s.average_rate
                 self.fps = float(rate) if rate else None
-        self._check_length(td[keep])
+        self._check_length(td[keep], notes)
 
-    def _check_length(self, ts: np.ndarray) -> None:
+    def _check_length(self, ts: np.ndarray, notes: list[str]) -> None:
         """Warn where the frames end well before the duration the file's header states: a
         truncated copy (a cut download, a full disk) read silently as a shorter recording."""
         duration = self._container.duration  # microseconds, of the Segment header; None: unset
@@ -318,7 +350,7 @@ class MkvReader(SequentialReader):
                 f"{stated:.3f} s: truncated? ({ts.size} frames read)",
                 stacklevel=4,
             )
-            self.notes = (*self.notes, f"frames end {stated - end:.3f} s before the stated end")
+            notes.append(f"frames end {stated - end:.3f} s before the stated end")
 
     # ------------------------------------------------------------------ frames
     def __len__(self) -> int:

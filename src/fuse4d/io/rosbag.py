@@ -89,8 +89,14 @@ def _bag_errors() -> tuple[type[BaseException], ...]:
     """What rosbags (and the SQLite/LZ4 layers below it) raise for damaged files."""
     from rosbags.highlevel import AnyReaderError
 
-    return (AnyReaderError, OSError, ValueError, KeyError, IndexError, EOFError, struct.error,
-            sqlite3.Error, RuntimeError)  # fmt: skip
+    errors: tuple[type[BaseException], ...] = (
+        AnyReaderError, OSError, ValueError, KeyError, IndexError, EOFError, struct.error,
+        sqlite3.Error, RuntimeError)  # fmt: skip
+    try:  # newer rosbags read SQLite through apsw, whose errors are not sqlite3's
+        import apsw
+    except ImportError:
+        return errors
+    return (*errors, apsw.Error)
 
 
 def _float32_value(value: object) -> float:
@@ -610,6 +616,17 @@ class RosbagReader(SequentialReader):
             raise InputFileError(self.path, f"depth topic {self._depth.topic} has no message")
         if ti.size == 0:
             raise InputFileError(self.path, f"intensity topic {self._inten.topic} has no message")
+        # The header stamps are the frames' times (pairing, output timestamps): a repeated or
+        # backwards one means a broken clock or a merged bag, and no order can be trusted.
+        bad = np.nonzero(~(np.diff(td) > 0))[0]
+        if bad.size:
+            k = int(bad[0]) + 1
+            raise InputFileError(
+                self.path,
+                f"depth topic {self._depth.topic}: header stamp {td[k]:.6f} s is not after "
+                f"frame {k - 1}'s ({td[k - 1]:.6f} s); the frames' times must increase",
+                frame=k,
+            )
         order = np.argsort(ti, kind="stable")
         pos = np.clip(np.searchsorted(ti[order], td), 1, max(ti.size - 1, 1))
         left = order[np.clip(pos - 1, 0, ti.size - 1)]

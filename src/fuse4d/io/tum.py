@@ -8,10 +8,12 @@ Layout::
 
 Association follows TUM's ``associate.py``: every (depth, rgb) pair whose timestamps differ by
 at most ``max_difference`` seconds is a candidate, candidates are taken greedily in order of
-increasing difference, each image used at most once; frames are ordered by depth timestamp and
-carry the depth timestamp. TUM folders carry no intrinsics: give ``intrinsics=`` (a preset
-such as ``"freiburg1"``, see :data:`~fuse4d.io.CAMERA_PRESETS`) or a ``camera.json``; fuse4d
-never guesses them.
+increasing difference, each image used at most once; frames are ordered by depth timestamp (in
+whatever order ``depth.txt`` lists them; a timestamp listed twice is refused) and carry the
+depth timestamp. A UTF-8 byte-order mark at the start of a list is ignored. TUM folders carry
+no intrinsics: give ``intrinsics=`` (a preset such as ``"freiburg1"``, see
+:data:`~fuse4d.io.CAMERA_PRESETS`) or a ``camera.json`` holding them; fuse4d never guesses
+them. With ``intrinsics=``, a ``camera.json`` may hold just ``depth_unit_mm``.
 """
 
 from __future__ import annotations
@@ -54,13 +56,15 @@ __all__ = ["TUM_DEPTH_UNIT_MM", "TumReader", "associate_timestamps", "read_tum"]
 TUM_DEPTH_UNIT_MM = 0.2
 
 
-def _read_list(path: Path) -> tuple[np.ndarray, list[str]]:
+def _read_list(path: Path) -> tuple[np.ndarray, list[str], list[int]]:
+    """Timestamps (s), file names and line numbers (1-based) of a TUM list, in file order."""
     if not path.is_file():
         raise InputFileError(path, "file not found (a TUM folder needs rgb.txt and depth.txt)")
     stamps: list[float] = []
     names: list[str] = []
+    lines: list[int] = []
     try:
-        text_lines = path.read_text(encoding="utf-8").splitlines()
+        text_lines = path.read_text(encoding="utf-8-sig").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
         raise InputFileError(path, f"cannot read file ({exc})") from None
     for lineno, line in enumerate(text_lines, 1):
@@ -77,9 +81,28 @@ def _read_list(path: Path) -> tuple[np.ndarray, list[str]]:
                 path, f"line {lineno}: expected 'timestamp filename', got {text!r}"
             ) from None
         names.append(parts[1])
+        lines.append(lineno)
     if not names:
         raise InputFileError(path, "lists no image")
-    return np.asarray(stamps, dtype=np.float64), names
+    return np.asarray(stamps, dtype=np.float64), names, lines
+
+
+def _in_time_order(
+    path: Path, stamps: np.ndarray, names: list[str], lines: list[int], notes: list[str]
+) -> tuple[np.ndarray, list[str]]:
+    """The list sorted by timestamp (a note says when it was not); a repeated timestamp is an
+    InputFileError naming both lines."""
+    order = np.argsort(stamps, kind="stable")
+    ts = stamps[order]
+    same = np.nonzero(np.diff(ts) == 0)[0]
+    if same.size:
+        a, b = sorted((lines[order[same[0]]], lines[order[same[0] + 1]]))
+        raise InputFileError(
+            path, f"lines {a} and {b}: timestamp {ts[same[0]]:.6f} is listed twice"
+        )
+    if np.any(np.diff(order) < 0):
+        notes.append(f"{path.name} is not in time order: frames ordered by timestamp")
+    return ts, [names[i] for i in order]
 
 
 def associate_timestamps(
@@ -159,8 +182,11 @@ class TumReader(FrameReader):
             raise InputFileError(root, "folder not found")
         if not max_difference >= 0:
             raise ParameterError(f"max_difference must be >= 0 seconds, got {max_difference!r}")
-        depth_ts, depth_names = _read_list(root / "depth.txt")
-        rgb_ts, rgb_names = _read_list(root / "rgb.txt")
+        notes: list[str] = []
+        depth_ts, depth_names = _in_time_order(
+            root / "depth.txt", *_read_list(root / "depth.txt"), notes
+        )
+        rgb_ts, rgb_names, _ = _read_list(root / "rgb.txt")
         pairs = associate_timestamps(depth_ts, rgb_ts, max_difference=max_difference)
         if not pairs:
             raise InputFileError(
@@ -176,16 +202,15 @@ class TumReader(FrameReader):
             for i, j in pairs
         ]
         self.timestamps = np.asarray([depth_ts[i] for i, _ in pairs], dtype=np.float64)
-        if len(pairs) > 1 and not np.all(np.diff(self.timestamps) > 0):
-            raise InputFileError(root / "depth.txt", "timestamps must be strictly increasing")
-        notes = []
         if len(pairs) < len(depth_names):
             notes.append(
                 f"{len(depth_names) - len(pairs)} of {len(depth_names)} depth frames had no rgb "
                 f"frame within {max_difference:g} s and were skipped"
             )
         cam_path = root / "camera.json"
-        cam = read_camera_json(cam_path, require_unit=False) if cam_path.exists() else None
+        cam = None
+        if cam_path.exists():
+            cam = read_camera_json(cam_path, require_unit=False, require_camera=intrinsics is None)
         unit = depth_unit_mm
         if unit is None:
             unit = cam["depth_unit_mm"] if cam and cam["depth_unit_mm"] else TUM_DEPTH_UNIT_MM

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import warnings
 from contextlib import ExitStack
 from fractions import Fraction
 from os import PathLike
@@ -28,7 +29,14 @@ import numpy as np
 from ..camera import Intrinsics, check_intrinsics
 from ..errors import ParameterError
 from ..sequence import Sequence, as_storable_intensity, check_sequence
-from ._atomic import StagedWriter, atomic_file, check_output
+from ._atomic import (
+    StagedWriter,
+    atomic_file,
+    check_output,
+    reports_write_errors,
+    unstored_ground_truth,
+    warn_unstored_ground_truth,
+)
 from ._base import check_frame_shapes
 from ._extras import require
 from ._images import QuantizationReport, depth_to_units, intensity_to_uint
@@ -77,6 +85,12 @@ class DepthVideoWriter(StagedWriter):
         warn_coarse_unit: bool = True,
     ) -> None:
         check_intrinsics(intrinsics)
+        if intrinsics.width == 1 and intrinsics.height > 1:
+            # FFmpeg's FFV1 encoder will not open for a one-column gray16 frame
+            raise ParameterError(
+                f"{path}: frames 1 px wide cannot be stored as FFV1 .mkv (FFmpeg refuses the "
+                f"size 1x{intrinsics.height}); write .npz, .zarr or a frame folder"
+            )
         if not (math.isfinite(depth_unit_mm) and depth_unit_mm > 0):
             raise ParameterError(f"depth_unit_mm must be > 0, got {depth_unit_mm!r}")
         if fps is not None and not (math.isfinite(fps) and fps > 0):
@@ -95,7 +109,9 @@ class DepthVideoWriter(StagedWriter):
         self._streams: tuple[Any, Any] | None = None
         self._t0: float | None = None
         self._last_pts = -1
+        self._moved: list[tuple[int, float]] = []  # (frame, ms) of the pts moved > 1 ms
 
+    @reports_write_errors
     def open(self) -> None:
         """Create the temporary file and the two FFV1 tracks (called by ``with``)."""
         if self._stack is not None:
@@ -127,6 +143,7 @@ class DepthVideoWriter(StagedWriter):
         if self.sensor:
             meta["FUSE4D_SENSOR"] = self.sensor
 
+    @reports_write_errors
     def write(
         self,
         depth: np.ndarray,
@@ -136,7 +153,11 @@ class DepthVideoWriter(StagedWriter):
         timestamp: float | None = None,
     ) -> None:
         """Append one frame (depth mm, NaN/<=0 invalid; intensity [0, 1], integers divided by
-        their dtype maximum; mask ignored)."""
+        their dtype maximum; mask ignored).
+
+        The pts (ms) must increase strictly: a frame whose rounded pts is not after the
+        previous frame's is stored 1 ms after it; where that moves frames by more than the
+        1 ms rounding, one ``UserWarning`` at :meth:`close` names them."""
         if self._streams is None:
             raise RuntimeError("DepthVideoWriter is not open; use it in a `with` block")
         shape = self.intrinsics.shape
@@ -146,10 +167,12 @@ class DepthVideoWriter(StagedWriter):
             self._t0 = float(timestamp)
             self._container.metadata["FUSE4D_T0"] = repr(self._t0)
         if self._t0 is not None and timestamp is not None:
-            pts = round((float(timestamp) - self._t0) * 1000.0)
+            exact_ms = (float(timestamp) - self._t0) * 1000.0
         else:
-            pts = round(self.num_written * 1000.0 / (self.fps or 30.0))
-        pts = max(pts, self._last_pts + 1)  # strictly increasing (1 ms resolution)
+            exact_ms = self.num_written * 1000.0 / (self.fps or 30.0)
+        pts = max(round(exact_ms), self._last_pts + 1)  # strictly increasing (1 ms resolution)
+        if pts - exact_ms > 1.0:
+            self._moved.append((self.num_written, pts - exact_ms))
         self._last_pts = pts
         planes = (
             depth_to_units(depth, self.depth_unit_mm, self._report),
@@ -164,6 +187,25 @@ class DepthVideoWriter(StagedWriter):
                 self._container.mux(packet)
         self.num_written += 1
 
+    def _warn_moved_pts(self) -> None:
+        """One warning for the frames whose time :meth:`write` moved (they did not come
+        after the previous frame at the 1 ms resolution of the pts)."""
+        if not self._moved:
+            return
+        frame, ms = max(self._moved, key=lambda m: m[1])
+        n = len(self._moved)
+        which, moved = f"frame {frame}", f"was stored {ms:.1f} ms later"
+        if n > 1:
+            which = f"{n} frames (first: frame {self._moved[0][0]})"
+            moved = f"were stored later, by up to {ms:.1f} ms (frame {frame})"
+        warnings.warn(
+            f"{self.path}: {which} did not come after the previous frame at the .mkv's 1 ms "
+            f"time resolution and {moved}",
+            UserWarning,
+            stacklevel=5,  # the caller's `with` (through close, its decorator, __exit__)
+        )
+
+    @reports_write_errors
     def close(self) -> None:
         """Flush the encoders, write the tags and move the file into place."""
         if self._stack is None:
@@ -182,14 +224,16 @@ class DepthVideoWriter(StagedWriter):
             self.abort()
             raise
         self._report.warn(str(self.path))
+        self._warn_moved_pts()
         stack.close()
 
     def abort(self) -> None:
         """Discard the partial output."""
         if self._stack is None:
             return
-        with contextlib.suppress(self._av.FFmpegError, OSError, ValueError):
-            self._container.close()  # a half-written container may fail to finalise
+        if self._container is not None:
+            with contextlib.suppress(self._av.FFmpegError, OSError, ValueError):
+                self._container.close()  # a half-written container may fail to finalise
         self._discard_stage()
 
 
@@ -202,8 +246,13 @@ def write_depth_video(
     warn_coarse_unit: bool = True,
 ) -> Path:
     """Write a :class:`~fuse4d.Sequence` as FFV1 ``.mkv`` (see :class:`DepthVideoWriter`, whose
-    ``warn_coarse_unit`` this passes on)."""
-    check_sequence(seq, "write_depth_video")
+    ``warn_coarse_unit`` this passes on).
+
+    Ground truth (masks included) cannot be stored in this format (a ``UserWarning`` says
+    so; use :func:`~fuse4d.io.write_npz` to keep it)."""
+    gt = check_sequence(seq, "write_depth_video").ground_truth
+    dropped = unstored_ground_truth(gt, keeps_mask=False)
+    warn_unstored_ground_truth(path, "the .mkv format", dropped)
     with DepthVideoWriter(
         path,
         seq.intrinsics,

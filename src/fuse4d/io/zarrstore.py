@@ -27,7 +27,14 @@ from numpy.typing import NDArray
 from ..camera import Intrinsics, check_intrinsics
 from ..errors import InputFileError, ParameterError
 from ..sequence import Sequence, as_storable_intensity, check_sequence
-from ._atomic import StagedWriter, atomic_dir, check_output
+from ._atomic import (
+    StagedWriter,
+    atomic_dir,
+    check_output,
+    reports_write_errors,
+    unstored_ground_truth,
+    warn_unstored_ground_truth,
+)
 from ._base import (
     Frame,
     FrameReader,
@@ -112,6 +119,7 @@ class ZarrWriter(StagedWriter):
         self._arrays: dict[str, Any] = {}
         self._timestamps: list[float | None] = []
 
+    @reports_write_errors
     def open(self) -> None:
         """Create the temporary store with empty (0, H, W) arrays."""
         if self._stack is not None:
@@ -136,6 +144,7 @@ class ZarrWriter(StagedWriter):
             dimension_names=_DIMS,
         )
 
+    @reports_write_errors
     def write(
         self,
         depth: np.ndarray,
@@ -169,13 +178,16 @@ class ZarrWriter(StagedWriter):
             )
         d = np.where(np.isfinite(d) & (d > 0), d, np.float32(np.nan))
         self._arrays["depth"].append(d[None], axis=0)
-        self._arrays["intensity"].append(np.clip(i, 0.0, 1.0)[None], axis=0)
+        self._arrays["intensity"].append(
+            np.clip(np.nan_to_num(i, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)[None], axis=0
+        )
         if source is not None:
             self._arrays["source"].append(np.asarray(source, np.uint8)[None], axis=0)
             self._arrays["confidence"].append(np.asarray(confidence, np.float32)[None], axis=0)
         self._timestamps.append(None if timestamp is None else float(timestamp))
         self.num_written += 1
 
+    @reports_write_errors
     def close(self) -> None:
         """Write timestamps and attributes, then move the store into place."""
         if self._stack is None:
@@ -268,37 +280,78 @@ class ZarrReader(FrameReader):
                 )
             else:
                 raise InputFileError(self.path, "no 'intrinsics' attribute; pass --intrinsics")
+        except InputFileError:
+            raise
         except (KeyError, TypeError, ValueError) as exc:
             raise InputFileError(self.path, f"bad 'intrinsics' attribute ({exc})") from None
         self.fps = float(attrs["fps"]) if attrs.get("fps") else None
         self.sensor = check_sensor_kind(attrs.get("sensor"), self.path, "attribute 'sensor'")
         if "timestamps" in group:
-            self.timestamps = np.asarray(group["timestamps"][:], dtype=np.float64)
+            self.timestamps = self._checked_timestamps(group["timestamps"], int(t))
         source = group.get("source")  # a fused output's per-pixel flags
         self._source = source if source is not None and source.shape == (t, h, w) else None
         self._t = int(t)
         self.notes = ("zarr v3 store, float32 depth in mm",)
 
+    def _checked_timestamps(self, array: Any, t: int) -> NDArray[np.float64]:
+        """The ``timestamps`` array (s), checked like the npz reader's: T finite values,
+        strictly increasing."""
+        try:
+            raw = np.asarray(array[:])
+        except _READ_ERRORS as exc:
+            raise InputFileError(self.path, f"cannot read 'timestamps' ({exc})") from None
+        if raw.dtype.kind not in "fiu":
+            raise InputFileError(self.path, f"'timestamps' must hold numbers, got {raw.dtype}")
+        ts = raw.astype(np.float64).ravel()
+        if ts.shape != (t,):
+            raise InputFileError(self.path, f"'timestamps' has {ts.size} values for {t} frames")
+        if not np.isfinite(ts).all():
+            raise InputFileError(self.path, "'timestamps' holds NaN or inf")
+        if t > 1 and not np.all(np.diff(ts) > 0):
+            raise InputFileError(self.path, "'timestamps' must be strictly increasing")
+        return ts
+
     def __len__(self) -> int:
         return self._t
 
     def read_frame(self, index: int) -> Frame:
+        """Frame ``index``: depth (H, W) mm float32 (values <= 0 or not finite become NaN),
+        intensity (H, W) float32 in [0, 1]."""
         k = self._index(index)
         try:
-            depth = np.asarray(self._depth[k], dtype=np.float32)
-            inten = np.asarray(self._inten[k], dtype=np.float32)
+            depth = np.array(self._depth[k], dtype=np.float32)
         except _READ_ERRORS as exc:
             raise InputFileError(self.path, f"cannot read chunk ({exc})", frame=k) from None
+        depth[~(np.isfinite(depth) & (depth > 0))] = np.nan
+        inten = self.read_intensity(k)
         ts = None if self.timestamps is None else float(self.timestamps[k])
         return Frame(k, depth, inten, timestamp=ts)
 
     def read_intensity(self, index: int) -> NDArray[np.float32]:
-        """Frame ``index``'s intensity alone (the depth chunk is not read)."""
+        """Frame ``index``'s intensity alone (the depth chunk is not read), float32 in [0, 1]
+        (integers scaled by their type's maximum).
+
+        Raises
+        ------
+        InputFileError
+            Damaged chunk, or float values outside [0, 1] (NaN or inf included).
+        """
         k = self._index(index)
         try:
-            return np.asarray(self._inten[k], dtype=np.float32)
+            raw = np.asarray(self._inten[k])
         except _READ_ERRORS as exc:
             raise InputFileError(self.path, f"cannot read chunk ({exc})", frame=k) from None
+        if raw.dtype.kind in "ui":
+            return raw.astype(np.float32) / np.float32(np.iinfo(raw.dtype).max)
+        inten = raw.astype(np.float32)
+        if not (np.isfinite(inten).all() and inten.min() >= 0 and inten.max() <= 1):
+            raise InputFileError(
+                self.path,
+                "'intensity' must hold finite values in [0, 1] (NaN, inf or values outside "
+                "found; rescale with fuse4d.normalize_intensity)",
+                frame=k,
+            )
+        return inten
 
     def read_source(self, start: int, stop: int) -> NDArray[np.uint8] | None:
         """The ``source`` array's frames ``start:stop`` (see :meth:`FrameReader.read_source`)."""
@@ -311,8 +364,13 @@ class ZarrReader(FrameReader):
 
 
 def write_zarr(seq: Sequence, path: str | PathLike[str], *, overwrite: bool = False) -> Path:
-    """Write a :class:`~fuse4d.Sequence` as a zarr v3 store (see :class:`ZarrWriter`)."""
-    check_sequence(seq, "write_zarr")
+    """Write a :class:`~fuse4d.Sequence` as a zarr v3 store (see :class:`ZarrWriter`).
+
+    Ground truth (masks included) cannot be stored in this format (a ``UserWarning`` says
+    so; use :func:`~fuse4d.io.write_npz` to keep it)."""
+    gt = check_sequence(seq, "write_zarr").ground_truth
+    dropped = unstored_ground_truth(gt, keeps_mask=False)
+    warn_unstored_ground_truth(path, "the .zarr format", dropped)
     with ZarrWriter(
         path, seq.intrinsics, fps=seq.fps, overwrite=overwrite, sensor=seq.sensor
     ) as writer:
