@@ -5,6 +5,8 @@ from __future__ import annotations
 import io
 import json
 import math
+import typing
+import warnings
 
 import numpy as np
 import pytest
@@ -13,7 +15,10 @@ from rich.console import Console
 from fuse4d import FusionParams, Intrinsics, Sequence, depth_to_points
 from fuse4d.baselines.temporal import temporal_mean
 from fuse4d.cli import main
+from fuse4d.cli._app import out_console
+from fuse4d.cli.cmd_eval import metrics_command
 from fuse4d.cli.cmd_fuse import run_summary_table
+from fuse4d.errors import ParameterError
 from fuse4d.io import load_sequence, save_sequence, write_npz
 from fuse4d.metrics import (
     RunningEvaluation,
@@ -475,3 +480,152 @@ def test_one_frame_has_no_roughness_spread():
     report = evaluate(seq)
     assert math.isfinite(report.output.roughness.mean)
     assert math.isnan(report.output.roughness.std)
+
+
+# ------------------------------------------------- single input, headlines, ROI, frame parts
+def test_a_single_input_has_no_step_limit_of_its_own():
+    """Scored alone, a smooth output took its own q (50x smaller than the sensor's) as the
+    step limit of bad_steps: fuse4d's output read 88.5 % bad against raw's 5.7 %. Alone it is
+    now not scored without the sensor's q; with it, it reads what RAW FUSED reads."""
+    seq = make_range_scene("ball", sensor="kinect", small=True, num_frames=4, rng=0)
+    smooth = seq.with_depth(seq.ground_truth.depth)
+    alone = evaluate(smooth)
+    assert math.isnan(alone.output.bad_steps)
+    assert math.isnan(alone.noise_quad)
+    assert "--noise-quad" in alone.noise_quad_description
+    assert math.isfinite(alone.output.bad_1mm)
+    pair = evaluate(smooth, raw=seq)
+    given = evaluate(smooth, noise_quad=pair.noise_quad)
+    assert given.noise_quad == pair.noise_quad
+    assert given.noise_quad_description == "given"
+    assert given.output.bad_steps == pair.output.bad_steps
+    with pytest.raises(ParameterError, match="noise_quad must be"):
+        evaluate(smooth, noise_quad=-1.0)
+
+
+def test_cli_metrics_alone_says_why_bad_steps_is_not_scored(tmp_path, capsys):
+    seq = make_range_scene("ball", sensor="kinect", small=True, num_frames=3, rng=0)
+    path = write_npz(seq.with_depth(seq.ground_truth.depth), tmp_path / "smooth.npz")
+    assert main(["metrics", str(path), "--no-shape", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["output"]["bad_steps"] is None
+    assert "not scored" in res["noise_quad_description"]
+    assert main(["metrics", str(path), "--no-shape"]) == 0
+    text = capsys.readouterr().out.replace("\n", " ")
+    assert "--noise-quad" in text
+    assert main(["metrics", str(path), "--no-shape", "--json", "--noise-quad", "7e-6"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["noise_quad"] == 7e-6
+    assert res["noise_quad_description"] == "given (--noise-quad)"
+    assert 0.0 <= res["output"]["bad_steps"] < 0.05
+    assert main(["metrics", str(path), "--no-shape", "--noise-quad", "-1"]) == 2
+    assert "--noise-quad must be" in capsys.readouterr().err
+
+
+def test_flicker_headline_is_the_mean_not_the_median(tmp_path, capsys):
+    """Quantised raw depth whose pixels mostly never change level had a median per-pixel std
+    of 0 mm ("steadier" than fused) while its mean was 10x the fused one."""
+    rng = np.random.default_rng(3)
+    k = Intrinsics(100.0, 100.0, 15.5, 15.5, 32, 32)
+    raw = np.full((4, 32, 32), 1000.0, np.float32)
+    jumpy = rng.random((32, 32)) < 0.3
+    raw[1::2, jumpy] += 30.0  # whole quantisation steps on 30 % of the pixels
+    fused = (1000.0 + rng.normal(0.0, 2.0, raw.shape)).astype(np.float32)
+    static = np.ones((32, 32), bool)
+    rep = evaluate(fused, raw=raw, intrinsics=k, static=static)
+    assert rep.raw.flicker.median == 0.0 < rep.output.flicker.median
+    assert rep.raw.flicker.mean > 2 * rep.output.flicker.mean
+    intensity = np.full_like(raw, 0.5)
+    raw_path = write_npz(Sequence(raw, intensity, k), tmp_path / "raw.npz")
+    fused_path = write_npz(Sequence(fused, intensity, k), tmp_path / "fused.npz")
+    np.savez(tmp_path / "static.npz", mask=static)
+    args = [
+        "metrics",
+        str(raw_path),
+        str(fused_path),
+        "--static-mask",
+        str(tmp_path / "static.npz"),
+    ]
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(out_console, "_width", 200)  # one table row per line
+        assert main([*args, "--no-shape"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    headline = next(line for line in lines if "(temporal precision)" in line)
+    assert "mean" in headline
+    raw_cell, fused_cell = (float(c) for c in headline.split("│")[2:4])
+    assert raw_cell > 2 * fused_cell
+    assert any("median" in line and "quantisation level" in line for line in lines)
+
+
+def test_shape_keeps_its_own_region_and_says_so(tmp_path, capsys):
+    """--roi claimed to apply to every metric; Eq. 8 scores its own region (EVALUATION §2)."""
+    seq = make_falling_ball(small=True, num_frames=2)
+    roi = np.zeros(seq.shape, bool)
+    roi[:20, :20] = True  # background only: Eq. 8 is still scored on the ball
+    rep = evaluate(seq, roi=roi, shape=True, shape_frames=[0])
+    assert rep.output.shape is not None
+    assert rep.output.shape.c_3d[0] > 0.99
+    assert "not the ROI" in rep.to_dict()["shape_region"]
+    assert "shape_region" not in evaluate(seq).to_dict()
+    roi_help = typing.get_type_hints(metrics_command, include_extras=True)["roi"].__metadata__[0]
+    assert "but the shape" in roi_help.help
+
+
+def test_cli_metrics_with_roi_has_no_whole_image_rmse_row(tmp_path, capsys):
+    """With --roi the row "RMSE to ground truth, whole image" was the ROI's."""
+    seq = make_falling_ball(small=True, num_frames=2)
+    path = write_npz(seq, tmp_path / "b.npz")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(out_console, "_width", 200)  # one table row per line
+        assert main(["metrics", str(path), "--no-shape"]) == 0
+        assert "whole image" in capsys.readouterr().out
+        assert main(["metrics", str(path), "--no-shape", "--roi", "40:100,40:100"]) == 0
+    text = capsys.readouterr().out
+    assert "whole image" not in text
+    assert "no whole-image RMSE with --roi" in text
+    assert main(["metrics", str(path), "--no-shape", "--json", "--roi", "40:100,40:100"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["roi"]["given"] is True
+    assert res["output"]["rmse"] == res["output"]["rmse_roi"]
+
+
+def test_cli_metrics_scores_the_output_of_a_part(tmp_path, capsys):
+    """`fuse4d run --frames A:B`'s output could not be scored against its input: --frames
+    applied to every input (FUSED then had too few frames)."""
+    seq = make_falling_ball(small=True, num_frames=6)
+    raw_path = write_npz(seq, tmp_path / "raw.npz")
+    part_path = write_npz(seq.frames(2, 5), tmp_path / "raw_2_5.npz")
+    fused = seq.frames(2, 5)
+    fused_path = write_npz(fused.with_depth(fused.ground_truth.depth), tmp_path / "fused.npz")
+    args = ["metrics", "--no-shape", "--json"]
+    assert main([*args, str(raw_path), str(fused_path), "--frames", "2:5"]) == 0
+    whole = json.loads(capsys.readouterr().out)
+    assert whole["frames"] == [2, 5]
+    assert main([*args, str(part_path), str(fused_path)]) == 0
+    part = json.loads(capsys.readouterr().out)
+    assert whole["raw"] == part["raw"]
+    assert whole["output"] == part["output"]
+    # the ground truth lines up with RAW's part too; the single input with --gt likewise
+    assert (
+        main([*args, str(raw_path), str(fused_path), "--frames", "2:5", "--gt", str(raw_path)]) == 0
+    )
+    assert json.loads(capsys.readouterr().out)["output"]["rmse"] == 0.0
+    assert main([*args, str(fused_path), "--frames", "2:5", "--gt", str(raw_path)]) == 0
+    assert json.loads(capsys.readouterr().out)["output"]["rmse"] == 0.0
+    # without the range: one line that says what to do
+    assert main([*args, str(raw_path), str(fused_path)]) == 2
+    err = capsys.readouterr().err
+    assert "3 frames of 150x150, but" in err
+    assert "give the same --frames A:B" in err
+    # a `fuse4d run` folder records its part
+    folder = tmp_path / "raw_dir"
+    with warnings.catch_warnings():  # no ground truth, a coarse unit: not what is tested
+        warnings.simplefilter("ignore", UserWarning)
+        save_sequence(seq, folder)
+    out = tmp_path / "fused_dir"
+    assert main(["run", str(folder), "-o", str(out), "--frames", "1:4", "--window", "3"]) == 0
+    capsys.readouterr()
+    assert main([*args, str(folder), str(out)]) == 0
+    assert json.loads(capsys.readouterr().out)["frames"] == [1, 4]
+    assert main([*args, str(folder), str(out), "--frames", "0:3"]) == 2
+    assert "was fused from frames 1:4" in capsys.readouterr().err

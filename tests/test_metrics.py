@@ -12,7 +12,8 @@ from fuse4d import Intrinsics, Sequence, ShapeError, depth_to_points, fuse_seque
 from fuse4d._kernels.roughness import _smallest_eigvec_newton
 from fuse4d._kernels.sphere_fit import _mlesac_score_kernel
 from fuse4d.cli import main
-from fuse4d.errors import ParameterError
+from fuse4d.errors import InputFileError, ParameterError, ParameterTypeError
+from fuse4d.io import read_mask
 from fuse4d.metrics import (
     bad_pixel_fraction,
     ball_roi,
@@ -20,6 +21,7 @@ from fuse4d.metrics import (
     circle_fit_mlesac,
     default_roi,
     depth_rmse,
+    evaluate,
     flow_angular_error,
     flow_endpoint_error,
     roughness,
@@ -32,6 +34,7 @@ from fuse4d.metrics import (
     static_mask_from_ground_truth,
     temporal_flicker,
 )
+from fuse4d.metrics.evaluate import _as_video
 from fuse4d.synthetic import make_deforming_sheet, make_falling_ball, make_static_plane
 from naive.metrics import naive_default_roi, naive_mlesac_score, naive_roughness
 
@@ -585,3 +588,100 @@ def test_roughness_of_a_depth_map_says_how_to_make_points():
     for wrong in (depth, depth[0]):
         with pytest.raises(ShapeError, match=r"3D points in mm \(from depth: fuse4d.depth_to_"):
             roughness_stats(wrong)
+
+
+# ------------------------------------------------------- invalid depth, mask types and files
+def test_zero_and_negative_depth_are_invalid_in_the_metrics():
+    """A 16-bit file's hole (0) scored as a depth of 0 mm: a 1000 mm error in the RMSE."""
+    truth = np.array([[1000, 1000], [1000, 1000]], np.uint16)
+    test = np.array([[1002, 0], [1000, 1000]], np.uint16)
+    before = test.copy()
+    assert depth_rmse(truth, test) == pytest.approx(math.sqrt(4 / 3))
+    np.testing.assert_array_equal(test, before)  # never written to
+    truth[1, 1] = 0  # a hole in the truth is not scored; one in the test counts as bad
+    assert bad_pixel_fraction(truth, test) == pytest.approx(2 / 3)
+    assert math.isnan(bad_pixel_fraction(-1.0 * truth.astype(np.float32), test))  # no truth
+    video = np.full((3, 8, 8), 1000.0, np.float32)
+    video[1, 0, 0] = 0.0
+    video[2, 1, 1] = -5.0
+    kept = video.copy()
+    f = temporal_flicker(video)
+    assert f.num_pixels == 62
+    assert f.mean == 0.0
+    np.testing.assert_array_equal(video, kept)
+    rep = evaluate(video, intrinsics=Intrinsics(100.0, 100.0, 3.5, 3.5, 8, 8))
+    assert rep.output.fill_rate == pytest.approx(1 - 2 / 192)
+    np.testing.assert_array_equal(video, kept)
+
+
+def test_as_video_copies_only_where_depth_is_invalid():
+    k = Intrinsics(100.0, 100.0, 1.5, 1.5, 4, 4)
+    depth = np.full((2, 4, 4), 800.0, np.float32)
+    d, p, _ = _as_video(depth, k, "output")
+    assert d is depth  # all valid: no copy
+    points = depth_to_points(depth, k)
+    d, p, _ = _as_video(points, k, "output")
+    assert np.shares_memory(p, points)
+    points[0, 1, 1] = 0.0
+    d, p, _ = _as_video(points, k, "output")
+    assert not np.shares_memory(p, points)
+    assert np.isnan(p[0, 1, 1]).all()
+    assert (points[0, 1, 1] == 0.0).all()
+    assert np.isnan(d[0, 1, 1])
+
+
+def test_masks_of_the_wrong_type_are_parameter_type_errors():
+    seq = make_falling_ball(small=True, num_frames=2)
+    ints = np.ones(seq.shape, np.int64)
+    with pytest.raises(ParameterTypeError, match="static must be a boolean mask, got dtype int64"):
+        evaluate(seq, static=ints)
+    with pytest.raises(ShapeError, match=r"static must have shape \(150, 150\), got \(3, 3\)"):
+        evaluate(seq, static=np.ones((3, 3), bool))
+    with pytest.raises(ParameterTypeError, match="roi must be a boolean"):
+        evaluate(seq, roi=ints)
+    with pytest.raises(ParameterTypeError, match="roi must be a boolean"):
+        depth_rmse(seq.depth, seq.depth, roi=ints)
+    with pytest.raises(ParameterTypeError, match="static must be a boolean"):
+        temporal_flicker(seq.depth, static=ints)
+    flow = np.zeros((1, 150, 150, 2))
+    with pytest.raises(ParameterTypeError, match="roi must be a boolean"):
+        flow_endpoint_error(flow, flow, roi=ints)
+    with pytest.raises(ParameterTypeError, match="roi must be a boolean"):
+        roughness_stats(seq.points(), roi=ints)
+
+
+def test_read_mask_npy_nan_and_unknown_files(tmp_path):
+    mask = np.zeros((2, 6, 5), np.uint8)
+    mask[:, 1:3, 2:4] = 7
+    np.save(tmp_path / "m.npy", mask)
+    np.testing.assert_array_equal(read_mask(tmp_path / "m.npy"), mask != 0)
+    np.testing.assert_array_equal(read_mask(tmp_path / "m.npy", frames="1:2"), mask[1:2] != 0)
+    (tmp_path / "bad.npy").write_bytes(b"\x93NUMPY garbage")
+    with pytest.raises(InputFileError, match=r"not a valid \.npy file"):
+        read_mask(tmp_path / "bad.npy")
+    np.save(tmp_path / "obj.npy", np.array([None, 1], dtype=object), allow_pickle=True)
+    with pytest.raises(InputFileError, match=r"not a valid \.npy file"):
+        read_mask(tmp_path / "obj.npy")
+    floats = np.ones((6, 5), np.float32)
+    floats[0, 0] = np.nan
+    np.savez(tmp_path / "nan.npz", mask=floats)
+    with pytest.raises(InputFileError, match="mask holds 1 NaN values"):
+        read_mask(tmp_path / "nan.npz")
+    (tmp_path / "m.txt").write_text("not a mask")
+    with pytest.raises(InputFileError, match=r"an image \(PNG, JPEG, TIFF\), an \.npz, an \.npy"):
+        read_mask(tmp_path / "m.txt")
+
+
+def test_cli_metrics_checks_a_static_mask_per_frame(tmp_path, capsys):
+    out = tmp_path / "ball.npz"
+    assert main(["synth", "ball", "-o", str(out), "--small", "--frames", "3"]) == 0
+    capsys.readouterr()
+    static = np.zeros((10, 150, 150), bool)
+    static[:, :20, :20] = True
+    np.savez(tmp_path / "s.npz", mask=static)
+    assert main(["metrics", str(out), "--no-shape", "--static-mask", str(tmp_path / "s.npz")]) == 2
+    assert "--static-mask: mask has 10 frames, the input 3" in capsys.readouterr().err
+    np.save(tmp_path / "s.npy", static[0])
+    args = ["metrics", str(out), "--no-shape", "--json", "--static-mask", str(tmp_path / "s.npy")]
+    assert main(args) == 0
+    assert json.loads(capsys.readouterr().out)["output"]["flicker_pixels"] == 400

@@ -182,6 +182,61 @@ def _read_region(text: str, what: str, frames: str | None, shape: tuple[int, int
         raise AssertionError from None  # unreachable
 
 
+def _part_of_reference(
+    fused: Path, reference: Path | None, frames: str | None
+) -> tuple[str | None, str | None]:
+    """``(part, fused_frames)``: the part A:B of the reference (RAW, else --gt) that FUSED
+    was made from (None: they line up as they are), and the frames of FUSED to read.
+
+    The part is the range a ``fuse4d run`` output folder records (``--frames`` must then name
+    the same), else ``--frames``; it is taken where FUSED has exactly its length and the
+    reference another. Otherwise ``--frames`` selects the frames of every input."""
+    if reference is None:
+        return None, frames
+    from ..io import count_frames, resolve_frames
+
+    recorded = None
+    if fused.is_dir():  # a `fuse4d run` folder (or --engine dask store) records its part
+        from ..report._sources import recorded_reader_options
+
+        value = recorded_reader_options(fused).get("frames")
+        recorded = None if value is None else str(value)
+    if recorded is None and frames is None:
+        return None, None
+    total = count_frames(reference)
+    if (
+        recorded is not None
+        and frames is not None
+        and resolve_frames(frames, total) != resolve_frames(recorded, total)
+    ):
+        fail(
+            f"--frames {frames}: {fused} was fused from frames {recorded} of its input (its "
+            "run records them); drop --frames"
+        )
+    candidate = recorded if recorded is not None else frames
+    fused_total = count_frames(fused)
+    if fused_total != total and fused_total == len(resolve_frames(candidate, total)):
+        return candidate, None
+    return None, None if recorded is not None else frames
+
+
+def _mismatch(
+    path: Path,
+    shape: tuple[int, ...],
+    reference: Path,
+    ref_shape: tuple[int, ...],
+    part: str | None,
+) -> str:
+    """The one-line error for inputs that do not line up frame for frame."""
+    what = f" (frames {part} of it)" if part is not None else ""
+    return (
+        f"{path}: {shape[0]} frames of {shape[1]}x{shape[2]}, but {reference}{what} has "
+        f"{ref_shape[0]} of {ref_shape[1]}x{ref_shape[2]}: they are scored frame for frame. "
+        "For the output of `fuse4d run --frames A:B`, give the same --frames A:B (FUSED is "
+        "then read whole, RAW and --gt at A:B)"
+    )
+
+
 def _clean(value: Any) -> Any:
     """JSON-safe: NaN/inf -> None, numpy scalars -> Python."""
     import numpy as np
@@ -202,29 +257,47 @@ def metrics_command(
     inputs: Annotated[
         list[Path],
         typer.Argument(
-            help="INPUT, or RAW FUSED: two sequences scored on one ROI (the ROI of RAW).",
+            help="INPUT, or RAW FUSED: two sequences scored on one ROI (the ROI of RAW). "
+            "Only RAW FUSED compares methods: INPUT alone is scored on its own ROI, static "
+            "pixels and noise.",
             show_default=False,
         ),
     ],
     gt: Annotated[
-        Path | None, typer.Option(help="Ground-truth depth: a sequence (its depth_gt or depth).")
+        Path | None,
+        typer.Option(
+            help="Ground-truth depth: a sequence (its depth_gt or depth), frame for frame "
+            "with RAW (INPUT)."
+        ),
     ] = None,
     frames: Annotated[
         str | None,
-        typer.Option(help="Frame range A:B (0-based, B excluded).", callback=frame_range),
+        typer.Option(
+            help="Frame range A:B (0-based, B excluded) of every input. Where FUSED (INPUT) "
+            "is `fuse4d run --frames A:B`'s output (it has B-A frames, RAW or --gt more), "
+            "the part of RAW and --gt it was made from: FUSED is read whole. A `fuse4d run` "
+            "output folder records its part; it is read from there (--frames must then name "
+            "the same).",
+            callback=frame_range,
+        ),
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="One JSON object on stdout.")] = False,
     roi: Annotated[
         str | None,
         typer.Option(
-            help="Pixels to score, for every metric: a box R0:R1,C0:C1 (px, as in `fuse4d "
-            "report`), .npz (key roi/mask/mask_gt), image (>= 50 % = in) or a recording with "
-            "masks."
+            help="Pixels to score, for every metric but the shape (Eq. 8 keeps its own region, "
+            "EVALUATION §2): a box R0:R1,C0:C1 (px, as in `fuse4d report`), .npz (key "
+            "roi/mask/mask_gt) or .npy (nonzero = in), image (>= 50 % = in) or a recording "
+            "with masks."
         ),
     ] = None,
     static_mask: Annotated[
         str | None,
-        typer.Option("--static-mask", help="Pixels known static, for the flicker (as --roi)."),
+        typer.Option(
+            "--static-mask",
+            help="Pixels known static, for the flicker (as --roi; (T, H, W): static in every "
+            "frame).",
+        ),
     ] = None,
     window: Annotated[int, typer.Option(help="Roughness window n (odd, px).")] = 5,
     max_step: Annotated[
@@ -233,6 +306,17 @@ def metrics_command(
             "--max-step", help="Default ROI: floor of the depth-step limit between neighbours (mm)."
         ),
     ] = 10.0,
+    noise_quad: Annotated[
+        float | None,
+        typer.Option(
+            "--noise-quad",
+            help="The sensor's depth-noise coefficient q (1/mm; noise std about q z^2): the "
+            "step limit max(1 mm, 2.5 q z^2) of the bad-pixel count at the noise model's "
+            "step limit, of the default ROI and of the static pixels. Default: estimated "
+            "from RAW (the q that RAW FUSED prints); for INPUT alone that count is n/a "
+            "without it.",
+        ),
+    ] = None,
     shape: Annotated[
         bool, typer.Option(help="Shape correctness for the synthetic ball (slow at full size).")
     ] = True,
@@ -240,7 +324,11 @@ def metrics_command(
     """Roughness (Eq. 7), RMS residual, flicker, and (with GT) RMSE, bad pixels, shape (Eq. 8).
 
     With two inputs RAW FUSED, both are scored on the same pixels (ROI and static pixels of
-    RAW). The policy (ROI, static pixels, same pixels) is that of fuse4d.metrics.evaluate.
+    RAW) and the same noise model (q of RAW): the comparable mode. INPUT alone is scored on
+    its own ROI and static pixels, so two such scores do not compare methods, and the bad
+    pixels at the noise model's step limit need --noise-quad (a smoothed output's own q is
+    far smaller than the sensor's). The policy (ROI, static pixels, same pixels) is that of
+    fuse4d.metrics.evaluate.
     """
     from ..io import count_frames, load_sequence, resolve_frames
     from ..metrics import evaluate
@@ -251,38 +339,49 @@ def metrics_command(
         fail(f"--window must be an odd integer >= 3, got {window}")
     if not (math.isfinite(max_step) and max_step > 0):
         fail(f"--max-step must be a depth step > 0 mm, got {max_step}")
+    if noise_quad is not None and not (math.isfinite(noise_quad) and noise_quad >= 0):
+        fail(f"--noise-quad must be a depth-noise coefficient q >= 0 (1/mm), got {noise_quad}")
+    # RAW (else --gt) is what FUSED (INPUT) is lined up with, frame for frame
+    reference = inputs[0] if len(inputs) == 2 else gt
+    part, fused_frames = _part_of_reference(inputs[-1], reference, frames)
+    ref_frames = fused_frames if part is None else part
     seqs = []
-    for path in inputs:
+    selections = [fused_frames] if len(inputs) == 1 else [ref_frames, fused_frames]
+    for path, selection in zip(inputs, selections, strict=True):
         with progress_bar(f"loading {path.name}", None) as bar:
-            seqs.append(load_sequence(path, frames=frames, progress=progress_callback(bar)))
+            seqs.append(load_sequence(path, frames=selection, progress=progress_callback(bar)))
     if len(seqs) == 2 and seqs[0].depth.shape != seqs[1].depth.shape:
-        fail(
-            f"{inputs[1]}: shape {seqs[1].depth.shape} differs from {inputs[0]}: {seqs[0].depth.shape}"
-        )
+        fail(_mismatch(inputs[1], seqs[1].depth.shape, inputs[0], seqs[0].depth.shape, part))
     raw_seq, out_seq = (None, seqs[0]) if len(seqs) == 1 else (seqs[0], seqs[1])
-    start = resolve_frames(frames, count_frames(inputs[0])).start if frames else 0
+    numbered = reference if part is not None and reference is not None else inputs[0]
+    start = resolve_frames(ref_frames, count_frames(numbered)).start if ref_frames else 0
     gtruth = next((s.ground_truth for s in seqs if s.ground_truth is not None), None)
     if gt is not None:
         from ..sequence import GroundTruth
 
-        ref = load_sequence(gt, frames=frames)
+        ref = load_sequence(gt, frames=ref_frames)
         depth_gt = (
             ref.ground_truth.depth
             if ref.ground_truth is not None and ref.ground_truth.depth is not None
             else ref.depth
         )
         if depth_gt.shape != out_seq.depth.shape:
-            fail(f"{gt}: ground truth has shape {depth_gt.shape}, input {out_seq.depth.shape}")
+            fail(_mismatch(inputs[-1], out_seq.depth.shape, gt, depth_gt.shape, part))
         base = gtruth if gtruth is not None else GroundTruth()
         gtruth = dataclasses.replace(base, depth=depth_gt)
     t, h, w = out_seq.depth.shape
     if window > min(h, w):
         fail(f"--window {window}: larger than the {w}x{h} image")
-    region = None if roi is None else _read_region(roi, "--roi", frames, (h, w))
+    # a (T, H, W) mask file is numbered as the recording it belongs to: RAW's frames
+    region = None if roi is None else _read_region(roi, "--roi", ref_frames, (h, w))
     static = (
-        None if static_mask is None else _read_region(static_mask, "--static-mask", frames, (h, w))
+        None
+        if static_mask is None
+        else _read_region(static_mask, "--static-mask", ref_frames, (h, w))
     )
     if static is not None and static.ndim == 3:
+        if static.shape[0] != t:
+            fail(f"--static-mask: mask has {static.shape[0]} frames, the input {t}")
         static = static.all(axis=0)
     for name, mask in (("--roi", region), ("--static-mask", static)):
         if mask is not None and mask.shape[-2:] != (h, w):
@@ -300,6 +399,7 @@ def metrics_command(
             static=static,
             window=window,
             max_step=max_step,
+            noise_quad=noise_quad,
             shape=shape,
             progress=progress_callback(bar),
         )
@@ -309,6 +409,8 @@ def metrics_command(
         "size": [h, w],
         **report.to_dict(),
     }
+    if noise_quad is not None:
+        result["noise_quad_description"] = "given (--noise-quad)"
     if roi is not None:
         box = _box(roi)
         result["roi"]["description"] = (
@@ -362,16 +464,31 @@ def _print_table(result: dict[str, Any]) -> None:
             key,
             unit + (f", {result['window']}x{result['window']}" if key != "roughness_std" else ""),
         )
-    for key in ("flicker_step_mean", "flicker_std_median"):
+    # the mean is the headline: the median reads 0 on quantised depth whose pixels mostly
+    # never leave their level in a short clip, however much the others flicker
+    for key in ("flicker_step_mean", "flicker_std_mean", "flicker_std_median"):
         label, unit = METRIC_MEANINGS[key]
         row(label, key, unit)
     row(*METRIC_MEANINGS["fill_rate"][:1], "fill_rate", METRIC_MEANINGS["fill_rate"][1])
     # with ground truth, shown even where the output has no depth at all (bad = 100 %)
     if result["output"].get("bad_1mm") is not None:
-        for key in ("rmse_roi", "rmse", "bad_1mm", "bad_steps"):
+        # with --roi the whole-image RMSE is the ROI's, the row above
+        given = result["roi"].get("given", False)
+        for key in (
+            ("rmse_roi", "bad_1mm", "bad_steps")
+            if given
+            else ("rmse_roi", "rmse", "bad_1mm", "bad_steps")
+        ):
             label, unit = METRIC_MEANINGS[key]
+            if key == "rmse_roi" and given:
+                unit += " (the given one: no whole-image RMSE with --roi)"
             if key == "bad_steps":
-                unit += f"; q = {result.get('noise_quad', math.nan):.3g} /mm"
+                q = result.get("noise_quad")
+                unit += (
+                    f"; q = {q:.3g} /mm ({result.get('noise_quad_description', '')})"
+                    if q is not None
+                    else f"; {result.get('noise_quad_description', '')}"
+                )
             row(label, key, unit)
     if "shape" in result["output"]:
         for key, label in (
@@ -382,5 +499,6 @@ def _print_table(result: dict[str, Any]) -> None:
             vals = [
                 result[k]["shape"].get(key) for k in (("raw", "output") if two else ("output",))
             ]
-            table.add_row(label, *[fmt(None if v is None else 100 * v, 6) for v in vals], "%")
+            note = "%" + ("" if key != "c_3d_mean" else f", {result.get('shape_region', '')}")
+            table.add_row(label, *[fmt(None if v is None else 100 * v, 6) for v in vals], note)
     out_console.print(table)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import zipfile
 from os import PathLike
 from pathlib import Path
@@ -12,12 +13,18 @@ from numpy.typing import NDArray
 from ..errors import InputFileError
 from ._base import FrameSelection, resolve_frames
 from ._images import read_mask_image
-from .npz import MEMBER_ERRORS, read_member
+from .npz import MEMBER_ERRORS, _read_npy_header, read_member
 
 __all__ = ["MASK_NPZ_KEYS", "read_mask"]
 
 #: Keys tried, in order, when a mask is read from an ``.npz`` file.
 MASK_NPZ_KEYS = ("roi", "mask", "mask_gt")
+
+#: What a mask can be read from, for the message of a file that is none of them.
+_MASK_SOURCES = (
+    "a mask is read from an image (PNG, JPEG, TIFF), an .npz, an .npy or a recording folder "
+    "with masks"
+)
 
 
 def read_mask(path: str | PathLike[str], *, frames: FrameSelection = None) -> NDArray[np.bool_]:
@@ -28,8 +35,9 @@ def read_mask(path: str | PathLike[str], *, frames: FrameSelection = None) -> ND
     path : str or PathLike
         - an image (PNG/JPEG/TIFF, any bit depth): True where gray >= 50 % of the dtype
           maximum, giving ``(H, W)``;
-        - an ``.npz``: the first of the keys ``roi``, ``mask``, ``mask_gt`` (bool, or nonzero
-          = True), giving ``(H, W)`` or ``(T, H, W)``;
+        - an ``.npz``: the first of the keys ``roi``, ``mask``, ``mask_gt``, or an ``.npy``
+          (bool, or numbers with nonzero = True; NaN is refused as neither), giving
+          ``(H, W)`` or ``(T, H, W)``;
         - a recording whose layout stores object masks (frame folder with ``mask/``,
           ``cv2-xml`` with ``*_mask.jpg``): the per-frame masks, ``(T, H, W)``.
     frames : slice, range, (start, stop), "A:B" or None, optional
@@ -53,15 +61,20 @@ def read_mask(path: str | PathLike[str], *, frames: FrameSelection = None) -> ND
                 raise InputFileError(p, "this recording stores no masks")
             sel = resolve_frames(frames, len(reader))
             return np.stack([reader.read_frame(k).mask for k in sel])  # type: ignore[misc]
-    if p.suffix.lower() == ".npz":
-        mask = _npz_mask(p)
+    if p.suffix.lower() in (".npz", ".npy"):
+        mask = _npz_mask(p) if p.suffix.lower() == ".npz" else _npy_mask(p)
         if mask.ndim == 3:
             sel = resolve_frames(frames, mask.shape[0])
             mask = mask[sel.start : sel.stop]
         elif mask.ndim != 2:
             raise InputFileError(p, f"mask must be (H, W) or (T, H, W), got shape {mask.shape}")
         return mask
-    return read_mask_image(p)
+    try:
+        return read_mask_image(p)
+    except InputFileError as exc:
+        if "cannot decode image" not in exc.problem:
+            raise
+        raise InputFileError(p, f"{exc.problem}; {_MASK_SOURCES}") from None
 
 
 def _npz_mask(p: Path) -> NDArray[np.bool_]:
@@ -82,6 +95,37 @@ def _npz_mask(p: Path) -> NDArray[np.bool_]:
         raise InputFileError(p, "file not found") from None
     except MEMBER_ERRORS as exc:
         raise InputFileError(p, f"not a valid .npz file (truncated or corrupt: {exc})") from None
+    return _as_mask(p, array)
+
+
+def _npy_mask(p: Path) -> NDArray[np.bool_]:
+    """The mask of an ``.npy`` file (no pickles; a header declaring more data than the file
+    holds is refused before numpy allocates it)."""
+    try:
+        with p.open("rb") as f:
+            header = _read_npy_header(f)
+            if header is not None:
+                shape, _, dtype = header
+                if dtype.hasobject:
+                    raise ValueError("object arrays are not allowed")
+                if f.tell() + math.prod(shape) * dtype.itemsize > p.stat().st_size:
+                    raise ValueError("the file is shorter than its header declares")
+            f.seek(0)
+            array = np.lib.format.read_array(f, allow_pickle=False)
+    except FileNotFoundError:
+        raise InputFileError(p, "file not found") from None
+    except MEMBER_ERRORS as exc:
+        raise InputFileError(p, f"not a valid .npy file (truncated or corrupt: {exc})") from None
+    return _as_mask(p, array)
+
+
+def _as_mask(p: Path, array: np.ndarray) -> NDArray[np.bool_]:
+    """Bool mask of a stored array: bool as it is, numbers nonzero = True; NaN refused (it is
+    neither in nor out)."""
     if array.dtype.kind not in "biuf" or array.dtype.names is not None:
         raise InputFileError(p, f"mask must hold numbers or booleans, got dtype {array.dtype}")
+    if array.dtype.kind == "f" and (nans := int(np.isnan(array).sum())):
+        raise InputFileError(
+            p, f"mask holds {nans} NaN values: give bool, or numbers with nonzero = inside"
+        )
     return np.asarray(array) != 0

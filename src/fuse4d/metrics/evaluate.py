@@ -8,7 +8,12 @@ benchmark):
 * **the ROI** (pixels to score): the one given; else the EVALUATION ROI of a synthetic scene
   (ball ROI, central 80 % of plane/sheet); else :func:`~fuse4d.metrics.default_roi` of the
   *raw* depth (the output's when no raw is given), whose depth-step rule follows the
-  noise model (A22). One ROI, computed once, for raw and output;
+  noise model (A22). One ROI, computed once, for raw and output; every metric but Eq. 8
+  (which keeps its own region, EVALUATION §2) is scored on it;
+* **the noise model's q** (the step limit of ``bad_steps``, the default ROI and the static
+  rule): given; else estimated from the raw video. A single video's own q is not the
+  sensor's (a smoothed output reads a far smaller one), so without raw and without a given q
+  ``bad_steps`` is not scored;
 * **the same pixels** for raw and output: roughness on ROI pixels where Eq. 7 is defined in
   both, RMSE on ROI pixels valid in both, flicker on static pixels valid in every frame of
   both;
@@ -26,6 +31,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from numbers import Real
 from typing import Any
 
 import numpy as np
@@ -33,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._kernels.flicker import _temporal_tally_kernel
 from ..camera import Intrinsics, depth_to_points
-from ..errors import ParameterError, ShapeError
+from ..errors import ParameterError, ParameterTypeError, ShapeError
 from ..sequence import BallTruth, GroundTruth, Sequence
 from .accuracy import FlickerStats, bad_pixel_fraction, depth_rmse, temporal_flicker
 from .roi import (
@@ -63,6 +69,19 @@ __all__ = ["MetricsReport", "RunningEvaluation", "Scores", "evaluate"]
 #: Threshold of the bad-pixel fraction (mm).
 BAD_PIXEL_MM = 1.0
 
+#: Where Eq. 8 is scored: its own region, whatever the ROI (EVALUATION §2).
+SHAPE_REGION = (
+    "Eq. 8's own region (EVALUATION §2), not the ROI: the ground-truth ball mask eroded by "
+    "3 px, in the fixed column band and the rows within 140 px (full size) of the ball centre"
+)
+
+#: Why ``bad_steps`` is not scored for one video without a given q.
+NO_NOISE_QUAD = (
+    "not scored: one video's own depth noise is not the sensor's (a smoothed output reads a "
+    "far smaller q, so a far stricter limit); give the sensor's q (noise_quad=, fuse4d "
+    "metrics --noise-quad) or score RAW FUSED"
+)
+
 
 @dataclass(frozen=True)
 class Scores:
@@ -91,7 +110,8 @@ class Scores:
         Eq. 8 on the falling ball, when asked for.
     bad_steps : float
         As ``bad_1mm``, with the threshold ``max(1 mm, 2.5 q z^2)`` at the true depth z: the
-        depth-noise model's step limit (A22; q of the raw video), 1.5 quantisation steps of
+        depth-noise model's step limit (A22; q of the raw video or the given one; NaN when
+        neither is there, see :attr:`MetricsReport.noise_quad`), 1.5 quantisation steps of
         structured-light depth. On sensor depth at metres a fixed 1 mm calls nearly every
         pixel bad, and any averaging that moves values by less than a step "better" (a
         trailing 9-frame mean had fewer pixels > 1 mm off than raw); on the paper's 0.2 mm
@@ -143,16 +163,23 @@ METRIC_MEANINGS: dict[str, tuple[str, str]] = {
     "roughness_std": ("roughness std over frames", "mm"),
     "rms_residual": ("RMS plane-fit residual (spatial precision)", "mm, on the ROI"),
     "flicker_step_mean": ("flicker: frame-to-frame |Δ|", "mm, static pixels"),
-    "flicker_std_median": (
-        "flicker: per-pixel std over time (temporal precision), median",
+    "flicker_std_mean": (
+        "flicker: per-pixel std over time (temporal precision), mean",
         "mm, static pixels",
+    ),
+    "flicker_std_median": (
+        "flicker: per-pixel std over time, median",
+        "mm, static pixels; 0 where most never leave their quantisation level",
     ),
     "rmse_roi": ("RMSE to ground truth", "mm, on the ROI"),
     "rmse": ("RMSE to ground truth, whole image", "mm, pixels with depth in every input"),
-    "bad_1mm": ("pixels > 1 mm off ground truth", "fraction, missing = bad"),
+    "bad_1mm": (
+        "pixels > 1 mm off ground truth",
+        "fraction of the --roi (else all), missing = bad",
+    ),
     "bad_steps": (
         "pixels off ground truth by > max(1 mm, 2.5 q z^2), the noise model's step limit",
-        "fraction, missing = bad",
+        "fraction of the --roi (else all), missing = bad",
     ),
     "fill_rate": ("fill rate: pixels with depth", "fraction of the --roi (else all), all frames"),
 }
@@ -179,8 +206,14 @@ class MetricsReport:
     window : int
         Roughness window n (px).
     noise_quad : float
-        Depth-noise coefficient q (mm^-1) of the raw video (else the output), median over
-        frames: the step limit of ``bad_steps``; NaN without ground truth.
+        Depth-noise coefficient q (mm^-1) of ``bad_steps``' step limit: the given one, else
+        the median over the raw video's frames; NaN without ground truth, and for a single
+        video without a given q (its own q is not the sensor's: a smoothed output reads a
+        far smaller one and so a far stricter limit).
+    noise_quad_description : str
+        Where ``noise_quad`` came from, or why it is NaN.
+    roi_given : bool
+        Whether the ROI was given (then ``rmse`` is on it too, the same as ``rmse_roi``).
     """
 
     output: Scores
@@ -191,6 +224,8 @@ class MetricsReport:
     static_description: str
     window: int
     noise_quad: float = math.nan
+    noise_quad_description: str = ""
+    roi_given: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly form: regions, then the output's and the raw's scores."""
@@ -200,6 +235,7 @@ class MetricsReport:
             "num_frames": t,
             "roi": {
                 "description": self.roi_description,
+                "given": self.roi_given,
                 "pixels": int(self.roi.sum()),
                 "pixels_per_frame": float(self.roi.sum() / max(t, 1)),
                 "pixels_scored": int(self.output.roughness.num_pixels.sum()),
@@ -209,8 +245,11 @@ class MetricsReport:
                 "pixels": 0 if self.static is None else int(self.static.sum()),
             },
             "noise_quad": self.noise_quad,
+            "noise_quad_description": self.noise_quad_description,
             "output": self.output.to_dict(),
         }
+        if self.output.shape is not None:
+            out["shape_region"] = SHAPE_REGION
         if self.raw is not None:
             out["raw"] = self.raw.to_dict()
         return out
@@ -224,18 +263,34 @@ def _as_video(
         return data.depth, data.points(), data.intrinsics
     arr = np.asarray(data, dtype=np.float32)
     if arr.ndim == 4 and arr.shape[-1] == 3:
+        arr = _invalid_to_nan(arr, data)
         return arr[..., 2], arr, intrinsics
     if arr.ndim == 3:
         if intrinsics is None:
             raise ParameterError(f"{name}: depth maps need intrinsics= to give 3D points")
+        arr = _invalid_to_nan(arr, data)
         return arr, depth_to_points(arr, intrinsics), intrinsics
     raise ShapeError(name, ("T", "H", "W"), arr.shape, "depth (T, H, W) or points (T, H, W, 3)")
+
+
+def _invalid_to_nan(arr: NDArray[np.float32], data: object) -> NDArray[np.float32]:
+    """Float32 depth ``(T, H, W)`` or points ``(T, H, W, 3)`` ``arr`` (of ``data``) with every
+    pixel of invalid depth (0, negative, inf: a 16-bit file's hole is 0) NaN, as
+    :func:`~fuse4d.sequence.sanitize_depth` does: ``data`` is never written to, and nothing is
+    copied where every depth is valid."""
+    z = arr if arr.ndim == 3 else arr[..., 2]
+    bad = ~(np.isfinite(z) & (z > 0))
+    if bad.any():
+        if not isinstance(data, np.ndarray) or np.may_share_memory(arr, data):
+            arr = arr.copy()
+        arr[bad] = np.nan
+    return arr
 
 
 def _user_roi(roi: ArrayLike, shape: tuple[int, int, int]) -> NDArray[np.bool_]:
     m = np.asarray(roi)
     if m.dtype != np.bool_:
-        raise TypeError(f"roi must be a boolean mask, got dtype {m.dtype}")
+        raise ParameterTypeError(f"roi must be a boolean mask, got dtype {m.dtype}")
     if m.shape == shape[1:]:
         return np.broadcast_to(m, shape)
     if m.shape != shape:
@@ -253,6 +308,7 @@ def evaluate(
     static: ArrayLike | None = None,
     window: int = 5,
     max_step: float = 10.0,
+    noise_quad: float | None = None,
     frames: slice | NDArray[np.integer] | None = None,
     shape: bool = False,
     shape_frames: ArrayLike | None = None,
@@ -276,7 +332,8 @@ def evaluate(
         pixels against its depth, the scene ROI and static pixels of a synthetic scene, Eq. 8
         on the ball.
     roi : (H, W) or (T, H, W) bool, optional
-        Pixels to score; applies to every metric (flicker: pixels in it in every frame).
+        Pixels to score; applies to every metric (flicker: pixels in it in every frame) but
+        the shape correctness, which Eq. 8 scores on its own region (:data:`SHAPE_REGION`).
         Default: the scene ROI of a synthetic scene, else :func:`default_roi` of the raw depth.
     static : (H, W) bool, optional
         Pixels known to be static, for the flicker. Default: static in the GT depth, else
@@ -284,7 +341,14 @@ def evaluate(
     window : int, optional
         Roughness window n (odd, px).
     max_step : float, optional
-        Floor (mm) of the depth-step limit of the default ROI and the static detection.
+        Floor (mm) of the depth-step limit of the default ROI (the static detection follows
+        the noise alone).
+    noise_quad : float, optional
+        The sensor's depth-noise coefficient q (1/mm; σ(z) ≈ q z², e.g.
+        :func:`~fuse4d.motion.estimate_noise_quad` of its raw depth): the step limit
+        ``max(1 mm, 2.5 q z²)`` of ``bad_steps``, of the default ROI and of the static rule.
+        Default: estimated from each raw frame; without ``raw``, the default ROI and static
+        rule use the output's own estimate and ``bad_steps`` is NaN (:data:`NO_NOISE_QUAD`).
     frames : slice or index array, optional
         Frames to score (e.g. the interior frames whose fusion window is complete).
     shape : bool, optional
@@ -310,6 +374,12 @@ def evaluate(
     >>> rep.roi_description.split(":")[0]
     'ball ROI'
     """
+    if noise_quad is not None and (
+        isinstance(noise_quad, bool)
+        or not isinstance(noise_quad, Real)
+        or not (math.isfinite(noise_quad) and noise_quad >= 0)
+    ):
+        raise ParameterError(f"noise_quad must be a finite number >= 0 (1/mm), got {noise_quad!r}")
     k = intrinsics
     for src in (output, raw):
         if k is None and isinstance(src, Sequence):
@@ -338,9 +408,9 @@ def evaluate(
     ref_d = out_d if raw_d is None else raw_d
     full = out_d.shape
 
-    # the noise model's q of each raw frame (A22), estimated once: the default ROI's step
-    # limit, the static rule (their median) and the step limit of bad_steps
-    quads = _frame_quads(ref_d, None)
+    # the noise model's q of each raw frame (A22), given or estimated once: the default ROI's
+    # step limit, the static rule (their median) and the step limit of bad_steps
+    quads = _frame_quads(ref_d, noise_quad)
 
     # ---- the ROI: one, for raw and output
     if roi is not None:
@@ -361,7 +431,11 @@ def evaluate(
     if num_t >= 2 and out_d.shape[0] >= 2:
         if static is not None:
             static_region = np.asarray(static)
-            if static_region.dtype != np.bool_ or static_region.shape != full[1:]:
+            if static_region.dtype != np.bool_:
+                raise ParameterTypeError(
+                    f"static must be a boolean mask, got dtype {static_region.dtype}"
+                )
+            if static_region.shape != full[1:]:
                 raise ShapeError("static", full[1:], static_region.shape, "a (H, W) bool mask")
             static_desc = "the given static mask"
         elif gt is not None and gt.depth is not None:
@@ -392,8 +466,15 @@ def evaluate(
     whole = None if roi is None else region
     shape_sel = None if shape_frames is None else np.asarray(shape_frames, dtype=np.int64)
 
-    # the step limit of bad_steps: one q for raw and output, from the raw video
-    quad = float(np.median(quads)) if gt is not None and gt.depth is not None else math.nan
+    # the step limit of bad_steps: one q for raw and output, given or from the raw video
+    quad, quad_desc = math.nan, "no ground truth"
+    if gt is not None and gt.depth is not None:
+        if noise_quad is not None:
+            quad, quad_desc = float(noise_quad), "given"
+        elif raw_d is not None:
+            quad, quad_desc = float(np.median(quads)), "median over the raw video's frames"
+        else:
+            quad_desc = NO_NOISE_QUAD
 
     def score(depth: NDArray, points: NDArray, maps: tuple[NDArray, NDArray]) -> Scores:
         flick = None
@@ -404,9 +485,10 @@ def evaluate(
             rmse_roi = depth_rmse(gt.depth, depth, roi=region & depth_ok)
             rmse = depth_rmse(gt.depth, depth, roi=depth_ok if whole is None else whole & depth_ok)
             bad = bad_pixel_fraction(gt.depth, depth, threshold=BAD_PIXEL_MM, roi=whole)
-            bad_steps = bad_pixel_fraction(
-                gt.depth, depth, threshold=BAD_PIXEL_MM, roi=whole, noise_quad=quad
-            )
+            if math.isfinite(quad):
+                bad_steps = bad_pixel_fraction(
+                    gt.depth, depth, threshold=BAD_PIXEL_MM, roi=whole, noise_quad=quad
+                )
         sc = None
         if shape and gt is not None and isinstance(gt.scene, BallTruth):
             g, p = gt, points
@@ -430,6 +512,8 @@ def evaluate(
         static_description=static_desc,
         window=window,
         noise_quad=quad,
+        noise_quad_description=quad_desc,
+        roi_given=roi is not None,
     )
 
 

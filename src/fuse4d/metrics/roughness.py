@@ -10,7 +10,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._kernels.roughness import _roughness_kernel, _roughness_masked_kernel
 from .._validation import as_float32, check_shape
-from ..errors import ParameterError, ShapeError
+from ..errors import ParameterError, ParameterTypeError, ShapeError
 from .roi import default_roi
 
 __all__ = [
@@ -261,7 +261,7 @@ def stats_from_maps(
     """
     mask = np.asarray(roi)
     if mask.dtype != np.bool_:
-        raise TypeError(f"roi must be a boolean mask, got dtype {mask.dtype}")
+        raise ParameterTypeError(f"roi must be a boolean mask, got dtype {mask.dtype}")
     if mask.ndim == 2 and mask.shape == pi.shape[1:]:
         mask = np.broadcast_to(mask, pi.shape)
     if mask.shape != pi.shape:
