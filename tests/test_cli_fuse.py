@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
 import math
 import threading
@@ -307,7 +308,7 @@ def test_run_read_ahead_and_write_behind_match_the_inline_run(tmp_path, capsys):
     assert main(["run", str(src), "-o", str(out), "--window", "3", "--no-summary", "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["frames"] == 5
-    assert math.isnan(summary["fused_roughness_mm"])
+    assert summary["fused_roughness_mm"] is None  # not scored (JSON null, not bare NaN)
     assert summary["timings_ms_per_frame"]["summary"] == 0.0
     assert load_sequence(out).num_frames == 5
 
@@ -339,6 +340,10 @@ def test_run_output_clock_separates_start_up_from_the_steady_rate():
     causal = summary(FusionParams(num_frames=5, causal=True), times)  # all followed a push
     assert causal.steady_ms_per_frame == pytest.approx(1000 * 0.3002 / 5)
     assert math.isnan(summary(FusionParams(num_frames=3), [12.0, 12.1]).steady_ms_per_frame)
+    # a clip shorter than the look-ahead (3 frames, window 9): all flushed, none followed a
+    # push (the negative stop kept all but the last frame: 100 ms/frame "once running")
+    short = summary(FusionParams(num_frames=9), [12.0, 12.1, 12.2])
+    assert math.isnan(short.steady_ms_per_frame)
     assert math.isnan(summary(FusionParams(num_frames=3, iterations=2), times).steady_ms_per_frame)
     empty = summary(FusionParams(num_frames=3), [])
     assert math.isnan(empty.first_output_seconds)
@@ -533,3 +538,185 @@ def test_depth_in_metres_is_warned_about(ball_npz, tmp_path, capsys):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # and none for the depth in mm
         assert main(["run", str(ball_npz), "-o", str(tmp_path / "mm.npz"), "--no-summary"]) == 0
+
+
+def _strict_json(text: str):
+    """``json.loads`` that refuses NaN/Infinity (Python's accepts them; JSON has none)."""
+
+    def refuse(name: str):
+        raise AssertionError(f"not JSON: bare {name}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_run_json_of_a_clip_shorter_than_the_look_ahead_is_strict(ball_npz, tmp_path, capsys):
+    """3 frames, window 9 (look-ahead 4): every frame came out of the flush, so there is no
+    rate once running (the negative slice kept all but the last: 'ms/frame once running' of
+    the flush); the hole shares of a ball without holes are undefined: null, not bare NaN."""
+    from fuse4d.cli.cmd_fuse import _time_note
+    from fuse4d.run import fuse_file
+
+    out = tmp_path / "short.npz"
+    assert main(["run", str(ball_npz), "-o", str(out), "--frames", "0:3", "--json"]) == 0
+    summary = _strict_json(capsys.readouterr().out)
+    assert summary["frames"] == 3
+    assert summary["steady_ms_per_frame"] is None
+    assert summary["hole_fraction"] == 0.0
+    assert summary["hole_outside_fraction"] is None
+    assert summary["raw_roughness_mm"] > 0
+    s = fuse_file(ball_npz, tmp_path / "again.npz", frames="0:3")
+    assert _time_note(s) == f"{s.ms_per_frame:.0f} ms/frame, start-up and I/O included"
+
+
+def test_print_json_writes_nan_and_inf_as_null(capsys):
+    from fuse4d.cli.cmd_fuse import print_json
+
+    print_json({"a": math.nan, "b": [np.float32(1.5), -math.inf], "c": {"d": np.int64(3)}})
+    assert _strict_json(capsys.readouterr().out) == {"a": None, "b": [1.5, None], "c": {"d": 3}}
+
+
+@pytest.mark.parametrize("mode", ["pipeline", "quality"])
+def test_bench_json_is_strict(monkeypatch, capsys, mode):
+    """The bench's numbers that could not be measured (C_3D of a method that found no plane,
+    a rate of too few frames) were printed as bare NaN."""
+    from fuse4d.experiments import quality, speed
+
+    class Result:
+        def to_dict(self):
+            return {"ms_per_frame": math.nan, "c_3d": math.nan, "frames": 2}
+
+    monkeypatch.setattr(speed, "benchmark_pipeline", lambda *a, **k: Result())
+    monkeypatch.setattr(quality, "ball_quality_report", lambda *a, **k: Result())
+    args = ["bench", "--small", "--json"] + (["--quality"] if mode == "quality" else [])
+    assert main(args) == 0
+    (result,) = _strict_json(capsys.readouterr().out)
+    assert result == {"ms_per_frame": None, "c_3d": None, "frames": 2}
+
+
+def test_an_explicit_preset_wins_over_the_config_files(ball_npz, tmp_path, monkeypatch, capsys):
+    """`--preset fast --config paper.toml` ran PMBP (the file's preset won) and the report
+    recorded "fast"; now the command line wins (as --set and --window do), and the preset
+    recorded is the one used."""
+    from fuse4d.cli import cmd_report
+    from fuse4d.cli.cmd_fuse import _resolve
+
+    cfg = tmp_path / "paper.toml"
+    cfg.write_text('preset = "paper"\n[fusion]\nnum_frames = 3\n', encoding="utf-8")
+    rest = (None, False, None, None, None)
+    fusion, flow, name = _resolve("fast", cfg, *rest, preset_given=True)
+    assert (flow.method, name, fusion.num_frames) == ("dis", "fast", 3)
+    _, flow, name = _resolve("fast", cfg, *rest)  # --preset not typed: the file's
+    assert (flow.method, name) == ("pmbp", "paper")
+    recorded = []
+    monkeypatch.setattr(cmd_report, "make_report", lambda *a, **k: recorded.append(k["params"]))
+    out, rep = str(tmp_path / "o.npz"), str(tmp_path / "rep")
+    args = ["run", str(ball_npz), "-o", out, "--config", str(cfg), "--frames", "0:3"]
+    assert main([*args, "--preset", "fast", "--report", rep, "--json"]) == 0
+    assert _strict_json(capsys.readouterr().out)["flow_method"] == "dis"
+    assert (recorded[0]["preset"], recorded[0]["flow_method"]) == ("fast", "dis")
+
+
+def test_a_config_cache_dir_under_home_is_expanded(ball_npz, tmp_path, monkeypatch, capsys):
+    """`[flow] cache_dir = "~/fcache"` made a folder named "~" in the working folder (the
+    safety check expanded ~, the cache did not)."""
+    from fuse4d.flow import FlowCache
+
+    home, work = tmp_path / "home", tmp_path / "work"
+    home.mkdir()
+    work.mkdir()
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.chdir(work)
+    assert FlowCache("~/x").directory == home / "x"
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[flow]\ncache_dir = "~/fcache"\n', encoding="utf-8")
+    args = ["run", str(ball_npz), "-o", "o.npz", "--config", str(cfg), "--frames", "0:3"]
+    assert main([*args, "--window", "3", "--no-summary"]) == 0
+    assert not (work / "~").exists()
+    assert list((home / "fcache").glob("??/*.npy"))
+
+
+@pytest.mark.parametrize(
+    ("extra", "says"),
+    [
+        (["--save-flows"], "--save-flows: options of --engine dask"),
+        (["--no-warm-start"], "--warm-start/--no-warm-start: options of --engine dask"),
+        (["--workers", "2", "--scheduler", "threads"], "--scheduler, --workers: options of"),
+        (["--chunk-frames", "4"], "--chunk-frames: options of --engine dask"),
+        (["--engine", "dask", "--summary-every", "2"], "--summary-every: options of the stream"),
+    ],
+)
+def test_run_refuses_options_of_the_other_engine(ball_npz, tmp_path, capsys, extra, says):
+    """Each was accepted and ignored (exit 0, not what was asked for)."""
+    out = tmp_path / "o.npz"
+    assert main(["run", str(ball_npz), "-o", str(out), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.count("fuse4d: error:") == 1
+    assert says in err
+    assert not out.exists()
+
+
+def test_run_summary_without_the_summary_says_it_was_skipped(ball_npz, tmp_path, capsys):
+    """--no-summary printed "n/a (fewer than 2 frames or no static pixel)", "the same 0
+    pixels" and "temporal support n/a", as if they had been scored; Eq. 7 was described as a
+    sum of distances over a hard-coded 5x5 window."""
+    from rich.console import Console
+
+    from fuse4d.cli.cmd_fuse import run_summary_table
+    from fuse4d.run import fuse_file
+
+    summary = fuse_file(ball_npz, tmp_path / "q.npz", frames="0:3", quality=False)
+    console = Console(width=400, file=io.StringIO())
+    console.print(run_summary_table(summary, summary.params, scored=False))
+    text = console.file.getvalue()
+    assert "skipped (--no-summary)" in text
+    for wrong in ("fewer than 2 frames", "the same 0 pixels", "│ temporal support", "n/a"):
+        assert wrong not in text
+    scored = fuse_file(
+        ball_npz, tmp_path / "s.npz", frames="0:3", fusion=FusionParams(fill_holes=True)
+    )
+    assert scored.roughness_window == 5
+    scored.roughness_window = 7
+    console = Console(width=400, file=io.StringIO())
+    console.print(run_summary_table(scored, scored.params))
+    text = console.file.getvalue()
+    assert "N x the centre point's distance to the plane fitted to its 7x7 window" in text
+    assert "RMS distance to the 7x7 window's plane" in text
+    assert "5x5" not in text
+    assert "skipped" not in text
+    args = ["run", str(ball_npz), "-o", str(tmp_path / "c.npz"), "--frames", "0:3"]
+    assert main([*args, "--no-summary"]) == 0
+    assert "skipped (--no-summary)" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("extra", "says"),
+    [
+        (["--window", "0"], "--window 0: FusionParams.num_frames must be an integer in [1, 256]"),
+        (["--set", "spatial_radius=-1"], "--set: FusionParams.spatial_radius must be"),
+    ],
+)
+def test_a_bad_option_value_names_the_option(ball_npz, tmp_path, capsys, extra, says):
+    assert main(["run", str(ball_npz), "-o", str(tmp_path / "o.npz"), *extra]) == 2
+    assert says in capsys.readouterr().err
+    assert main(["live", str(ball_npz), *extra]) == 2
+    assert says in capsys.readouterr().err
+
+
+def test_an_npz_output_records_the_runs_parameters(ball_npz, tmp_path, capsys):
+    """A folder output's manifest and a .zarr's attributes hold the parameters; an .npz held
+    none, so `fuse4d report IN OUT.npz` could not say what was run."""
+    from fuse4d.run import NPZ_PARAMS_KEY
+
+    out = tmp_path / "o.npz"
+    args = ["run", str(ball_npz), "-o", str(out), "--frames", "0:3", "--window", "3"]
+    assert main([*args, "--set", "temporal_gate=inf", "--no-summary"]) == 0
+    record = json.loads(str(read_npz_extra(out)[NPZ_PARAMS_KEY]))
+    assert record["flow"] == {"method": "dis", "params": {}}
+    params = FusionParams.from_dict(record["fusion"])
+    assert params == FusionParams(num_frames=3, temporal_gate=math.inf, flying_pixels="off")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert load_sequence(out).num_frames == 3  # the reader passes the key by
+    again = tmp_path / "again.npz"  # an output fused again records its own run
+    assert main(["run", str(out), "-o", str(again), "--window", "5", "--no-summary"]) == 0
+    assert json.loads(str(read_npz_extra(again)[NPZ_PARAMS_KEY]))["fusion"]["num_frames"] == 5

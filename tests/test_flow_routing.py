@@ -124,7 +124,7 @@ def test_cli_flow_roi_takes_the_roi_syntax_of_report_and_metrics():
     from fuse4d.cli.cmd_fuse import _resolve
 
     for roi in ("10:60,20:90", "10,60,20,90", "10, 60, 20, 90"):
-        _, flow = _resolve("fast", None, None, False, None, None, None, flow_roi=roi)
+        _, flow, _ = _resolve("fast", None, None, False, None, None, None, flow_roi=roi)
         assert flow.roi == (10, 60, 20, 90)
 
 

@@ -688,3 +688,40 @@ def test_cli_live_zarr_output_holds_the_per_pixel_flags(ball, tmp_path, capsys):
     assert depth.shape[0] == 12
     np.testing.assert_array_equal(source == 0, np.isnan(depth))
     assert (confidence[source == 2] > 0).all()
+
+
+def test_cli_live_reports_the_recordings_rate_and_the_playback_rate(
+    tmp_path, ball, capsys, monkeypatch
+):
+    """`--fps 60` on a 30 Hz recording said "(source 60 fps)" and JSON source_fps 60 (the
+    playback rate); a figure that could not be measured was a bare NaN in the JSON."""
+    from fuse4d import live
+    from fuse4d.cli.cmd_live import _recorded_fps
+
+    _, seq = ball
+    path = tmp_path / "ts.npz"
+    write_npz(dataclasses.replace(seq, timestamps=5.0 + np.arange(12) / 30.0, fps=None), path)
+    real_run_live = live.run_live
+
+    def run_live(*args, **kwargs):  # a rate that could not be measured
+        return dataclasses.replace(real_run_live(*args, **kwargs), input_fps=float("nan"))
+
+    monkeypatch.setattr(live, "run_live", run_live)
+    args = ["live", str(path), "--window", "3", "--queue", "64", "--frames", "4"]
+    assert main([*args, "--fps", "60", "--json"]) == 0
+
+    def refuse(name):
+        raise AssertionError(f"not JSON: bare {name}")
+
+    summary = json.loads(capsys.readouterr().out, parse_constant=refuse)
+    assert summary["source_fps"] == pytest.approx(30.0)
+    assert summary["playback_fps"] == 60.0
+    assert summary["input_fps"] is None
+    monkeypatch.setattr(live, "run_live", real_run_live)
+    assert main(args) == 0  # as fast as possible: the recording's rate, no playback rate
+    assert "(source 30 fps)" in capsys.readouterr().out
+    assert main([*args, "--fps", "60"]) == 0
+    assert "(source 30 fps) (played at 60 fps)" in capsys.readouterr().out
+    # a source that says its own rate; one without timestamps played at --fps cannot say it
+    assert _recorded_fps(SimpleNamespace(recorded_fps=25.0, fps=60.0), 60.0) == 25.0
+    assert _recorded_fps(SimpleNamespace(fps=60.0, output_fps=60.0), 60.0) is None

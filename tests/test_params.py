@@ -480,3 +480,54 @@ def test_dark_first_frames_of_a_camera_settling_are_not_warned_about(tiny):
         engine.push(tiny.depth[t % len(tiny.depth)], 0.01 * tiny.intensity[0])
     with pytest.warns(UserWarning, match=rf"^intensity \(frames 0-{DARK_CHECK_FRAMES - 1}\)"):
         engine.push(tiny.depth[0], 0.01 * tiny.intensity[0])  # the 8th dark frame
+
+
+def test_toml_preset_given_by_the_caller_wins_over_the_files(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text('preset = "paper"\n[fusion]\nnum_frames = 5\n', encoding="utf-8")
+    assert load_config(path, base="fast").flow.method == "pmbp"  # the file's, over a default
+    chosen = load_config(path, base="fast", override_preset=True)  # an explicit --preset
+    assert (chosen.name, chosen.flow.method, chosen.fusion.num_frames) == ("fast", "dis", 5)
+    with pytest.raises(ParameterError, match="unknown preset 'nope'") as info:
+        load_config(path, base="nope", override_preset=True)
+    assert not isinstance(info.value, InputFileError)  # the caller's, not the file's
+
+
+@pytest.mark.parametrize(
+    ("flow", "says"),
+    [
+        ("params = 5", r"\[flow\] params must be a table \(\[flow.params\]"),  # was "'int' ..."
+        ("roi = [0.5, 100, 0, 100]", r"four whole numbers of px, got \(0.5, 100, 0, 100\)"),
+        ("roi = [1, 2]", r"roi must be \(row0, row1, col0, col1\)"),
+        ("roi = [10, 5, 0, 100]", r"roi \(10, 5, 0, 100\) must satisfy 0 <= row0 < row1, "),
+    ],
+)
+def test_toml_flow_errors_name_the_file(tmp_path, flow, says):
+    """A fractional ROI was truncated (0.5 -> 0), a bad one failed when the frames were read
+    without naming the file, `params = 5` was "'int' object is not iterable"."""
+    path = tmp_path / "c.toml"
+    path.write_text(f"[flow]\n{flow}\n", encoding="utf-8")
+    with pytest.raises(InputFileError, match=r"c\.toml: .*" + says):
+        load_config(path)
+
+
+def test_flow_roi_values_must_be_whole_pixels():
+    from fuse4d.flow._checks import check_roi
+
+    assert check_roi((0, 100.0, np.int64(2), "40"), (150, 150)) == (0, 100, 2, 40)
+    for bad in ((0.5, 100, 0, 100), (0, math.inf, 0, 10), (0, math.nan, 0, 10), (True, 9, 0, 9)):
+        with pytest.raises(ParameterError, match="four whole numbers of px"):
+            check_roi(bad, (150, 150))
+    with pytest.raises(ParameterError, match=r"<= 150, 0 <= col0 < col1 <= 150"):
+        check_roi((0, 200, 0, 10), (150, 150))
+
+
+def test_fusion_params_round_trip_through_to_dict():
+    """`to_dict` writes inf as "inf" (JSON has no inf): FusionParams(**d) refused it."""
+    from fuse4d.config import LITERAL_PAPER
+
+    for params in (FusionParams(**LITERAL_PAPER), FusionParams(sigma_temporal=math.inf)):
+        assert FusionParams.from_dict(params.to_dict()) == params
+    assert FusionParams.from_dict({"num_frames": "5"}) == FusionParams(num_frames=5)
+    with pytest.raises(ParameterError, match="unknown parameter"):
+        FusionParams.from_dict({"radius": 3})

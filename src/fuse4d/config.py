@@ -332,8 +332,22 @@ class FusionParams:
         return dataclasses.replace(self, **changes)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain dict (TOML/JSON friendly; inf written as the string "inf")."""
+        """Plain dict (TOML/JSON friendly; inf written as the string "inf"); read back by
+        :meth:`from_dict`."""
         return {f.name: _jsonable(getattr(self, f.name)) for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> FusionParams:
+        """Parameters from a mapping of fields, e.g. :meth:`to_dict`'s or a JSON record's
+        (``"inf"`` read as ``math.inf``, numbers as text read as numbers; fields not given
+        keep their defaults).
+
+        Raises
+        ------
+        ParameterError
+            For an unknown field or a bad value.
+        """
+        return cls(**coerce_fields(cls, data))
 
 
 @dataclass(frozen=True)
@@ -445,7 +459,9 @@ def fusion_params(fusion: FusionParams | None) -> FusionParams:
     raise ParameterTypeError(f"fusion must be a FusionParams, got {type(fusion).__name__}; {hint}")
 
 
-def load_config(path: str | PathLike[str], *, base: str | None = None) -> Preset:
+def load_config(
+    path: str | PathLike[str], *, base: str | None = None, override_preset: bool = False
+) -> Preset:
     """Read a TOML configuration file (format in the module docstring).
 
     Parameters
@@ -454,6 +470,9 @@ def load_config(path: str | PathLike[str], *, base: str | None = None) -> Preset
         The TOML file.
     base : str, optional
         Preset to start from when the file names none (default "fast").
+    override_preset : bool, optional
+        Start from ``base`` even where the file names a preset (a ``--preset`` given on the
+        command line wins over the file, as ``--set`` does). Default False.
 
     Returns
     -------
@@ -486,8 +505,10 @@ def load_config(path: str | PathLike[str], *, base: str | None = None) -> Preset
                 f"{table} must be a table ([{table}] and key = value lines below it), got "
                 f"{type(data[table]).__name__} {data[table]!r}",
             )
+    # (the caller's preset, where it wins: its error is not the file's)
+    given = preset(base) if override_preset and base else None
     try:
-        start = preset(str(data.get("preset", base or "fast")))
+        start = given or preset(str(data.get("preset", base or "fast")))
         fusion_data = coerce_fields(
             FusionParams, dict(data.get("fusion", {})), owner="[fusion] of the config file"
         )
@@ -496,12 +517,18 @@ def load_config(path: str | PathLike[str], *, base: str | None = None) -> Preset
             FlowConfig, dict(data.get("flow", {})), owner="[flow] of the config file"
         )
         method = flow_data.get("method", start.flow.method)
-        params = dict(
-            flow_data.get("params", start.flow.params if method == start.flow.method else {})
-        )
-        flow = FlowConfig(
-            method, params, cache_dir=flow_data.get("cache_dir"), roi=flow_data.get("roi")
-        )
+        params = flow_data.get("params", start.flow.params if method == start.flow.method else {})
+        if not isinstance(params, dict):  # `params = 5` said "'int' object is not iterable"
+            raise ParameterError(
+                f"[flow] params must be a table ([flow.params] and key = value lines below it), "
+                f"got {type(params).__name__} {params!r}"
+            )
+        roi = flow_data.get("roi")
+        if roi is not None:  # what does not depend on the frame size (that, when they are read)
+            from .flow._checks import check_roi
+
+            roi = check_roi(roi, None)
+        flow = FlowConfig(method, dict(params), cache_dir=flow_data.get("cache_dir"), roi=roi)
         flow.build_params()
     except (TypeError, ValueError) as exc:
         raise InputFileError(p, str(exc)) from None

@@ -172,6 +172,9 @@ class RecordingSource:
             recorded = (len(timestamps) - 1) / span if span > 0 else None
         #: the playback rate (frames/s): ``fps``, else the recording's own
         self.fps = fps if fps is not None else recorded
+        #: the recording's own rate (stored, or from its timestamps; None: unknown), whatever
+        #: the playback rate ``fps``
+        self.recorded_fps = recorded
         #: the rate an output states: the recording's own where its frames carry their
         #: recorded times (``--fps 10`` wrote fps 10 beside 30 Hz timestamps), else ``fps``
         self.output_fps = recorded if timestamps is not None else self.fps
@@ -260,6 +263,7 @@ class DecimatedSource:
         self.factor = int(factor)
         self.intrinsics = decimate_intrinsics(source.intrinsics, self.factor)
         self.fps = source.fps
+        self.recorded_fps = getattr(source, "recorded_fps", source.fps)
         self.output_fps = getattr(source, "output_fps", source.fps)
         self.pace = getattr(source, "pace", f"{source.fps:g} fps" if source.fps else "")
         self.depth_unit_mm = source.depth_unit_mm
@@ -369,6 +373,7 @@ class RealSenseSource:
             height=k.height,
         )  # fmt: skip
         self.fps: float | None = float(fps)
+        self.recorded_fps = self.fps
         self.output_fps = self.fps
         self.pace = f"{fps} fps"
         self._stopped = False

@@ -1,7 +1,8 @@
 """File-to-file fusion: read any layout that :mod:`fuse4d.io` reads, fuse, write the same kind.
 
-``.npz`` input gives ``.npz`` output (``depth`` = fused depth in mm, plus the input's other keys
-and ``support``/``filled`` arrays); every folder layout gives a frame folder of 16-bit PNG with
+``.npz`` input gives ``.npz`` output (``depth`` = fused depth in mm, plus the input's other keys,
+the ``support``/``filled``/``source``/``confidence`` arrays and the run's parameters as the JSON
+text :data:`NPZ_PARAMS_KEY`); every folder layout gives a frame folder of 16-bit PNG with
 the input's depth unit, written frame by frame while the input streams in, so memory does not
 grow with the recording's length.
 """
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import json
 import queue
 import threading
 import time
@@ -43,6 +45,11 @@ __all__ = ["IO_STAGES", "SUMMARY_EVERY", "RunSummary", "fuse_file"]
 #: frame or for room in the write queue: the part of the I/O that did not overlap).
 IO_STAGES = ("read", "write", "summary", "io_wait")
 
+#: Key of an ``.npz`` output that holds the run's parameters, JSON text
+#: ``{"fusion": FusionParams.to_dict(), "flow": {"method", "params"[, "roi"]}}``: what a
+#: folder output's manifest records (its identity's ``fusion`` and ``flow``).
+NPZ_PARAMS_KEY = "fuse4d_params"
+
 #: ``fuse4d run``'s summary scores the roughness on one frame in this many (the two Eq. 7 maps
 #: of a 640x480 frame cost almost as much as its fusion stage); the flicker on every frame.
 SUMMARY_EVERY = 4
@@ -61,12 +68,15 @@ class RunSummary:
     flow_method : str
     params : FusionParams
     raw_roughness, fused_roughness : float
-        Mean over frames of the frame-mean roughness (Eq. 7, 5x5, mm) of raw and fused, on
-        the same pixels: the default ROI of the raw frame (5x5 window fully valid, no step
-        between neighbours above the noise model's step limit max(10 mm, 2.5 q z^2)) where
-        Eq. 7 is defined in both (:class:`~fuse4d.metrics.RunningEvaluation`).
+        Mean over frames of the frame-mean roughness (Eq. 7 on n x n windows, n =
+        ``roughness_window``; mm) of raw and fused, on the same pixels: the default ROI of the
+        raw frame (n x n window fully valid, no step between neighbours above the noise
+        model's step limit max(10 mm, 2.5 q z^2)) where Eq. 7 is defined in both
+        (:class:`~fuse4d.metrics.RunningEvaluation`).
     raw_rms_residual, fused_rms_residual : float
-        The same for the RMS plane-fit residual of the 5x5 window (mm): "spatial precision".
+        The same for the RMS plane-fit residual of the n x n window (mm): "spatial precision".
+    roughness_window : int
+        n (px): the side of the windows of the roughness and the plane-fit residual.
     raw_flicker, fused_flicker : float
         Mean frame-to-frame |Δ| of the depth (mm) on static pixels (detected from the raw
         video: valid in every frame, depth range over time within 3 step limits).
@@ -126,6 +136,7 @@ class RunSummary:
     fused_flicker: float = float("nan")
     roughness_pixels: int = 0
     roughness_frames: int = 0
+    roughness_window: int = 5
     static_pixels: int = 0
     support_fraction: float = float("nan")
     filled_fraction: float = float("nan")
@@ -164,6 +175,7 @@ class RunSummary:
             "fused_flicker_mm": self.fused_flicker,
             "roughness_pixels": self.roughness_pixels,
             "roughness_frames": self.roughness_frames,
+            "roughness_window": self.roughness_window,
             "static_pixels": self.static_pixels,
             "support_fraction": self.support_fraction,
             "filled_fraction": self.filled_fraction,
@@ -237,6 +249,7 @@ class _QualityTally:
         summary.fused_flicker = res["output_flicker"]
         summary.roughness_pixels = res["roughness_pixels"]
         summary.roughness_frames = res["roughness_frames"]
+        summary.roughness_window = self.scores.window
         summary.static_pixels = res["static_pixels"]
         if self.valid:
             summary.support_fraction = self.supported / self.valid
@@ -381,7 +394,9 @@ class _OutputClock:
     def steady_ms(self, params: FusionParams) -> float:
         """Wall time per frame (ms) over the frames that followed a push (see :meth:`fill`);
         NaN for fewer than two of them or ``iterations`` > 1."""
-        pushed = self.times[: len(self.times) - params.future_frames]
+        # (a clip shorter than the look-ahead has no frame that followed a push: none left,
+        # where a negative stop kept all but the last)
+        pushed = self.times[: max(0, len(self.times) - params.future_frames)]
         if params.iterations == 1 and len(pushed) > 1:
             return 1000.0 * (pushed[-1] - pushed[0]) / (len(pushed) - 1)
         return float("nan")
@@ -433,12 +448,14 @@ def _fuse_npz(
             tally.add(raw_points[t], frame)
         tally.fill(summary)
     extra = read_npz_extra(src, frames=frames)
+    record = {"fusion": params.to_dict(), "flow": _flow_record(_flow_config(flow))}
     extra.update(
         {
             "support": result.support,
             "filled": result.filled,
             "source": result.source,
             "confidence": result.confidence,
+            NPZ_PARAMS_KEY: np.str_(json.dumps(record, sort_keys=True, default=str)),
         }
     )
     _write_npz(seq.with_depth(result.depth), dst, extra=extra, overwrite=overwrite)
@@ -672,12 +689,7 @@ def _fuse_streaming(
             shape=(k.height, k.width),
             depth_unit_mm=reader.depth_unit_mm,
             fusion=params.to_dict(),
-            # the ROI too (as --engine dask's): a resume with another --flow-roi mixed the two
-            flow={
-                "method": flow_config.method,
-                "params": flow_config.params,
-                **({"roi": list(flow_config.roi)} if flow_config.roi else {}),
-            },
+            flow=_flow_record(flow_config),
         )
         summary = RunSummary(
             input=src,
@@ -828,6 +840,16 @@ def _flow_config(flow: FlowConfig | str | None) -> FlowConfig:
     if isinstance(flow, str):
         return FlowConfig(flow)
     return flow or preset("fast").flow
+
+
+def _flow_record(flow: FlowConfig) -> dict[str, Any]:
+    """What an output records of its tracker: method, parameters and ROI (the ROI too, as
+    ``--engine dask``'s: a resume with another ``--flow-roi`` mixed the two)."""
+    return {
+        "method": flow.method,
+        "params": flow.params,
+        **({"roi": list(flow.roi)} if flow.roi else {}),
+    }
 
 
 def _seed(engine: FusionEngine, first: int, start: int, seed: np.ndarray | None):

@@ -106,12 +106,15 @@ def user_values(what: str = "") -> Iterator[None]:
     Parameters
     ----------
     what : str, optional
-        Prefix of the message (e.g. ``"--flow-param: "``).
+        Prefix of the message (e.g. ``"--flow-param: "``), also of a fuse4d error's (a
+        parameter object's range check: "--window 0: FusionParams.num_frames must be ...").
     """
     try:
         yield
-    except Fuse4dError:
-        raise
+    except Fuse4dError as exc:
+        if not what:
+            raise
+        raise CliError(f"{what}{exc}") from exc
     except (ValueError, TypeError) as exc:
         raise CliError(f"{what}{exc}") from exc
 

@@ -31,6 +31,7 @@ from ._recording_opts import (
     frame_range,
     reader_options,
 )
+from .cmd_eval import _clean
 
 #: What the columns of the ``demo`` table mean.
 QUALITY_CAPTION = (
@@ -52,25 +53,36 @@ def _resolve(
     flow_params: list[str] | None,
     flow_cache: Path | None = None,
     flow_roi: str | None = None,
+    *,
+    preset_given: bool = False,
 ):
+    """The fusion and flow settings of the options, and the name of the preset they start
+    from: ``--preset`` where given on the command line (``preset_given``), else the config
+    file's ``preset``, else ``preset_name`` (the option's default); then the config file's
+    tables, then ``--set``, ``--window``, ``--flow`` ... on top."""
     from .._params import coerce_fields, parse_assignments
     from ..config import FlowConfig, FusionParams, load_config, preset
 
     with user_values():
-        chosen = load_config(config, base=preset_name) if config else preset(preset_name)
+        chosen = (
+            load_config(config, base=preset_name, override_preset=preset_given)
+            if config
+            else preset(preset_name)
+        )
     fusion = chosen.fusion
     changes = coerce_fields(
         FusionParams,
         parse_assignments(sets, what="--set"),
         owner="the fusion (--set, FusionParams)",
     )
-    if window is not None:
-        changes["num_frames"] = window
-    if causal:
-        changes["causal"] = True
     if changes:
-        with user_values("--set/--frames: "):
+        with user_values("--set: "):
             fusion = fusion.replace(**changes)
+    if window is not None:
+        with user_values(f"--window {window}: "):
+            fusion = fusion.replace(num_frames=window)
+    if causal:
+        fusion = fusion.replace(causal=True)
     flow = chosen.flow
     extra = parse_assignments(flow_params, what="--flow-param")
     if flow_method is not None or extra:
@@ -98,11 +110,22 @@ def _resolve(
     assert isinstance(flow, FlowConfig)
     with user_values("--flow/--flow-param: "):
         flow.build_params()  # validate early, before any frame is read
-    return fusion, flow
+    return fusion, flow, chosen.name
+
+
+def _given(ctx: typer.Context, *names: str) -> set[str]:
+    """Which of the parameters ``names`` were typed on the command line (not defaults)."""
+    # by name: typer vendors its own click (typer._click), whose enum is not click's
+    return {
+        name
+        for name in names
+        if getattr(ctx.get_parameter_source(name), "name", "") == "COMMANDLINE"
+    }
 
 
 @app.command("run")
 def run_command(
+    ctx: typer.Context,
     inputs: Annotated[
         list[Path],
         typer.Argument(
@@ -223,7 +246,7 @@ def run_command(
         depth_unit_mm=depth_unit_mm, intrinsics=intrinsics,
     )  # fmt: skip
 
-    fusion, flow = _resolve(
+    fusion, flow, preset_used = _resolve(
         preset_name,
         config,
         window,
@@ -233,12 +256,27 @@ def run_command(
         flow_params,
         flow_cache,
         flow_roi,
+        preset_given=bool(_given(ctx, "preset_name")),
     )
     if engine not in ("stream", "dask") or (engine == "stream" and len(inputs) != 1):
         fail("--engine must be stream or dask; several inputs need --engine dask")
+    # options of the other engine were accepted and ignored (exit 0, not what was asked)
+    other = _DASK_ONLY if engine == "stream" else _STREAM_ONLY
+    ignored = [option for name, option in other.items() if name in _given(ctx, *other)]
+    if ignored:
+        fail(
+            f"{', '.join(ignored)}: "
+            + (
+                "options of --engine dask (the stream engine does not use them)"
+                if engine == "stream"
+                else "options of the stream engine's quality summary (--engine dask has none)"
+            )
+        )
     if flow.cache_dir:  # it writes folders of flows: never into an input or the output
+        from ..flow import FlowCache
+
         named = "--flow-cache" if flow_cache is not None else "the config's [flow] cache_dir"
-        cache = Path(flow.cache_dir).expanduser().resolve()
+        cache = FlowCache(flow.cache_dir).directory.resolve()  # (~ expanded as the cache does)
         for place in (*inputs, output):
             where = Path(place).resolve()
             if cache == where or where in cache.parents:
@@ -306,7 +344,7 @@ def run_command(
         params = {
             **summary.params.to_dict(),
             "flow_method": summary.flow_method,
-            "preset": preset_name,
+            "preset": preset_used,
         }
         page = make_report(
             input,
@@ -321,10 +359,28 @@ def run_command(
         )
         err_console.print(f"wrote {page}")
     if as_json:
-        print(json.dumps(summary.to_dict(), indent=2))
+        print_json(summary.to_dict())
         return
     if not summary.already_complete:
-        out_console.print(run_summary_table(summary, fusion))
+        out_console.print(run_summary_table(summary, fusion, scored=not no_summary))
+
+
+#: ``fuse4d run`` options that only ``--engine dask`` uses (parameter name: option) ...
+_DASK_ONLY = {
+    "chunk_frames": "--chunk-frames",
+    "scheduler": "--scheduler",
+    "workers": "--workers",
+    "warm_start": "--warm-start/--no-warm-start",
+    "save_flows": "--save-flows",
+}
+#: ... and those that only the stream engine uses (its quality summary; ``--no-summary`` is
+#: what ``--engine dask`` does anyway, so scripts may pass it to both engines).
+_STREAM_ONLY = {"summary_every": "--summary-every"}
+
+
+def print_json(data: Any) -> None:
+    """Print ``data`` as strict JSON on stdout: NaN/inf as null (bare NaN is not JSON)."""
+    print(json.dumps(_clean(data), indent=2, allow_nan=False))
 
 
 def _time_note(summary: Any) -> str:
@@ -340,8 +396,9 @@ def _time_note(summary: Any) -> str:
     )
 
 
-def run_summary_table(summary: Any, fusion: Any) -> Table:
-    """The ``fuse4d run`` summary: what was done, and what each quality number means."""
+def run_summary_table(summary: Any, fusion: Any, *, scored: bool = True) -> Table:
+    """The ``fuse4d run`` summary: what was done, and what each quality number means
+    (``scored`` False: the run skipped the quality figures, ``--no-summary``)."""
 
     def pair(raw: float, fused: float, words: tuple[str, str], missing: str = "n/a") -> str:
         if not (math.isfinite(raw) and math.isfinite(fused)):  # nothing scored
@@ -352,11 +409,14 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
     def percent(fraction: float, digits: int) -> str:
         return f"{100 * fraction:.{digits}f} %" if math.isfinite(fraction) else "n/a"
 
+    def share(fraction: float) -> str:  # of a step that is on: counted with the summary only
+        return percent(fraction, 2) if scored else "on"
+
     smooth = ("smoother", "rougher")
     unsupported = "valid pixels without temporal support"
     eq6 = (
         (
-            percent(summary.filled_fraction, 2),
+            share(summary.filled_fraction),
             f"{unsupported}, filled from neighbours (not sensor holes)",
         )
         if fusion.fill_holes
@@ -364,7 +424,7 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
     )
     flying = (
         (
-            percent(summary.rejected_fraction, 2),
+            share(summary.rejected_fraction),
             "valid pixels removed as ToF flying pixels (between the two sides of an edge), "
             + "left empty (A36)",
         )
@@ -389,7 +449,8 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
     table.add_column("")
     table.add_column("raw -> fused")
     table.add_column("what it means")
-    rows = [
+    n = summary.roughness_window
+    frame_rows = [
         (
             "frames",
             f"{summary.frames} x {summary.shape[0]}x{summary.shape[1]}",
@@ -401,11 +462,14 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
             f"{fusion.num_frames} frames" + (" (causal)" if fusion.causal else ""),
             "frames fused per output frame",
         ),
+    ]
+    quality_rows = [
         (
             "roughness (Eq. 7)",
             pair(summary.raw_roughness, summary.fused_roughness, smooth),
             (
-                "sum over the 5x5 window of distances to its plane, mean over frames; the same "
+                f"N x the centre point's distance to the plane fitted to its {n}x{n} window (N: "
+                "its valid points), mean over frames; the same "
                 f"{summary.roughness_pixels} pixels (x frames) for both: raw windows free of "
                 "depth edges by the noise model's step limit"
                 + (
@@ -418,7 +482,7 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
         (
             "plane-fit residual",
             pair(summary.raw_rms_residual, summary.fused_rms_residual, smooth),
-            "RMS distance to the 5x5 plane (spatial precision), same pixels",
+            f"RMS distance to the {n}x{n} window's plane (spatial precision), same pixels",
         ),
         (
             "flicker",
@@ -438,9 +502,26 @@ def run_summary_table(summary: Any, fusion: Any) -> Table:
             percent(summary.support_fraction, 1),
             "valid pixels tracked into at least one other frame",
         ),
+    ]
+    hole_rows = [("sensor holes filled", *holes)]
+    if not scored:
+        quality_rows = [
+            (
+                "quality",
+                "skipped (--no-summary)",
+                (
+                    "roughness (Eq. 7), plane-fit residual, flicker, temporal support and the "
+                    "fills were not scored"
+                ),
+            )
+        ]
+        hole_rows = []
+    rows = [
+        *frame_rows,
+        *quality_rows,
         ("Eq. 6 filled", *eq6),
         ("flying pixels", *flying),
-        ("sensor holes filled", *holes),
+        *hole_rows,
         ("time", f"{summary.seconds:.1f} s", _time_note(summary)),
     ]
     for key, value, note in rows:
@@ -498,12 +579,7 @@ def bench_command(
     if quality and causal:
         fail("--quality scores the centred engine; drop --causal")
     # options a mode does not use were accepted and ignored (exit 0, another run measured)
-    given = {
-        name
-        for name in ("num_frames", "window", "intensity_noise")
-        # by name: typer vendors its own click (typer._click), whose enum is not click's
-        if getattr(ctx.get_parameter_source(name), "name", "") == "COMMANDLINE"
-    }
+    given = _given(ctx, "num_frames", "window", "intensity_noise")
     if quality and (recording is not None or given & {"num_frames", "window"}):
         fail(
             "--quality scores the fixed ball (50 frames, 12 with --small) with the preset's "
@@ -542,7 +618,7 @@ def bench_command(
                 )
             )
     if as_json:
-        print(json.dumps([r.to_dict() for r in results], indent=2))
+        print_json([r.to_dict() for r in results])
         return
     for r in results:
         height, width = r.size
@@ -620,7 +696,7 @@ def _quality(names: list[str], small: bool, intensity_noise: float, as_json: boo
             )
         )
     if as_json:
-        print(json.dumps([r.to_dict() for r in reports], indent=2))
+        print_json([r.to_dict() for r in reports])
         return
     for r in reports:
         for label, scores in (("all frames", r.all_frames), ("interior frames", r.interior)):

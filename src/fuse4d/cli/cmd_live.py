@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import json
 import math
 import threading
 from pathlib import Path
@@ -29,6 +28,7 @@ __all__ = ["live_command"]
 
 @app.command("live")
 def live_command(
+    ctx: typer.Context,
     input_path: Annotated[
         Path | None,
         typer.Argument(
@@ -142,7 +142,7 @@ def live_command(
         realsense_available,
         run_live,
     )
-    from .cmd_fuse import _resolve
+    from .cmd_fuse import _given, _resolve, print_json
 
     if on_gap not in ("restart", "track"):
         fail(f"--on-gap must be restart or track, got {on_gap!r}")
@@ -167,7 +167,16 @@ def live_command(
         fail(f"--decimate must be 1..{MAX_DECIMATION}, got {decimate}")
     if input_path is None and fps is not None and fps != int(fps):
         fail(f"--fps: a camera streams at a whole number of frames per second, got {fps:g}")
-    fusion, flow = _resolve(preset_name, config, window, True, sets, flow_method, flow_params)
+    fusion, flow, _ = _resolve(
+        preset_name,
+        config,
+        window,
+        True,
+        sets,
+        flow_method,
+        flow_params,
+        preset_given=bool(_given(ctx, "preset_name")),
+    )
     if input_path is None:
         if not realsense_available():
             fail("no RealSense camera attached; give a recording to play back")
@@ -251,7 +260,10 @@ def live_command(
         "size": [source.intrinsics.width, source.intrinsics.height],
         "flow_method": flow.method,
         "realtime": realtime,
-        "source_fps": source.fps,
+        # the recording's own rate (None where not known) and the rate it was played at
+        # (--fps): "source 10 fps" was said of a 30 Hz recording played with --fps 10
+        "source_fps": _recorded_fps(source, fps if input_path is not None else None),
+        "playback_fps": source.fps if realtime else None,
         "queue": queue_size,
         "on_gap": on_gap,
         "overlap_flow": overlap_flow,
@@ -261,7 +273,7 @@ def live_command(
     if advice:
         eprint(advice)
     if as_json:
-        print(json.dumps(summary, indent=2))
+        print_json(summary)
     else:
         out_console.print(_table(summary))
     if stats.source_error:  # the camera failed mid-run: what was fused is written, exit 2
@@ -270,6 +282,14 @@ def live_command(
         )
         eprint(f"fuse4d: error: {stats.source_error}{kept}")
         raise typer.Exit(2)
+
+
+def _recorded_fps(source: Any, playback_fps: float | None) -> float | None:
+    """The frame rate of the recording (or camera) itself, frames/s; None where it is not
+    known. ``playback_fps``: the ``--fps`` a recording is played at (None: not given)."""
+    # fuse4d's sources say it (recorded_fps); another FrameSource played at its own rate is
+    # its own fps, and one played at --fps does not say
+    return getattr(source, "recorded_fps", source.fps if playback_fps is None else None)
 
 
 #: Dropped frames (fraction of the captured ones) above which ``fuse4d live`` says what to do.
@@ -357,7 +377,12 @@ def _table(s: dict[str, Any]) -> Table:
         (
             "rate",
             f"{s['fps']:.1f} fps fused, {s['input_fps']:.1f} fps in"
-            + (f" (source {s['source_fps']:g} fps)" if s["source_fps"] else ""),
+            + (f" (source {s['source_fps']:g} fps)" if s["source_fps"] else "")
+            + (
+                f" (played at {s['playback_fps']:g} fps)"
+                if s["playback_fps"] and s["playback_fps"] != s["source_fps"]
+                else ""
+            ),
         ),
         (
             "latency",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 from typing import Any
 
 import numpy as np
@@ -48,21 +49,41 @@ def check_flow_field(flow: Any, shape: tuple[int, int], name: str) -> NDArray[np
     return arr
 
 
-def check_roi(roi: Any, shape: tuple[int, int]) -> Roi | None:
-    """``(row0, row1, col0, col1)`` half-open box inside ``shape`` (px), or None."""
+def check_roi(roi: Any, shape: tuple[int, int] | None) -> Roi | None:
+    """``(row0, row1, col0, col1)`` half-open box inside ``shape`` (px), or None.
+
+    The values must be whole numbers (0.5 was truncated to 0). ``shape`` None checks what
+    does not depend on the frame size (a configuration file's ROI, before any frame is read).
+    """
     if roi is None:
         return None
     try:
-        r0, r1, c0, c1 = (int(v) for v in roi)
+        r0, r1, c0, c1 = (_whole_px(v) for v in roi)
     except (TypeError, ValueError):
-        raise ParameterError(f"roi must be (row0, row1, col0, col1), got {roi!r}") from None
-    h, w = shape
-    if not (0 <= r0 < r1 <= h and 0 <= c0 < c1 <= w) or r1 - r0 < 2 or c1 - c0 < 2:
         raise ParameterError(
-            f"roi {(r0, r1, c0, c1)} must satisfy 0 <= row0 < row1 <= {h}, "
-            f"0 <= col0 < col1 <= {w}, at least 2 px each way (half-open, px)"
+            f"roi must be (row0, row1, col0, col1), four whole numbers of px, got {roi!r}"
+        ) from None
+    h, w = (math.inf, math.inf) if shape is None else shape
+    if not (0 <= r0 < r1 <= h and 0 <= c0 < c1 <= w) or r1 - r0 < 2 or c1 - c0 < 2:
+        bounds = ("", "") if shape is None else (f" <= {h}", f" <= {w}")
+        raise ParameterError(
+            f"roi {(r0, r1, c0, c1)} must satisfy 0 <= row0 < row1{bounds[0]}, "
+            f"0 <= col0 < col1{bounds[1]}, at least 2 px each way (half-open, px)"
         )
     return (r0, r1, c0, c1)
+
+
+def _whole_px(value: Any) -> int:
+    """A pixel index that is a whole number (an int, or a float or text such as 100.0);
+    ValueError for a fraction, inf or NaN, TypeError for a bool or non-number."""
+    if isinstance(value, bool):
+        raise TypeError("a bool is not a pixel index")
+    if isinstance(value, numbers.Integral):
+        return int(value)
+    number = float(value.strip() if isinstance(value, str) else value)
+    if not number.is_integer():
+        raise ValueError(f"{value!r} is not a whole number")
+    return int(number)
 
 
 def to_uint8(image: NDArray[np.float32]) -> NDArray[np.uint8]:

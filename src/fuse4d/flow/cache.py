@@ -50,7 +50,7 @@ class FlowCache:
     Parameters
     ----------
     directory : str or PathLike
-        Cache folder; created on the first write.
+        Cache folder (a leading ``~`` is the home folder); created on the first write.
 
     Attributes
     ----------
@@ -69,7 +69,7 @@ class FlowCache:
     """
 
     def __init__(self, directory: str | PathLike[str]) -> None:
-        self.directory = Path(directory)
+        self.directory = Path(directory).expanduser()  # ("~/x" made a folder named "~")
         self.hits = 0
         self.misses = 0
 

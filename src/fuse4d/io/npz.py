@@ -14,6 +14,9 @@ Keys
                  ``gt_center_row``), converted to/from the typed geometry here     (optional GT)
 anything else    caller's arrays (e.g. fusion's ``support``): kept by :func:`write_npz`'s
                  ``extra=`` and returned by :func:`read_npz_extra`; ignored by :func:`read_npz`.
+                 ``fuse4d run`` adds ``support``, ``filled``, ``source``, ``confidence`` and
+                 ``fuse4d_params`` (JSON text: the run's fusion and flow parameters,
+                 :data:`fuse4d.run.NPZ_PARAMS_KEY`).
 
 Archives are written uncompressed by default: float depth noise hardly compresses, and
 uncompressed members can be memory-mapped, so :class:`NpzReader` streams frames without
