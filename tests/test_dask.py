@@ -3,6 +3,7 @@ resume, CLI; the same through a real LocalCluster of 2 worker processes."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -454,6 +455,160 @@ def test_bad_dask_options_are_user_errors_not_crashes(tmp_path, capsys):
         assert "internal error" not in err
         # nothing written: no store, and no partial one that the next run calls interrupted
         assert sorted(p.name for p in tmp_path.iterdir()) == ["rec", "rec2"], args
+
+
+def test_force_replaces_neither_the_input_nor_a_folder_fuse4d_did_not_write(ball, tmp_path, capsys):
+    """--engine dask --force replaced the zarr recording it read, deleted a folder of the
+    user's files, and failed ("Not a directory", a hidden .old left) on a file of the
+    output's name: the streaming engine's output checks, on every target."""
+    save_sequence(ball, tmp_path / "a.npz")
+    victim = tmp_path / "victim.zarr"
+    assert main(["convert", str(tmp_path / "a.npz"), str(victim)]) == 0
+    before = sorted(p.name for p in victim.iterdir())
+    args = ["--engine", "dask", "--chunk-frames", "4", "--force"]
+    assert main(["run", str(victim), "-o", str(victim), *args]) == 2
+    assert "would overwrite the input" in capsys.readouterr().err
+    assert sorted(p.name for p in victim.iterdir()) == before
+    assert not (tmp_path / "victim.zarr.partial").exists()
+    mine = tmp_path / "important.zarr"
+    mine.mkdir()
+    (mine / "thesis.txt").write_text("x")
+    assert main(["run", str(tmp_path / "a.npz"), "-o", str(mine), *args]) == 2
+    assert "fuse4d did not write (thesis.txt)" in capsys.readouterr().err
+    assert (mine / "thesis.txt").read_text() == "x"
+    assert not (tmp_path / "important.zarr.partial").exists()
+    a_file = tmp_path / "file.zarr"
+    a_file.write_text("d")
+    assert main(["run", str(tmp_path / "a.npz"), "-o", str(a_file), *args, "--json"]) == 0
+    capsys.readouterr()
+    assert zarr.open_group(str(a_file), mode="r")["depth"].shape == ball.depth.shape
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "a.npz", "file.zarr", "important.zarr", "victim.zarr"
+    ]  # fmt: skip
+
+
+def test_every_output_is_checked_before_any_is_written(ball, tmp_path, capsys):
+    """A refused second output (it exists, or an interrupted run's does) left the first
+    one's new, empty staging store, and the next run asked for --resume."""
+    save_sequence(ball, tmp_path / "a.npz")
+    save_sequence(ball, tmp_path / "b.npz")
+    out = tmp_path / "fused"
+    args = ["run", str(tmp_path / "a.npz"), str(tmp_path / "b.npz"), "-o", str(out),
+            "--engine", "dask", "--chunk-frames", "4"]  # fmt: skip
+    for blocker, message in (("b.zarr", "exists"), ("b.zarr.partial", "--resume")):
+        (out / blocker).mkdir(parents=True)
+        assert main(args) == 2
+        assert message in capsys.readouterr().err
+        assert sorted(p.name for p in out.iterdir()) == [blocker]
+        (out / blocker).rmdir()
+
+
+def test_relative_paths_reach_workers_in_another_folder(ball, tmp_path, monkeypatch):
+    """A cluster's workers run in their own folder: the staging store, the flow cache and
+    an --intrinsics camera.json were passed to the tasks as the relative paths given."""
+    from fuse4d.config import FlowConfig
+    from fuse4d.scale import cli as scale_cli
+
+    write_frame_folder(ball, tmp_path / "rec", depth_unit_mm=0.1)
+    (tmp_path / "cam.json").write_text((tmp_path / "rec" / "camera.json").read_text())
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(tmp_path)
+    real = scale_cli.open_compute
+
+    @contextlib.contextmanager
+    def in_another_folder(*args, **kwargs):
+        with real(*args, **kwargs) as compute:
+
+            def run(*tasks):
+                here = Path.cwd()
+                os.chdir(elsewhere)  # where the worker runs
+                try:
+                    return compute(*tasks)
+                finally:
+                    os.chdir(here)
+
+            yield run
+
+    monkeypatch.setattr(scale_cli, "open_compute", in_another_folder)
+    (summary,) = scale_cli.run_dask(
+        [Path("rec")], Path("o.zarr"), fusion=FusionParams(), flow=FlowConfig(cache_dir="cache"),
+        chunk_frames=7, scheduler="sync", progress=False, reader_options={"intrinsics": "cam.json"},
+    )  # fmt: skip
+    with open_frames(tmp_path / "rec") as reader:
+        frames = list(reader)
+    ref = fuse_sequence(np.stack([f.depth for f in frames]),
+                        np.stack([f.intensity for f in frames]), reader.intrinsics)  # fmt: skip
+    assert _same(zarr.open_group(str(tmp_path / "o.zarr"), mode="r")["depth"][:], ref.depth)
+    assert summary.frames_fused == ball.num_frames
+    assert any((tmp_path / "cache").iterdir())  # the flow cache where it was asked for
+    assert not any(elsewhere.iterdir())
+
+
+def test_bad_scheduler_addresses_are_user_errors(tmp_path, capsys):
+    """A malformed address or one no scheduler answers (tls:// without TLS settings) was an
+    internal error: checked with distributed's parser, the connection's failure reported."""
+    pytest.importorskip("distributed")
+    seq = _crop(make_falling_ball(small=True, num_frames=3), 3)
+    save_sequence(seq, tmp_path / "a.npz")
+    base = ["run", str(tmp_path / "a.npz"), "-o", str(tmp_path / "o.zarr"), "--engine", "dask"]
+    cases = [
+        ("tcp://", "scheduler must be"),
+        ("tcp://127.0.0.1:abc", "scheduler must be"),
+        ("inproc://x", "scheduler must be"),
+        ("tls://127.0.0.1:1", "--scheduler tls://127.0.0.1:1: cannot connect"),
+    ]
+    for address, message in cases:
+        assert main([*base, "--scheduler", address]) == 2, address
+        err = capsys.readouterr().err
+        assert message in err
+        assert "internal error" not in err
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz"]
+
+
+def test_scheduler_address_without_distributed_is_one_clear_error(tmp_path, monkeypatch, capsys):
+    """distributed was imported before the extra's check: ModuleNotFoundError, exit 70."""
+    import importlib.util
+
+    save_sequence(_crop(make_falling_ball(small=True, num_frames=3), 3), tmp_path / "a.npz")
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec",
+        lambda name, *a: None if name.split(".")[0] == "distributed" else real(name, *a),
+    )  # fmt: skip
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed fails
+    args = ["run", str(tmp_path / "a.npz"), "-o", str(tmp_path / "o.zarr"), "--engine", "dask",
+            "--scheduler", "tcp://127.0.0.1:abc"]  # fmt: skip
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "needs distributed" in err
+    assert "internal error" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz"]
+
+
+def test_a_resumed_run_times_the_frames_it_fuses(ball, tmp_path, capsys):
+    """ms/frame of a resumed run divided by every frame, the resumed chunks' too."""
+    import json
+    import shutil
+
+    save_sequence(ball, tmp_path / "a.npz")
+    out = tmp_path / "o.zarr"
+    args = ["run", str(tmp_path / "a.npz"), "-o", str(out), "--engine", "dask",
+            "--chunk-frames", "4", "--workers", "1"]  # fmt: skip
+    assert main(args) == 0
+    capsys.readouterr()
+    partial = tmp_path / "o.zarr.partial"  # interrupted before the last of 5 chunks
+    shutil.move(out, partial)
+    meta = json.loads((partial / "zarr.json").read_text())
+    meta["attributes"]["fuse4d"]["complete"] = False
+    (partial / "zarr.json").write_text(json.dumps(meta))
+    (partial / ".fuse4d-done").mkdir()
+    for k in range(4):
+        (partial / ".fuse4d-done" / f"chunk-{k:06d}").write_text("{}")
+    assert main([*args, "--resume"]) == 0
+    assert "ms/frame over the 4 frames fused now, 16 resumed)" in capsys.readouterr().out
+    assert main([*args, "--resume", "--json"]) == 0
+    assert '"frames_fused": 0' in capsys.readouterr().out
 
 
 def test_missing_extra_gives_one_clear_error(monkeypatch):

@@ -319,3 +319,40 @@ def test_worker_pool_of_the_local_schedulers():
     assert _worker_pool("threads", 3) == (1, 3)  # one process: states shared in memory
     assert _worker_pool("processes", 3) == (3, 3)  # states also through the scratch folder
     assert _worker_pool("sync", 3) == (1, 1)
+
+
+def test_a_scheduler_without_workers_gets_a_warning():
+    """A tcp:// scheduler with no workers left the run at 0 % with no word why."""
+    pytest.importorskip("distributed")
+    from distributed import LocalCluster
+
+    from fuse4d.scale.cli import _worker_pool
+
+    with (
+        LocalCluster(n_workers=0, processes=False, dashboard_address=None) as cluster,
+        pytest.warns(RuntimeWarning, match="has no workers: the run waits"),
+    ):
+        assert _worker_pool(cluster.scheduler_address, None) == (1, 1)
+
+
+def test_a_worker_that_died_before_the_allocator_check_is_named():
+    """A dead worker made the allocator check (an advice) fail the run with "Stream is
+    closed": the others are checked, and a warning says which did not answer."""
+    from fuse4d.scale.cluster import slow_allocator_workers, warn_if_slow_allocator
+
+    class Client:
+        def run(self, function, on_error="raise"):
+            answers = {"tcp://a:1": "65536", "tcp://b:1": None, "tcp://c:1": OSError("closed")}
+            if on_error == "raise":
+                raise answers["tcp://c:1"]
+            return answers
+
+        def scheduler_info(self):
+            return {"workers": {"tcp://a:1": {}, "tcp://b:1": {}}}
+
+    assert slow_allocator_workers(Client()) == ["tcp://a:1"]
+    with pytest.warns(RuntimeWarning) as caught:
+        warn_if_slow_allocator(Client())
+    messages = [str(w.message) for w in caught]
+    assert any("did not answer (tcp://c:1)" in m and "workers' logs" in m for m in messages)
+    assert any(m.startswith("1 of 2 dask workers run with MALLOC_TRIM") for m in messages)

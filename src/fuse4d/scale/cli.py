@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,7 +18,7 @@ from typing import Any
 from ..config import FlowConfig, FusionParams
 from ..errors import ParameterError
 from ..flying_pixels import resolve_flying_pixels
-from .cluster import SCHEDULER_ADDRESS_SCHEMES, check_scheduler, open_compute
+from .cluster import SCHEDULER_ADDRESS_SCHEMES, _connect, check_scheduler, open_compute
 from .graph import even_chunk_frames, fuse, release_engines
 from .inputs import open_lazy
 from .streamed import recording_tasks, source_of
@@ -45,6 +46,8 @@ class DaskRunSummary:
         Chunks already written by an interrupted run (``--resume``).
     seconds : float
         Wall time of the whole run (all inputs together).
+    frames_fused : int
+        Frames of the chunks fused by this run (``frames`` less those of the skipped chunks).
     """
 
     input: Path
@@ -55,6 +58,7 @@ class DaskRunSummary:
     chunk_frames: int
     skipped: int
     seconds: float = 0.0
+    frames_fused: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly form."""
@@ -92,6 +96,41 @@ def output_paths(inputs: list[Path], output: Path) -> list[Path]:
     return paths
 
 
+def _check_targets(inputs: list[Path], targets: list[Path]) -> None:
+    """Refuse a target (or its staging store) that is an input, lies inside an input folder
+    or holds one, as :func:`fuse4d.io.check_output` does for the streaming engine: ``--force``
+    replaced the recording being read. Also where the output folder is yet to be made."""
+    for dst in targets:
+        for path in (dst, dst.with_name(dst.name + ".partial")):
+            where = path.resolve()
+            for inp in inputs:
+                src = Path(inp).resolve()
+                if where == src or src in where.parents or where in src.parents:
+                    raise ParameterError(
+                        f"{path}: output would overwrite the input {inp}; choose another path"
+                    )
+
+
+def _absolute_paths(flow: FlowConfig, options: dict[str, Any]) -> tuple[FlowConfig, dict[str, Any]]:
+    """``flow`` and the reader ``options`` with their file paths (the flow cache, an
+    ``intrinsics`` camera.json) made absolute: a cluster's workers run in another folder."""
+    from ..io._base import CAMERA_PRESETS
+
+    if flow.cache_dir is not None:
+        # "~" expanded as the stream engine's FlowCache does, then absolute for the workers
+        flow = dataclasses.replace(
+            flow, cache_dir=str(Path(flow.cache_dir).expanduser().absolute())
+        )
+    cam = options.get("intrinsics")
+    if (
+        isinstance(cam, str | os.PathLike)
+        and str(cam).strip().lower() not in CAMERA_PRESETS
+        and Path(cam).exists()
+    ):
+        options = {**options, "intrinsics": str(Path(cam).absolute())}
+    return flow, options
+
+
 def _reader_meta(options: dict[str, Any]) -> dict[str, str]:
     """The reader options as the JSON strings stored in the zarr's metadata."""
     return {k: str(v) for k, v in sorted(options.items())}
@@ -103,11 +142,16 @@ def _worker_pool(scheduler: str, workers: int | None) -> tuple[int, int]:
     the cluster's workers and their threads for a scheduler address (flow look-ahead and the
     halo states' hand-over of :func:`~fuse4d.scale.streamed.recording_tasks`)."""
     if scheduler.startswith(SCHEDULER_ADDRESS_SCHEMES):
-        from distributed import Client
-
-        with Client(scheduler) as client:
+        with _connect(scheduler) as client:
             nthreads = client.nthreads()
-            return max(1, len(nthreads)), max(1, sum(nthreads.values()))
+        if not nthreads:  # an adaptive cluster may add some; else the run waits at 0 %
+            warnings.warn(
+                f"the dask scheduler at {scheduler} has no workers: the run waits until "
+                f"some join (dask worker {scheduler})",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+        return max(1, len(nthreads)), max(1, sum(nthreads.values()))
     local = max(1, workers or os.cpu_count() or 1)
     if scheduler == "sync":
         return 1, 1
@@ -183,6 +227,8 @@ def run_dask(
     start = time.perf_counter()
     check_scheduler(scheduler, workers)  # before any output is created
     targets = output_paths(inputs, output)
+    _check_targets(inputs, targets)
+    flow, reader_options = _absolute_paths(flow, reader_options or {})
     flow_meta = {
         "method": flow.method,
         "params": {k: str(v) for k, v in flow.params.items()},
@@ -195,12 +241,13 @@ def run_dask(
     lookahead = 2 + threads
     # every input opened (and so checked) before any output is made: a bad second input left
     # the first one's staging store, and the next run then asked for --resume
-    recs = [
-        open_lazy(src, frames_per_task=chunk_frames, **(reader_options or {})) for src in inputs
-    ]
+    recs = [open_lazy(src, frames_per_task=chunk_frames, **reader_options) for src in inputs]
     if len(targets) > 1 or targets[0] != output:
         output.mkdir(parents=True, exist_ok=True)
-    for src, dst, rec in zip(inputs, targets, recs, strict=True):
+    # every output checked before any is written: a refused second one (exists, interrupted)
+    # left the first one's new staging store, and the next run then asked for --resume
+    plans = []
+    for dst, rec in zip(targets, recs, strict=True):
         params = resolve_flying_pixels(fusion, rec.sensor)  # A36
         frames = even_chunk_frames(rec.num_frames, chunk_frames)
         out = ZarrOutput(
@@ -218,10 +265,14 @@ def run_dask(
             resume=resume,
             overwrite=overwrite,
             save_flows=save_flows,
+            defer=True,
         )
-        skipped = len(out.done_chunks())
+        plans.append((out, params, frames))
+    for src, dst, rec, (out, params, frames) in zip(inputs, targets, recs, plans, strict=True):
+        out.prepare()
+        done = out.done_chunks()
         if params.iterations == 1:  # bounded memory: frames and flows travel through files
-            source = source_of(rec.path, rec.format, rec.num_frames, **(reader_options or {}))
+            source = source_of(rec.path, rec.format, rec.num_frames, **reader_options)
             tasks.extend(
                 recording_tasks(
                     source,
@@ -253,7 +304,8 @@ def run_dask(
             shape=(rec.intrinsics.height, rec.intrinsics.width),
             chunks=len(out.bounds),
             chunk_frames=frames,
-            skipped=skipped,
+            skipped=len(done),
+            frames_fused=sum(e - s for k, (s, e) in enumerate(out.bounds) if k not in done),
         )
         jobs.append((out, summary))
     if tasks:
@@ -286,8 +338,12 @@ def print_dask_run(
 
     from rich.table import Table
 
-    from ..cli._app import out_console
+    from ..cli._app import fail, out_console
 
+    try:  # a scheduler address without distributed: one line, not an internal error
+        check_scheduler(options.get("scheduler", "threads"), options.get("workers"))
+    except ImportError as exc:
+        fail(str(exc))
     summaries = run_dask(
         inputs,
         output,
@@ -313,6 +369,11 @@ def print_dask_run(
         )
     out_console.print(table)
     seconds = summaries[0].seconds if summaries else 0.0
-    frames = sum(s.frames for s in summaries)
-    out_console.print(f"time {seconds:.1f} s ({1000 * seconds / max(frames, 1):.0f} ms/frame)")
+    fused = sum(s.frames_fused for s in summaries)
+    resumed = sum(s.frames for s in summaries) - fused
+    # per frame fused now: the resumed chunks' frames took no time
+    rate = f"{1000 * seconds / fused:.0f} ms/frame" if fused else "nothing to fuse"
+    if fused and resumed:
+        rate += f" over the {fused} frames fused now, {resumed} resumed"
+    out_console.print(f"time {seconds:.1f} s ({rate})")
     return summaries

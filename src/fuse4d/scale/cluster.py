@@ -88,14 +88,31 @@ def slow_allocator_workers(client: Any) -> list[str]:
     list of str
         Sorted worker addresses; empty when every worker uses glibc's adaptive default.
     """
-    found = client.run(_trim_threshold)
-    return sorted(address for address, value in found.items() if value is not None)
+    return _allocator_check(client)[0]
+
+
+def _allocator_check(client: Any) -> tuple[list[str], list[str]]:
+    """(slow, silent): the addresses of the workers that run with ``MALLOC_TRIM_THRESHOLD_``
+    set, and of those that did not answer (died or left meanwhile: a dead worker made the
+    whole run fail with "Stream is closed")."""
+    found = client.run(_trim_threshold, on_error="return")
+    silent = sorted(a for a, value in found.items() if isinstance(value, BaseException))
+    slow = sorted(a for a, value in found.items() if value is not None and a not in silent)
+    return slow, silent
 
 
 def warn_if_slow_allocator(client: Any) -> None:
     """Warn (``RuntimeWarning``) when some of the client's workers run with
-    ``MALLOC_TRIM_THRESHOLD_`` set, saying how to start them instead."""
-    slow = slow_allocator_workers(client)
+    ``MALLOC_TRIM_THRESHOLD_`` set, saying how to start them instead, and when some did not
+    answer (a worker died: its log says why)."""
+    slow, silent = _allocator_check(client)
+    if silent:
+        warnings.warn(
+            f"{len(silent)} dask worker(s) did not answer ({', '.join(silent)}): a worker "
+            "died or left; see the workers' logs (their tasks go to the others)",
+            RuntimeWarning,
+            stacklevel=3,
+        )
     if slow:
         total = len(client.scheduler_info()["workers"])
         warnings.warn(
@@ -242,7 +259,10 @@ def check_scheduler(scheduler: str, workers: int | None = None) -> None:
     Raises
     ------
     ParameterError
-        ``scheduler`` is not threads, processes, sync or an address; ``workers`` < 1.
+        ``scheduler`` is not threads, processes, sync or an address that distributed can
+        parse (``tcp://HOST:PORT``); ``workers`` < 1.
+    ImportError
+        An address without ``distributed`` installed.
     """
     if not scheduler.startswith(SCHEDULER_ADDRESS_SCHEMES) and scheduler not in (
         "threads",
@@ -254,6 +274,39 @@ def check_scheduler(scheduler: str, workers: int | None = None) -> None:
         )
     if workers is not None and workers < 1:
         raise ParameterError(f"workers must be >= 1 (default: the CPU count), got {workers}")
+    if scheduler.startswith(SCHEDULER_ADDRESS_SCHEMES):
+        require_scale_extra(distributed=True)  # ImportError: before distributed is imported
+        from distributed.comm.addressing import get_address_host
+
+        try:
+            with warnings.catch_warnings():  # ucx:// warns, then raises the same FutureWarning
+                warnings.simplefilter("ignore")
+                get_address_host(scheduler)  # the scheme's own parser: tcp:// needs HOST:PORT
+        except (ValueError, TypeError, Warning) as exc:
+            raise ParameterError(
+                f"scheduler must be threads, processes, sync or tcp://HOST:PORT, got "
+                f"{scheduler!r} ({' '.join(str(exc).split())})"
+            ) from None
+
+
+def _connect(scheduler: str) -> Any:
+    """A ``distributed.Client`` of the scheduler at address ``scheduler``.
+
+    Raises
+    ------
+    ImportError
+        Without ``distributed``.
+    ParameterError
+        If the address is malformed or no scheduler answers there (``tls://`` without a
+        TLS configuration, a scheme whose backend is not installed, no server, a timeout).
+    """
+    check_scheduler(scheduler)
+    from distributed import Client
+
+    try:
+        return Client(scheduler)
+    except (OSError, ValueError, TypeError) as exc:  # timeout, bad address, tls, ucx
+        raise ParameterError(f"--scheduler {scheduler}: cannot connect: {exc}") from None
 
 
 @contextlib.contextmanager
@@ -305,10 +358,7 @@ def open_compute(
     check_scheduler(scheduler, workers)
     n = workers or os.cpu_count() or 1
     if scheduler.startswith(SCHEDULER_ADDRESS_SCHEMES):
-        require_scale_extra(distributed=True)
-        from distributed import Client
-
-        with Client(scheduler) as client:
+        with _connect(scheduler) as client:
             warn_if_slow_allocator(client)
             with _on_exit(on_exit, client):
                 yield _compute_with(client, progress)

@@ -39,6 +39,7 @@ from numpy.typing import NDArray
 from .._version import __version__
 from ..camera import Intrinsics
 from ..errors import OutputExistsError, ParameterError
+from ..io import check_output
 from ..io.zarrstore import codec
 from .graph import DaskFusion, chunk_bounds, delayed_blocks
 
@@ -53,6 +54,15 @@ _ARRAYS = {
 }
 _MARKERS = ".fuse4d-done"
 _SCRATCH = ".fuse4d-flows"
+
+
+def _remove(path: Path) -> None:
+    """Delete a replaced output or a stale staging store: a folder, or a file or link (of
+    that name; rmtree refused it, "Not a directory")."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    else:
+        path.unlink()
 
 
 def _marker(staging: Path, k: int) -> Path:
@@ -114,6 +124,9 @@ class ZarrOutput:
     overwrite : bool
         Replace an existing ``OUT.zarr`` (at the end, not before) and discard a stale
         ``OUT.zarr.partial``.
+    defer : bool
+        Only check now; :meth:`prepare` writes the staging store later (so that a caller with
+        several outputs writes none before all are checked). Default: prepare now.
 
     Raises
     ------
@@ -121,8 +134,9 @@ class ZarrOutput:
         If ``OUT.zarr`` exists (and neither ``overwrite`` nor a complete ``resume``), or a
         partial run exists without ``resume``/``overwrite``.
     ParameterError
-        If the output folder does not exist, or ``resume`` finds a partial run of other
-        parameters or another input (a ValueError).
+        If the output folder does not exist, if ``overwrite`` would replace a folder that
+        fuse4d did not write (:func:`fuse4d.io.check_output`), or ``resume`` finds a partial
+        run of other parameters or another input (a ValueError).
     """
 
     def __init__(
@@ -136,8 +150,10 @@ class ZarrOutput:
         resume: bool = False,
         overwrite: bool = False,
         save_flows: bool = False,
+        defer: bool = False,
     ) -> None:
-        self.path = Path(path)
+        # absolute: the tasks get these paths, and a cluster's workers run in another folder
+        self.path = Path(path).absolute()
         self.save_flows = bool(save_flows) and shape[0] > 1
         self.staging = self.path.with_name(self.path.name + ".partial")
         self.shape = tuple(int(v) for v in shape)
@@ -151,8 +167,15 @@ class ZarrOutput:
             "chunk_frames": self.chunk_frames,
             "flows_saved": self.save_flows,
         }
+        self._intrinsics = intrinsics
+        self._discard = False  # a stale staging store to remove before creating a new one
+        self._resumed = False
+        self._prepared = False
         if not self.path.parent.is_dir():
             raise ParameterError(f"{self.path}: output folder {self.path.parent} does not exist")
+        if overwrite:  # a folder (or staging folder) of the user's own files is never replaced
+            check_output(self.path, overwrite=True)
+            check_output(self.staging, overwrite=True)
         self.already_complete = False
         if self.path.exists() and not overwrite:
             if resume and self._is_complete(self.path):
@@ -162,14 +185,27 @@ class ZarrOutput:
         if self.staging.exists():
             if resume:
                 self._check_resumable()
+                self._resumed = True
                 return
             if not overwrite:
                 raise OutputExistsError(
                     f"{self.staging} (an interrupted run: pass --resume to continue it, "
                     "--force to start over)"
                 )
-            shutil.rmtree(self.staging)
-        self._create(intrinsics)
+            self._discard = True
+        if not defer:
+            self.prepare()
+
+    def prepare(self) -> None:
+        """Write the staging store ``OUT.zarr.partial`` (discarding a stale one with
+        ``overwrite``); the constructor does this unless ``defer``. Nothing to do where the
+        output is complete or a partial run is resumed, or on a second call."""
+        if self.already_complete or self._resumed or self._prepared:
+            return
+        if self._discard:
+            _remove(self.staging)
+        self._create(self._intrinsics)
+        self._prepared = True
 
     # ------------------------------------------------------------------ setup
     def _create(self, k: Intrinsics) -> None:
@@ -319,7 +355,7 @@ class ZarrOutput:
             old = self.path.with_name(f".{self.path.name}.old-{os.getpid()}")
             self.path.rename(old)
             self.staging.rename(self.path)
-            shutil.rmtree(old)
+            _remove(old)
         else:
             self.staging.rename(self.path)
         return self.path
