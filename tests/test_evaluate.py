@@ -7,6 +7,7 @@ import json
 import math
 import typing
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -403,6 +404,12 @@ def test_run_summary_says_what_each_number_means(tmp_path, capsys):
     console = Console(width=400, file=io.StringIO())
     console.print(run_summary_table(with_eq6, with_eq6.params))
     assert "not sensor holes" in console.file.getvalue()
+    empty = replace(result.params, fill_fallback="nan")  # the sentence follows the fallback
+    console = Console(width=400, file=io.StringIO())
+    console.print(run_summary_table(result, empty))
+    text = console.file.getvalue()
+    assert "are left empty (fill_fallback=nan)" in text
+    assert "keep their own bilateral value" not in text
     assert summary["fused_roughness_mm"] < summary["raw_roughness_mm"]
     assert summary["roughness_pixels"] > 0
     assert summary["static_pixels"] > 0

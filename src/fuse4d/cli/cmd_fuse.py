@@ -420,7 +420,12 @@ def run_summary_table(summary: Any, fusion: Any, *, scored: bool = True) -> Tabl
             f"{unsupported}, filled from neighbours (not sensor holes)",
         )
         if fusion.fill_holes
-        else ("off", f"{unsupported} keep their own bilateral value (A35)")
+        else (
+            "off",
+            f"{unsupported} are left empty (fill_fallback=nan)"
+            if fusion.fill_fallback == "nan"
+            else f"{unsupported} keep their own bilateral value (A35)",
+        )
     )
     flying = (
         (
