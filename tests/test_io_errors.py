@@ -164,6 +164,34 @@ def test_depth_png_with_colour_channels(folder):
     )
 
 
+def _gray_alpha_png(path, h, w):
+    """An 8-bit gray+alpha PNG (colour type 4; cv2.imwrite cannot write one)."""
+    import struct
+    import zlib
+
+    def chunk(kind, data):
+        return (
+            struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+        )
+
+    rows = b"".join(b"\x00" + bytes(2 * w) for _ in range(h))
+    ihdr = struct.pack(">IIBBBBB", w, h, 8, 4, 0, 0, 0)
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", ihdr)
+        + chunk(b"IDAT", zlib.compress(rows))
+        + chunk(b"IEND", b"")
+    )
+
+
+def test_depth_png_with_an_alpha_channel_says_two_channels(folder):
+    """OpenCV expands gray+alpha to 4 channels; the message said "got 4 channels"."""
+    _gray_alpha_png(folder / "depth/000001.png", 24, 32)
+    with pytest.raises(InputFileError) as exc:
+        load_sequence(folder)
+    assert _message(exc).endswith("depth image must have one channel, got 2 channels")
+
+
 def test_frame_count_mismatch(folder):
     (folder / "intensity/000003.png").unlink()
     with pytest.raises(InputFileError) as exc:

@@ -40,6 +40,22 @@ _PNG_END = b"IEND\xaeB`\x82"
 _JPEG_END = b"\xff\xd9"
 
 
+#: Channels of each PNG colour type (IHDR byte 25): gray, RGB, palette, gray+alpha, RGBA.
+_PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}
+
+
+def _png_channels(path: str | PathLike[str]) -> int | None:
+    """The channel count a PNG file's header states (None: not a PNG, or unreadable)."""
+    try:
+        with Path(path).open("rb") as f:
+            head = f.read(26)
+    except OSError:
+        return None
+    if len(head) < 26 or not head.startswith(b"\x89PNG\r\n\x1a\n"):
+        return None
+    return _PNG_CHANNELS.get(head[25])
+
+
 def decode_image(
     path: str | PathLike[str], *, frame: int | None = None, jpeg_luma: bool = False
 ) -> np.ndarray:
@@ -161,10 +177,9 @@ def read_depth_png(
     """
     image = decode_image(path, frame=frame)
     if image.ndim != 2:
+        channels = _png_channels(path) or image.shape[2]  # OpenCV expands gray+alpha to 4
         raise InputFileError(
-            path,
-            f"depth image must have one channel, got {image.shape[2]} channels",
-            frame=frame,
+            path, f"depth image must have one channel, got {channels} channels", frame=frame
         )
     if image.dtype != np.uint16:
         bits = image.dtype.itemsize * 8
