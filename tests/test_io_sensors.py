@@ -660,6 +660,15 @@ def test_zarr_bad_timestamps_are_refused_at_open(tmp_path, float_sequence, times
         open_frames(path)
 
 
+@pytest.mark.parametrize("fps", ["fast", -30.0, 0, True])
+def test_zarr_fps_attribute_is_checked(tmp_path, float_sequence, fps):
+    """A non-numeric rate was an internal ValueError, a negative one was accepted."""
+    path = save_sequence(float_sequence, tmp_path / "s.zarr")
+    zarr.open_group(str(path), mode="r+").attrs["fps"] = fps
+    with pytest.raises(InputFileError, match=r"attribute 'fps' must be a number > 0, got "):
+        open_frames(path)
+
+
 def test_zarr_without_intrinsics_says_so_once(tmp_path, float_sequence):
     path = save_sequence(float_sequence, tmp_path / "s.zarr")
     group = zarr.open_group(str(path), mode="r+")

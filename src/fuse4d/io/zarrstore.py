@@ -284,7 +284,7 @@ class ZarrReader(FrameReader):
             raise
         except (KeyError, TypeError, ValueError) as exc:
             raise InputFileError(self.path, f"bad 'intrinsics' attribute ({exc})") from None
-        self.fps = float(attrs["fps"]) if attrs.get("fps") else None
+        self.fps = self._checked_fps(attrs.get("fps"))
         self.sensor = check_sensor_kind(attrs.get("sensor"), self.path, "attribute 'sensor'")
         if "timestamps" in group:
             self.timestamps = self._checked_timestamps(group["timestamps"], int(t))
@@ -292,6 +292,18 @@ class ZarrReader(FrameReader):
         self._source = source if source is not None and source.shape == (t, h, w) else None
         self._t = int(t)
         self.notes = ("zarr v3 store, float32 depth in mm",)
+
+    def _checked_fps(self, value: Any) -> float | None:
+        """The ``fps`` attribute: a number > 0 (frames/s), or None where absent."""
+        if value is None:
+            return None
+        try:
+            fps = float(value)
+        except (TypeError, ValueError):
+            fps = math.nan
+        if isinstance(value, bool) or not (math.isfinite(fps) and fps > 0):
+            raise InputFileError(self.path, f"attribute 'fps' must be a number > 0, got {value!r}")
+        return fps
 
     def _checked_timestamps(self, array: Any, t: int) -> NDArray[np.float64]:
         """The ``timestamps`` array (s), checked like the npz reader's: T finite values,
