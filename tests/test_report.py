@@ -141,6 +141,7 @@ def test_metrics_equal_the_library_functions_on_the_same_pixels(run_with_report)
         assert m[name]["flicker_median"] == pytest.approx(flick.median, rel=1e-6)
         assert m[name]["flicker_mean"] == pytest.approx(flick.mean, rel=1e-6)
     assert m["fused"]["flicker_median"] < 0.5 * m["raw"]["flicker_median"]
+    assert m["fused"]["flicker_mean"] < 0.5 * m["raw"]["flicker_mean"]
     # ground truth: RMSE on pixels valid in both, bad pixels with missing = bad
     gt = raw.ground_truth.depth
     common = np.isfinite(raw.depth) & np.isfinite(fused.depth)
@@ -158,10 +159,13 @@ def test_metrics_agree_with_fuse4d_metrics_cli(run_with_report, capsys):
     raw_path, fused_path, rep = run_with_report
     m = _metrics(rep)["metrics"]
     capsys.readouterr()
+    # one video alone scores bad_steps only with the sensor's q: the report's (raw's)
+    q = repr(_metrics(rep)["noise_quad"])
     for name, path in (("raw", raw_path), ("fused", fused_path)):
-        assert main(["metrics", str(path), "--json", "--no-shape"]) == 0
+        assert main(["metrics", str(path), "--json", "--no-shape", "--noise-quad", q]) == 0
         cli = json.loads(capsys.readouterr().out)["output"]
         # the ball's raw depth is valid everywhere, so "valid in all methods" = "valid in one"
+        assert m[name]["flicker_mean"] == pytest.approx(cli["flicker_std_mean"], rel=1e-6)
         assert m[name]["flicker_median"] == pytest.approx(cli["flicker_std_median"], rel=1e-6)
         assert m[name]["rmse"] == pytest.approx(cli["rmse"], rel=1e-9)
         assert m[name]["bad_pixels"] == pytest.approx(cli["bad_1mm"], rel=1e-12)
@@ -268,6 +272,7 @@ def test_one_frame_report_has_no_flicker(small_ball, small_fused, tmp_path):
     m = _metrics(tmp_path / "rep")
     assert m["flicker"]["static_pixels"] == 0
     assert m["metrics"]["fused"]["flicker_median"] is None
+    assert m["metrics"]["fused"]["flicker_mean"] is None
     assert m["metrics"]["raw"]["roughness_std"] is None  # one frame has no spread (it said 0)
     page = (tmp_path / "rep" / "report.html").read_text()
     assert "flicker n/a (it needs 2 frames and static pixels)" in page
@@ -282,7 +287,14 @@ def test_chunked_equals_unchunked(small_ball, small_fused, tmp_path):
     b = write_report(small_ball, small_fused, tmp_path / "b", chunk_frames=64)
     ma, mb = _metrics(a.parent)["metrics"], _metrics(b.parent)["metrics"]
     for name in ("raw", "fused"):
-        for key in ("roughness_mean", "flicker_median", "rmse", "bad_pixels", "fill_rate"):
+        for key in (
+            "roughness_mean",
+            "flicker_mean",
+            "flicker_median",
+            "rmse",
+            "bad_pixels",
+            "fill_rate",
+        ):
             assert ma[name][key] == pytest.approx(mb[name][key], rel=1e-12), key
 
 
@@ -484,12 +496,65 @@ def test_summary_says_more_flicker_when_fusion_added_some():
 
     def methods(raw, fused):
         row = {"roughness_mean": 1.0, "fill_rate": 1.0}
-        return {"raw": {**row, "flicker_median": raw}, "fused": {**row, "flicker_median": fused}}
+        return {"raw": {**row, "flicker_mean": raw}, "fused": {**row, "flicker_mean": fused}}
 
     assert "(4× less)" in _summary(methods(2.0, 0.5), 4.0)
     assert "(2× more)" in _summary(methods(1.0, 2.0), 0.5)
     assert "(more: raw was still on these pixels)" in _summary(methods(0.0, 2.5), 0.0)
     assert "less" not in _summary(methods(0.0, 2.5), 0.0)
+
+
+def test_flicker_headline_is_the_mean_on_quantised_depth(tmp_path, capsys):
+    """The report headlined the median per-pixel std over time: 0 mm for quantised Kinect
+    depth whose static pixels mostly never leave their level in a short clip, so it said
+    fusion added flicker ("raw was still on these pixels") while the mean fell from about 25
+    to 2 mm. Now the mean, as `fuse4d metrics`; the median stays as a second row."""
+    from fuse4d.cli.cmd_report import print_report_summary
+    from fuse4d.range_scenes import make_range_scene
+
+    seq = make_range_scene("ball", sensor="kinect", small=True, num_frames=4)
+    fused = fuse_sequence(seq.depth, seq.intensity, seq.intrinsics)
+    page_path = write_report(seq, fused, tmp_path / "rep")
+    m = _metrics(tmp_path / "rep")
+    raw, out = m["metrics"]["raw"], m["metrics"]["fused"]
+    assert raw["flicker_median"] == 0.0 < out["flicker_median"]  # the misleading median
+    assert raw["flicker_mean"] > 5 * out["flicker_mean"] > 0
+    ratio = m["flicker"]["ratio_raw_over_fused"]
+    assert ratio == pytest.approx(raw["flicker_mean"] / out["flicker_mean"], rel=1e-12)
+    page = page_path.read_text()
+    mean_mm = f"{raw['flicker_mean']:.4g} mm → {out['flicker_mean']:.4g} mm"
+    assert f"flicker (per-pixel std over time, mean) {mean_mm} ({ratio:.3g}× less)" in page
+    assert "raw was still" not in page
+    capsys.readouterr()
+    print_report_summary(page_path)
+    line = next(x for x in capsys.readouterr().out.splitlines() if "temporal precision" in x)
+    assert "mean std" in line
+    assert f"{raw['flicker_mean']:.4g}" in line
+
+
+def test_report_shows_the_parameters_a_run_stored_in_its_npz(small_ball, tmp_path):
+    """`fuse4d run IN -o OUT.npz` stores its parameters (key fuse4d_params); the report read
+    them only from a run folder's manifest and said "Not recorded" for an .npz."""
+    from fuse4d.run import NPZ_PARAMS_KEY
+
+    raw, fused = tmp_path / "raw.npz", tmp_path / "fused.npz"
+    save_sequence(small_ball, raw)
+    assert main(["run", str(raw), "-o", str(fused), "--window", "3", "--no-summary"]) == 0
+    write_report(raw, fused, tmp_path / "rep")
+    with np.load(fused) as z:
+        members = {k: z[k] for k in z.files}
+    record = json.loads(str(members[NPZ_PARAMS_KEY]))
+    params = _metrics(tmp_path / "rep")["params"]
+    assert params == {**record["fusion"], "flow_method": record["flow"]["method"]}
+    assert params["num_frames"] == 3
+    page = (tmp_path / "rep" / "report.html").read_text()
+    assert "Not recorded in the fused input" not in page
+    # a record that does not parse: no parameters shown, the report is still written
+    members[NPZ_PARAMS_KEY] = np.str_("{not json")
+    np.savez(tmp_path / "odd.npz", **members)
+    write_report(raw, tmp_path / "odd.npz", tmp_path / "rep2")
+    assert _metrics(tmp_path / "rep2")["params"] is None
+    assert "Not recorded in the fused input" in (tmp_path / "rep2" / "report.html").read_text()
 
 
 def test_report_refuses_other_frames_and_warns_of_another_input(tmp_path, capsys):
@@ -556,6 +621,9 @@ def test_report_static_pixels_are_those_of_fuse4d_metrics(tmp_path, capsys):
     assert m["flicker"]["static_pixels"] == cli["static"]["pixels"] > 0
     assert m["flicker"]["static_source"] == cli["static"]["description"].split(";")[0]
     for name, key in (("raw", "raw"), ("fused", "output")):
+        assert m["metrics"][name]["flicker_mean"] == pytest.approx(
+            cli[key]["flicker_std_mean"], rel=1e-6
+        )
         assert m["metrics"][name]["flicker_median"] == pytest.approx(
             cli[key]["flicker_std_median"], rel=1e-6
         )

@@ -163,7 +163,8 @@ def print_report_summary(page: Path, *, as_json: bool = False) -> None:
     rows = (
         ("roughness mean (Eq. 7, mm)", "roughness_mean", 1.0),
         ("spatial precision (plane RMS, mm)", "spatial_precision", 1.0),
-        ("flicker / temporal precision (mm)", "flicker_median", 1.0),
+        ("flicker / temporal precision (mean std, mm)", "flicker_mean", 1.0),
+        ("flicker, median std (mm)", "flicker_median", 1.0),
         ("fill rate (%)", "fill_rate", 100.0),
         ("RMSE to GT (mm)", "rmse", 1.0),
         ("bad pixels > 1 mm (%)", "bad_pixels", 100.0),

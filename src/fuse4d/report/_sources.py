@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -164,6 +165,7 @@ class FusedSource:
             members = getattr(self._reader, "_members", None)
             if isinstance(members, dict):  # NpzReader: support/filled are memory-mapped members
                 self._keys = {k for k in ("support", "filled") if k in members}
+                self.params = _npz_parameters(self._reader)
         else:
             depth = np.asarray(data, dtype=np.float32)
             if depth.ndim != 3:
@@ -223,6 +225,26 @@ class FusedSource:
         """Close the file reader (if any)."""
         if self._reader is not None:
             self._reader.close()
+
+
+def _npz_parameters(reader: Any) -> dict[str, Any] | None:
+    """The fusion parameters (and ``flow_method``) that ``fuse4d run`` stores in an ``.npz``
+    output (:data:`fuse4d.run.NPZ_PARAMS_KEY`, the record of a folder output's manifest), in
+    the form :func:`~fuse4d.io.resume.run_parameters` gives a folder's; None where the file
+    holds no readable record (another program's result, or an older fuse4d's)."""
+    from ..run import NPZ_PARAMS_KEY
+
+    if NPZ_PARAMS_KEY not in reader._members:
+        return None
+    try:
+        record = json.loads(str(np.asarray(reader._array(NPZ_PARAMS_KEY)).item()))
+    except (InputFileError, ValueError, TypeError):
+        return None
+    fusion = record.get("fusion") if isinstance(record, dict) else None
+    if not isinstance(fusion, dict):
+        return None
+    flow = record.get("flow")
+    return {**fusion, "flow_method": flow.get("method", "") if isinstance(flow, dict) else ""}
 
 
 def recorded_reader_options(fused: str | PathLike[str]) -> dict[str, Any]:

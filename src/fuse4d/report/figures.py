@@ -150,7 +150,7 @@ def flicker_figure(
                 histtype="step",
                 linewidth=1.6,
                 color=method_color(name, j),
-                label=f"{name} (median {np.median(vals):.3g} mm)",
+                label=f"{name} (mean {vals.mean(dtype=np.float64):.3g}, median {np.median(vals):.3g} mm)",
             )
     ax.set_xlabel("temporal std (mm), static pixels")
     ax.set_ylabel("pixels")

@@ -154,7 +154,15 @@ def render_page(
                 "as speckle along time (bottom row: frame-to-frame change)."
             ),
         ),
-        ("flicker", "Temporal flicker (temporal precision)", ""),
+        (
+            "flicker",
+            "Temporal flicker (temporal precision)",
+            (
+                "The per-pixel std of depth over time on static pixels, headlined by its mean "
+                "over them (as fuse4d metrics): the median reads 0 mm for quantised depth whose "
+                "pixels mostly never leave their level, however far the others jump."
+            ),
+        ),
         ("timeseries", "Depth over time at a few pixels", ""),
         ("roughness", "Surface roughness (paper Eq. 7)", ""),
         ("support", "Temporal support and hole filling", ""),
@@ -187,8 +195,8 @@ def render_page(
         body.append(_kv_table(params))
     else:
         body.append(
-            "<p class='note'>Not recorded in the fused input (run <code>fuse4d run ... "
-            "--report DIR</code> to record them).</p>"
+            "<p class='note'>Not recorded in the fused input (<code>fuse4d run</code> records "
+            "them in its .npz and folder outputs).</p>"
         )
     return (
         "<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'>"

@@ -204,9 +204,10 @@ class MetricTally:
         dict
             ``methods[name]`` holds ``fill_rate``, ``roughness_mean``/``roughness_std``
             (= :func:`~fuse4d.metrics.roughness_stats` with ``roi`` = default ROI of the raw
-            frame AND Pi defined for all methods), ``rms_residual``, ``flicker_median`` /
-            ``flicker_mean`` (= :func:`~fuse4d.metrics.temporal_flicker` with
-            ``static_mask`` = ``static`` AND valid in every frame of every method),
+            frame AND Pi defined for all methods), ``rms_residual``, ``flicker_mean`` (the
+            headline) / ``flicker_median`` (= :func:`~fuse4d.metrics.temporal_flicker`'s
+            ``mean`` / ``median`` with ``static`` = ``static`` AND valid in every frame of
+            every method),
             ``spatial_precision`` (mean over frames and planes of the plane-fit RMS), and
             with ground truth ``rmse`` (= :func:`~fuse4d.metrics.depth_rmse` with ``mask`` =
             valid in every method) and ``bad_pixels`` (= :func:`~fuse4d.metrics.
@@ -230,8 +231,8 @@ class MetricTally:
                 "roughness_mean": _nanmean(fm),
                 "roughness_std": _nanstd(fm),
                 "rms_residual": _nanmean(rm),
-                "flicker_median": float(np.median(std)) if std.size else math.nan,
                 "flicker_mean": float(std.mean()) if std.size else math.nan,
+                "flicker_median": float(np.median(std)) if std.size else math.nan,
                 "spatial_precision": _nanmean(np.asarray(plane_means)),
                 "spatial_precision_per_plane": plane_means,
                 "roughness_frame_means": fm.tolist(),
