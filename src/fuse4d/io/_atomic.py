@@ -28,6 +28,19 @@ if TYPE_CHECKING:
 __all__ = ["atomic_dir", "atomic_file", "check_output", "write_errors"]
 
 
+def check_not_an_input(path: str | PathLike[str], inputs: Iterable[str | PathLike[str]]) -> None:
+    """Refuse an output ``path`` that is one of ``inputs``, lies inside an input folder or
+    holds one (ParameterError): writing it would replace the recording being read."""
+    out = Path(path)
+    resolved = out.resolve()
+    for inp in inputs:
+        src = Path(inp).resolve()
+        if resolved == src or src in resolved.parents or resolved in src.parents:
+            raise ParameterError(
+                f"{out}: output would overwrite the input {inp}; choose another path"
+            )
+
+
 def check_output(
     path: str | PathLike[str],
     *,
@@ -62,12 +75,7 @@ def check_output(
     """
     out = Path(path)
     resolved = out.resolve()
-    for inp in inputs:
-        src = Path(inp).resolve()
-        if resolved == src or src in resolved.parents or resolved in src.parents:
-            raise ParameterError(
-                f"{out}: output would overwrite the input {inp}; choose another path"
-            )
+    check_not_an_input(out, inputs)
     if not resolved.parent.is_dir():
         if resolved.parent.exists():  # e.g. mk.py/x.npz with mk.py a file
             raise ParameterError(f"{out}: {out.parent} is not a folder")

@@ -361,6 +361,24 @@ def flag_images(source: ArrayLike, confidence: ArrayLike) -> tuple[tuple[str, ND
     return (("source", np.asarray(source, np.uint8)), ("confidence", c8))
 
 
+def check_increasing_times(
+    times: NDArray[np.float64], path: Path, what: str, unit: str = "s"
+) -> None:
+    """InputFileError naming the first frame whose time (``times``, s) is not after the
+    previous frame's: frames are paired and indexed by their times, so a repeated or
+    backwards one leaves no order to trust (a broken clock, a merged recording). ``what``:
+    which times, e.g. "DEPTH track: pts"."""
+    bad = np.nonzero(~(np.diff(times) > 0))[0]
+    if bad.size:
+        k = int(bad[0]) + 1
+        raise InputFileError(
+            path,
+            f"{what} {times[k]:.6f} {unit} is not after frame {k - 1}'s ({times[k - 1]:.6f} "
+            f"{unit}); the frames' times must increase",
+            frame=k,
+        )
+
+
 def check_flags(index: int, shape: tuple[int, int], source: Any, confidence: Any) -> None:
     """Both per-pixel fusion flags of frame ``index`` or neither, each of ``shape``."""
     if (source is None) != (confidence is None):

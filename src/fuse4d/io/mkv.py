@@ -31,6 +31,7 @@ from ._base import (
     Frame,
     IntrinsicsLike,
     SequentialReader,
+    check_increasing_times,
     check_sensor_kind,
     depth_unit,
     resolve_intrinsics,
@@ -290,15 +291,7 @@ class MkvReader(SequentialReader):
         ti = np.asarray(i_pts, dtype=np.float64) * tb_i
         for name, times in (("DEPTH", td), (inten_name, ti)):
             # frames are paired and decoded by pts: a repeated one would be ambiguous
-            bad = np.nonzero(~(np.diff(times) > 0))[0]
-            if bad.size:
-                k = int(bad[0]) + 1
-                raise InputFileError(
-                    self.path,
-                    f"{name} track: pts {times[k]:.6f} s is not after frame {k - 1}'s "
-                    f"({times[k - 1]:.6f} s); the frames' times must increase",
-                    frame=k,
-                )
+            check_increasing_times(times, self.path, f"{name} track: pts")
         pairs = {round(t, 6): j for j, t in enumerate(ti)}
         keep = [k for k, t in enumerate(td) if round(t, 6) in pairs]
         if not keep:

@@ -31,6 +31,7 @@ from ._base import (
     Frame,
     IntrinsicsLike,
     SequentialReader,
+    check_increasing_times,
     depth_unit,
     resolve_intrinsics,
 )
@@ -618,15 +619,7 @@ class RosbagReader(SequentialReader):
             raise InputFileError(self.path, f"intensity topic {self._inten.topic} has no message")
         # The header stamps are the frames' times (pairing, output timestamps): a repeated or
         # backwards one means a broken clock or a merged bag, and no order can be trusted.
-        bad = np.nonzero(~(np.diff(td) > 0))[0]
-        if bad.size:
-            k = int(bad[0]) + 1
-            raise InputFileError(
-                self.path,
-                f"depth topic {self._depth.topic}: header stamp {td[k]:.6f} s is not after "
-                f"frame {k - 1}'s ({td[k - 1]:.6f} s); the frames' times must increase",
-                frame=k,
-            )
+        check_increasing_times(td, self.path, f"depth topic {self._depth.topic}: header stamp")
         order = np.argsort(ti, kind="stable")
         pos = np.clip(np.searchsorted(ti[order], td), 1, max(ti.size - 1, 1))
         left = order[np.clip(pos - 1, 0, ti.size - 1)]

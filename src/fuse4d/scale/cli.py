@@ -100,15 +100,11 @@ def _check_targets(inputs: list[Path], targets: list[Path]) -> None:
     """Refuse a target (or its staging store) that is an input, lies inside an input folder
     or holds one, as :func:`fuse4d.io.check_output` does for the streaming engine: ``--force``
     replaced the recording being read. Also where the output folder is yet to be made."""
+    from ..io._atomic import check_not_an_input
+
     for dst in targets:
         for path in (dst, dst.with_name(dst.name + ".partial")):
-            where = path.resolve()
-            for inp in inputs:
-                src = Path(inp).resolve()
-                if where == src or src in where.parents or where in src.parents:
-                    raise ParameterError(
-                        f"{path}: output would overwrite the input {inp}; choose another path"
-                    )
+            check_not_an_input(path, inputs)
 
 
 def _absolute_paths(flow: FlowConfig, options: dict[str, Any]) -> tuple[FlowConfig, dict[str, Any]]:
