@@ -237,21 +237,6 @@ def _mismatch(
     )
 
 
-def _clean(value: Any) -> Any:
-    """JSON-safe: NaN/inf -> None, numpy scalars -> Python."""
-    import numpy as np
-
-    if isinstance(value, dict):
-        return {k: _clean(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_clean(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 @app.command("metrics")
 def metrics_command(
     inputs: Annotated[
@@ -418,9 +403,11 @@ def metrics_command(
             if box is None
             else f"box rows {box[0]}:{box[1]}, columns {box[2]}:{box[3]}"
         )
-    result = _clean(result)
+    from .._json import json_safe
+
+    result = json_safe(result)
     if as_json:
-        out_console.file.write(json.dumps(result) + "\n")
+        out_console.file.write(json.dumps(result, allow_nan=False) + "\n")
         out_console.file.flush()
         return
     _print_table(result)

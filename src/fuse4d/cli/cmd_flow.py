@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from pathlib import Path
@@ -189,7 +188,9 @@ def bench_flow_command(
             "summary": rows,
             "pairs": [r.to_dict() for r in results],
         }
-        out_console.print_json(json.dumps(report))
+        from .._json import dumps
+
+        out_console.print_json(dumps(report))
         return
     out_console.print(_table(rows))
     out_console.print(

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from pathlib import Path
 from typing import Annotated, Any
@@ -31,7 +30,6 @@ from ._recording_opts import (
     frame_range,
     reader_options,
 )
-from .cmd_eval import _clean
 
 #: What the columns of the ``demo`` table mean.
 QUALITY_CAPTION = (
@@ -380,7 +378,9 @@ _STREAM_ONLY = {"summary_every": "--summary-every"}
 
 def print_json(data: Any) -> None:
     """Print ``data`` as strict JSON on stdout: NaN/inf as null (bare NaN is not JSON)."""
-    print(json.dumps(_clean(data), indent=2, allow_nan=False))
+    from .._json import dumps
+
+    print(dumps(data, indent=2))
 
 
 def _time_note(summary: Any) -> str:

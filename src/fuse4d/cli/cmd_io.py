@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Annotated, Any
@@ -144,7 +143,9 @@ def info_command(
             "streams": _streams(reader),
         }
     if as_json:
-        print(json.dumps(summary))
+        from .._json import dumps
+
+        print(dumps(summary))
         return
     sampled = (
         ""

@@ -14,7 +14,6 @@ the video is encoded frame by frame and the x–t slices keep one line per frame
 
 from __future__ import annotations
 
-import json
 import math
 import time
 import warnings
@@ -26,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._json import dumps
 from ..camera import depth_to_points
 from ..errors import ParameterError, ShapeError
 from ..holes import _SourceTally
@@ -923,7 +923,7 @@ def _write(
                 "size": [video.height, video.width],
             },
         }
-        (tmp / "metrics.json").write_text(json.dumps(_clean(metrics), indent=2) + "\n")
+        (tmp / "metrics.json").write_text(dumps(metrics, indent=2) + "\n")
         page = render_page(
             title=f"fuse4d report: {Path(raw.name).name}",
             subtitle=f"{total} frames{_part(raw.part)}, {h}×{w} px; fused: {fres.name}",
@@ -1132,16 +1132,3 @@ def _metric_rows(
         }
     )
     return rows
-
-
-def _clean(value: Any) -> Any:
-    """JSON-safe: NaN/inf -> None, numpy scalars -> Python."""
-    if isinstance(value, dict):
-        return {str(k): _clean(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_clean(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value

@@ -330,7 +330,6 @@ def print_dask_run(
 ) -> list[DaskRunSummary]:
     """The CLI face of :func:`run_dask`: run, then print a table (or JSON) per recording;
     returns the summaries."""
-    import json
 
     from rich.table import Table
 
@@ -351,7 +350,9 @@ def print_dask_run(
         **options,
     )
     if as_json:
-        print(json.dumps([s.to_dict() for s in summaries], indent=2))
+        from .._json import dumps
+
+        print(dumps([s.to_dict() for s in summaries], indent=2))
         return summaries
     table = Table(title=f"fuse4d run --engine dask ({options.get('scheduler', 'threads')})")
     for col in ("input", "output", "frames", "chunks x frames (resumed)"):
