@@ -864,3 +864,50 @@ def test_a_one_pixel_wide_mkv_is_a_parameter_error(tmp_path):
     with pytest.raises(ParameterError, match=r"1 px wide cannot be stored as FFV1 \.mkv"):
         save_sequence(seq, tmp_path / "x.mkv")
     assert _listing(tmp_path) == []
+
+
+@pytest.mark.parametrize("layout", ["mkv", "folder"])
+def test_coarse_unit_warning_points_at_the_callers_with_line(tmp_path, layout):
+    """The write-error decorator on close() added a frame: the warning pointed into fuse4d."""
+    from fuse4d.io import DepthVideoWriter, FrameFolderWriter
+
+    k = Intrinsics(fx=10.0, fy=10.0, cx=8.0, cy=8.0, width=16, height=16)
+    noise = np.random.default_rng(0).normal(0, 0.1, (3, 16, 16)).astype(np.float32)
+    cls = DepthVideoWriter if layout == "mkv" else FrameFolderWriter
+    path = tmp_path / ("o.mkv" if layout == "mkv" else "o")
+    with warnings.catch_warnings(record=True) as record, cls(path, k, depth_unit_mm=1.0) as out:
+        warnings.simplefilter("always")
+        for t in range(3):
+            out.write(1000.0 + noise[t], np.full((16, 16), 0.5, np.float32))
+    coarse = [w for w in record if "is coarse for this data" in str(w.message)]
+    assert len(coarse) == 1
+    assert Path(coarse[0].filename).name == "test_io.py"
+
+
+@pytest.mark.parametrize("layout", ["zarr", "folder"])
+@pytest.mark.parametrize("stamps", [[0.0, 0.0, 0.1], [0.2, 0.1, 0.3], [0.0, float("nan"), 0.1]])
+def test_writers_refuse_times_their_reader_refuses(tmp_path, layout, stamps):
+    """The store was written, then refused by fuse4d's own reader."""
+    from fuse4d.io import FrameFolderWriter, ZarrWriter
+
+    k = Intrinsics(fx=10.0, fy=10.0, cx=3.5, cy=2.5, width=8, height=6)
+    cls = ZarrWriter if layout == "zarr" else FrameFolderWriter
+    path = tmp_path / ("o.zarr" if layout == "zarr" else "o")
+    depth, inten = np.full((6, 8), 900.0, np.float32), np.full((6, 8), 0.5)
+    with cls(path, k) as writer:
+        writer.write(depth, inten, timestamp=stamps[0])
+        with pytest.raises(ParameterError, match="frame 1: timestamp "):
+            writer.write(depth, inten, timestamp=stamps[1])
+        writer.abort()
+    assert not path.exists()
+
+
+def test_zarr_nan_intensity_of_earlier_writers_reads_as_zero(tmp_path, small_sequence):
+    """Earlier ZarrWriters stored NaN intensity, which the reader now refuses as not [0, 1]."""
+    import zarr
+
+    path = save_sequence(small_sequence, tmp_path / "s.zarr")
+    zarr.open_group(str(path), mode="r+")["intensity"][0, 0, :2] = np.nan
+    seq = load_sequence(path)
+    assert (seq.intensity[0, 0, :2] == 0).all()
+    np.testing.assert_array_equal(seq.intensity[1:], small_sequence.intensity[1:])

@@ -81,6 +81,12 @@ def test_camera_json_without_camera_keys_takes_given_intrinsics(folder, small_se
     assert read_tum(tum, intrinsics="50,51,15.5,11.5").intrinsics.fx == 50.0
     with pytest.raises(InputFileError, match=r"camera.json: missing key 'fy'"):
         read_tum(tum)
+    # beside given intrinsics the file's rate is still read and its size still checked
+    (tum / "camera.json").write_text('{"depth_unit_mm": 0.2, "fps": 15}')
+    assert read_tum(tum, intrinsics="50,51,15.5,11.5").fps == 15.0
+    (tum / "camera.json").write_text('{"depth_unit_mm": 0.2, "width": 99}')
+    with pytest.raises(InputFileError, match=r"camera\.json"):
+        read_tum(tum, intrinsics="50,51,15.5,11.5")
 
 
 def test_missing_depth_unit_key(folder):

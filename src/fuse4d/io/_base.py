@@ -379,6 +379,23 @@ def check_increasing_times(
         )
 
 
+def checked_timestamp(previous: list[float | None], timestamp: Any, index: int) -> float | None:
+    """Frame ``index``'s ``timestamp`` (s) for a writer that has stored ``previous``: finite
+    and after the last one (ParameterError naming the frame otherwise: the file written would
+    be refused by its own reader); None stays None."""
+    if timestamp is None:
+        return None
+    t = float(timestamp)
+    if not math.isfinite(t):
+        raise ParameterError(f"frame {index}: timestamp {timestamp!r} is not a finite number")
+    last = previous[-1] if previous else None
+    if last is not None and not t > last:
+        raise ParameterError(
+            f"frame {index}: timestamp {t:.6f} s is not after frame {index - 1}'s ({last:.6f} s)"
+        )
+    return t
+
+
 def check_flags(index: int, shape: tuple[int, int], source: Any, confidence: Any) -> None:
     """Both per-pixel fusion flags of frame ``index`` or neither, each of ``shape``."""
     if (source is None) != (confidence is None):

@@ -326,8 +326,9 @@ class QuantizationReport:
                 # robust per-pixel noise from horizontal neighbour differences (MAD, sqrt 2)
                 self.noise_estimates.append(float(np.median(diffs)) * 1.4826 / np.sqrt(2.0))
 
-    def warn(self, where: str) -> None:
-        """Emit one ``UserWarning`` if values were clipped or precision was badly lost."""
+    def warn(self, where: str, *, stacklevel: int = 4) -> None:
+        """Emit one ``UserWarning`` if values were clipped or precision was badly lost
+        (``stacklevel``: that of the caller's caller's caller, the user's ``with`` line)."""
         problems = []
         if self.clipped_high:
             problems.append(
@@ -351,7 +352,7 @@ class QuantizationReport:
                     f"(use a smaller depth_unit_mm or the .npz format)"
                 )
         if problems:
-            warnings.warn(f"{where}: " + "; ".join(problems), UserWarning, stacklevel=4)
+            warnings.warn(f"{where}: " + "; ".join(problems), UserWarning, stacklevel=stacklevel)
 
 
 def depth_to_units(

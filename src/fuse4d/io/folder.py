@@ -44,6 +44,7 @@ from ._base import (
     _check_size,
     check_flags,
     check_frame_shapes,
+    checked_timestamp,
     depth_unit,
     flag_images,
     read_camera_json,
@@ -409,6 +410,7 @@ class FrameFolderWriter:
             raise RuntimeError("FrameFolderWriter is not open; use it in a `with` block")
         shape = self.intrinsics.shape
         check_frame_shapes(self.num_written, shape, depth=depth, intensity=intensity, mask=mask)
+        stamp = checked_timestamp(self._timestamps, timestamp, self.num_written)
         intensity = as_storable_intensity(intensity, name=f"intensity of frame {self.num_written}")
         if self._has_mask is None:
             self._has_mask = mask is not None
@@ -438,7 +440,7 @@ class FrameFolderWriter:
             for sub, image in flag_images(source, confidence):
                 (self._tmp / sub).mkdir(exist_ok=True)
                 encode_png(image, self._tmp / sub / name)
-        self._timestamps.append(None if timestamp is None else float(timestamp))
+        self._timestamps.append(stamp)
         self.num_written += 1
 
     def _intensity_image(self, intensity: np.ndarray) -> np.ndarray:
@@ -466,7 +468,7 @@ class FrameFolderWriter:
             raise
         stack.close()
         self._tmp = None
-        self._report.warn(str(self.path))
+        self._report.warn(str(self.path), stacklevel=5)  # (through @reports_write_errors)
 
     def abort(self) -> None:
         """Discard everything written so far; ``path`` is left untouched."""
@@ -556,6 +558,7 @@ def write_frame_folder(
     """
     gt = check_sequence(seq, "write_frame_folder").ground_truth
     dropped = unstored_ground_truth(gt, keeps_mask=True)
+    check_output(path, overwrite=overwrite)  # refused before anything is said about it
     warn_unstored_ground_truth(path, "the frame-folder format", dropped)
     masks = None if gt is None else gt.mask
     stamps = seq.timestamps

@@ -217,15 +217,16 @@ class TumReader(FrameReader):
         self.depth_unit_mm = depth_unit(unit, None if depth_unit_mm is not None else cam_path)
         image = decode_image(self._files[0][0], frame=0)
         h, w = image.shape[:2]
+        if cam is not None:  # its size and rate, also beside given intrinsics
+            _check_size(cam, w, h, cam_path)
+            if cam.get("fps"):
+                self.fps = cam["fps"]
         if intrinsics is not None:
             self.intrinsics = resolve_intrinsics(intrinsics, width=w, height=h)
         elif cam is not None:
-            _check_size(cam, w, h, cam_path)
             self.intrinsics = Intrinsics(
                 cam["fx"], cam["fy"], cam["cx"], cam["cy"], width=w, height=h
             )
-            if cam.get("fps"):
-                self.fps = cam["fps"]
         else:
             hint = next((f" (the folder name suggests '{n}')" for n in CAMERA_PRESETS
                          if n in root.resolve().name.lower()), "")  # fmt: skip

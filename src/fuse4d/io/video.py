@@ -223,7 +223,7 @@ class DepthVideoWriter(StagedWriter):
             self._stack = stack
             self.abort()
             raise
-        self._report.warn(str(self.path))
+        self._report.warn(str(self.path), stacklevel=5)  # (through @reports_write_errors)
         self._warn_moved_pts()
         stack.close()
 
@@ -252,6 +252,7 @@ def write_depth_video(
     so; use :func:`~fuse4d.io.write_npz` to keep it)."""
     gt = check_sequence(seq, "write_depth_video").ground_truth
     dropped = unstored_ground_truth(gt, keeps_mask=False)
+    check_output(path, overwrite=overwrite)  # refused before anything is said about it
     warn_unstored_ground_truth(path, "the .mkv format", dropped)
     with DepthVideoWriter(
         path,

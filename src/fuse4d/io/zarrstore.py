@@ -42,6 +42,7 @@ from ._base import (
     check_flags,
     check_frame_shapes,
     check_sensor_kind,
+    checked_timestamp,
     resolve_intrinsics,
 )
 from ._extras import require
@@ -167,6 +168,7 @@ class ZarrWriter(StagedWriter):
         shape = self.intrinsics.shape
         d = np.asarray(depth, dtype=np.float32)
         check_frame_shapes(self.num_written, shape, depth=d, intensity=intensity)
+        stamp = checked_timestamp(self._timestamps, timestamp, self.num_written)
         i = as_storable_intensity(intensity, name=f"intensity of frame {self.num_written}")
         check_flags(self.num_written, shape, source, confidence)
         if self.num_written == 0 and source is not None:
@@ -184,7 +186,7 @@ class ZarrWriter(StagedWriter):
         if source is not None:
             self._arrays["source"].append(np.asarray(source, np.uint8)[None], axis=0)
             self._arrays["confidence"].append(np.asarray(confidence, np.float32)[None], axis=0)
-        self._timestamps.append(None if timestamp is None else float(timestamp))
+        self._timestamps.append(stamp)
         self.num_written += 1
 
     @reports_write_errors
@@ -343,10 +345,13 @@ class ZarrReader(FrameReader):
         """Frame ``index``'s intensity alone (the depth chunk is not read), float32 in [0, 1]
         (integers scaled by their type's maximum).
 
+        NaN reads as 0: what :class:`ZarrWriter` stores for unknown intensity (its earlier
+        versions stored the NaN itself, which no reader took).
+
         Raises
         ------
         InputFileError
-            Damaged chunk, or float values outside [0, 1] (NaN or inf included).
+            Damaged chunk, or float values outside [0, 1] (inf included).
         """
         k = self._index(index)
         try:
@@ -356,11 +361,14 @@ class ZarrReader(FrameReader):
         if raw.dtype.kind in "ui":
             return raw.astype(np.float32) / np.float32(np.iinfo(raw.dtype).max)
         inten = raw.astype(np.float32)
+        unknown = np.isnan(inten)
+        if unknown.any():
+            inten[unknown] = 0.0
         if not (np.isfinite(inten).all() and inten.min() >= 0 and inten.max() <= 1):
             raise InputFileError(
                 self.path,
-                "'intensity' must hold finite values in [0, 1] (NaN, inf or values outside "
-                "found; rescale with fuse4d.normalize_intensity)",
+                "'intensity' must hold finite values in [0, 1] (inf or values outside found; "
+                "rescale with fuse4d.normalize_intensity)",
                 frame=k,
             )
         return inten
@@ -382,6 +390,7 @@ def write_zarr(seq: Sequence, path: str | PathLike[str], *, overwrite: bool = Fa
     so; use :func:`~fuse4d.io.write_npz` to keep it)."""
     gt = check_sequence(seq, "write_zarr").ground_truth
     dropped = unstored_ground_truth(gt, keeps_mask=False)
+    check_output(path, overwrite=overwrite)  # refused before anything is said about it
     warn_unstored_ground_truth(path, "the .zarr format", dropped)
     with ZarrWriter(
         path, seq.intrinsics, fps=seq.fps, overwrite=overwrite, sensor=seq.sensor
