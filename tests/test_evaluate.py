@@ -636,3 +636,7 @@ def test_cli_metrics_scores_the_output_of_a_part(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out)["frames"] == [1, 4]
     assert main([*args, str(folder), str(out), "--frames", "0:3"]) == 2
     assert "was fused from frames 1:4" in capsys.readouterr().err
+    # alone, its --frames would count its own frames: refused, not silently shifted
+    assert main([*args, str(out), "--frames", "1:4"]) == 2
+    assert "holds frames 1:4 of its input" in capsys.readouterr().err
+    assert main([*args, str(out)]) == 0

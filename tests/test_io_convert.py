@@ -136,10 +136,12 @@ def test_source_confidence_kernel_matches_numpy():
         source[output & (support > 0)] = SOURCE_FUSED
         confidence = np.where(output, (1.0 + support) / n, 0.0).astype(np.float32)
         got = (np.empty_like(source), np.empty_like(confidence), np.empty(depth.shape, bool))
-        assert _source_confidence_kernel(depth, out, support, n, *got)
+        points = np.stack([depth, depth, out], axis=-1)  # only z is read
+        assert _source_confidence_kernel(depth, points, support, n, *got)
         np.testing.assert_array_equal(got[0], source)
         np.testing.assert_array_equal(got[1], confidence)
         np.testing.assert_array_equal(got[2], ~measured)
     full = np.ones((3, 4), np.float32)
     bufs = (np.empty((3, 4), np.uint8), np.empty((3, 4), np.float32), np.empty((3, 4), bool))
-    assert not _source_confidence_kernel(full, full, np.zeros((3, 4), np.uint8), 9.0, *bufs)
+    full_points = np.ones((3, 4, 3), np.float32)
+    assert not _source_confidence_kernel(full, full_points, np.zeros((3, 4), np.uint8), 9.0, *bufs)

@@ -72,6 +72,10 @@ __all__ = [
     "fuse_stream",
 ]
 
+#: "no fused points to check" for the source kernel (outputs without NaN: every fallback but
+#: ``fill_fallback="nan"`` leaves a value at each pixel with depth)
+_NO_POINTS = np.empty((0, 0, 3), np.float32)
+
 #: ``FusionParams.base`` -> the fusion kernel's ``trajectory`` code
 _BASE_CODES = {"frame": 0, "trajectory": 1, "quadratic": 2, "adaptive": 3}
 
@@ -601,10 +605,16 @@ class FusionEngine:
             # a later iteration fuses the previous output where the sensor measured depth:
             # its filled holes go back to holes, so that the hole fills, the field of view
             # and the source codes describe the recording's own holes, as in iteration 1
+            # (and where the previous pass output none, fill_fallback="nan", the sensor's own
+            # point: the pass sees exactly the recording's valid pixels)
             sensor_hole = np.isnan(d)
-            if sensor_hole.any():
+            lost = np.isnan(pts[..., 2])
+            lost &= ~sensor_hole
+            if sensor_hole.any() or lost.any():
                 pts = pts.copy() if np.may_share_memory(pts, points) else pts
                 pts[sensor_hole] = np.nan
+                if lost.any():
+                    pts[lost] = depth_to_points(d, self.intrinsics)[lost]
             d = np.ascontiguousarray(pts[..., 2])
         quad = estimate_noise_quad(d)  # depth-noise model, part 1 (A22)
         z_med = _finite_median32(d)  # np.median of the valid depth, bit for bit (issue 13)
@@ -1004,7 +1014,13 @@ class FusionEngine:
         confidence = np.empty(shape, np.float32)
         holes = np.empty(shape, np.bool_)
         if not _source_confidence_kernel(
-            self._depth[slot], points[..., 2], support, n, source, confidence, holes
+            self._depth[slot],
+            points if p.fill_fallback == "nan" else _NO_POINTS,  # else no output NaN there
+            support,
+            n,
+            source,
+            confidence,
+            holes,
         ):
             return source, confidence
         source[~inside] = SOURCE_OUTSIDE

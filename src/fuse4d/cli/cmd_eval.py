@@ -191,8 +191,6 @@ def _part_of_reference(
     The part is the range a ``fuse4d run`` output folder records (``--frames`` must then name
     the same), else ``--frames``; it is taken where FUSED has exactly its length and the
     reference another. Otherwise ``--frames`` selects the frames of every input."""
-    if reference is None:
-        return None, frames
     from ..io import count_frames, resolve_frames
 
     recorded = None
@@ -201,6 +199,13 @@ def _part_of_reference(
 
         value = recorded_reader_options(fused).get("frames")
         recorded = None if value is None else str(value)
+    if reference is None:
+        if recorded is not None and frames is not None:  # its frames are not the input's
+            fail(
+                f"--frames {frames}: {fused} holds frames {recorded} of its input (its run "
+                "records them), numbered from 0 here; drop --frames, or give the input as RAW"
+            )
+        return None, frames
     if recorded is None and frames is None:
         return None, None
     total = count_frames(reference)
@@ -394,7 +399,7 @@ def metrics_command(
         "size": [h, w],
         **report.to_dict(),
     }
-    if noise_quad is not None:
+    if noise_quad is not None and math.isfinite(report.noise_quad):  # (used: there is GT)
         result["noise_quad_description"] = "given (--noise-quad)"
     if roi is not None:
         box = _box(roi)

@@ -156,7 +156,7 @@ class MetricTally:
                 self.plane_rms[k][n].append(plane_fit_rms(points[n], sel))
         if depth_gt is not None:
             self.gt_frames += 1
-            gt_ok = np.isfinite(depth_gt)
+            gt_ok = np.isfinite(depth_gt) & (depth_gt > 0)  # as fuse4d.metrics: 0 = no truth
             common = gt_ok & both
             self._sq_count += int(common.sum())
             self._gt_valid += int(gt_ok.sum())
