@@ -911,3 +911,18 @@ def test_zarr_nan_intensity_of_earlier_writers_reads_as_zero(tmp_path, small_seq
     seq = load_sequence(path)
     assert (seq.intensity[0, 0, :2] == 0).all()
     np.testing.assert_array_equal(seq.intensity[1:], small_sequence.intensity[1:])
+
+
+@pytest.mark.parametrize("stamps", [[None, 0.1, 0.2], [0.0, None, 0.2], [0.0, float("inf"), 0.2]])
+def test_mkv_writer_takes_times_for_every_frame_or_none(tmp_path, stamps):
+    """Times that started after frame 0 were silently dropped (frames placed at 30 fps)."""
+    from fuse4d.io import DepthVideoWriter
+
+    k = Intrinsics(fx=10.0, fy=10.0, cx=3.5, cy=2.5, width=8, height=6)
+    depth, inten = np.full((6, 8), 900.0, np.float32), np.full((6, 8), 0.5)
+    with DepthVideoWriter(tmp_path / "o.mkv", k) as writer:
+        writer.write(depth, inten, timestamp=stamps[0])
+        with pytest.raises(ParameterError, match=r"\(frame 1\): "):
+            writer.write(depth, inten, timestamp=stamps[1])
+        writer.abort()
+    assert not (tmp_path / "o.mkv").exists()

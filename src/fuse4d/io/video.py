@@ -163,6 +163,16 @@ class DepthVideoWriter(StagedWriter):
         shape = self.intrinsics.shape
         check_frame_shapes(self.num_written, shape, depth=depth, intensity=intensity)
         intensity = as_storable_intensity(intensity, name=f"intensity of frame {self.num_written}")
+        if self.num_written and (timestamp is None) != (self._t0 is None):
+            # the times start at frame 0 or not at all (as the frame-folder writer's)
+            raise ParameterError(
+                f"{self.path} (frame {self.num_written}): give a timestamp for every frame or "
+                "for none"
+            )
+        if timestamp is not None and not math.isfinite(float(timestamp)):
+            raise ParameterError(
+                f"{self.path} (frame {self.num_written}): timestamp {timestamp!r} is not finite"
+            )
         if timestamp is not None and self.num_written == 0:
             self._t0 = float(timestamp)
             self._container.metadata["FUSE4D_T0"] = repr(self._t0)
