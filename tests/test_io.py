@@ -885,7 +885,17 @@ def test_coarse_unit_warning_points_at_the_callers_with_line(tmp_path, layout):
 
 
 @pytest.mark.parametrize("layout", ["zarr", "folder"])
-@pytest.mark.parametrize("stamps", [[0.0, 0.0, 0.1], [0.2, 0.1, 0.3], [0.0, float("nan"), 0.1]])
+@pytest.mark.parametrize(
+    "stamps",
+    [
+        [0.0, 0.0, 0.1],
+        [0.2, 0.1, 0.3],
+        [0.0, float("nan"), 0.1],
+        [0.0, "x", 0.1],
+        [0.0, None, 0.1],  # the zarr writer dropped every time
+        [None, 0.0, 0.1],
+    ],
+)
 def test_writers_refuse_times_their_reader_refuses(tmp_path, layout, stamps):
     """The store was written, then refused by fuse4d's own reader."""
     from fuse4d.io import FrameFolderWriter, ZarrWriter
@@ -896,7 +906,7 @@ def test_writers_refuse_times_their_reader_refuses(tmp_path, layout, stamps):
     depth, inten = np.full((6, 8), 900.0, np.float32), np.full((6, 8), 0.5)
     with cls(path, k) as writer:
         writer.write(depth, inten, timestamp=stamps[0])
-        with pytest.raises(ParameterError, match="frame 1: timestamp "):
+        with pytest.raises(ParameterError, match=rf"{path.name} \(frame 1\): "):
             writer.write(depth, inten, timestamp=stamps[1])
         writer.abort()
     assert not path.exists()
@@ -926,3 +936,17 @@ def test_mkv_writer_takes_times_for_every_frame_or_none(tmp_path, stamps):
             writer.write(depth, inten, timestamp=stamps[1])
         writer.abort()
     assert not (tmp_path / "o.mkv").exists()
+
+
+def test_folder_writer_refuses_times_equal_at_its_microseconds(tmp_path):
+    """timestamps.txt holds microseconds: 0 and 0.4 us were written as two equal times."""
+    from fuse4d.io import FrameFolderWriter
+
+    k = Intrinsics(fx=10.0, fy=10.0, cx=3.5, cy=2.5, width=8, height=6)
+    depth, inten = np.full((6, 8), 900.0, np.float32), np.full((6, 8), 0.5)
+    with FrameFolderWriter(tmp_path / "o", k) as writer:
+        writer.write(depth, inten, timestamp=0.0)
+        with pytest.raises(ParameterError, match="at the file's 1e-06 s resolution"):
+            writer.write(depth, inten, timestamp=4e-7)
+        writer.write(depth, inten, timestamp=2e-6)
+    assert load_sequence(tmp_path / "o").timestamps.tolist() == [0.0, 2e-6]

@@ -379,19 +379,37 @@ def check_increasing_times(
         )
 
 
-def checked_timestamp(previous: list[float | None], timestamp: Any, index: int) -> float | None:
-    """Frame ``index``'s ``timestamp`` (s) for a writer that has stored ``previous``: finite
-    and after the last one (ParameterError naming the frame otherwise: the file written would
-    be refused by its own reader); None stays None."""
+def checked_timestamp(
+    previous: list[float | None],
+    timestamp: Any,
+    index: int,
+    path: Path,
+    *,
+    resolution: float = 0.0,
+) -> float | None:
+    """Frame ``index``'s ``timestamp`` (s) for the writer of ``path`` that has stored
+    ``previous``: a finite number after the last one (at the file's ``resolution``, s: a
+    frame folder writes microseconds), given for every frame or for none; ParameterError
+    naming the file and frame otherwise (the file written would be refused by its own
+    reader)."""
+    where = f"{path} (frame {index})"
+    if previous and (timestamp is None) != (previous[0] is None):
+        raise ParameterError(f"{where}: give a timestamp for every frame or for none")
     if timestamp is None:
         return None
-    t = float(timestamp)
+    try:
+        t = float(timestamp)
+    except (TypeError, ValueError):
+        t = math.nan
     if not math.isfinite(t):
-        raise ParameterError(f"frame {index}: timestamp {timestamp!r} is not a finite number")
+        raise ParameterError(f"{where}: timestamp {timestamp!r} is not a finite number")
     last = previous[-1] if previous else None
-    if last is not None and not t > last:
+    if last is not None and not (
+        round(t / resolution) > round(last / resolution) if resolution else t > last
+    ):
         raise ParameterError(
-            f"frame {index}: timestamp {t:.6f} s is not after frame {index - 1}'s ({last:.6f} s)"
+            f"{where}: timestamp {t:.6f} s is not after frame {index - 1}'s ({last:.6f} s)"
+            + (f" at the file's {resolution:g} s resolution" if resolution else "")
         )
     return t
 

@@ -410,7 +410,9 @@ class FrameFolderWriter:
             raise RuntimeError("FrameFolderWriter is not open; use it in a `with` block")
         shape = self.intrinsics.shape
         check_frame_shapes(self.num_written, shape, depth=depth, intensity=intensity, mask=mask)
-        stamp = checked_timestamp(self._timestamps, timestamp, self.num_written)
+        stamp = checked_timestamp(  # (timestamps.txt holds microseconds)
+            self._timestamps, timestamp, self.num_written, self.path, resolution=1e-6
+        )
         intensity = as_storable_intensity(intensity, name=f"intensity of frame {self.num_written}")
         if self._has_mask is None:
             self._has_mask = mask is not None

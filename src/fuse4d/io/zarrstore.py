@@ -168,7 +168,7 @@ class ZarrWriter(StagedWriter):
         shape = self.intrinsics.shape
         d = np.asarray(depth, dtype=np.float32)
         check_frame_shapes(self.num_written, shape, depth=d, intensity=intensity)
-        stamp = checked_timestamp(self._timestamps, timestamp, self.num_written)
+        stamp = checked_timestamp(self._timestamps, timestamp, self.num_written, self.path)
         i = as_storable_intensity(intensity, name=f"intensity of frame {self.num_written}")
         check_flags(self.num_written, shape, source, confidence)
         if self.num_written == 0 and source is not None:
