@@ -303,6 +303,27 @@ def unstored_ground_truth(gt: GroundTruth | None, *, keeps_mask: bool) -> list[s
     return dropped
 
 
+def checked_for_layout(
+    seq: Any,
+    path: str | PathLike[str],
+    *,
+    owner: str,
+    layout: str,
+    keeps_mask: bool,
+    overwrite: bool,
+) -> GroundTruth | None:
+    """The ground truth of ``seq`` (checked to be a Sequence, for ``owner``) to write as
+    ``layout`` to ``path``: the output is checked first (an existing one is refused before
+    anything is said about it), then one warning names what the layout drops."""
+    from ..sequence import check_sequence
+
+    gt = check_sequence(seq, owner).ground_truth
+    dropped = unstored_ground_truth(gt, keeps_mask=keeps_mask)
+    check_output(path, overwrite=overwrite)
+    warn_unstored_ground_truth(path, layout, dropped, stacklevel=4)
+    return gt
+
+
 def warn_unstored_ground_truth(
     path: str | PathLike[str], layout: str, dropped: list[str], *, stacklevel: int = 3
 ) -> None:

@@ -28,13 +28,12 @@ from numpy.typing import NDArray
 
 from ..camera import Intrinsics, check_intrinsics
 from ..errors import InputFileError, ParameterError
-from ..sequence import Sequence, as_storable_intensity, check_sequence
+from ..sequence import Sequence, as_storable_intensity
 from ._atomic import (
     atomic_dir,
     check_output,
+    checked_for_layout,
     reports_write_errors,
-    unstored_ground_truth,
-    warn_unstored_ground_truth,
 )
 from ._base import (
     Frame,
@@ -558,10 +557,10 @@ def write_frame_folder(
     Path
         The written folder.
     """
-    gt = check_sequence(seq, "write_frame_folder").ground_truth
-    dropped = unstored_ground_truth(gt, keeps_mask=True)
-    check_output(path, overwrite=overwrite)  # refused before anything is said about it
-    warn_unstored_ground_truth(path, "the frame-folder format", dropped)
+    gt = checked_for_layout(
+        seq, path, owner="write_frame_folder", layout="the frame-folder format",
+        keeps_mask=True, overwrite=overwrite,
+    )  # fmt: skip
     masks = None if gt is None else gt.mask
     stamps = seq.timestamps
     writer = FrameFolderWriter(

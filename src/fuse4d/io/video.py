@@ -28,14 +28,13 @@ import numpy as np
 
 from ..camera import Intrinsics, check_intrinsics
 from ..errors import ParameterError
-from ..sequence import Sequence, as_storable_intensity, check_sequence
+from ..sequence import Sequence, as_storable_intensity
 from ._atomic import (
     StagedWriter,
     atomic_file,
     check_output,
+    checked_for_layout,
     reports_write_errors,
-    unstored_ground_truth,
-    warn_unstored_ground_truth,
 )
 from ._base import check_frame_shapes
 from ._extras import require
@@ -260,10 +259,10 @@ def write_depth_video(
 
     Ground truth (masks included) cannot be stored in this format (a ``UserWarning`` says
     so; use :func:`~fuse4d.io.write_npz` to keep it)."""
-    gt = check_sequence(seq, "write_depth_video").ground_truth
-    dropped = unstored_ground_truth(gt, keeps_mask=False)
-    check_output(path, overwrite=overwrite)  # refused before anything is said about it
-    warn_unstored_ground_truth(path, "the .mkv format", dropped)
+    checked_for_layout(
+        seq, path, owner="write_depth_video", layout="the .mkv format", keeps_mask=False,
+        overwrite=overwrite,
+    )  # fmt: skip
     with DepthVideoWriter(
         path,
         seq.intrinsics,

@@ -26,14 +26,13 @@ from numpy.typing import NDArray
 
 from ..camera import Intrinsics, check_intrinsics
 from ..errors import InputFileError, ParameterError
-from ..sequence import Sequence, as_storable_intensity, check_sequence
+from ..sequence import Sequence, as_storable_intensity
 from ._atomic import (
     StagedWriter,
     atomic_dir,
     check_output,
+    checked_for_layout,
     reports_write_errors,
-    unstored_ground_truth,
-    warn_unstored_ground_truth,
 )
 from ._base import (
     Frame,
@@ -388,10 +387,10 @@ def write_zarr(seq: Sequence, path: str | PathLike[str], *, overwrite: bool = Fa
 
     Ground truth (masks included) cannot be stored in this format (a ``UserWarning`` says
     so; use :func:`~fuse4d.io.write_npz` to keep it)."""
-    gt = check_sequence(seq, "write_zarr").ground_truth
-    dropped = unstored_ground_truth(gt, keeps_mask=False)
-    check_output(path, overwrite=overwrite)  # refused before anything is said about it
-    warn_unstored_ground_truth(path, "the .zarr format", dropped)
+    checked_for_layout(
+        seq, path, owner="write_zarr", layout="the .zarr format", keeps_mask=False,
+        overwrite=overwrite,
+    )  # fmt: skip
     with ZarrWriter(
         path, seq.intrinsics, fps=seq.fps, overwrite=overwrite, sensor=seq.sensor
     ) as writer:
