@@ -60,6 +60,17 @@ def test_resume_never_recomputes_finished_units(tmp_path):
     assert [r["value"] for r in rows if r["frame"] == 0] == [0.0, 1.0, 2.0]
 
 
+def test_rows_of_an_earlier_version_without_a_summary_column_are_recomputed(tmp_path):
+    """`real` rows cached before its summary read flicker_mean gave n/a columns on resume."""
+    CALLS.clear()
+    units = [Unit(f"u{i}", _count, {"i": i}) for i in range(2)]
+    write_rows(unit_file(tmp_path, "u0"), [{"frame": 0, "old": 1.0}])  # an older row file
+    write_rows(unit_file(tmp_path, "u1"), [{"frame": 0, "value": 5.0}])
+    rows, _ = run_units("T", units, tmp_path, columns=("value",))
+    assert CALLS == [0]
+    assert [r["value"] for r in rows if r["frame"] == 0] == [0.0, 5.0]
+
+
 def test_group_stats_over_frames_and_seeds():
     rows = [{"m": "a", "seed": s, "v": v} for s, vals in ((0, (1, 3)), (1, (5, 7))) for v in vals]
     st = group_stats(rows, ("m",), "v")[("a",)]

@@ -85,7 +85,15 @@ def run_experiment(
     before = _previous_seconds(ledger, exp_dir / f"{name}.json")
     t0 = time.perf_counter()
     try:
-        rows, seconds = run_units(name, units, exp_dir, jobs=jobs, console=console, log=log)
+        rows, seconds = run_units(
+            name,
+            units,
+            exp_dir,
+            jobs=jobs,
+            console=console,
+            log=log,
+            columns=getattr(mod, "ROW_COLUMNS", ()),
+        )
     except BaseException:  # Ctrl-C: its time counts in the resumed run's total
         _add_seconds(ledger, before + time.perf_counter() - t0)
         raise

@@ -139,6 +139,7 @@ def run_units(
     jobs: int = 1,
     console: Console | None = None,
     log: Callable[[str], None] | None = None,
+    columns: Iterable[str] = (),
 ) -> tuple[list[Row], float]:
     """Run the units not done yet, then return every unit's rows (in unit order).
 
@@ -156,6 +157,9 @@ def run_units(
         Where the progress bar goes (stderr by default; hidden when not a terminal).
     log : callable, optional
         Receives one line per finished unit (e.g. for a log file when there is no terminal).
+    columns : iterable of str
+        Columns the experiment's summary reads: a unit whose row file (from an earlier
+        version of the experiment) lacks one is run again, so that its figures are not n/a.
 
     Returns
     -------
@@ -167,7 +171,7 @@ def run_units(
     keys = [u.key for u in units]
     if len(set(keys)) != len(keys):
         raise ValueError(f"{name}: duplicate unit keys")
-    todo = [u for u in units if not unit_file(exp_dir, u.key).exists()]
+    todo = [u for u in units if not _is_done(unit_file(exp_dir, u.key), columns)]
     start = time.perf_counter()
     with _progress(console) as progress:
         task = progress.add_task(name, total=len(units), completed=len(units) - len(todo))
@@ -192,6 +196,18 @@ def run_units(
     for key in keys:
         rows.extend(read_rows(unit_file(exp_dir, key)))
     return rows, time.perf_counter() - start
+
+
+def _is_done(path: Path, columns: Iterable[str]) -> bool:
+    """Whether the row file ``path`` exists and has every one of ``columns``."""
+    if not path.exists():
+        return False
+    needed = set(columns)
+    if not needed:
+        return True
+    with path.open(newline="") as f:
+        header = next(csv.reader(f), [])
+    return needed <= set(header)
 
 
 def _timed(func: Callable[..., list[Row]], kwargs: dict[str, Any]) -> tuple[list[Row], float]:

@@ -164,6 +164,11 @@ def person_scores(
     }
 
 
+#: Columns :func:`summarize` reads that earlier versions' rows lack (flicker_mean: stop 56);
+#: a resumed run computes such units again.
+ROW_COLUMNS = ("flicker_mean",)
+
+
 def unit(profile: Profile, cache_dir: Path, rec: str, method: str, out_dir: Path) -> list[dict]:
     """Rows of one (recording, method); per frame roughness, and the sequence flicker."""
     seq = load(profile, rec)
