@@ -379,6 +379,15 @@ def check_increasing_times(
         )
 
 
+def float_or_nan(value: Any) -> float:
+    """``float(value)``, or NaN where ``value`` is no number (for checks that then refuse
+    anything not finite with one message)."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
 def checked_timestamp(
     previous: list[float | None],
     timestamp: Any,
@@ -397,10 +406,7 @@ def checked_timestamp(
         raise ParameterError(f"{where}: give a timestamp for every frame or for none")
     if timestamp is None:
         return None
-    try:
-        t = float(timestamp)
-    except (TypeError, ValueError):
-        t = math.nan
+    t = float_or_nan(timestamp)
     if not math.isfinite(t):
         raise ParameterError(f"{where}: timestamp {timestamp!r} is not a finite number")
     last = previous[-1] if previous else None

@@ -42,6 +42,7 @@ from ._base import (
     check_frame_shapes,
     check_sensor_kind,
     checked_timestamp,
+    float_or_nan,
     resolve_intrinsics,
 )
 from ._extras import require
@@ -298,10 +299,7 @@ class ZarrReader(FrameReader):
         """The ``fps`` attribute: a number > 0 (frames/s), or None where absent."""
         if value is None:
             return None
-        try:
-            fps = float(value)
-        except (TypeError, ValueError):
-            fps = math.nan
+        fps = float_or_nan(value)
         if isinstance(value, bool) or not (math.isfinite(fps) and fps > 0):
             raise InputFileError(self.path, f"attribute 'fps' must be a number > 0, got {value!r}")
         return fps
