@@ -529,3 +529,40 @@ def test_read_flo_bad(tmp_path):
     with pytest.raises(InputFileError) as exc:
         read_flo(tmp_path / "none.flo")
     assert _message(exc) == f"{tmp_path}/none.flo: file not found"
+
+
+@pytest.mark.parametrize(
+    ("bad", "found"),
+    [(np.nan, "NaN found"), (np.inf, "inf found"), (1.5, "values from 0 to 1.5")],
+)
+@pytest.mark.parametrize("layout", ["npz", "zarr"])
+def test_streamed_intensity_outside_unit_range_names_what_was_found(
+    tmp_path, small_sequence, layout, bad, found
+):
+    """A stored float intensity frame outside [0, 1] is refused naming the frame and what was
+    found (the message said 'NaN, inf or values outside found'); a zarr store reads NaN as 0."""
+    intensity = np.zeros_like(small_sequence.intensity)
+    intensity[2, 3, 4] = bad
+    if layout == "npz":
+        path = tmp_path / "s.npz"
+        np.savez(path, depth=small_sequence.depth, intensity=intensity,
+                 intrinsics=small_sequence.intrinsics.as_array())  # fmt: skip
+        what = "key 'intensity'"
+    else:
+        zarr = pytest.importorskip("zarr")
+        from fuse4d.io import write_zarr
+
+        path = write_zarr(small_sequence, tmp_path / "s.zarr")
+        zarr.open_group(str(path), mode="r+")["intensity"][2] = intensity[2]
+        what = "'intensity'"
+    reader = open_frames(path)
+    reader.read_frame(1)
+    if layout == "zarr" and np.isnan(bad):
+        assert reader.read_frame(2).intensity[3, 4] == 0
+        return
+    with pytest.raises(InputFileError) as exc:
+        reader.read_frame(2)
+    assert _message(exc) == (
+        f"{path} (frame 2): {what} must hold finite values in [0, 1] ({found}; rescale with "
+        "fuse4d.normalize_intensity)"
+    )

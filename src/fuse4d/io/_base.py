@@ -420,6 +420,44 @@ def checked_timestamp(
     return t
 
 
+def check_stored_intensity(
+    intensity: NDArray[np.float32], path: Path, frame: int, *, what: str
+) -> None:
+    """Refuse a stored float intensity frame outside [0, 1], naming what was found.
+
+    Parameters
+    ----------
+    intensity : ndarray (H, W) float32
+        The frame as read (NaN already replaced where the layout defines a meaning for it).
+    path : Path
+        The file, for the message.
+    frame : int
+        The frame index, for the message.
+    what : str
+        How the layout names the array (``"key 'intensity'"``, ``"'intensity'"``).
+
+    Raises
+    ------
+    InputFileError
+        NaN, inf, or values outside [0, 1].
+    """
+    finite = np.isfinite(intensity)
+    if finite.all() and intensity.min() >= 0 and intensity.max() <= 1:
+        return
+    if np.isnan(intensity).any():
+        found = "NaN found"
+    elif not finite.all():
+        found = "inf found"
+    else:
+        found = f"values from {float(intensity.min()):.6g} to {float(intensity.max()):.6g}"
+    raise InputFileError(
+        path,
+        f"{what} must hold finite values in [0, 1] ({found}; rescale with "
+        "fuse4d.normalize_intensity)",
+        frame=frame,
+    )
+
+
 def check_flags(index: int, shape: tuple[int, int], source: Any, confidence: Any) -> None:
     """Both per-pixel fusion flags of frame ``index`` or neither, each of ``shape``."""
     if (source is None) != (confidence is None):

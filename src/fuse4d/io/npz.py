@@ -48,6 +48,7 @@ from ._base import (
     FrameSelection,
     ProgressCallback,
     check_sensor_kind,
+    check_stored_intensity,
     file_sequence,
     resolve_frames,
 )
@@ -302,13 +303,7 @@ class NpzReader(FrameReader):
         """Frame ``k``'s intensity as float32, released from the map, checked to lie in [0, 1]."""
         intensity = _intensity_frame(self._array("intensity")[k])
         self._release("intensity", k)
-        if not (np.isfinite(intensity).all() and intensity.min() >= 0 and intensity.max() <= 1):
-            raise InputFileError(
-                self.path,
-                "key 'intensity' must hold finite values in [0, 1] (NaN, inf or values outside "
-                "found; rescale with fuse4d.normalize_intensity)",
-                frame=k,
-            )
+        check_stored_intensity(intensity, self.path, k, what="key 'intensity'")
         return intensity
 
     def read_sequence(

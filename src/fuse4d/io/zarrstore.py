@@ -41,6 +41,7 @@ from ._base import (
     check_flags,
     check_frame_shapes,
     check_sensor_kind,
+    check_stored_intensity,
     checked_timestamp,
     float_or_nan,
     resolve_intrinsics,
@@ -361,13 +362,7 @@ class ZarrReader(FrameReader):
         unknown = np.isnan(inten)
         if unknown.any():
             inten[unknown] = 0.0
-        if not (np.isfinite(inten).all() and inten.min() >= 0 and inten.max() <= 1):
-            raise InputFileError(
-                self.path,
-                "'intensity' must hold finite values in [0, 1] (inf or values outside found; "
-                "rescale with fuse4d.normalize_intensity)",
-                frame=k,
-            )
+        check_stored_intensity(inten, self.path, k, what="'intensity'")
         return inten
 
     def read_source(self, start: int, stop: int) -> NDArray[np.uint8] | None:
