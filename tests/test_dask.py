@@ -728,3 +728,27 @@ def test_fuse_refuses_intrinsics_and_fusion_of_another_type():
     k = Intrinsics(fx=50.0, fy=50.0, cx=8.0, cy=6.0, width=16, height=12)
     with pytest.raises(ParameterTypeError, match=r"^fusion must be a FusionParams, got dict"):
         fd.fuse(depth, intensity, k, fusion={"num_frames": 3})
+
+
+@pytest.mark.parametrize("iterations", [1, 2])
+def test_dark_intensity_warned_once_with_the_recordings_frame_numbers(
+    ball, iterations, monkeypatch
+):
+    """Every chunk engine (and every iteration) warned 'intensity (frames 0-7) is dark',
+    each numbering its own frames from 0; now only the chunk that starts the recording
+    checks, as the whole-stream engine does."""
+    import warnings
+
+    dark = (ball.intensity * 0.05).astype(np.float32)
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        res = fd.fuse(
+            ball.depth, dark, ball.intrinsics, chunk_frames=5,
+            fusion=FusionParams(iterations=iterations),
+        )  # fmt: skip
+        # a new engine per chunk, as concurrent tasks or worker processes have
+        monkeypatch.setattr(graph._ENGINES, "give_back", lambda *args: None)
+        res.depth.compute(scheduler="synchronous")
+    messages = [str(w.message) for w in rec if "is dark" in str(w.message)]
+    assert len(messages) == 1
+    assert messages[0].startswith("intensity (frames 0-7) is dark")

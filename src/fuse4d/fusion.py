@@ -426,6 +426,14 @@ class FusionEngine:
         self._closed = False
         self._last_points = None
 
+    def _check_dark_intensity(self, on: bool) -> None:
+        """Check this stream's first frames for dark intensity (a new check) or not at all.
+
+        The dask chunk engines check only in the chunk that starts the recording (each chunk
+        would warn, numbering its own frames from 0); a whole-stream engine checks once."""
+        self._dark = _DarkIntensityCheck()
+        self._dark.done = not on
+
     def set_output_range(self, first: int = 0, stop: int | None = None) -> None:
         """Emit only the frames ``first <= t < stop`` of this stream (None: to its end).
 

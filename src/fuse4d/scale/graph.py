@@ -475,17 +475,28 @@ def _release_idle_engine() -> int:
 
 @contextmanager
 def chunk_engine(
-    intrinsics: Intrinsics, params: FusionParams, keep: tuple[int, int], frames: int
+    intrinsics: Intrinsics,
+    params: FusionParams,
+    keep: tuple[int, int],
+    frames: int,
+    *,
+    stream_start: bool = False,
 ) -> Iterator[FusionEngine]:
     """A streaming engine for one time chunk: ``frames`` pushed, the local frames
     ``keep = (a, b)`` emitted (the halo frames before ``a`` and from ``b`` on are sources
     only: not tracked, not fused, and no composed tracks (A31) built for them).
+
+    ``stream_start``: the chunk's first frame is the recording's frame 0 (and this is the
+    first fusion pass), so the engine warns of dark intensity as a whole-stream engine does,
+    with the same frame numbers; the other chunks do not check (every chunk warned, each
+    numbering its own frames from 0).
 
     The engine comes from this process's :class:`_EnginePool` (reset) or is built; it goes
     back to the pool when the block ends without an exception."""
     a, b = keep
     engine = _ENGINES.take(intrinsics, params)
     engine.set_output_range(a, b if b < frames else None)
+    engine._check_dark_intensity(stream_start)
     yield engine  # an exception leaves the engine to the garbage collector
     _ENGINES.give_back(intrinsics, params, engine)
 
@@ -496,13 +507,14 @@ def _fuse_block(
     params: FusionParams,
     keep: tuple[int, int],
     at_end: bool,
+    stream_start: bool = False,
 ) -> tuple[NDArray[np.float32], NDArray[np.uint8], NDArray[np.bool_]]:
     """One pass of the streaming engine over a chunk with its halo.
 
     ``inputs`` holds the time chunks of ``depth``/``intensity`` (and ``points``) covering the
     frames ``[lo, hi)`` and of ``forward``/``backward`` covering the pairs ``[lo, hi - 1)``;
     ``keep`` = the local ``[start, stop)`` returned; ``at_end`` = ``hi`` is the end of the
-    sequence (flush: truncated windows)."""
+    sequence (flush: truncated windows); ``stream_start``: see :func:`chunk_engine`."""
     depth = list(_frames(inputs["depth"]))  # views into the blocks: no copy of the halo
     n = len(depth)
     h, w = depth[0].shape
@@ -526,7 +538,7 @@ def _fuse_block(
                 source[fr.index - a] = fr.source
                 confidence[fr.index - a] = fr.confidence
 
-    with chunk_engine(intrinsics, params, keep, n) as engine:
+    with chunk_engine(intrinsics, params, keep, n, stream_start=stream_start) as engine:
         for j in range(n):
             pair = None if j == 0 else (forward[j - 1], backward[j - 1])
             take(
@@ -631,7 +643,7 @@ def fuse(
     filled = None
     support = None
     source = confidence = None
-    for _ in range(params.iterations):
+    for iteration in range(params.iterations):
         pieces: list[tuple[da.Array, ...]] = []
         for s, e in chunk_bounds(total, chunk_frames):
             lo, hi = max(0, s - past), min(total, e + future)
@@ -648,6 +660,7 @@ def fuse(
                 params,
                 (s - lo, e - lo),
                 hi == total,
+                lo == 0 and iteration == 0,
             )
             n = e - s
             pieces.append(
