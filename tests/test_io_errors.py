@@ -533,7 +533,14 @@ def test_read_flo_bad(tmp_path):
 
 @pytest.mark.parametrize(
     ("bad", "found"),
-    [(np.nan, "NaN found"), (np.inf, "inf found"), (1.5, "values from 0 to 1.5")],
+    [
+        (np.nan, "NaN found"),
+        (np.inf, "inf found"),
+        (1.5, "1 above 1, up to 1.5 found"),
+        # float32 just above 1: a rounded '1' would hide what is wrong
+        (np.nextafter(np.float32(1), np.float32(2)), "1 above 1, up to 1.0000001192092896 found"),
+        (-0.25, "1 below 0, down to -0.25 found"),
+    ],
 )
 @pytest.mark.parametrize("layout", ["npz", "zarr"])
 def test_streamed_intensity_outside_unit_range_names_what_was_found(

@@ -449,7 +449,16 @@ def check_stored_intensity(
     elif not finite.all():
         found = "inf found"
     else:
-        found = f"values from {float(intensity.min()):.6g} to {float(intensity.max()):.6g}"
+        low, high = intensity < 0, intensity > 1
+        parts = [
+            f"{int(n.sum())} {side} {worst!r}"
+            for n, side, worst in (
+                (low, "below 0, down to", float(intensity.min())),
+                (high, "above 1, up to", float(intensity.max())),
+            )
+            if n.any()
+        ]
+        found = f"{' and '.join(parts)} found"
     raise InputFileError(
         path,
         f"{what} must hold finite values in [0, 1] ({found}; rescale with "
