@@ -241,3 +241,113 @@ def test_a_folder_that_takes_no_files_names_the_output(tmp_path, monkeypatch, di
     ):
         pass
     assert str(info.value) == f"{target}: cannot write the output (No such file or directory)"
+
+
+def _ro_touch(monkeypatch, ro: Path) -> None:
+    """New files in ``ro`` are refused as on a read-only mount (root ignores mode bits)."""
+    real_touch = pathlib.Path.touch
+
+    def touch(self, *args, **kwargs):
+        if Path(self).absolute().parent == ro:
+            raise OSError(errno.EROFS, "Read-only file system", str(self))
+        return real_touch(self, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "touch", touch)
+
+
+def test_an_unwritable_second_output_is_refused_before_the_first_is_written(
+    monkeypatch, inputs, tmp_path, capsys
+):
+    """`run -o y.npz --report RO/rep` wrote y.npz, then failed on the report folder (and a
+    rerun was refused: 'exists'); every output's folder is now tried before the work."""
+    ro, out = tmp_path / "ro", tmp_path / "out"
+    ro.mkdir()
+    out.mkdir()
+    _ro_touch(monkeypatch, ro)
+    args = ["run", str(inputs / "s.npz"), "-o", str(out / "y.npz"), "--window", "3"]
+    assert main([*args, "--report", str(ro / "rep")]) == EXIT_USAGE
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        f"fuse4d: error: {ro / 'rep'}: cannot write the output (Read-only file system); the "
+        "file system is read-only: choose another output path"
+    )
+    assert _leftovers(out) == []
+    assert _leftovers(ro) == []
+
+
+def _dead_pid() -> int:
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)  # fmt: skip
+    return int(proc.stdout)
+
+
+def test_temporaries_of_a_killed_run_are_removed_by_the_next_write(tmp_path, small_sequence):
+    """SIGKILL (or a power cut) left hidden '.NAME.tmp-*' files and folders (81 MB each for
+    a 200-frame .npz) that nothing ever removed; the next write of that output removes those
+    of processes that no longer exist, and keeps a live writer's."""
+    dead = _dead_pid()
+    stale_file = tmp_path / f".k.npz.tmp-{dead}-0123abcd"
+    stale_file.write_bytes(b"x" * 100)
+    live = tmp_path / ".k.npz.tmp-1-0123abcd"  # pid 1 is always alive
+    live.write_bytes(b"x")
+    stale_dir = tmp_path / f".r.tmp-{dead}-89abcdef"
+    (stale_dir / "depth").mkdir(parents=True)
+    other = tmp_path / f".other.npz.tmp-{dead}-0123abcd"  # another output's: not touched here
+    other.write_bytes(b"x")
+    write_npz(small_sequence, tmp_path / "k.npz")
+    write_frame_folder(small_sequence, tmp_path / "r", depth_unit_mm=0.01)
+    assert not stale_file.exists()
+    assert not stale_dir.exists()
+    assert live.exists()
+    assert other.exists()
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == sorted([live.name, other.name, "k.npz", "r"])
+
+
+def test_an_old_copy_is_kept_while_the_output_is_missing(tmp_path, small_sequence):
+    """A kill between the two renames of a --force replacement leaves the previous output
+    only in '.NAME.old-*': it is not swept while NAME is missing."""
+    old = tmp_path / f".r.old-{_dead_pid()}-0123abcd"
+    (old / "depth").mkdir(parents=True)
+    write_npz(small_sequence, tmp_path / "r.npz")  # another output: nothing swept for r
+    assert old.exists()
+    write_frame_folder(
+        small_sequence, tmp_path / "r", depth_unit_mm=0.01
+    )  # r is written, its old copy kept
+    assert old.exists()
+    write_frame_folder(
+        small_sequence, tmp_path / "r", depth_unit_mm=0.01, overwrite=True
+    )  # r exists now
+    assert not old.exists()
+
+
+def test_interrupt_while_deleting_the_replaced_folder_finishes_the_deletion(
+    tmp_path, small_sequence, monkeypatch
+):
+    """A Ctrl-C after `--force` had renamed the new folder into place, while the old one was
+    being deleted, left the old copy hidden beside the output for good."""
+    import shutil
+
+    from fuse4d.io import _atomic
+
+    out = tmp_path / "r"
+    write_frame_folder(small_sequence, out, depth_unit_mm=0.01)
+    real_rmtree = shutil.rmtree
+    calls = []
+
+    def interrupted_rmtree(path, *args, **kwargs):
+        calls.append(Path(path).name)
+        if len(calls) == 1:
+            real_rmtree(Path(path) / "depth", *args, **kwargs)  # part of the work done
+            raise KeyboardInterrupt
+        return real_rmtree(path, *args, **kwargs)
+
+    monkeypatch.setattr(_atomic.shutil, "rmtree", interrupted_rmtree)
+    with pytest.raises(KeyboardInterrupt):
+        write_frame_folder(small_sequence.frames(0, 2), out, depth_unit_mm=0.01, overwrite=True)
+    assert calls[0].startswith(".r.old-")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
+    assert len(list((out / "depth").iterdir())) == 2  # the new output

@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import errno
 import functools
+import glob
+import os
+import re
 import secrets
 import shutil
-import tempfile
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
@@ -84,6 +86,9 @@ def check_output(
         raise OutputExistsError(out)
     if overwrite and out.is_dir() and not out.is_symlink():
         _check_replaceable_folder(out)
+    # a folder that takes no new files (read-only, full, not ours) fails now, before the work:
+    # a run wrote its fused output, then failed on its --report folder and a rerun was refused
+    _create_temp(out, directory=False).unlink(missing_ok=True)
     return out
 
 
@@ -148,8 +153,54 @@ def reports_write_errors(
     return wrapper
 
 
+#: A staged temporary or a replaced folder's old copy: ``.NAME.tmp-PID-HEX`` /
+#: ``.NAME.old-PID-HEX`` next to the output NAME, PID the writing process.
+_STAGED = re.compile(r"^\.(?P<name>.+)\.(?:tmp|old)-(?P<pid>\d+)-[0-9a-f]{8}$")
+
+
+def _staged_name(dest: Path, kind: str) -> Path:
+    return dest.parent / f".{dest.name}.{kind}-{os.getpid()}-{secrets.token_hex(4)}"
+
+
+def _process_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # EPERM: alive, another user's
+        return True
+    return True
+
+
+def _sweep_dead_temporaries(dest: Path) -> None:
+    """Delete the temporaries and old copies of ``dest`` that a killed fuse4d process left
+    (``SIGKILL``, a power cut: no cleanup ran): those whose process no longer exists on this
+    machine. A live writer's are kept, and so are names without a process id, and an old copy
+    while ``dest`` is missing (a kill between the two renames of :func:`_replace_existing`
+    left the previous output only there)."""
+    try:
+        candidates = list(dest.parent.glob(f".{glob.escape(dest.name)}.*-*"))
+    except OSError:
+        return
+    for path in candidates:
+        m = _STAGED.match(path.name)
+        if m is None or m["name"] != dest.name or _process_alive(int(m["pid"])):
+            continue
+        if ".old-" in path.name[len(dest.name) + 1 :] and not dest.exists():
+            continue
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+
+
 def _create_temp(dest: Path, *, directory: bool) -> Path:
-    """A new, empty file or folder ``.NAME.tmp-XXXXXXXX`` next to ``dest``.
+    """A new, empty file or folder ``.NAME.tmp-PID-XXXXXXXX`` next to ``dest``.
+
+    Those of processes that no longer exist are deleted first (:func:`_sweep_dead_temporaries`):
+    a killed run left its hidden temporaries behind, and disk space leaked silently.
 
     Created with the modes of an ordinary new file or folder (0666 / 0777, less the umask,
     which the system applies), so the output needs no chmod. ``tempfile.mkstemp`` creates
@@ -160,8 +211,9 @@ def _create_temp(dest: Path, *, directory: bool) -> Path:
     takes no new files (e.g. ``/proc``: ENOENT, which named the temporary name): an
     :class:`~fuse4d.OutputWriteError` naming ``dest``.
     """
+    _sweep_dead_temporaries(dest)
     for _ in range(100):
-        tmp = dest.parent / f".{dest.name}.tmp-{secrets.token_hex(4)}"
+        tmp = _staged_name(dest, "tmp")
         try:
             if directory:
                 tmp.mkdir(mode=0o777)
@@ -232,15 +284,22 @@ def _replace_existing(tmp: Path, dest: Path) -> None:
         dest.unlink()
         tmp.replace(dest)
         return
-    old = Path(tempfile.mkdtemp(prefix=f".{dest.name}.old-", dir=dest.parent))
-    old.rmdir()
+    old = _staged_name(dest, "old")
+    while old.exists():
+        old = _staged_name(dest, "old")
     dest.replace(old)
     try:
         tmp.replace(dest)
     except BaseException:
         old.replace(dest)
         raise
-    shutil.rmtree(old, ignore_errors=True)
+    try:
+        shutil.rmtree(old, ignore_errors=True)
+    except KeyboardInterrupt:
+        # the new output is in place: finish deleting the old copy (a Ctrl-C here left it
+        # hidden beside the output for good), then let the interrupt go on
+        shutil.rmtree(old, ignore_errors=True)
+        raise
 
 
 class _Abort(Exception):
