@@ -7,6 +7,7 @@ import pytest
 
 from fuse4d import Intrinsics, ShapeError, depth_to_points, project_points
 from fuse4d.camera import points_to_depth
+from fuse4d.errors import ParameterError, ParameterTypeError
 
 
 def test_intrinsics_matrix_and_array():
@@ -103,3 +104,40 @@ def test_valid_depth_kernel_is_numpys_invalid_depth_rule():
     np.testing.assert_array_equal(out, expected)
     assert out.flat[5] == np.float32(1e-45)
     assert np.isnan(out.flat[6])
+
+
+def test_scaled_refuses_what_is_not_a_finite_positive_number():
+    """``scaled(inf)`` raised an OverflowError, ``scaled("a")`` a TypeError."""
+    k = Intrinsics(fx=500, fy=510, cx=319.5, cy=239.5, width=640, height=480)
+    assert k.scaled(np.float32(0.5)) == k.scaled(0.5)
+    for bad in ("a", None, True):
+        with pytest.raises(ParameterTypeError, match="factor must be a number"):
+            k.scaled(bad)
+    for bad in (float("inf"), float("nan"), 0.0, -1.0):
+        with pytest.raises(ParameterError, match="factor must be a finite number > 0"):
+            k.scaled(bad)
+    with pytest.raises(ParameterError, match="too large for a 480x640 image"):
+        k.scaled(1e307)
+
+
+@pytest.mark.parametrize(
+    ("row", "col", "value"), [(0, 1, 0.5), (1, 0, 1e-3), (2, 0, 1.0), (2, 1, 2.0), (2, 2, 2.0)]
+)
+def test_from_matrix_refuses_what_the_pinhole_model_ignores(row, col, value):
+    """A skew K[0,1] or a K[2,2] other than 1 was silently ignored (wrong points)."""
+    mat = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
+    mat[row, col] = value
+    want = 1 if (row, col) == (2, 2) else 0
+    with pytest.raises(ParameterError, match=rf"K\[{row},{col}\] must be {want}, got {value:g}"):
+        Intrinsics.from_matrix(mat, width=640, height=480)
+
+
+def test_camera_inputs_that_are_not_numbers_are_named():
+    """A word in the values raised numpy's ValueError."""
+    k = Intrinsics(fx=500, fy=510, cx=319.5, cy=239.5, width=640, height=480)
+    with pytest.raises(ParameterTypeError, match="intrinsics must hold numbers"):
+        Intrinsics.from_array(["a", 2, 3, 4], width=2, height=2)
+    with pytest.raises(ParameterTypeError, match="camera matrix must hold numbers"):
+        Intrinsics.from_matrix([["a"] * 3] * 3, width=2, height=2)
+    with pytest.raises(ParameterTypeError, match="points must hold numbers"):
+        project_points(np.array([["a", "b", "c"]]), k)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from fuse4d import FusionParams, Intrinsics, Sequence, depth_to_points
+from fuse4d import FusionParams, Intrinsics, Sequence, ShapeError, depth_to_points
 from fuse4d.baselines.temporal import temporal_mean
 from fuse4d.cli import main
 from fuse4d.cli._app import out_console
@@ -640,3 +640,63 @@ def test_cli_metrics_scores_the_output_of_a_part(tmp_path, capsys):
     assert main([*args, str(out), "--frames", "1:4"]) == 2
     assert "holds frames 1:4 of its input" in capsys.readouterr().err
     assert main([*args, str(out)]) == 0
+
+
+def _tiny_video(rng):
+    k = Intrinsics(200.0, 200.0, 15.0, 10.0, 31, 21)
+    return 900 + rng.normal(0, 1, (3, 21, 31)), k
+
+
+def test_a_whole_float_window_scores_as_the_integer_window(rng):
+    """window=5.0 crashed in numba in evaluate and RunningEvaluation.add."""
+    depth, k = _tiny_video(rng)
+    rep = evaluate(depth, intrinsics=k, window=5.0)
+    assert type(rep.window) is int
+    assert "5x5 windows" in rep.roi_description
+    assert rep.output.roughness.mean == evaluate(depth, intrinsics=k).output.roughness.mean
+    pts = depth_to_points(depth, k)
+    runs = RunningEvaluation(window=5.0), RunningEvaluation()
+    for run in runs:
+        run.add(pts[0], pts[0])
+    assert runs[0].result()["raw_roughness"] == runs[1].result()["raw_roughness"]
+
+
+@pytest.mark.parametrize("window", [4, 1, 2.5, "5"])
+def test_running_evaluation_checks_its_window_when_made(window):
+    """RunningEvaluation(window=4) was accepted and failed only in add()."""
+    with pytest.raises(ParameterError, match="window must be an odd integer >= 3"):
+        RunningEvaluation(window=window)
+
+
+def test_running_evaluation_names_points_of_the_wrong_shape(rng):
+    """A depth map raised an IndexError, maps of two sizes a broadcast ValueError."""
+    depth, k = _tiny_video(rng)
+    pts = depth_to_points(depth, k)
+    with pytest.raises(ShapeError, match=r"raw_points must have shape \(H, W, 3\)"):
+        RunningEvaluation().add(depth[0], depth[0])
+    with pytest.raises(ShapeError, match=r"output_points must have shape \(21, 31, 3\)"):
+        RunningEvaluation().add(pts[0], pts[0, :, :-1])
+    run = RunningEvaluation()
+    run.add(pts[0], pts[0])
+    with pytest.raises(ShapeError, match=r"raw_points must have shape \(21, 31, 3\)"):
+        run.add(pts[1, :-1], pts[1, :-1])
+    assert run.frames == 1
+
+
+@pytest.mark.parametrize(
+    ("frames", "message"),
+    [
+        (np.array([0, 5]), r"frames holds frame 5, outside the 3-frame video \(0 \.\. 2\)"),
+        (np.array([-4]), "frames holds frame -4, outside"),
+        (slice(5, 9), r"frames slice\(5, 9, None\) selects no frame of the 3-frame video"),
+        (np.array([], int), "frames selects no frame"),
+        (np.array([0.0, 1.0]), "frames must be a slice or a 1-D array of frame indices"),
+        (np.array([True, False, True]), "frames must be a slice or a 1-D array"),
+    ],
+)
+def test_evaluate_names_frames_that_select_nothing_or_too_much(rng, frames, message):
+    """Out-of-range indices raised an IndexError, an empty slice gave an all-NaN report."""
+    depth, k = _tiny_video(rng)
+    with pytest.raises(ParameterError, match=message):
+        evaluate(depth, intrinsics=k, frames=frames)
+    assert evaluate(depth, intrinsics=k, frames=[0, -1]).roi.shape == (2, 21, 31)

@@ -32,6 +32,7 @@ from fuse4d.metrics import (
     shape_correctness,
     sphere_fit_mlesac,
     static_mask_from_ground_truth,
+    static_pixels,
     temporal_flicker,
 )
 from fuse4d.metrics.evaluate import _as_video
@@ -148,10 +149,26 @@ def test_roughness_validity_rules():
     assert np.isfinite(pi[1, 15])  # 20/25 at the border: exactly 80 %
 
 
-@pytest.mark.parametrize("window", [4, 1, 2.5])
+@pytest.mark.parametrize("window", [4, 1, 2.5, "5", None, math.nan, math.inf])
 def test_roughness_rejects_bad_window(window):
-    with pytest.raises(ValueError, match="window must be an odd integer >= 3"):
+    with pytest.raises(ParameterError, match="window must be an odd integer >= 3"):
         roughness(np.zeros((8, 8, 3)), window=window)
+
+
+@pytest.mark.parametrize("window", [4, 0, 2.5, "5", None, math.nan, math.inf])
+def test_default_roi_rejects_bad_window(window):
+    with pytest.raises(ParameterError, match="window must be an odd positive integer"):
+        default_roi(np.full((8, 8), 500.0), window=window)
+
+
+def test_a_whole_float_window_is_the_integer_window(rng):
+    """window=5.0 crashed in numba (a float radius) in default_roi and roughness_stats."""
+    depth = 900 + rng.normal(0, 1, (2, 21, 31))
+    pts = depth_to_points(depth, Intrinsics(200.0, 200.0, 15.0, 10.0, 31, 21))
+    for window in (5.0, np.float64(5), np.int64(5)):
+        np.testing.assert_array_equal(default_roi(depth, window=window), default_roi(depth))
+        stats = roughness_stats(pts, window=window)
+        np.testing.assert_array_equal(stats.frame_means, roughness_stats(pts).frame_means)
 
 
 def test_roughness_rejects_bad_shape():
@@ -242,6 +259,25 @@ def test_default_roi_follows_the_noise_model_on_quantised_slopes():
         assert step_limit(zz, max_step=step, noise_quad=quad) == pytest.approx(
             _step_limit(zz, step, quad)
         )
+
+
+def test_depth_0_and_negative_are_invalid_for_the_roi_static_pixels_and_noise(rng):
+    """A hole of 0 (a 16-bit file's) was a flat surface: in the ROI, static, and it pulled
+    the noise estimate down (0.29 against 0.40 mm with NaN)."""
+    from fuse4d.motion import estimate_depth_noise
+
+    nan_hole = 800 + rng.normal(0, 0.5, (4, 40, 40))
+    nan_hole[:, 10:30, 10:30] = np.nan
+    for fill in (0.0, -5.0):
+        hole = np.where(np.isnan(nan_hole), fill, nan_hole)
+        roi = default_roi(hole, noise_quad=0.0)
+        assert not roi[:, 8:32, 8:32].any()
+        np.testing.assert_array_equal(roi, default_roi(nan_hole, noise_quad=0.0))
+        static = static_pixels(hole)
+        assert not static[10:30, 10:30].any()
+        np.testing.assert_array_equal(static, static_pixels(nan_hole))
+        assert estimate_depth_noise(hole[0]) == estimate_depth_noise(nan_hole[0])
+    assert (hole == -5.0).sum() == 4 * 400  # the input is not written to
 
 
 def test_static_pixels_excludes_a_passing_object_not_sensor_noise(rng):
@@ -429,6 +465,15 @@ def test_bad_pixels_with_the_noise_models_step_limit():
     for bad in (-1e-6, math.nan, math.inf):
         with pytest.raises(ParameterError, match="noise_quad must be"):
             bad_pixel_fraction(truth, test, noise_quad=bad)
+
+
+@pytest.mark.parametrize("name", ["threshold", "noise_quad"])
+@pytest.mark.parametrize("value", ["1", None, True])
+def test_bad_pixels_name_a_threshold_that_is_not_a_number(name, value):
+    """``threshold="1"`` raised math.isfinite's TypeError."""
+    with pytest.raises(ParameterTypeError, match=rf"^{name} must be a number"):
+        bad_pixel_fraction(np.ones(3), np.ones(3), **{name: value})
+    assert bad_pixel_fraction(np.ones(3), np.ones(3), **{name: np.float32(1)}) == 0.0
 
 
 def test_temporal_flicker_matches_std(rng):

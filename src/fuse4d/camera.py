@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from numbers import Real
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -20,6 +21,19 @@ _FLOAT32_MAX = float(np.finfo(np.float32).max)
 _FLOAT32_TINY = float(np.finfo(np.float32).tiny)
 
 __all__ = ["Intrinsics", "depth_to_points", "points_to_depth", "project_points"]
+
+
+def _as_float64(values: ArrayLike, *, name: str) -> NDArray[np.float64]:
+    """``values`` as a float64 array; a ParameterTypeError naming ``name`` where they are not
+    numbers (a word raised numpy's ValueError)."""
+    arr = np.asarray(values)
+    if arr.dtype.kind not in "fiub":
+        raise ParameterTypeError(f"{name} must hold numbers, got dtype {arr.dtype}")
+    return arr.astype(np.float64)
+
+
+#: The entries of a pinhole camera matrix that are not parameters: (row, column) -> value.
+_MATRIX_FIXED = {(0, 1): 0.0, (1, 0): 0.0, (2, 0): 0.0, (2, 1): 0.0, (2, 2): 1.0}
 
 
 @dataclass(frozen=True)
@@ -96,7 +110,7 @@ class Intrinsics:
         ValueError
             If ``values`` does not hold exactly 4 numbers.
         """
-        arr = np.asarray(values, dtype=np.float64).ravel()
+        arr = _as_float64(values, name="intrinsics").ravel()
         if arr.size != 4:
             raise ParameterError(
                 f"intrinsics must be [fx, fy, cx, cy] (4 numbers), got {arr.size} values"
@@ -105,10 +119,30 @@ class Intrinsics:
 
     @classmethod
     def from_matrix(cls, matrix: ArrayLike, *, width: int, height: int) -> Intrinsics:
-        """Build from a 3x3 camera matrix ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``."""
-        mat = np.asarray(matrix, dtype=np.float64)
+        """Build from a 3x3 camera matrix ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``.
+
+        Raises
+        ------
+        ParameterError
+            If the matrix is not 3x3, or an entry other than fx, fy, cx, cy differs from
+            that form (a skew ``K[0, 1]``, a ``K[2, 2]`` other than 1): fuse4d's pinhole model
+            has no skew, and ignoring them would give the wrong points.
+        """
+        mat = _as_float64(matrix, name="camera matrix")
         if mat.shape != (3, 3):
             raise ParameterError(f"camera matrix must be 3x3, got shape {mat.shape}")
+        for (row, col), want in _MATRIX_FIXED.items():
+            if mat[row, col] != want:
+                hint = (
+                    "divide the matrix by K[2,2]"
+                    if (row, col) == (2, 2)
+                    else "fuse4d's pinhole model is [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], "
+                    "without skew"
+                )
+                raise ParameterError(
+                    f"camera matrix entry K[{row},{col}] must be {want:g}, got "
+                    f"{mat[row, col]:g} ({hint})"
+                )
         return cls(mat[0, 0], mat[1, 1], mat[0, 2], mat[1, 2], width=width, height=height)
 
     def as_array(self) -> NDArray[np.float64]:
@@ -128,16 +162,32 @@ class Intrinsics:
         return (self.height, self.width)
 
     def scaled(self, factor: float) -> Intrinsics:
-        """Intrinsics of the image resized by ``factor`` (pixel-centre convention kept)."""
-        if not factor > 0:
-            raise ParameterError(f"factor must be > 0, got {factor}")
+        """Intrinsics of the image resized by ``factor`` (pixel-centre convention kept).
+
+        Raises
+        ------
+        ParameterTypeError
+            If ``factor`` is not a number.
+        ParameterError
+            If it is not finite and > 0, or the resized image would not be finite in size.
+        """
+        if isinstance(factor, bool) or not isinstance(factor, Real):
+            raise ParameterTypeError(f"factor must be a number, got {factor!r}")
+        f = float(factor)
+        if not (math.isfinite(f) and f > 0):
+            raise ParameterError(f"factor must be a finite number > 0, got {factor!r}")
+        width, height = self.width * f, self.height * f
+        if not (math.isfinite(width) and math.isfinite(height)):
+            raise ParameterError(
+                f"factor {factor!r} is too large for a {self.height}x{self.width} image"
+            )
         return Intrinsics(
-            fx=self.fx * factor,
-            fy=self.fy * factor,
-            cx=(self.cx + 0.5) * factor - 0.5,
-            cy=(self.cy + 0.5) * factor - 0.5,
-            width=max(1, round(self.width * factor)),
-            height=max(1, round(self.height * factor)),
+            fx=self.fx * f,
+            fy=self.fy * f,
+            cx=(self.cx + 0.5) * f - 0.5,
+            cy=(self.cy + 0.5) * f - 0.5,
+            width=max(1, round(width)),
+            height=max(1, round(height)),
         )
 
     def to_dict(self) -> dict[str, float | int]:
@@ -238,7 +288,7 @@ def project_points(
         Column and row coordinates in pixels; NaN where Z is not > 0.
     """
     check_intrinsics(intrinsics)
-    p = np.asarray(points, dtype=np.float64)
+    p = _as_float64(points, name="points")
     check_shape(p, ("*", 3), name="points")
     z = p[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):

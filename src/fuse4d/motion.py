@@ -33,6 +33,7 @@ from ._validation import as_float32, check_shape
 from .camera import Intrinsics, check_intrinsics, depth_to_points
 from .config import FusionParams
 from .errors import ParameterError
+from .sequence import sanitize_depth
 
 __all__ = [
     "Tracks",
@@ -168,9 +169,10 @@ def estimate_depth_noise(depth: ArrayLike, *, reference: ArrayLike | None = None
     the residuals below their 95th percentile (a trimmed mean absolute deviation, scaled to a
     Gaussian sigma; trimming ignores depth edges). Unlike the median absolute deviation it does
     not collapse to 0 on quantised depth (structured-light cameras, where most residuals are
-    exactly 0). Returns 0.0 for a frame without valid depth.
+    exactly 0). Depth 0, negative and inf is invalid, as NaN (a 16-bit file's hole is 0).
+    Returns 0.0 for a frame without valid depth.
     """
-    d = as_float32(depth, name="depth")
+    d = sanitize_depth(depth)
     check_shape(d, ("H", "W"), name="depth")
     ref = motion_reference_depth(d, sigma=2.0) if reference is None else np.asarray(reference)
     if ref.dtype == np.float32 and ref.shape == d.shape:  # one kernel (issue 13), same value

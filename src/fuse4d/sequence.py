@@ -26,7 +26,7 @@ __all__ = [
 ]
 
 
-def sanitize_depth(depth: np.ndarray) -> NDArray[np.float32]:
+def sanitize_depth(depth: ArrayLike) -> NDArray[np.float32]:
     """Float32 depth (mm) with every invalid value (0, negative, inf, NaN) set to NaN; the
     input is never written to (a view of it, e.g. of a memmap, is copied first)."""
     d = as_float32(depth, name="depth")
@@ -49,23 +49,78 @@ INTENSITY_REQUIRED = (
 )
 
 
-def normalize_intensity(intensity: np.ndarray) -> NDArray[np.float32]:
+def normalize_intensity(intensity: ArrayLike, *, name: str = "intensity") -> NDArray[np.float32]:
     """Convert intensity to float32 in [0, 1] (METHOD A16).
 
-    Integers are divided by their dtype's maximum; floats whose maximum exceeds 1 are divided
-    by the sequence maximum; floats already in [0, 1] are kept.
+    * uint8 and uint16 are divided by 255 and 65535, bool gives 0 and 1;
+    * other integer dtypes (the int64 of a list of Python ints, int32, ...) are refused: their
+      range is not the image's (divided by the int64 maximum, 0-255 values all became ~0);
+      convert them to uint8 or uint16, or to float in [0, 1];
+    * floats already in [0, 1] are kept; floats whose finite values leave [0, 1] are rescaled
+      linearly over the whole array: divided by their maximum where none is negative (0-255
+      floats), else mapped from [min, max] onto [0, 1] (a constant array gives 0). NaN and inf
+      stay (a :class:`Sequence` refuses them).
+
+    Parameters
+    ----------
+    intensity : array_like
+        Intensity of one frame or a sequence.
+    name : str, optional
+        How to name it in the error.
+
+    Returns
+    -------
+    ndarray of float32
+        In [0, 1] (NaN and inf of float input kept).
+
+    Raises
+    ------
+    ParameterTypeError
+        For integer dtypes other than uint8 and uint16 (the message says which to convert
+        to) and for non-numeric input.
+
+    Examples
+    --------
+    >>> normalize_intensity(np.array([0, 51, 255], np.uint8)).tolist()
+    [0.0, 0.20000000298023224, 1.0]
+    >>> normalize_intensity(np.array([-0.5, 0.0, 1.5])).tolist()
+    [0.0, 0.25, 1.0]
     """
     arr = np.asarray(intensity)
-    if arr.dtype.kind in "ui":
-        info = np.iinfo(arr.dtype)
-        return (arr.astype(np.float32) / np.float32(info.max)).clip(0, 1)
     if arr.dtype == np.bool_:
         return arr.astype(np.float32)
-    out = as_float32(arr, name="intensity")
-    finite_max = np.nanmax(out) if out.size and np.isfinite(out).any() else 0.0
-    if finite_max > 1.0:
-        out = out / np.float32(finite_max)
+    if arr.dtype.kind in "ui":
+        if arr.dtype.kind == "i" or arr.dtype.itemsize > 2:  # (either byte order)
+            raise ParameterTypeError(_integer_intensity_message(arr, name))
+        white = 255 if arr.dtype.itemsize == 1 else 65535
+        return arr.astype(np.float32) / np.float32(white)
+    out = as_float32(arr, name=name)
+    if not out.size:
+        return out
+    lo, hi = float(out.min()), float(out.max())
+    if not (np.isfinite(lo) and np.isfinite(hi)):  # NaN or inf present: the finite values
+        finite = out[np.isfinite(out)]
+        lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+    if lo < 0.0:
+        span = hi - lo
+        out = (out - np.float32(lo)) / np.float32(span) if span > 0 else out - np.float32(lo)
+    elif hi > 1.0:
+        out = out / np.float32(hi)
     return out
+
+
+def _integer_intensity_message(arr: NDArray[np.integer], name: str) -> str:
+    """Why integer intensity of another dtype than uint8/uint16 is refused, and what to do."""
+    lo, hi = (int(arr.min()), int(arr.max())) if arr.size else (0, 0)
+    todo = "divide by the sensor's white level (e.g. 4095 for 12 bits) for float in [0, 1]"
+    for bits, dtype in ((8, "uint8"), (16, "uint16")):
+        if lo >= 0 and hi < 1 << bits:
+            todo = f"convert with .astype(np.{dtype}) if these are {bits}-bit values, else {todo}"
+            break
+    return (
+        f"{name} has integer dtype {arr.dtype} (values {lo} .. {hi}), which does not say its "
+        f"bit depth; pass uint8 (0-255), uint16 (0-65535) or float in [0, 1]: {todo}"
+    )
 
 
 def check_unit_intensity(intensity: np.ndarray, *, name: str = "intensity") -> NDArray[np.float32]:
@@ -107,8 +162,8 @@ def check_unit_intensity(intensity: np.ndarray, *, name: str = "intensity") -> N
             raise ParameterError(
                 f"{name} is float with values in [{lo:.4g}, {hi:.4g}], outside [0, 1]; "
                 "rescale it to [0, 1] (e.g. divide 8-bit values by 255, or use "
-                "fuse4d.sequence.normalize_intensity on the whole sequence), or pass integer "
-                "intensity, which is divided by its dtype maximum"
+                "fuse4d.sequence.normalize_intensity on the whole sequence), or pass uint8 or "
+                "uint16 intensity, divided by 255 or 65535"
             )
     return arr
 
@@ -120,20 +175,21 @@ UNIT_RANGE_SLACK = 0.5
 
 
 def as_storable_intensity(intensity: ArrayLike, *, name: str = "intensity") -> NDArray[np.float32]:
-    """Intensity to store or show (writers, point colours): integers divided by their dtype
-    maximum, as the fusion engine takes them (a ``cv2.imread`` uint8 frame used to be stored
-    as 0-255 and saturated to white); floats as float32, to be clipped to [0, 1] by the
-    caller, NaN allowed (stored as 0), refused when farther than :data:`UNIT_RANGE_SLACK`
-    outside [0, 1] (0-255 floats would all store as 1).
+    """Intensity to store or show (writers, point colours): integers as
+    :func:`normalize_intensity` and the fusion engine take them (uint8 and uint16 divided by
+    255 and 65535; a ``cv2.imread`` uint8 frame used to be stored as 0-255 and saturated to
+    white); floats as float32, to be clipped to [0, 1] by the caller, NaN allowed (stored as
+    0), refused when farther than :data:`UNIT_RANGE_SLACK` outside [0, 1] (0-255 floats would
+    all store as 1).
 
     Raises
     ------
     ParameterError
-        For float values far outside [0, 1].
+        For float values far outside [0, 1], and other integer dtypes than uint8 and uint16.
     """
     arr = np.asarray(intensity)
     if arr.dtype.kind in "uib":
-        return normalize_intensity(arr)
+        return normalize_intensity(arr, name=name)
     arr = as_float32(arr, name=name)
     if not arr.size:
         return arr
@@ -152,17 +208,17 @@ def check_unit_slack(lo: float, hi: float, *, name: str) -> None:
     if lo < -UNIT_RANGE_SLACK or hi > 1.0 + UNIT_RANGE_SLACK:
         raise ParameterError(
             f"{name} is float with values in [{lo:.4g}, {hi:.4g}], not [0, 1]; rescale it "
-            "(e.g. divide 8-bit values by 255) or pass integers, divided by their dtype maximum"
+            "(e.g. divide 8-bit values by 255) or pass uint8 or uint16, divided by 255 or 65535"
         )
 
 
 def as_unit_intensity(intensity: np.ndarray, *, name: str = "intensity") -> NDArray[np.float32]:
-    """Intensity as float32 in [0, 1]: integers divided by their dtype maximum
-    (:func:`normalize_intensity`), floats checked (:func:`check_unit_intensity`), as the
-    fusion engine and the baselines take it."""
+    """Intensity as float32 in [0, 1]: uint8 and uint16 divided by 255 and 65535, other
+    integers refused (:func:`normalize_intensity`), floats checked
+    (:func:`check_unit_intensity`), as the fusion engine and the baselines take it."""
     arr = np.asarray(intensity)
     if arr.dtype.kind in "uib":
-        return normalize_intensity(arr)
+        return normalize_intensity(arr, name=name)
     return check_unit_intensity(arr, name=name)
 
 
@@ -377,14 +433,14 @@ class GroundTruth:
     def select(self, index: slice | NDArray[np.integer], num_frames: int) -> GroundTruth:
         """The ground truth of frames ``index`` of a ``num_frames``-frame sequence.
 
-        A slice keeps the flow of the consecutive pairs inside it; an index array drops the
-        flow (its frames need not be consecutive).
+        A slice of step 1 keeps the flow of the consecutive pairs inside it; another slice
+        (its frames are not consecutive, or in reverse order) or an index array drops it.
         """
-        if isinstance(index, slice):
-            a, b, _ = index.indices(num_frames)
-            flow = None if self.flow is None else self.flow[a : max(a, b - 1)]
-        else:
-            flow = None
+        flow = None
+        if isinstance(index, slice) and self.flow is not None:
+            a, b, step = index.indices(num_frames)
+            if step == 1:
+                flow = self.flow[a : max(a, b - 1)]
 
         def take(v: Any) -> Any:
             return np.asarray(v)[index]
@@ -411,12 +467,13 @@ class Sequence:
         Depth in mm along the optical axis. Converted to float32; 0, negative and inf values
         become NaN (= invalid).
     intensity : (T, H, W) ndarray
-        Registered intensity. Converted to float32 in [0, 1] (integers divided by their dtype
-        maximum); float input must already be in [0, 1].
+        Registered intensity. Converted to float32 in [0, 1] (uint8 and uint16 divided by 255
+        and 65535; other integer dtypes refused, see :func:`normalize_intensity`); float input
+        must already be in [0, 1].
     intrinsics : Intrinsics
         Camera; its size must match ``(H, W)``.
     timestamps : (T,) ndarray of float64, optional
-        Capture times in seconds, strictly increasing.
+        Capture times in seconds, finite and strictly increasing.
     fps : float, optional
         Nominal frame rate (metadata only; fuse4d counts time in frames).
     ground_truth : GroundTruth, optional
@@ -433,8 +490,9 @@ class Sequence:
     ShapeError
         If depth and intensity differ in shape, are not 3-D, or disagree with the intrinsics.
     ValueError
-        If T < 1, intensity is outside [0, 1], timestamps are not increasing, fps <= 0, or
-        sensor is not a known camera kind.
+        If T < 1, intensity is outside [0, 1] or of an integer dtype other than uint8 and
+        uint16, timestamps are not finite or not increasing, fps <= 0, or sensor is not a
+        known camera kind.
     TypeError
         If intrinsics is not an :class:`Intrinsics`.
 
@@ -501,9 +559,21 @@ class Sequence:
         object.__setattr__(self, "depth", d)
         object.__setattr__(self, "intensity", np.ascontiguousarray(i))
         if self.timestamps is not None:
-            ts = np.asarray(self.timestamps, dtype=np.float64).ravel()
+            try:
+                ts = np.asarray(self.timestamps, dtype=np.float64).ravel()
+            except (TypeError, ValueError):
+                raise ParameterTypeError(
+                    "timestamps must be numbers (seconds, one per frame), got "
+                    f"{type(self.timestamps).__name__}"
+                ) from None
             if ts.shape != (d.shape[0],):
                 raise ShapeError("timestamps", (d.shape[0],), ts.shape, "one time per frame")
+            bad = np.flatnonzero(~np.isfinite(ts))
+            if bad.size:
+                raise ParameterError(
+                    f"timestamps must be finite (seconds); frame {int(bad[0])} has "
+                    f"{ts[bad[0]]}" + (f" ({bad.size} frames in all)" if bad.size > 1 else "")
+                )
             if ts.size > 1 and not np.all(np.diff(ts) > 0):
                 raise ParameterError("timestamps must be strictly increasing")
             object.__setattr__(self, "timestamps", ts)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
+from numbers import Real
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -139,10 +140,11 @@ def bad_pixel_fraction(
     >>> bad_pixel_fraction(np.array([1.0, 2.0, 3.0, 4.0]), np.array([1.5, 4.0, np.nan, 4.0]))
     0.5
     """
-    if not (math.isfinite(threshold) and threshold >= 0):
-        raise ParameterError(f"threshold must be a finite number >= 0 (mm), got {threshold!r}")
-    if not (math.isfinite(noise_quad) and noise_quad >= 0):
-        raise ParameterError(f"noise_quad must be a finite number >= 0 (1/mm), got {noise_quad!r}")
+    for name, value, unit in (("threshold", threshold, "mm"), ("noise_quad", noise_quad, "1/mm")):
+        if isinstance(value, bool) or not isinstance(value, Real):
+            raise ParameterTypeError(f"{name} must be a number ({unit}), got {value!r}")
+        if not (math.isfinite(value) and value >= 0):
+            raise ParameterError(f"{name} must be a finite number >= 0 ({unit}), got {value!r}")
     roi = _renamed(roi, mask, ("roi", "mask"))
     a, b, m = _pair(depth_true, depth_test, roi, ("depth_true", "depth_test"))
     use = _broadcast_mask(m, a.shape) & np.isfinite(a)

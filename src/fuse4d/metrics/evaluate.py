@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._kernels.flicker import _temporal_tally_kernel
+from .._validation import as_float32, check_shape
 from ..camera import Intrinsics, depth_to_points
 from ..errors import ParameterError, ParameterTypeError, ShapeError
 from ..sequence import BallTruth, GroundTruth, Sequence
@@ -45,6 +46,7 @@ from .accuracy import FlickerStats, bad_pixel_fraction, depth_rmse, temporal_fli
 from .roi import (
     STATIC_LEVELS,
     STATIC_NOISE_RANGE,
+    _check_odd_window,
     _frame_quads,
     _median_noise_sigma,
     default_roi,
@@ -56,6 +58,7 @@ from .roi import (
     static_pixels,
 )
 from .roughness import (
+    _POINTS_HINT,
     RoughnessStats,
     _mean_std,
     _roughness_maps_on,
@@ -287,6 +290,41 @@ def _invalid_to_nan(arr: NDArray[np.float32], data: object) -> NDArray[np.float3
     return arr
 
 
+def _frame_selection(
+    frames: slice | ArrayLike, num_frames: int, name: str
+) -> slice | NDArray[np.int64]:
+    """``frames`` (a slice or indices of a ``num_frames``-frame video) checked: a
+    ParameterError naming ``name`` where it selects no frame or an index is out of range (an
+    IndexError, or a silently all-NaN report for an empty slice)."""
+    if isinstance(frames, slice):
+        try:
+            count = len(range(num_frames)[frames])
+        except (TypeError, ValueError):  # slice("a"), slice(0, 3, 0)
+            raise ParameterError(
+                f"{name} must be a slice of whole numbers, got {frames!r}"
+            ) from None
+        if count == 0:
+            raise ParameterError(
+                f"{name} {frames!r} selects no frame of the {num_frames}-frame video"
+            )
+        return frames
+    idx = np.asarray(frames)
+    if idx.ndim != 1 or (idx.size and (idx.dtype == np.bool_ or idx.dtype.kind not in "iu")):
+        raise ParameterTypeError(
+            f"{name} must be a slice or a 1-D array of frame indices, got {idx.dtype} of "
+            f"shape {idx.shape}"
+        )
+    if idx.size == 0:
+        raise ParameterError(f"{name} selects no frame of the {num_frames}-frame video")
+    outside = (idx < -num_frames) | (idx >= num_frames)
+    if outside.any():
+        raise ParameterError(
+            f"{name} holds frame {int(idx[outside][0])}, outside the {num_frames}-frame video "
+            f"(0 .. {num_frames - 1})"
+        )
+    return idx.astype(np.int64)
+
+
 def _user_roi(roi: ArrayLike, shape: tuple[int, int, int]) -> NDArray[np.bool_]:
     m = np.asarray(roi)
     if m.dtype != np.bool_:
@@ -380,6 +418,7 @@ def evaluate(
         or not (math.isfinite(noise_quad) and noise_quad >= 0)
     ):
         raise ParameterError(f"noise_quad must be a finite number >= 0 (1/mm), got {noise_quad!r}")
+    window = _check_odd_window(window, 3)
     k = intrinsics
     for src in (output, raw):
         if k is None and isinstance(src, Sequence):
@@ -396,8 +435,16 @@ def evaluate(
     if gt is None and isinstance(output, Sequence):
         gt = output.ground_truth
     num_t = out_d.shape[0]
-    sel: slice | NDArray[np.integer] = slice(None) if frames is None else frames
+    sel: slice | NDArray[np.integer] = slice(None)
     if frames is not None:
+        sel = _frame_selection(frames, num_t, "frames")
+        if roi is not None and np.ndim(roi) == 3 and np.shape(roi)[0] != num_t:
+            raise ShapeError(
+                "roi",
+                (num_t, *out_d.shape[1:]),
+                np.shape(roi),
+                "a (T, H, W) roi has one mask per frame of the whole video",
+            )
         out_d, out_p = out_d[sel], out_p[sel]
         if raw_d is not None and raw_p is not None:
             raw_d, raw_p = raw_d[sel], raw_p[sel]
@@ -464,7 +511,11 @@ def evaluate(
         scored = scored & np.isfinite(raw_maps[0])
         depth_ok = depth_ok & np.isfinite(raw_d)
     whole = None if roi is None else region
-    shape_sel = None if shape_frames is None else np.asarray(shape_frames, dtype=np.int64)
+    shape_sel = (
+        None
+        if shape_frames is None
+        else _frame_selection(np.asarray(shape_frames), full[0], "shape_frames")
+    )
 
     # the step limit of bad_steps: one q for raw and output, given or from the raw video
     quad, quad_desc = math.nan, "no ground truth"
@@ -565,6 +616,7 @@ class RunningEvaluation:
     ) -> None:
         if isinstance(every, bool) or int(every) != every or every < 1:
             raise ParameterError(f"every must be an integer >= 1, got {every!r}")
+        window = _check_odd_window(window, 3)
         self._sigma_frames = (
             None if total_frames is None else set(noise_sigma_frames(int(total_frames)))
         )
@@ -601,8 +653,13 @@ class RunningEvaluation:
         :func:`~fuse4d.motion.estimate_depth_noise` as :func:`evaluate` does (on the roughness
         frames only; the engine's own σ₀ is measured against another reference and is not
         the same number)."""
-        rp = np.asarray(raw_points, dtype=np.float32)[None]
-        op = np.asarray(output_points, dtype=np.float32)[None]
+        rp = as_float32(raw_points, name="raw_points")[None]
+        op = as_float32(output_points, name="output_points")[None]
+        check_shape(rp[0], ("H", "W", 3), name="raw_points", hint=_POINTS_HINT)
+        if self._state is not None:
+            size = (*self._state["valid"].shape, 3)
+            check_shape(rp[0], size, name="raw_points", hint="the size of the earlier frames")
+        check_shape(op[0], rp.shape[1:], name="output_points", hint="the size of raw_points")
         rd, od = rp[..., 2], op[..., 2]
         quad = float(_frame_quads(rd, noise_quad)[0])
         if noise_sigma is not None:

@@ -8,10 +8,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._kernels.roi import _default_roi_kernel
-from .._validation import as_float32
 from ..camera import Intrinsics
 from ..errors import ParameterError, ShapeError
-from ..sequence import BallTruth, GroundTruth, PlaneTruth, Sequence, SheetTruth
+from ..sequence import BallTruth, GroundTruth, PlaneTruth, Sequence, SheetTruth, sanitize_depth
 
 __all__ = [
     "ball_roi",
@@ -65,6 +64,7 @@ def _window_inside(mask: NDArray[np.bool_], window: int) -> NDArray[np.bool_]:
     # default ROI (a numba kernel); this serves the synthetic scenes' ground-truth ROIs
     from scipy import ndimage
 
+    window = _check_odd_window(window)
     return ndimage.minimum_filter(
         mask, size=_window_size(mask.ndim, window), mode="constant", cval=False
     )
@@ -121,9 +121,18 @@ def _frame_quads(d: NDArray[np.float32], noise_quad: float | ArrayLike | None) -
     return np.broadcast_to(np.asarray(noise_quad, dtype=np.float64), d.shape[:-2])
 
 
-def _check_odd_window(window: int) -> None:
-    if isinstance(window, bool) or int(window) != window or window < 1 or window % 2 == 0:
-        raise ParameterError(f"window must be an odd positive integer (pixels), got {window!r}")
+def _check_odd_window(window: int, minimum: int = 1) -> int:
+    """``window`` (px) as an ``int`` where it is an odd whole number >= ``minimum`` (``5.0``
+    and numpy integers included: the kernels need an integer radius); else a ParameterError.
+    The one window check of the metrics (roughness needs ``minimum=3``)."""
+    try:
+        whole = not isinstance(window, bool) and int(window) == window
+    except (TypeError, ValueError, OverflowError):  # a word, None, NaN, inf
+        whole = False
+    if not whole or window < minimum or window % 2 == 0:
+        what = "an odd positive integer" if minimum <= 1 else f"an odd integer >= {minimum}"
+        raise ParameterError(f"window must be {what} (pixels), got {window!r}")
+    return int(window)
 
 
 def default_roi(
@@ -145,7 +154,7 @@ def default_roi(
     Parameters
     ----------
     depth : (H, W) or (T, H, W) ndarray
-        Depth in mm, NaN = invalid.
+        Depth in mm; NaN, 0, negative and inf = invalid.
     window : int, optional
         Window size n (odd, px), the roughness window.
     max_step : float, optional
@@ -164,12 +173,12 @@ def default_roi(
     >>> default_roi(d, window=3, noise_quad=0.0)[4].tolist()
     [False, True, True, True, False, False, True, False]
     """
-    d = as_float32(depth, name="depth")
+    d = sanitize_depth(depth)  # a 16-bit file's hole is 0, not a surface at 0 mm
     if d.ndim not in (2, 3):
         raise ShapeError("depth", ("T", "H", "W"), d.shape, "a (H, W) or (T, H, W) depth map")
     if not (math.isfinite(max_step) and max_step >= 0):
         raise ParameterError(f"max_step must be a finite number >= 0 (mm), got {max_step!r}")
-    _check_odd_window(window)
+    window = _check_odd_window(window)
     quads = np.asarray(_frame_quads(d, noise_quad), np.float64).reshape(-1)
     frames = d.reshape(-1, *d.shape[-2:])
     out = np.empty(frames.shape, np.bool_)
@@ -369,7 +378,8 @@ def static_pixels(
     Parameters
     ----------
     depth : (T, H, W) ndarray
-        Depth in mm, NaN = invalid (the raw input: static is a property of the scene).
+        Depth in mm; NaN, 0, negative and inf = invalid (the raw input: static is a property
+        of the scene).
     noise_quad : float, optional
         Depth-noise coefficient q (mm^-1); default: the median over frames of
         :func:`fuse4d.motion.estimate_noise_quad`.
@@ -383,7 +393,7 @@ def static_pixels(
     -------
     (H, W) ndarray of bool
     """
-    d = as_float32(depth, name="depth")
+    d = sanitize_depth(depth)  # a 16-bit file's hole is 0, not a static surface at 0 mm
     if d.ndim != 3:
         raise ShapeError("depth", ("T", "H", "W"), d.shape, "a (T, H, W) depth video")
     q = float(np.median(_frame_quads(d, None))) if noise_quad is None else float(noise_quad)

@@ -11,7 +11,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._kernels.roughness import _roughness_kernel, _roughness_masked_kernel
 from .._validation import as_float32, check_shape
 from ..errors import ParameterError, ParameterTypeError, ShapeError
-from .roi import default_roi
+from .roi import _check_odd_window, default_roi
 
 __all__ = [
     "RoughnessStats",
@@ -23,11 +23,12 @@ __all__ = [
 ]
 
 
-def _check_window(window: int, min_valid_fraction: float) -> None:
-    if isinstance(window, bool) or int(window) != window or window < 3 or window % 2 == 0:
-        raise ParameterError(f"window must be an odd integer >= 3 (pixels), got {window!r}")
+def _check_window(window: int, min_valid_fraction: float) -> int:
+    """``window`` as an int (odd, >= 3 px), after checking it and ``min_valid_fraction``."""
+    window = _check_odd_window(window, 3)
     if not 0.0 < float(min_valid_fraction) <= 1.0:
         raise ParameterError(f"min_valid_fraction must be in (0, 1], got {min_valid_fraction!r}")
+    return window
 
 
 #: What the roughness takes, said wherever a depth map was passed instead.
@@ -67,7 +68,7 @@ def roughness_maps(
         ``R_i = sqrt(mean_j ((p_j - c_i) . n_i)^2)`` (mm), with ``c_i`` the centroid and ``n_i``
         the total-least-squares normal of the valid window points; NaN where undefined.
     """
-    _check_window(window, min_valid_fraction)
+    window = _check_window(window, min_valid_fraction)
     p, single = _as_points(points)
     t, h, w = p.shape[:3]
     out_sum = np.empty((t, h, w), dtype=np.float32)
