@@ -584,3 +584,132 @@ def test_integer_intensity_is_the_unit_intensity_and_0_255_floats_are_refused(
     np.testing.assert_allclose(from_uint8, run_baseline(name, noisy, as_uint8 / 255.0, intrinsics))
     with pytest.raises(ParameterError, match=r"^intensity is float with values in \[.*, 2\d\d"):
         run_baseline(name, noisy, 255.0 * tex, intrinsics)
+
+
+# ------------------------------------------------------------------ stop 57 (tester's issues)
+
+
+def test_depth_guided_filter_is_exact_at_metres_of_depth(intrinsics, rng):
+    """guide='depth' ran OpenCV's float32 filter on depth in mm: mean(D^2) - mean(D)^2
+    cancelled at metres (NaN even on a constant 3955 mm frame) and most valid depth came out
+    NaN. Now float64 box means: equal to the exact filter, no raw-valid pixel lost."""
+    yy, xx = np.mgrid[0:H, 0:W]
+    depth = np.empty((2, H, W), np.float32)
+    depth[0] = 3955.0  # constant: was all NaN
+    depth[1] = 3000.0 + 8.0 * xx + 5.0 * yy + rng.normal(0, 3.0, (H, W))
+    depth[1, :, 40:] += 400.0  # a step edge
+    for radius, eps in ((2, 10.0), (4, 0.01)):
+        out = run_baseline("guided", depth, None, intrinsics, size=radius, eps=eps, guide="depth")
+        assert np.isfinite(out).all()
+        np.testing.assert_allclose(out[0], 3955.0, atol=1e-3)
+        ref = naive_guided(depth[1], depth[1], radius, eps)  # float64, valid off the border
+        inner = (slice(2 * radius, -2 * radius), slice(2 * radius, -2 * radius))
+        np.testing.assert_allclose(out[1][inner], ref[inner], atol=2e-3)
+    # holes stay NaN, every raw-valid pixel keeps a value
+    holed = depth.copy()
+    holed[:, 20:26, 10:30] = np.nan
+    out = run_baseline("guided", holed, None, intrinsics, size=2, eps=10.0, guide="depth")
+    np.testing.assert_array_equal(np.isfinite(out), np.isfinite(holed))
+
+
+def test_realsense_disparity_chain_has_no_depth_bias(rng):
+    """The disparity domain packed disparity into Z16 steps; the SDK's integer spatial filter
+    then added ~+4 steps to the mean: depth moved towards the camera by ~z^2 (-56 mm on this
+    4.5 m plane). Now the SDK's own disparity_transform on a sensor that declares its stereo
+    baseline: float disparity, no bias. The default delta keeps its meaning (20/32 px)."""
+    if not available_baselines()["realsense"].available:
+        pytest.skip("pyrealsense2 not installed (pip install 'fuse4d[realsense]')")
+    k = Intrinsics(fx=380.0, fy=380.0, cx=31.5, cy=23.5, width=W, height=H)
+    noisy = np.rint(4500.0 + rng.normal(0, 40.0, (3, H, W))).astype(np.float32)
+    out = run_baseline("realsense", noisy, None, k, hole_filling=None)
+    assert np.isfinite(out).all()
+    # harmonic vs arithmetic mean of the disparity average alone: -sigma^2/z = -0.36 mm
+    assert abs(float(np.mean(out - noisy))) < 3.0
+    assert float(np.std(out[-1])) < 0.2 * float(np.std(noisy[-1]))  # it does smooth
+    # 20 SDK units = 0.625 px of disparity: at 2 m (9.5 px, 0.625 px = 141 mm) a 160 mm step
+    # stays sharp, a 50 mm step is smoothed across
+    for step, sharp in ((160.0, True), (50.0, False)):
+        plane = np.full((3, H, W), 2000.0, np.float32)
+        plane[:, :, 32:] += step
+        out = run_baseline("realsense", plane, None, k, hole_filling=None)
+        assert np.array_equal(out[-1, 20, 29:35], plane[-1, 20, 29:35]) == sharp
+
+
+@pytest.mark.parametrize(
+    ("name", "params"),
+    [
+        ("ta", {"noise_sigma": 1e-300}),  # was a ZeroDivisionError
+        ("ta", {"noise_sigma": 1e-300, "sigma_temporal": 1e-300}),  # so was this
+        ("adbf", {"noise_sigma": 1e-46, "hole_repair": False}),  # 0 in float32: range "off"
+        ("adjbf", {"noise_sigma": 1e-46}),
+        ("adjbf", {"noise_sigma": 1e-46, "sigma_intensity": 1e-200}),  # ZeroDivisionError
+        ("dnbf", {"noise_sigma": 1e-300, "sigma_temporal": 1e-300}),  # NaN time weight
+    ],
+)
+def test_tiny_sigmas_are_the_limit_of_a_narrow_kernel(name, params, plane, intrinsics, rng):
+    """A vanishing sigma must act as the narrowest kernel: nothing within range, output ==
+    input (a smaller sigma blurred more, or crashed). gauss_factor caps 1 / (2 sigma^2)."""
+    depth, tex = plane
+    noisy = (depth + rng.normal(0, 0.5, depth.shape)).astype(np.float32)  # all values differ
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = run_baseline(name, noisy, tex, intrinsics, **params)
+    np.testing.assert_allclose(out, noisy, rtol=1e-6)
+
+
+def test_adbf_repair_stays_inside_the_field_of_view(intrinsics, rng):
+    """Ad-BF's region growing flooded the no-depth band around a registered depth image
+    (99.6 % of it on uva) with invented depth; it now fills holes inside the raw depth's
+    field of view only (A38, as fuse4d's own fills)."""
+    from fuse4d.fov import field_of_view
+
+    yy, xx = np.mgrid[0:H, 0:W]
+    depth = np.broadcast_to(1000.0 + 0.5 * xx + 0.3 * yy, (2, H, W)).astype(np.float32)
+    depth = depth + rng.normal(0, 0.3, depth.shape).astype(np.float32)
+    depth[:, :5, :] = np.nan  # the band without depth
+    depth[:, :, 56:] = np.nan
+    depth[:, 20:26, 20:30] = np.nan  # an interior hole
+    tex = np.full(depth.shape, 0.5, np.float32)  # flat: the growing accepts every neighbour
+    inside = field_of_view(depth)
+    assert not inside[:5].any()
+    assert not inside[:, 56:].any()
+    assert inside[20:26, 20:30].all()
+    out = run_baseline("adbf", depth, tex, intrinsics)
+    assert np.isnan(out[:, ~inside]).all()
+    assert np.isfinite(out[:, inside]).all()  # the interior hole is still repaired
+
+
+def test_noise_estimate_reads_depth_0_as_no_depth(rng):
+    """0 is "no depth" in 16-bit files: a hole stored as 0 counted as noise-free residuals
+    (0.349 instead of 0.497 mm on the tester's data)."""
+    from fuse4d.baselines._common import estimate_noise_model
+
+    depth = (1000.0 + rng.normal(0, 0.5, (3, 64, 64))).astype(np.float32)
+    as_nan, as_zero = depth.copy(), depth.copy()
+    as_nan[:, 8:40, 8:40] = np.nan
+    as_zero[:, 8:40, 8:40] = 0.0
+    assert estimate_noise_sigma(as_nan) == pytest.approx(0.5, rel=0.05)
+    assert estimate_noise_sigma(as_zero) == estimate_noise_sigma(as_nan)
+    assert estimate_noise_model(as_zero) == estimate_noise_model(as_nan)
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--iterations", "2.5"], "parameter iterations: cannot read '2.5' as an integer\n"),
+        (["-p", "iterations=2.5"], "parameter iterations: cannot read '2.5' as an integer\n"),
+        (["-p", "noise_sigma=abc"], "parameter noise_sigma: cannot read 'abc' as a number\n"),
+        (["--size", "2.5"], "cannot read '2.5' as an integer (size = num_frames)\n"),
+        (["-p", "num_frames=x"], "cannot read 'x' as an integer (size = num_frames)\n"),
+    ],
+)
+def test_cli_knob_errors_name_only_what_applies(tmp_path, plane, intrinsics, capsys, args, says):
+    """'--iterations 2.5' ended with '(size = num_frames)', irrelevant to --iterations."""
+    from fuse4d import Sequence
+    from fuse4d.cli import main
+    from fuse4d.io import save_sequence
+
+    depth, tex = plane
+    src = save_sequence(Sequence(depth[:2], tex[:2], intrinsics), tmp_path / "in.npz")
+    assert main(["baseline", "ta", str(src), "-o", str(tmp_path / "o.npz"), *args]) == 2
+    assert capsys.readouterr().err.endswith(says)

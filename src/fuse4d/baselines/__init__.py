@@ -156,12 +156,16 @@ class BaselineInfo:
                     f"baseline {self.name!r}: give size or {self.size_name}, not both"
                 )
             values["size"] = values.pop(self.size_name)
-        try:
-            return coerce_kwargs(self.function, values, owner=f"baseline {self.name!r}")
+        owner = f"baseline {self.name!r}"
+        size = {"size": values.pop("size")} if "size" in values else {}
+        kwargs = coerce_kwargs(self.function, values, owner=owner)
+        try:  # the size knob apart: only its error says which quantity size is
+            kwargs.update(coerce_kwargs(self.function, size, owner=owner))
         except ValueError as exc:
             if self.size_name == "size":
                 raise
             raise ParameterError(f"{exc} (size = {self.size_name})") from None
+        return kwargs
 
 
 _REGISTRY: dict[str, BaselineInfo] = {

@@ -13,7 +13,7 @@ from .._params import check_int, check_number
 from .._validation import as_float32, check_same_shape, check_shape
 from ..camera import Intrinsics, check_intrinsics
 from ..errors import ParameterTypeError, ShapeError
-from ..sequence import as_unit_intensity
+from ..sequence import as_unit_intensity, sanitize_depth
 
 __all__ = [
     "MAX_WINDOW_RADIUS",
@@ -91,7 +91,7 @@ def estimate_noise_sigma(depth: ArrayLike) -> float:
     Parameters
     ----------
     depth : (T, H, W) or (H, W) ndarray
-        Depth in mm, NaN = invalid.
+        Depth in mm; NaN, 0 (a 16-bit file's "no depth"), negative or inf = invalid.
 
     Returns
     -------
@@ -105,14 +105,14 @@ def estimate_noise_sigma(depth: ArrayLike) -> float:
     >>> round(estimate_noise_sigma(d), 1)
     0.2
     """
-    d = np.asarray(depth, dtype=np.float32)
+    d = np.asarray(depth)
     if d.ndim == 2:
         d = d[None]
     # MAD of >= 1.5 M residuals is as good as all of them (standard error < 0.1 %), and long
     # sequences would otherwise dominate a filter's run time: use evenly spaced frames.
     per_frame = max((d.shape[1] - 2) * (d.shape[2] - 2), 1)
     step = max(1, d.shape[0] // max(1, -(-_NOISE_SAMPLES // per_frame)))
-    d = d[::step]
+    d = sanitize_depth(d[::step])  # 0 = no depth (16-bit files): zero holes read as no noise
     c = d[:, 1:-1, 1:-1]
     nb = (d[:, :-2, 1:-1] + d[:, 2:, 1:-1] + d[:, 1:-1, :-2] + d[:, 1:-1, 2:]) * np.float32(0.25)
     r = c - nb
@@ -177,7 +177,7 @@ def estimate_noise_model(depth: ArrayLike) -> DepthNoiseModel:
     Parameters
     ----------
     depth : (T, H, W) or (H, W) ndarray
-        Depth in mm, NaN = invalid.
+        Depth in mm; NaN, 0 (a 16-bit file's "no depth"), negative or inf = invalid.
 
     Returns
     -------
@@ -192,12 +192,13 @@ def estimate_noise_model(depth: ArrayLike) -> DepthNoiseModel:
     """
     from ..motion import estimate_noise_quad
 
-    d = np.asarray(depth, dtype=np.float32)
+    d = np.asarray(depth)
     if d.ndim == 2:
         d = d[None]
     picks = np.unique(np.linspace(0, d.shape[0] - 1, min(_MODEL_FRAMES, d.shape[0])).astype(int))
-    quads = [estimate_noise_quad(np.ascontiguousarray(d[t])) for t in picks]
-    finite = d[picks][np.isfinite(d[picks])]
+    sample = sanitize_depth(d[picks])  # 0 = no depth (16-bit files), as NaN
+    quads = [estimate_noise_quad(sample[i]) for i in range(sample.shape[0])]
+    finite = sample[np.isfinite(sample)]
     z_med = float(np.median(finite)) if finite.size else float("nan")
     sigma0 = estimate_noise_sigma(d)
     quad = float(np.median(quads))

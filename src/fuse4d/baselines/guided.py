@@ -60,9 +60,13 @@ def guided(
     -----
     NaN depth is first replaced by a normalised-convolution fill (Gaussian σ = 3 px over valid
     pixels), a local fill that does not pull depth near a hole towards a far-away value; the
-    output is re-masked with the raw validity. Library call:
+    output is re-masked with the raw validity. Intensity guide, library call:
     ``cv2.ximgproc.guidedFilter(guide=G, src=D, radius=r, eps=ε, dDepth=-1)``. At small ε the
-    intensity texture is copied into depth; this artefact is part of the method.
+    intensity texture is copied into depth; this artefact is part of the method. Depth guide:
+    the same filter (box means, ``BORDER_REFLECT`` as OpenCV's) in float64 about the frame's
+    mean, with ``a = var / (var + ε)``, var clamped at 0 (:func:`_self_guided`): OpenCV's
+    float32 ``mean(D²) − mean(D)²`` cancels at depths of metres (NaN even on a constant
+    frame of 3955 mm), which turned most valid depth into NaN.
     """
     if guide not in ("intensity", "depth"):
         raise ParameterError(f"guide must be 'intensity' or 'depth', got {guide!r}")
@@ -80,9 +84,34 @@ def guided(
         out = np.empty_like(cur)
         for t in range(cur.shape[0]):
             src = normalized_convolution_fill(cur[t], sigma=3.0)
-            out[t] = cv2.ximgproc.guidedFilter(
-                guide=src if g is None else g[t], src=src, radius=radius, eps=float(eps), dDepth=-1
-            )
+            if g is None:
+                out[t] = _self_guided(src, radius, float(eps))
+            else:
+                out[t] = cv2.ximgproc.guidedFilter(
+                    guide=g[t], src=src, radius=radius, eps=float(eps), dDepth=-1
+                )
         return np.where(valid, out, np.nan).astype(np.float32)
 
     return iterate(step, d, iterations, owner="guided")
+
+
+def _self_guided(depth: NDArray[np.float32], radius: int, eps: float) -> NDArray[np.float64]:
+    """Self-guided filter (guide = input) of one NaN-free depth frame (mm), in float64.
+
+    He et al.'s Algorithm 1 with guide = input: ``a = var / (var + ε)``, ``b = (1 − a) mean``,
+    ``q = mean(a) D + mean(b)``, box means of radius ``radius`` px with OpenCV's border
+    (``BORDER_REFLECT``). Computed about the frame's mean depth and with the variance clamped
+    at 0, so that ``a`` lies in [0, 1) and no finite input gives NaN; ``eps`` in mm².
+    """
+    centre = float(np.mean(depth, dtype=np.float64))
+    x = depth.astype(np.float64) - centre
+    ksize = (2 * radius + 1, 2 * radius + 1)
+
+    def box(v: NDArray[np.float64]) -> NDArray[np.float64]:
+        return cv2.boxFilter(v, -1, ksize, normalize=True, borderType=cv2.BORDER_REFLECT)
+
+    mean = box(x)
+    var = np.maximum(box(x * x) - mean * mean, 0.0)
+    a = var / (var + eps)
+    b = (1.0 - a) * mean
+    return box(a) * x + box(b) + centre

@@ -15,12 +15,15 @@ has no units of its own, is sent in 20 µm units (the finest that fits 16 bits u
 where 20 units are 0.4 mm (the paper's 0.2 mm sensor). The deltas can also be given in mm.
 
 ``domain="disparity"`` (the default for whole-mm recordings) runs the SDK's recommended
-order for stereo depth: depth → disparity → spatial → temporal → depth → hole filling. The
-disparity transform is done here (``disparity = f b / z`` with the recording's focal length
-and ``baseline_mm``, 50 mm as on a D4xx), in the SDK's disparity units of 1/32 px, sent in
-finer Z16 steps (1/64 px where it fits) with the deltas scaled to match, so the SDK's
-default delta of 20 units is 0.625 px of disparity — on Kinect-class depth, whose disparity
-steps are 1/8 px, the filters then act as on a D4xx. Float depth stays in the depth domain.
+order for stereo depth: depth → disparity → spatial → temporal → depth → hole filling, with
+the SDK's own ``disparity_transform`` pair: the software sensor declares a
+``stereo_baseline`` (``baseline_mm``, 50 mm as on a D4xx) besides its depth units, so the
+transform gives the SDK's float disparity (``disparity32``, 1/32 px with the recording's
+focal length) and the filters run their float path, as on a D4xx. The SDK's default delta
+of 20 units is then 0.625 px of disparity — on Kinect-class depth, whose disparity steps are
+1/8 px, the filters act as on a D4xx. (Disparity sent as integer Z16 steps instead biased
+depth towards the camera: the SDK's integer spatial filter adds ~+4 steps to the mean, up to
+-50 mm at 4.5 m.) Float depth stays in the depth domain.
 """
 
 from __future__ import annotations
@@ -99,8 +102,12 @@ def _import_rs():
     return rs
 
 
-def _software_sensor(rs, intrinsics: Intrinsics, unit_m: float):
-    """A started ``software_device`` depth sensor: (sensor, profile, queue)."""
+def _software_sensor(rs, intrinsics: Intrinsics, unit_m: float, baseline_mm: float | None = None):
+    """A started ``software_device`` depth sensor: (device, sensor, profile, queue).
+
+    ``unit_m``: its depth units (m); ``baseline_mm``: the stereo baseline it declares (mm),
+    which makes ``rs.disparity_transform`` convert its frames (None: passed through).
+    """
     w, h = intrinsics.width, intrinsics.height
     device = rs.software_device()
     sensor = device.add_sensor("Depth")
@@ -116,6 +123,8 @@ def _software_sensor(rs, intrinsics: Intrinsics, unit_m: float):
     stream.bpp, stream.fmt, stream.intrinsics = 2, rs.format.z16, intr
     profile = sensor.add_video_stream(stream)
     sensor.add_read_only_option(rs.option.depth_units, unit_m)
+    if baseline_mm is not None:
+        sensor.add_read_only_option(rs.option.stereo_baseline, float(baseline_mm))
     queue = rs.frame_queue(2, keep_frames=True)
     sensor.open(profile)
     sensor.start(queue)
@@ -223,28 +232,21 @@ def realsense_chain(
         )
     if domain == "auto":
         domain = "disparity" if unit_mm == 1.0 else "depth"
-    fb = float(intrinsics.fx) * float(baseline_mm)  # disparity (px) = fb / z (mm)
-    if domain == "disparity":
-        z_min = float(finite.min()) if finite.size else 1.0
-        # Z16 steps per px of disparity: 1/64 px where the nearest depth fits in 16 bits (the
-        # SDK's spatial delta is at most 50 steps: 20 SDK units = 40 steps of 1/64 px)
-        per_px = min(64.0, 65000.0 * z_min / fb)
-        filter_unit = per_px / 32.0  # Z16 steps per SDK disparity unit (1/32 px)
-    else:
-        filter_unit = 1.0
 
     def to_units(value: float | None) -> float:
+        """A delta in the SDK's units: depth units, or 1/32 px of disparity."""
         if value is None:
-            return max(1.0, round(_SDK_DELTA_UNITS * filter_unit))
+            return float(_SDK_DELTA_UNITS)
         if domain == "disparity":
-            return max(1.0, round(float(value) * filter_unit))
+            return max(1.0, round(float(value)))
         return max(1.0, round(float(value) / unit_mm))
 
     def step(cur: NDArray[np.float32]) -> NDArray[np.float32]:
         n = cur.shape[0]
         unit_m = unit_mm / 1000.0
-        first = _software_sensor(rs, intrinsics, unit_m)
-        second = _software_sensor(rs, intrinsics, unit_m) if domain == "disparity" else None
+        disparity = domain == "disparity"
+        sensor = _software_sensor(rs, intrinsics, unit_m, baseline_mm if disparity else None)
+        to_disparity, to_depth = rs.disparity_transform(True), rs.disparity_transform(False)
         spatial = rs.spatial_filter()
         _set_option(spatial, rs.option.filter_magnitude, magnitude, "size")
         _set_option(spatial, rs.option.filter_smooth_alpha, float(spatial_alpha), "spatial_alpha")
@@ -267,29 +269,20 @@ def realsense_chain(
         try:
             for t in range(n):
                 ok = np.isfinite(cur[t])
-                if domain == "disparity":
-                    with np.errstate(divide="ignore", invalid="ignore"):
-                        z = np.where(ok, np.rint(per_px * fb / cur[t]), 0)
-                else:
-                    z = np.where(ok, np.rint(cur[t] / unit_mm), 0)
-                result = temporal.process(spatial.process(_push(rs, first, z, t, unit_m)))
-                data = np.asanyarray(result.get_data()).astype(np.float64)
-                if second is not None:
-                    with np.errstate(divide="ignore"):
-                        mm = np.where(data > 0, per_px * fb / np.maximum(data, 1e-9), 0.0)
-                    result = _push(rs, second, np.clip(np.rint(mm / unit_mm), 0, 65535), t, unit_m)
-                    data = np.asanyarray(result.get_data()).astype(np.float64)
+                z = np.where(ok, np.rint(cur[t] / unit_mm), 0)
+                result = _push(rs, sensor, z, t, unit_m)
+                if disparity:
+                    result = to_disparity.process(result)
+                result = temporal.process(spatial.process(result))
+                if disparity:
+                    result = to_depth.process(result)
                 if holes is not None:
                     result = holes.process(result)
-                    data = np.asanyarray(result.get_data()).astype(np.float64)
-                if domain == "depth" or second is not None:
-                    data = data * unit_mm
+                data = np.asanyarray(result.get_data()).astype(np.float64) * unit_mm
                 out[t] = np.where(data > 0, data, np.nan).astype(np.float32)
         finally:
-            for handle in (first, second):
-                if handle is not None:
-                    handle[1].stop()
-                    handle[1].close()
+            sensor[1].stop()
+            sensor[1].close()
         return out
 
     return iterate(step, d, iterations, owner="realsense_chain")

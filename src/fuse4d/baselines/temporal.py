@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._kernels._common import gauss_factor
 from .._kernels.baselines import _temporal_average_kernel
 from .._params import check_int, check_number
 from ..camera import Intrinsics
@@ -57,7 +58,8 @@ def temporal_average(
     d, _ = check_inputs(depth, intensity, intrinsics)
     n = check_int("temporal_average", "size", size, minimum=1)
     check_number("temporal_average", "sigma_temporal", sigma_temporal, gt=0)
-    coeff_t = 0.0 if np.isinf(sigma_temporal) else 0.5 / float(sigma_temporal) ** 2
+    # gauss_factor: a tiny sigma is the narrowest kernel (1 / (2 sigma^2) was a ZeroDivisionError)
+    coeff_t = 0.0 if np.isinf(sigma_temporal) else gauss_factor(sigma_temporal)
     if noise_sigma is not None:
         sigma = check_number("temporal_average", "noise_sigma", noise_sigma, gt=0, finite=True)
         model = None
@@ -71,7 +73,7 @@ def temporal_average(
         if model is None:
             out = np.empty_like(cur)
             _temporal_average_kernel(
-                np.ascontiguousarray(cur), n, coeff_t, 0.5 / (3.0 * sigma) ** 2, out
+                np.ascontiguousarray(cur), n, coeff_t, gauss_factor(3.0 * sigma), out
             )
             return out
         sigma_r = 3.0 * np.maximum(model.sigma_at(cur), 1e-3)
