@@ -653,3 +653,126 @@ def test_ground_truth_zero_is_no_truth_as_in_fuse4d_metrics(small_ball, small_fu
     rmse = _metrics(tmp_path / "rep")["metrics"]["fused"]["rmse"]
     assert rmse == pytest.approx(depth_rmse(gt, small_fused.depth), rel=1e-6)
     assert rmse < 100.0
+
+
+# --------------------------------------------------------------------------- dropped frames
+@pytest.fixture(scope="module")
+def dropped_ball(small_ball, tmp_path_factory):
+    """The 4-frame ball saved with frame 2 (the middle one) dropped: all-NaN depth."""
+    import dataclasses
+
+    depth = np.array(small_ball.depth, dtype=np.float32)
+    depth[2] = np.nan
+    path = tmp_path_factory.mktemp("dropped") / "drop.npz"
+    save_sequence(dataclasses.replace(small_ball, depth=depth), path)
+    return path
+
+
+def test_a_dropped_middle_frame_decides_neither_frame_nor_ranges_nor_planes(
+    dropped_ball, small_fused, tmp_path, monkeypatch
+):
+    """With the middle frame empty the report rendered it, set the roughness scale and
+    histogram to 0-1 mm (85 % of raw in the overflow bin), found no plane, and drew the
+    histogram means from clipped bin centres, not the table's; with --frames its captions
+    named no input frame; the video counted from 1, the page from 0."""
+    from fuse4d.report import figures
+
+    seen: dict = {}
+    draw = figures.roughness_figure
+
+    def spy(*args, **kwargs):
+        seen.update(kwargs)
+        return draw(*args, **kwargs)
+
+    monkeypatch.setattr(figures, "roughness_figure", spy)
+    out = tmp_path / "rep"
+    # frames 1:4 of the input: 1, 2 (empty), 3; the middle one of the run is input frame 2
+    fused = small_fused.depth[1:4]  # a plain array: neither support nor source stored
+    write_report(dropped_ball, fused, out, reader_options={"frames": "1:4"})
+    m = _metrics(out)
+    assert m["frame_rendered"] == 0  # the nearest frame with depth (was 1, the empty one)
+    assert m["frame_rendered_input"] == 1
+    edges = m["roughness"]["histogram_edges_mm"]
+    assert edges[-1] > 1.0  # was 1 mm, the fallback of an empty frame
+    raw_hist = np.array(m["roughness"]["histograms"]["raw"])
+    assert raw_hist[-1] < 0.05 * raw_hist.sum()  # the overflow bin
+    assert [p["source"] for p in m["planes"]] == ["detected"]  # the wall (none before)
+    assert m["metrics"]["raw"]["spatial_precision"] > 0
+    assert seen["means"] == {n: m["metrics"][n]["roughness_mean"] for n in ("raw", "fused")}
+    page = (out / "report.html").read_text()
+    assert "Frame 0 (input frame 1) back-projected" in page
+    assert "Frames counted from 0 = input frame 1." in page
+    assert "dotted: the roughness means of the table" in page
+    # what the page says of panels that are not drawn (an .mkv result stores neither)
+    assert "temporal support of each pixel" not in page
+    assert "stores neither support maps nor source codes" in page
+    assert "Hole-filled" not in page
+    assert "Neither support (frames fused per pixel) nor the source" in page
+
+
+def test_roi_plane_is_fitted_where_the_region_has_depth(dropped_ball, small_fused, tmp_path):
+    """--roi on an empty rendered frame, or on a region too small for a plane fit, was an
+    internal error (a plain ValueError from given_plane)."""
+    roi = (118, 146, 4, 40)  # the static wall below-left of the ball
+    write_report(dropped_ball, small_fused, tmp_path / "rep", roi=roi, frame=2)
+    m = _metrics(tmp_path / "rep")
+    assert m["frame_rendered"] == 2  # as asked, though empty
+    assert [p["source"] for p in m["planes"]] == ["given"]
+    assert 0.15 < m["metrics"]["raw"]["spatial_precision"] < 0.25  # sigma_d = 0.2 mm
+    code = main(
+        ["report", str(dropped_ball), str(dropped_ball), "-o", str(tmp_path / "r"),
+         "--roi", "5:6,5:6"]
+    )  # fmt: skip
+    assert code == 2  # one line, not "internal error" (exit 70)
+    with pytest.raises(ParameterError, match="roi 5:6,5:6: the region holds at most 1 pixel"):
+        write_report(dropped_ball, small_fused, tmp_path / "r", roi=(5, 6, 5, 6))
+    assert not (tmp_path / "r").exists()
+
+
+def test_video_note_and_header_say_what_is_shown(monkeypatch):
+    """The note described a support panel the video did not have, and the header counted
+    frames from 1 where the page and --frame count from 0."""
+    from fuse4d.report import _video_note
+    from fuse4d.report.layout import VideoLayout
+
+    def layout(support: bool, source: bool) -> VideoLayout:
+        return VideoLayout((20, 30), depth_range=(500, 1000), diff_max=1.0, support_max=4.0,
+                           show_support=support, show_source=source)  # fmt: skip
+
+    assert "temporal support of each pixel" in _video_note("libx264", 1, 0, 1, layout(True, 0))
+    assert "where each value comes from" in _video_note("libx264", 1, 0, 1, layout(False, 1))
+    bare = _video_note("libx264", 1, 0, 1, layout(False, False))
+    assert "temporal support" not in bare
+    assert "stores neither support maps nor source codes" in bare
+    texts: list[str] = []
+    lay = layout(True, False)
+    monkeypatch.setattr(lay, "_text", lambda img, text, *a, **k: texts.append(text))
+    panels = (np.zeros((20, 30, 3), np.uint8),) * 6
+    lay.compose(5, 12, panels, label="x.npz")
+    lay.compose(2, 8, panels, label="x.npz", input_frame=42)
+    assert texts == ["frame 5 of 0-11   x.npz", "frame 2 of 0-7 (input frame 42)   x.npz"]
+
+
+def test_figures_have_whole_frame_ticks_and_no_log_scale_of_nothing(monkeypatch):
+    """An all-NaN result printed matplotlib's "Data has no positive values, and therefore
+    cannot be log-scaled" as a fuse4d warning; time axes had ticks at frame 2.5 (0.2 for two
+    frames)."""
+    from fuse4d.report import figures
+
+    drawn: list = []
+    monkeypatch.setattr(figures, "png_bytes", lambda fig, **kwargs: drawn.append(fig) or b"")
+    edges = np.linspace(0.0, 1.0, 61)
+    empty = {n: np.zeros(60, np.int64) for n in ("raw", "fused")}
+    maps = {n: np.full((8, 8), np.nan, np.float32) for n in ("raw", "fused")}
+    nan = float("nan")
+    figures.roughness_figure(maps, empty, edges, frame=0, means={"raw": nan, "fused": nan})
+    assert drawn[-1].axes[-1].get_yscale() == "linear"
+    figures.timeseries_figure({"raw": np.arange(2.0)[:, None]}, [(1, 1, "p")])
+    ticks = drawn[-1].axes[0].get_xticks()
+    figures.xt_figure(
+        {"raw": np.zeros((3, 8), np.float32)}, axis="row", index=3, vmin=0, vmax=1,
+        change_range=1,
+    )  # fmt: skip
+    ticks = np.concatenate([ticks, *(ax.get_yticks() for ax in drawn[-1].axes[:2])])
+    assert len(ticks) > 2
+    np.testing.assert_array_equal(ticks, np.round(ticks))

@@ -71,7 +71,11 @@ def report_command(
     ] = None,
     frame: Annotated[
         int | None,
-        typer.Option("--frame", help="Frame of the maps and point cloud (default: middle)."),
+        typer.Option(
+            "--frame",
+            help="Frame of the maps and point cloud, counted from 0 (with --frames A:B, from"
+            " input frame A) (default: the frame with depth nearest the middle).",
+        ),
     ] = None,
     fps: Annotated[float | None, typer.Option("--fps", help="Video frame rate.")] = None,
     rerun: Annotated[

@@ -35,7 +35,7 @@ from ..metrics.roi import parse_box as parse_roi
 from ..motion import estimate_depth_noise, estimate_noise_quad
 from ..sequence import Sequence
 from ._sources import RawSource, open_fused, open_raw
-from .planes import Plane, detect_planes, given_plane
+from .planes import MIN_FIT_PIXELS, Plane, detect_planes, given_plane
 from .render import colorize, normal_map, shade_points, splat_points
 from .video import Mp4Writer, choose_codec, count_video_frames, video_rate
 from .xt import MotionProfile, XtSlice, choose_line
@@ -167,9 +167,18 @@ def _nice_ceiling(x: float) -> float:
 
 
 class _Scan:
-    """First pass over the raw input: motion per line, quiet pixels, ranges, GT static mask."""
+    """First pass over the raw input: motion per line, quiet pixels, ranges, GT static mask,
+    valid pixels per frame (in all and inside ``roi_mask``)."""
 
-    def __init__(self, raw: RawSource, gt: _GroundTruth, chunk_frames: int, frame: int) -> None:
+    def __init__(
+        self,
+        raw: RawSource,
+        gt: _GroundTruth,
+        chunk_frames: int,
+        roi_mask: NDArray[np.bool_] | None = None,
+    ) -> None:
+        from ..metrics import default_roi, roughness_maps
+
         h, w = raw.shape
         t_total = raw.num_frames
         self.motion = MotionProfile((h, w))
@@ -191,8 +200,13 @@ class _Scan:
         gt_static = np.ones((h, w), dtype=bool) if gt.available else None
         gt_first: NDArray[np.float32] | None = None
         step = max(1, t_total // 24)
-        self.frame_depth: NDArray[np.float32] | None = None
-        self.frame_intensity: NDArray[np.float32] | None = None
+        # roughness range of the figures: 99th percentile of Pi on a few frames (the
+        # rendered frame alone gave 0-1 mm where it had no depth)
+        rough_step = max(1, math.ceil(t_total / 8))
+        rough_highs: list[float] = []
+        #: valid raw pixels of each frame, and inside the ROI (the frame choices)
+        self.valid_counts = np.zeros(t_total, dtype=np.int64)
+        self.roi_counts = np.zeros(t_total, dtype=np.int64)
         for a, b in _chunks(t_total, chunk_frames):
             seq = raw.chunk(a, min(t_total, b + 1))  # one frame more: GT flow of pair b-1 -> b
             for j in range(b - a):
@@ -208,6 +222,9 @@ class _Scan:
                 d1 += x
                 d2 += x * x
                 dn += ok
+                self.valid_counts[t] = int(ok.sum())
+                if roi_mask is not None:
+                    self.roi_counts[t] = int(np.count_nonzero(ok & roi_mask))
                 ztsum += t * x
                 np.fmin(zmin, d, out=zmin, where=ok)
                 np.fmax(zmax, d, out=zmax, where=ok)
@@ -217,9 +234,11 @@ class _Scan:
                     lo, hi = np.percentile(d[ok], [1.0, 99.0])
                     lows.append(float(lo))
                     highs.append(float(hi))
-                if t == frame:
-                    self.frame_depth = d.copy()
-                    self.frame_intensity = i.copy()
+                if t % rough_step == 0 and ok.any():
+                    pi = roughness_maps(depth_to_points(d, raw.intrinsics))[0]
+                    vals = pi[default_roi(d) & np.isfinite(pi)]
+                    if vals.size:
+                        rough_highs.append(float(np.percentile(vals, 99)))
             if gt_static is not None:
                 gdepth = gt.depth(seq, a, min(t_total, b + 1))
                 if gdepth is not None:
@@ -243,6 +262,9 @@ class _Scan:
         self.depth_range = (float(np.median(lows)), float(np.median(highs))) if lows else (0.0, 1.0)
         if not self.depth_range[1] > self.depth_range[0]:
             self.depth_range = (self.depth_range[0] - 1.0, self.depth_range[0] + 1.0)
+        #: upper end of the roughness scale (mm): median over sampled frames of the 99th
+        #: percentile of the raw Pi on their default ROI (1 mm where none has one)
+        self.rough_max = _nice_ceiling(float(np.median(rough_highs)) if rough_highs else 1.0)
         self.gt_static = gt_static
         self.noise_quad = float(np.median(quads)) if quads else 0.0
         self.noise_sigma = float(np.median(sigmas)) if sigmas else 0.0
@@ -250,6 +272,14 @@ class _Scan:
             zmin, zmax, np.where(self.all_valid, mean, 0.0), self.noise_quad,
             noise_sigma=self.noise_sigma, trend=depth_trend(d1, ztsum, t_total),
             frames=t_total,
+        )  # fmt: skip
+        # the range rule alone on pixels valid in at least half of the frames, for plane
+        # detection: one frame without depth (a dropped frame) left no pixel valid in every
+        # frame, so no static pixel and no plane
+        mostly = dn >= max(2, (t_total + 1) // 2)
+        self.mostly_static = mostly & is_static(
+            zmin, zmax, np.where(mostly, mean, 0.0), self.noise_quad,
+            noise_sigma=self.noise_sigma,
         )  # fmt: skip
 
     def static_mask(self) -> tuple[NDArray[np.bool_], str]:
@@ -283,6 +313,13 @@ def _sixth_panel(
     if layout.show_source and source is not None:
         return source_rgb(layout.fit_values(source[j].astype(np.float32)).astype(np.uint8))
     return None
+
+
+def _nearest(candidates: NDArray[np.bool_], target: int) -> int | None:
+    """The index of a True of ``candidates`` nearest ``target`` (the earlier of two), else
+    None."""
+    idx = np.flatnonzero(candidates)
+    return None if idx.size == 0 else int(idx[np.argmin(np.abs(idx - target))])
 
 
 def _pick_pixels(
@@ -381,7 +418,9 @@ def write_report(
         The image row (or column) of the x–t slice; default: the row with the most motion.
     roi : (r0, r1, c0, c1) or "R0:R1,C0:C1", optional
         A flat, static target region (rows r0..r1-1, columns c0..c1-1): the spatial precision
-        is measured there instead of on detected planes, and the flicker only inside it.
+        is measured there instead of on detected planes, and the flicker only inside it. Its
+        reference plane is fitted on the frame nearest ``frame`` where the region holds at
+        least 10 pixels with depth (:class:`~fuse4d.errors.ParameterError` where none does).
     ground_truth : path, Sequence or (T, H, W) array, optional
         Ground-truth depth (mm); default: the input's own (``depth_gt`` of an npz). Adds
         RMSE and bad pixels to the table; static pixels then come from the ground truth.
@@ -396,7 +435,11 @@ def write_report(
         :attr:`fuse4d.RunSummary.steady_ms_per_frame`): shown as the time per frame, with the
         average (``fusion_seconds``, start-up included) beside it.
     frame : int, optional
-        Frame of the maps, point-cloud render and PLY (default: the middle frame).
+        Frame of the maps, point-cloud render and PLY, 0-based among the fused frames (for a
+        run of part ``A:B`` of the input, frame 0 is the input's frame A; the page and the
+        video name both). Default: the frame with depth nearest the middle (at least half
+        the valid pixels of the median frame). The planes and the |raw - fused| colour
+        range come from this frame, or from the nearest frame with depth where it has none.
     fps : float, optional
         Video frame rate (default: the input's, else 10).
     chunk_frames : int, optional
@@ -487,6 +530,12 @@ def write_report(
             gt.close()
 
 
+def _frame_name(t: int, part: range | None) -> str:
+    """``frame 5`` (0-based), or ``frame 2 (input frame 42)`` for a run of part of a
+    recording."""
+    return f"frame {t}" if part is None else f"frame {t} (input frame {part.start + t})"
+
+
 def _part(part: range | None) -> str:
     """`` (frames A-(B-1) of the input)`` for a run of part of a recording, else ``""``."""
     return "" if part is None else f" (frames {part.start}-{part.stop - 1} of the input)"
@@ -525,11 +574,8 @@ def _write(
     k = raw.intrinsics
     h, w = raw.shape
     total = raw.num_frames
-    if frame is None:
-        frame = total // 2
-    if not 0 <= int(frame) < total:
+    if frame is not None and not 0 <= int(frame) < total:
         raise ParameterError(f"frame must be in [0, {total - 1}], got {frame}")
-    frame = int(frame)
     if row is not None and not 0 <= int(row) < h:
         raise ParameterError(f"row must be in [0, {h - 1}] for a {h}x{w} image, got {row}")
     if col is not None and not 0 <= int(col) < w:
@@ -538,8 +584,27 @@ def _write(
     names = ["raw", "fused", *compare]
 
     # ---------------------------------------------------------------- pass 1: scan the input
-    scan = _Scan(raw, gt, chunk_frames, frame)
+    scan = _Scan(raw, gt, chunk_frames, roi_mask)
     scan_seconds = time.perf_counter() - start_time
+    # frames with depth: an empty frame (a dropped one) decided the planes and colour ranges
+    with_depth = scan.valid_counts >= max(1.0, 0.5 * float(np.median(scan.valid_counts)))
+    if frame is None:  # the frame with depth nearest the middle
+        frame = _nearest(with_depth, total // 2)
+        frame = total // 2 if frame is None else frame
+    frame = int(frame)
+    # planes and the |raw - fused| range: the rendered frame, or the nearest one with depth
+    ref = _nearest(with_depth, frame)
+    ref = frame if ref is None else ref
+    if roi_mask is not None:  # the ROI's plane: the nearest frame where it has depth
+        fit_frame = _nearest(scan.roi_counts >= MIN_FIT_PIXELS, frame)
+        if fit_frame is None:
+            r0, r1, c0, c1 = roi_box
+            raise ParameterError(
+                f"roi {r0}:{r1},{c0}:{c1}: the region holds at most "
+                f"{int(scan.roi_counts.max())} pixel(s) with depth in any of the {total} frames "
+                f"of {raw.name}; a plane fit needs at least {MIN_FIT_PIXELS} (choose a region "
+                "on a flat surface with valid depth)"
+            )
     if row is not None:
         line_axis, line, line_how = "row", int(row), "given"
     elif col is not None:
@@ -550,13 +615,12 @@ def _write(
     if roi_mask is not None:
         static = static & roi_mask
         static_how += "; inside the ROI"
-    assert scan.frame_depth is not None
-    assert scan.frame_intensity is not None
-    ref_points = depth_to_points(scan.frame_depth, k)
+    ref_depth = raw.chunk(ref, ref + 1).depth[0]
+    ref_points = depth_to_points(ref_depth, k)
     ref_pi, ref_rms = roughness_maps(ref_points)
-    ref_roi = default_roi(scan.frame_depth) & np.isfinite(ref_pi)
+    ref_roi = default_roi(ref_depth) & np.isfinite(ref_pi)
     finite_pi = ref_pi[ref_roi]
-    rough_max = _nice_ceiling(float(np.percentile(finite_pi, 99)) if finite_pi.size else 1.0)
+    rough_max = scan.rough_max
     # noise for the plane inlier test: local plane residual, or the temporal std of static
     # pixels when larger (it includes the depth quantisation of far surfaces)
     noise = float(np.median(ref_rms[ref_roi])) if finite_pi.size else math.nan
@@ -564,11 +628,17 @@ def _write(
     if static_std.size:
         noise = float(np.nanmax([noise, float(np.median(static_std))]))
     if roi_mask is not None:
-        planes: list[Plane] = [given_plane(ref_points, roi_mask)]
+        fit_points = (
+            ref_points
+            if fit_frame == ref
+            else depth_to_points(raw.chunk(fit_frame, fit_frame + 1).depth[0], k)
+        )
+        planes: list[Plane] = [given_plane(fit_points, roi_mask)]
     else:
-        planes = detect_planes(ref_points, noise_mm=noise, allowed=static)
-    ref_fused = fres.chunk(frame, frame + 1)
-    diff = np.abs(scan.frame_depth - ref_fused.depth[0])
+        allowed = static if static.any() else scan.mostly_static
+        planes = detect_planes(ref_points, noise_mm=noise, allowed=allowed)
+    ref_fused = fres.chunk(ref, ref + 1)
+    diff = np.abs(ref_depth - ref_fused.depth[0])
     diff = diff[np.isfinite(diff)]
     diff_max = _nice_ceiling(float(np.percentile(diff, 98)) if diff.size else 1.0)
     support_max = 1.0
@@ -677,7 +747,15 @@ def _write(
                         shade_points(points["fused"]),
                         _sixth_panel(layout, sup, ok, support_max, fch.source, j),
                     )
-                    video.write(layout.compose(t, total, panels, label=raw.name[-60:]))
+                    video.write(
+                        layout.compose(
+                            t,
+                            total,
+                            panels,
+                            label=raw.name[-60:],
+                            input_frame=None if raw.part is None else raw.part.start + t,
+                        )
+                    )
                     if t == frame:
                         keep = {
                             "points": points,
@@ -741,6 +819,10 @@ def _write(
         n_raw_pts = write_ply(pts["raw"], tmp / "cloud_raw.ply", colors=keep["intensity"])
         n_fused_pts = write_ply(pts["fused"], tmp / "cloud_fused.ply", colors=keep["intensity"])
         series_arr = {n: np.stack(v) for n, v in series.items()}
+        frame_name = _frame_name(frame, raw.part)
+        frames_note = (
+            "" if raw.part is None else f" Frames counted from 0 = input frame {raw.part.start}."
+        )
         ratio = _ratio(results["methods"], "flicker_mean")
         figs = {
             "xt": (
@@ -754,7 +836,7 @@ def _write(
                 ),
                 (
                     f"{line_axis} {line} ({line_how}); depth colour range {xt_lo:.4g}–{xt_hi:.4g} "
-                    f"mm for every method; change range ±{change_range:g} mm."
+                    f"mm for every method; change range ±{change_range:g} mm.{frames_note}"
                 ),
             ),
             "flicker": (
@@ -773,7 +855,7 @@ def _write(
             ),
             "timeseries": (
                 figures.timeseries_figure(series_arr, pixels),
-                "Depth of single pixels over time (thick: fused).",
+                f"Depth of single pixels over time (thick: fused).{frames_note}",
             ),
             "roughness": (
                 figures.roughness_figure(
@@ -781,13 +863,15 @@ def _write(
                     {n: tally.hist[n] for n in ("raw", "fused")},
                     edges,
                     frame=frame,
+                    means={n: results["methods"][n]["roughness_mean"] for n in ("raw", "fused")},
                 ),
                 (
-                    f"Π = |Σ_j (p_i − p_j)·n_i| over the 5×5 window (mm), fixed scale 0–"
-                    f"{rough_max:g} mm; histogram over the ROI pixels of all frames "
+                    f"Π = |Σ_j (p_i − p_j)·n_i| over the 5×5 window (mm) of {frame_name}, fixed "
+                    f"scale 0–{rough_max:g} mm; histogram over the ROI pixels of all frames "
                     f"({results['roughness_roi_pixels']} samples, the same pixels for every "
                     f"method; its last bin holds every value of {rough_max:g} mm or more); "
-                    "dotted: means."
+                    "dotted: the roughness means of the table (mean over frames of each "
+                    "frame's mean)."
                 ),
             ),
             "support": (
@@ -806,6 +890,9 @@ def _write(
                         if keep["support"] is not None
                         else "Support (frames fused per pixel) is not stored in this fused "
                         "result (an .npz output keeps it). "
+                        if keep.get("source") is not None
+                        else "Neither support (frames fused per pixel) nor the source of each "
+                        "value is stored in this fused result (an .npz output keeps both)."
                     )
                     + (
                         "Source: where each value of the frame comes from — measured (raw depth "
@@ -814,16 +901,25 @@ def _write(
                         "depth edges, ToF flying pixels rejected and left empty, no depth, "
                         "and no depth outside the sensor's field of view (never filled)."
                         if keep.get("source") is not None
-                        else "Hole-filled: valid raw pixels without support, filled from "
-                        "their neighbours (Eq. 6)."
+                        # the hole-filled map is drawn where support is stored and source is not
+                        else "Hole-filled: fraction of frames in which a valid raw pixel "
+                        "without support was filled from its neighbours (Eq. 6)"
+                        + (
+                            "; Eq. 6 was off in this run (fill_holes = false)."
+                            if params_dict is not None and params_dict.get("fill_holes") is False
+                            else "."
+                        )
+                        if filled_sum is not None
+                        else ""
                     )
                 ),
             ),
             "cloud": (
                 figures.cloud_figure({"raw": render_raw, "fused": render_fused}, frame=frame),
                 (
-                    f"Frame {frame} back-projected and rendered from an oblique viewpoint "
-                    "(z-buffered splats, shaded by per-pixel normals: noise shows as texture). "
+                    f"{frame_name.capitalize()} back-projected and rendered from an oblique "
+                    "viewpoint (z-buffered splats, shaded by per-pixel normals: noise shows as "
+                    "texture). "
                     f"Point clouds: <a href='cloud_raw.ply'>cloud_raw.ply</a> ({n_raw_pts} points), "
                     f"<a href='cloud_fused.ply'>cloud_fused.ply</a> ({n_fused_pts} points)."
                 ),
@@ -840,12 +936,18 @@ def _write(
                 roi=roi_box,
                 roughness_roi=keep["roughness_roi"],
             ),
-            f"Frame {frame}. Blue: the {int(keep['roughness_roi'].sum())} pixels of this frame's "
-            "roughness ROI (Eq. 7 windows free of depth edges, defined for every method). Green: "
-            f"the {int(static_eval.sum())} static pixels of the flicker "
+            f"{frame_name.capitalize()}. Blue: the {int(keep['roughness_roi'].sum())} pixels of "
+            "this frame's roughness ROI (Eq. 7 windows free of depth edges, defined for every "
+            f"method). Green: the {int(static_eval.sum())} static pixels of the flicker "
             f"(temporal precision). Coloured outlines: the {len(planes)} planar region(s) of the "
             "spatial precision "
-            + ("(the given ROI). " if roi_box is not None else "(RANSAC on this raw frame). ")
+            + (
+                "(the given ROI). "
+                if roi_box is not None
+                else "(RANSAC on this raw frame). "
+                if ref == frame
+                else f"(RANSAC on raw {_frame_name(ref, raw.part)}, the nearest with depth). "
+            )
             + f"Red: the x–t {line_axis}. Numbered: the pixels of the time series.",
         )
         fig_seconds = time.perf_counter() - t_fig
@@ -911,7 +1013,8 @@ def _write(
             "ground_truth": gt.name if gt.available else None,
             "xt_slice": {"axis": line_axis, "index": line, "how": line_how},
             "timeseries_pixels": [{"row": r, "col": c, "label": lb} for r, c, lb in pixels],
-            "frame_rendered": frame,
+            "frame_rendered": frame,  # 0-based, of the fused frames
+            "frame_rendered_input": frame if raw.part is None else raw.part.start + frame,
             "fusion": fill,
             "timing": timing,
             "params": params_dict,
@@ -1015,9 +1118,11 @@ def _quantization_note(unit_mm: float | None) -> str:
 
 def _video_note(codec: str, diff_max: float, lo: float, hi: float, layout: VideoLayout) -> str:
     sixth = (
-        "where each value comes from (the fused result stores no support maps)"
+        "temporal support of each pixel"
+        if layout.show_support
+        else "where each value comes from (the fused result stores no support maps)"
         if layout.show_source
-        else "temporal support of each pixel"
+        else "empty: the fused result stores neither support maps nor source codes"
     )
     note = (
         f"Top: raw depth | fused depth (colour range fixed at {lo:.4g}–{hi:.4g} mm) | "

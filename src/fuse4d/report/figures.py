@@ -81,6 +81,8 @@ def xt_figure(
     change_range : float
         Half range (mm) of the change ``D_t - D_{t-1}`` colour scale.
     """
+    from matplotlib.ticker import MaxNLocator
+
     names = list(slices)
     t, n = next(iter(slices.values())).shape
     aspect = max(0.25, min(4.0, n / max(t, 1)))
@@ -111,6 +113,8 @@ def xt_figure(
         )
         axes[0, j].set_title(name)
         axes[1, j].set_xlabel(f"{pos} (px)")
+    for ax in axes.flat:
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # frames, not 2.5
     axes[0, 0].set_ylabel(f"frame (time ↓)\n{axis} {index}: depth")
     axes[1, 0].set_ylabel("frame\nchange D_t − D_t−1")
     fig.colorbar(im0, ax=axes[0, :].tolist(), label="depth (mm)", shrink=0.9)
@@ -174,6 +178,8 @@ def timeseries_figure(
     pixels : list of (row, col, label)
         The pixels.
     """
+    from matplotlib.ticker import MaxNLocator
+
     fig = _figure(max(6.0, 3.6 * len(pixels)), 2.8)
     axes = fig.subplots(1, len(pixels), squeeze=False)[0]
     for k, (r, c, label) in enumerate(pixels):
@@ -189,6 +195,7 @@ def timeseries_figure(
         ax.set_title(f"{k + 1}: pixel (row {r}, col {c})\n{label}", fontsize=9)
         ax.ticklabel_format(axis="y", useOffset=False, style="plain")
         ax.set_xlabel("frame")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # frames, not 2.5
         ax.set_ylabel("depth (mm)")
     axes[0].legend(fontsize=8)
     return png_bytes(fig)
@@ -200,8 +207,24 @@ def roughness_figure(
     edges: NDArray[np.float64],
     *,
     frame: int,
+    means: dict[str, float] | None = None,
 ) -> bytes:
-    """Roughness maps (Eq. 7) of one frame on a fixed scale and histograms over all frames."""
+    """Roughness maps (Eq. 7) of one frame on a fixed scale and histograms over all frames.
+
+    Parameters
+    ----------
+    maps : dict of str to (H, W) ndarray
+        Roughness Pi (mm) of frame ``frame`` per method.
+    hist : dict of str to (B,) ndarray
+        Histogram counts per method over ``edges`` (the last bin holds the overflow).
+    edges : (B + 1,) ndarray
+        Bin edges (mm); the maps' colour scale is 0 to ``edges[-1]``.
+    frame : int
+        The maps' frame (0-based), for the titles.
+    means : dict of str to float, optional
+        Roughness mean (mm) per method, drawn as a dotted line (the metrics table's
+        ``roughness_mean``: mean over frames of the frame means); NaN: not drawn.
+    """
     names = list(maps)
     vmax = float(edges[-1])
     fig = _figure(3.6 * len(names) + 4.5, 3.6)
@@ -215,16 +238,20 @@ def roughness_figure(
     if image is not None:
         fig.colorbar(image, ax=fig.axes, label="roughness Π (mm)", shrink=0.85)
     ax = fig.add_subplot(grid[0, -1])
-    centers = 0.5 * (edges[1:] + edges[:-1])
     for j, name in enumerate(names):
-        ax.stairs(hist[name], edges, color=method_color(name, j), linewidth=1.6, label=name)
-        total = hist[name].sum()
-        if total:
-            mean = float((hist[name] * centers).sum() / total)
+        # the table's mean (of the frame means), not one from the clipped, binned pixels
+        mean = (means or {}).get(name, float("nan"))
+        label = name if not np.isfinite(mean) else f"{name} (mean {mean:.4g} mm)"
+        ax.stairs(hist[name], edges, color=method_color(name, j), linewidth=1.6, label=label)
+        if np.isfinite(mean):
             ax.axvline(mean, color=method_color(name, j), linestyle=":", linewidth=1)
     ax.set_xlabel("roughness Π (mm), ROI pixels of all frames")
-    ax.set_ylabel("pixels (log scale)")
-    ax.set_yscale("log")
+    if any(hist[name].any() for name in names):
+        ax.set_ylabel("pixels (log scale)")
+        ax.set_yscale("log")
+    else:  # no ROI pixel in any frame (an empty result): a log axis has nothing to show
+        ax.set_ylabel("pixels")
+        ax.text(0.5, 0.5, "no ROI pixels", ha="center", va="center", transform=ax.transAxes)
     ax.legend(fontsize=8)
     return png_bytes(fig)
 

@@ -2,7 +2,7 @@
 
 ::
 
-    frame t / T
+    frame t of 0-(T-1) (input frame t + A, for a run of part A:B of the input)
     raw depth          | fused depth          | |raw - fused|
     [depth colour bar, fixed range]           | [difference colour bar]
     raw, normal-shaded | fused, normal-shaded | support (frames fused)
@@ -206,14 +206,32 @@ class VideoLayout:
         panels: tuple[NDArray[np.uint8], ...],
         *,
         label: str = "",
+        input_frame: int | None = None,
     ) -> NDArray[np.uint8]:
         """One video frame from six (H, W, 3) uint8 panels (row-major order, see module doc).
 
         Panels of another size than the panel size are resampled. A panel may be None
         (drawn as "not stored").
+
+        Parameters
+        ----------
+        index : int
+            The frame's number, 0-based (as the report's ``frame`` and ``--frame``).
+        total : int
+            Frames in the video.
+        panels : tuple of six (H, W, 3) uint8 ndarray or None
+            The panels.
+        label : str, optional
+            Text after the frame number (the input's name).
+        input_frame : int, optional
+            The input's own frame number where it differs from ``index`` (a run of part of
+            the input, ``--frames``).
         """
         img = self._template.copy()
-        self._text(img, f"frame {index + 1} / {total}   {label}", self.gap, 19, 0.55)
+        head = f"frame {index} of 0-{total - 1}"
+        if input_frame is not None:
+            head += f" (input frame {input_frame})"
+        self._text(img, f"{head}   {label}", self.gap, 19, 0.55)
         for k, panel in enumerate(panels):
             row, col = divmod(k, 3)
             x, y = self._x(col), self._y(row)

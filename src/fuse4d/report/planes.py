@@ -7,7 +7,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from ..errors import ParameterError
+
 __all__ = ["Plane", "detect_planes", "plane_fit_rms"]
+
+#: Fewest valid pixels a plane fit uses (fewer: no fit, NaN).
+MIN_FIT_PIXELS = 10
 
 
 @dataclass(frozen=True)
@@ -73,7 +78,7 @@ def plane_fit_rms(points: NDArray[np.floating], mask: NDArray[np.bool_]) -> floa
     """
     sel = points[mask]
     sel = sel[np.all(np.isfinite(sel), axis=1)].astype(np.float64)
-    if len(sel) < 10:
+    if len(sel) < MIN_FIT_PIXELS:
         return float("nan")
     return _fit(sel)[2]
 
@@ -163,13 +168,27 @@ def detect_planes(
 
 
 def given_plane(points: NDArray[np.floating], mask: NDArray[np.bool_]) -> Plane:
-    """A plane from a user-given region (fitted to its valid points; no inlier test)."""
+    """A plane from a user-given region (fitted to its valid points; no inlier test).
+
+    Parameters
+    ----------
+    points : (H, W, 3) ndarray
+        Points in mm of one frame, NaN = invalid.
+    mask : (H, W) ndarray of bool
+        The region.
+
+    Raises
+    ------
+    ParameterError
+        The region holds fewer than :data:`MIN_FIT_PIXELS` valid points in this frame.
+    """
     sel = np.asarray(points, dtype=np.float64)[mask]
     sel = sel[np.all(np.isfinite(sel), axis=1)]
-    if len(sel) < 10:
-        raise ValueError(
-            f"the ROI holds {len(sel)} valid pixels in the reference frame; a plane fit needs "
-            "at least 10 (choose a region on a flat surface with valid depth)"
+    if len(sel) < MIN_FIT_PIXELS:
+        raise ParameterError(
+            f"roi: the region holds {len(sel)} valid pixels in the reference frame; a plane "
+            f"fit needs at least {MIN_FIT_PIXELS} (choose a region on a flat surface with "
+            "valid depth)"
         )
     normal, offset, _ = _fit(sel)
     return Plane(mask, normal, offset, float("inf"), "given")
