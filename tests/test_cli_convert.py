@@ -78,7 +78,9 @@ def test_a_part_converts_losslessly_to_every_layout(folder, tmp_path, suffix, ca
             assert main(["convert", str(folder), str(out), "--frames", "2:6"]) == 0
     else:
         assert main(["convert", str(folder), str(out), "--frames", "2:6"]) == 0
-    assert "4 frames (frames 2:6 of" in capsys.readouterr().out.replace("\n", "")
+    said = capsys.readouterr().out.replace("\n", "")
+    assert "4 frames (frames 2:6 of" in said
+    assert said.endswith(", 28x20 px (WxH)")  # was "20x28", H x W, unlike fuse4d info
     want = load_sequence(folder, frames="2:6")
     got = load_sequence(out)
     np.testing.assert_array_equal(got.depth, want.depth)  # 0.1 mm units kept: exact
@@ -212,3 +214,73 @@ def test_an_output_depth_unit_that_is_no_unit_is_refused(folder, tmp_path, capsy
     assert main(["convert", str(folder), str(out), "--out-depth-unit-mm", unit]) == 2
     assert "out_depth_unit_mm must be > 0 mm" in capsys.readouterr().err
     assert not out.exists()
+
+
+def _fused_npz(path: Path) -> Path:
+    """An .npz as ``fuse4d run`` writes it: the sequence plus per-pixel and other arrays."""
+    seq = _sequence(5)
+    t, h, w = seq.depth.shape
+    codes = (np.arange(t * h * w) % 7).astype(np.uint8).reshape(t, h, w)
+    extra = {
+        "source": codes,
+        "confidence": (codes / 7.0).astype(np.float32),
+        "support": (codes % 3).astype(np.uint8),
+        "fuse4d_params": np.str_('{"fusion": {}}'),
+    }
+    return write_npz(seq, path, extra=extra)
+
+
+def test_a_fused_npz_keeps_its_arrays_in_an_npz_part(tmp_path):
+    """npz -> npz dropped the fused arrays (source, confidence, support) without a word."""
+    from fuse4d.io import read_npz_extra
+
+    src = _fused_npz(tmp_path / "fused.npz")
+    out = tmp_path / "part.npz"
+    assert main(["convert", str(src), str(out), "--frames", "1:3"]) == 0
+    want, got = read_npz_extra(src, frames="1:3"), read_npz_extra(out)
+    assert sorted(got) == ["confidence", "fuse4d_params", "source", "support"]
+    for key, value in want.items():
+        np.testing.assert_array_equal(got[key], value, strict=True)
+    assert got["source"].shape[0] == 2
+
+
+def test_arrays_a_conversion_drops_are_named(tmp_path):
+    """To another layout (or from a fused .zarr) the fused arrays were dropped silently."""
+    from fuse4d.io import ZarrWriter
+
+    src = _fused_npz(tmp_path / "fused.npz")
+    out = tmp_path / "o.zarr"
+    with pytest.warns(UserWarning, match="not carried over|ground-truth mask") as rec:
+        convert_recording(src, out)
+    said = [str(w.message) for w in rec]
+    assert (
+        f"{out}: the arrays source, confidence, support, fuse4d_params of {src} are not "
+        "carried over (only an .npz converted to an .npz keeps them)" in said
+    )
+    seq = _sequence(3)
+    fused = tmp_path / "fused.zarr"
+    with ZarrWriter(fused, seq.intrinsics) as writer:
+        for d, i in zip(seq.depth, seq.intensity, strict=True):
+            codes = np.ones(d.shape, np.uint8)
+            writer.write(d, i, source=codes, confidence=np.full(d.shape, 0.5, np.float32))
+    out = tmp_path / "z.npz"
+    with pytest.warns(UserWarning, match=r"the arrays source, confidence of .*fused\.zarr are"):
+        convert_recording(fused, out, frames="1:3")
+    with np.load(out) as written:
+        assert {"depth", "intensity"} <= set(written.files)
+        assert not {"source", "confidence"} & set(written.files)
+
+
+def test_export_ply_refuses_a_frame_without_valid_depth(tmp_path, capsys):
+    """It wrote a 0-vertex PLY (which Open3D refuses to read) and said 'wrote 0 points'."""
+    seq = _sequence(3)
+    depth = seq.depth.copy()
+    depth[1] = np.nan
+    src = write_npz(seq.with_depth(depth), tmp_path / "s.npz")
+    out = tmp_path / "f.ply"
+    assert main(["export-ply", str(src), "--frame", "1", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"fuse4d: error: {src} (frame 1): no valid depth, no point to export\n"
+    assert not out.exists()
+    assert main(["export-ply", str(src), "--frame", "-1", "-o", str(out)]) == 0
+    assert out.exists()

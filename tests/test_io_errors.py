@@ -571,5 +571,5 @@ def test_streamed_intensity_outside_unit_range_names_what_was_found(
         reader.read_frame(2)
     assert _message(exc) == (
         f"{path} (frame 2): {what} must hold finite values in [0, 1] ({found}; rescale with "
-        "fuse4d.normalize_intensity)"
+        "fuse4d.sequence.normalize_intensity)"
     )

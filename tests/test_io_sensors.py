@@ -160,6 +160,25 @@ def test_azure_kinect_fixture(recordings):
 
 
 @pytest.mark.realdata
+def test_azure_kinect_ir_white_level_is_taken_before_undistortion(recordings):
+    """Taken on the undistorted IR, whose bilinear remap blends saturated pixels (65535) into
+    grey ones, the white level was 39384.8 instead of the raw IR's 13837.5 (27 % darker)."""
+    from fuse4d.io._rosimage import amplitude_to_gray
+
+    path = recordings / "azure_kinect_recording.mkv"
+    with av.open(str(path)) as container:
+        track = next(s for s in container.streams if s.metadata.get("title") == "IR")
+        raw = next(container.decode(track)).to_ndarray()
+    white = float(np.percentile(raw[(raw > 0) & (raw < 65535)], 99.5))
+    assert white == pytest.approx(13837.5, abs=0.1)
+    for undistort in (True, False):
+        with open_frames(path, undistort=undistort) as reader:
+            frame = reader[0]
+            assert f"sqrt(IR / {white:g})" in "".join(reader.notes)
+    np.testing.assert_allclose(frame.intensity, amplitude_to_gray(raw, white), atol=1e-6)
+
+
+@pytest.mark.realdata
 def test_azure_kinect_ir_keeps_the_far_scene_trackable(recordings):
     """ToF IR is shown as sqrt(IR / white): divided linearly by the white level that a mug at
     25 cm sets, the 1.5-2 m background sat at a median of 0.0086 (about 2 gray levels). A
@@ -396,6 +415,40 @@ def test_db3_cut_near_its_end_is_an_input_error(tmp_path):
     assert any("cannot read messages" in e for e in errors)
 
 
+@pytest.mark.parametrize("kind", ["ros1", "ros2"])
+def test_16bit_bag_ir_white_level_is_frame_0s_whatever_is_read(tmp_path, capsys, kind):
+    """The white level was the first frame decoded's: frame 4 of a bag whose IR brightens was
+    0.97 in a whole conversion but 0.55 with --frames 4:6 (or export-ply --frame 4)."""
+    from fuse4d.io._rosimage import normalise_intensity, white_level
+    from rosbag_factory import INFO_TOPIC, BagWriter
+
+    d, ir = depth_frames(6), _brightening_ir(6)
+    path = tmp_path / ("ir.bag" if kind == "ros1" else "ir")
+    t0, period = 10**18, 33_333_333
+    with BagWriter(path, kind) as bag:  # an unpaired, saturated IR image before frame 0's
+        bag.write(IR_TOPIC, bag.image(np.full_like(ir[0], 60000), "mono16", t0 - 10**9), t0 - 10**9)
+        for k in range(6):
+            t = t0 + k * period
+            bag.write(DEPTH_TOPIC, bag.image(d[k], "16UC1", t), t)
+            bag.write(INFO_TOPIC, bag.camera_info(32, 24, t), t)
+            bag.write(IR_TOPIC, bag.image(ir[k], "mono16", t + 1000), t + 1000)
+    white = white_level(ir[0])
+    with open_frames(path) as reader:
+        whole = np.stack([f.intensity for f in reader])
+    np.testing.assert_allclose(whole, normalise_intensity(ir, white), atol=1e-6)
+    with open_frames(path) as reader:
+        np.testing.assert_array_equal(reader[4].intensity, whole[4])
+        np.testing.assert_array_equal(reader[2].intensity, whole[2])
+        assert f"scaled by 1/{white:g} (99.5th percentile of the unsaturated pixels of frame 0" in (
+            "".join(reader.notes)
+        )
+    with open_frames(path, frames="4:6") as part:
+        np.testing.assert_array_equal(np.stack([f.intensity for f in part]), whole[4:])
+    out = tmp_path / "part.npz"
+    assert main(["convert", str(path), str(out), "--frames", "4:6"]) == 0
+    np.testing.assert_array_equal(load_sequence(out).intensity, whole[4:])
+
+
 def test_random_access_matches_streaming(tmp_path):
     path = write_generic_bag(tmp_path / "rec.bag", "ros1", frames=6)
     with open_frames(path) as reader:
@@ -549,8 +602,11 @@ def test_ffv1_of_frames_without_times_reads_back_without_times(tmp_path, float_s
     assert back.fps == fps
 
 
-def _k4a_like_mkv(path: Path, depth_pts: list[int], ir_pts: list[int]) -> Path:
-    """A tiny DEPTH + IR Matroska (pts in ms) read as an Azure Kinect recording."""
+def _k4a_like_mkv(
+    path: Path, depth_pts: list[int], ir_pts: list[int], ir: np.ndarray | None = None
+) -> Path:
+    """A tiny DEPTH + IR Matroska (pts in ms) read as an Azure Kinect recording; IR frames
+    ``ir`` (uint16, one per IR pts; default 1000 everywhere)."""
     from fractions import Fraction
 
     with av.open(str(path), "w", format="matroska") as out:
@@ -561,9 +617,10 @@ def _k4a_like_mkv(path: Path, depth_pts: list[int], ir_pts: list[int]) -> Path:
             s.metadata["title"] = title
             s.time_base = Fraction(1, 1000)
             streams.append(s)
-        for s, pts in zip(streams, (depth_pts, ir_pts), strict=True):
-            for p in pts:
-                fr = av.VideoFrame.from_ndarray(np.full((24, 32), 1000, "<u2"), format="gray16le")
+        for s, pts, images in zip(streams, (depth_pts, ir_pts), (None, ir), strict=True):
+            for j, p in enumerate(pts):
+                image = np.full((24, 32), 1000, "<u2") if images is None else images[j]
+                fr = av.VideoFrame.from_ndarray(image.astype("<u2"), format="gray16le")
                 fr.pts, fr.time_base = p, s.time_base
                 for packet in s.encode(fr):
                     out.mux(packet)
@@ -595,6 +652,37 @@ def test_mkv_pts_pairing_problems_are_named(tmp_path):
     path = _k4a_like_mkv(tmp_path / "noir.mkv", [100, 133], [])
     with pytest.raises(InputFileError, match=r"noir\.mkv: the IR track holds no frame"):
         open_frames(path, intrinsics=spec)
+
+
+def _brightening_ir(frames: int) -> np.ndarray:
+    """uint16 IR (T, 24, 32) that gets brighter every frame (frame k: about k + 1 times 0's)."""
+    rng = np.random.default_rng(3)
+    return np.stack(
+        [(rng.uniform(100, 1000, (24, 32)) * (1 + k)).astype(np.uint16) for k in range(frames)]
+    )
+
+
+def test_mkv_ir_white_level_is_frame_0s_whatever_is_read(tmp_path):
+    """The white level was the first frame decoded's: frame 3 read on its own, or in a part
+    3:5, came out darker than in a whole read (another level per part, per dask worker)."""
+    from fuse4d.io._rosimage import amplitude_to_gray, white_level
+
+    ir = _brightening_ir(5)
+    pts = [100, 133, 167, 200, 233]
+    path = _k4a_like_mkv(tmp_path / "ir.mkv", pts, pts, ir=ir)
+    spec = "50,50,15.5,11.5"
+    white = white_level(ir[0])
+    with open_frames(path, intrinsics=spec) as reader:
+        whole = np.stack([f.intensity for f in reader])
+    np.testing.assert_allclose(whole, amplitude_to_gray(ir, white), atol=1e-6)
+    with open_frames(path, intrinsics=spec) as reader:
+        np.testing.assert_array_equal(reader[3].intensity, whole[3])
+        np.testing.assert_array_equal(reader[1].intensity, whole[1])
+        assert f"sqrt(IR / {white:g}) (99.5th percentile of frame 0's raw IR" in "".join(
+            reader.notes
+        )
+    with open_frames(path, intrinsics=spec, frames="3:5") as part:
+        np.testing.assert_array_equal(np.stack([f.intensity for f in part]), whole[3:])
 
 
 def test_zarr_round_trip(tmp_path, float_sequence):

@@ -260,7 +260,7 @@ def convert_command(
     if frames is not None:  # the frames written (a range past the end is cut, as in Python)
         part = f" (frames {_written_part(frames, n)} of {input_path})"
     out_console.print(
-        f"wrote {path}: {fmt}, {n} frame{'' if n == 1 else 's'}{part}, {h}x{w}",
+        f"wrote {path}: {fmt}, {n} frame{'' if n == 1 else 's'}{part}, {w}x{h} px (WxH)",
         highlight=False,
         markup=False,
         soft_wrap=True,
@@ -302,6 +302,8 @@ def export_ply_command(
     no_undistort: NoUndistortOpt = False,
 ) -> None:
     """Write one frame as a binary PLY point cloud (mm, camera frame; intensity as gray)."""
+    import numpy as np
+
     from ..camera import depth_to_points
     from ..io import check_output, open_frames, write_ply
 
@@ -321,6 +323,8 @@ def export_ply_command(
             fail(f"--frame {frame} is out of range: {input_path} has {n} frames (0..{n - 1})")
         data = reader.read_frame(frame)
         points = depth_to_points(data.depth, reader.intrinsics)
+    if not np.isfinite(points).all(axis=-1).any():  # Open3D & co refuse a 0-vertex PLY
+        fail(f"{input_path} (frame {data.index}): no valid depth, no point to export")
     count = write_ply(points, output, colors=None if no_color else data.intensity, overwrite=force)
     out_console.print(
         f"wrote {count} points (frame {data.index}) to {output}",

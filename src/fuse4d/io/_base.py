@@ -462,7 +462,7 @@ def check_stored_intensity(
     raise InputFileError(
         path,
         f"{what} must hold finite values in [0, 1] ({found}; rescale with "
-        "fuse4d.normalize_intensity)",
+        "fuse4d.sequence.normalize_intensity)",
         frame=frame,
     )
 

@@ -158,7 +158,8 @@ def white_level(image: np.ndarray) -> float:
     The 99.5th percentile of the pixels that are neither 0 nor saturated (65535): IR images of
     ToF and stereo cameras use a small part of the 16-bit range and have saturated pixels
     (2.7 % in the Azure Kinect fixture), so neither 65535 nor the maximum makes a usable grey
-    image. Taken once per file (first frame read) so that brightness stays constant over time.
+    image. Taken once per file, on frame 0 as recorded (before any resampling), so that
+    brightness stays constant over time whichever frames are read.
     """
     body = image[(image > 0) & (image < np.iinfo(np.uint16).max)]
     return max(float(np.percentile(body, 99.5)) if body.size else 65535.0, 1.0)

@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Iterator
 from os import PathLike
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from ..camera import Intrinsics
 from ..errors import InputFileError, ParameterError
@@ -18,7 +21,7 @@ from .folder import FolderReader, FrameFolderWriter, write_frame_folder
 from .frame_range import FrameRange
 from .framesjson import FramesJsonReader
 from .mkv import MkvReader
-from .npz import NpzReader, write_npz
+from .npz import RESERVED_NPZ_KEYS, NpzReader, read_npz_extra, write_npz
 from .rosbag import RosbagReader
 from .sensors import check_sensor_options, detect_sensor_format
 from .tum import TumReader
@@ -423,6 +426,20 @@ def _unstored_keys(keys: tuple[str, ...], layout: str) -> list[str]:
     return dropped
 
 
+def _other_arrays(src: Path, reader: FrameReader) -> list[str]:
+    """The arrays of the recording ``src`` (read by ``reader``) that are neither its frames nor
+    ground truth: an .npz's other keys (``fuse4d run``'s ``support``, ``source``,
+    ``confidence``, ...), the ``source`` and ``confidence`` of a fused folder or .zarr."""
+    if reader.format == "npz":
+        with np.load(src) as archive:  # the member names only
+            return [
+                k for k in archive.files if k not in RESERVED_NPZ_KEYS and not k.startswith("gt_")
+            ]
+    if len(reader) and reader.read_source(0, 1) is not None:
+        return ["source", "confidence"]
+    return []
+
+
 def convert_recording(
     input: str | PathLike[str],
     output: str | PathLike[str],
@@ -449,7 +466,11 @@ def convert_recording(
         (float, lossless), else a frame folder (16-bit PNGs). Depth, intensity, timestamps,
         frame rate, the camera kind (``sensor``, which decides A36's flying-pixel removal)
         and the object masks of a layout that stores them (folder output) are carried over;
-        other ground truth only to ``.npz`` (a ``UserWarning`` names what is dropped).
+        other ground truth only to ``.npz`` (a ``UserWarning`` names what is dropped). The
+        other arrays of an ``.npz`` (a fused output's ``support``, ``source``, ``confidence``
+        ...) are kept, sliced like the frames, from ``.npz`` to ``.npz`` only; a
+        ``UserWarning`` names those another output drops, and a fused folder's or ``.zarr``'s
+        ``source`` and ``confidence``, which no conversion keeps.
     frames : slice, range, (start, stop) or "A:B", optional
         Only this contiguous part (numbered from 0 in the output). Default: all frames.
     out_depth_unit_mm : float, optional
@@ -488,8 +509,19 @@ def convert_recording(
             "only; .npz and .zarr outputs store float depth in mm"
         )
     with open_frames(src, frames=frames, **reader_options) as reader:
+        others = _other_arrays(src, reader)
+        keep = layout == "npz" and reader.format == "npz"
+        if others and not keep:
+            warnings.warn(
+                f"{dst}: the arrays {', '.join(others)} of {src} are not carried over (only "
+                "an .npz converted to an .npz keeps them)",
+                UserWarning,
+                stacklevel=2,
+            )
         if layout == "npz":
-            return write_npz(reader.read_sequence(progress=progress), dst, overwrite=overwrite)
+            extra = read_npz_extra(src, frames=frames) if keep and others else None
+            seq = reader.read_sequence(progress=progress)
+            return write_npz(seq, dst, extra=extra, overwrite=overwrite)
         writer_cls, _ = stream_writer(dst)
         dropped = _unstored_keys(reader.ground_truth_keys, layout)
         warn_unstored_ground_truth(dst, _LAYOUT_NAMES[layout], dropped, stacklevel=2)

@@ -357,6 +357,8 @@ class MkvReader(SequentialReader):
         inten: dict[int, np.ndarray] = {}
         k = k0
         try:
+            if k0 > 0 and not self.fuse4d and self._white is None:
+                self._set_white(self._first_ir())  # frame 0's, whatever is read
             self._container.seek(
                 int(self._d_pts[k0]), stream=self._depth_s, backward=True, any_frame=False
             )
@@ -391,6 +393,8 @@ class MkvReader(SequentialReader):
             )
         if d.dtype != np.uint16:
             raise InputFileError(self.path, f"DEPTH frame is {d.dtype}, expected 16 bit", frame=k)
+        if not self.fuse4d and self._white is None:  # frame 0 (a later pass set it first)
+            self._set_white(ir)  # before the remap: bilinear blends saturated pixels in
         if self._maps is not None:
             mx, my = self._maps
             d = cv2.remap(d, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
@@ -400,16 +404,28 @@ class MkvReader(SequentialReader):
         if self.fuse4d:
             gray = ir.astype(np.float32) * np.float32(1.0 / 65535.0)
         else:
-            if self._white is None:
-                self._white = white_level(ir)
-                note = (
-                    f"IR shown as sqrt(IR / {self._white:g}) (99.5th percentile of the first "
-                    "frame read; the square root gives the far, dark scene its texture)"
-                )
-                self.notes = (*self.notes, note)
-            gray = amplitude_to_gray(ir, self._white)
+            gray = amplitude_to_gray(ir, self._white or 65535.0)
         ts = None if self.timestamps is None else float(self.timestamps[k])
         return Frame(k, depth, gray, timestamp=ts)
+
+    def _first_ir(self) -> np.ndarray:
+        """Frame 0's IR image as recorded (not undistorted), decoded on its own."""
+        pts = int(self._i_pts[0])
+        self._container.seek(pts, stream=self._inten_s, backward=True, any_frame=False)
+        for pkt in self._container.demux(self._inten_s):
+            for fr in pkt.decode():
+                if fr.pts is not None and int(fr.pts) == pts:
+                    return fr.to_ndarray()
+        raise InputFileError(self.path, "IR frame missing (truncated file?)", frame=0)
+
+    def _set_white(self, ir: np.ndarray) -> None:
+        """Fix the file's IR white level from frame 0's raw IR image ``ir``."""
+        self._white = white_level(ir)
+        note = (
+            f"IR shown as sqrt(IR / {self._white:g}) (99.5th percentile of frame 0's raw IR, "
+            "the same for every frame; the square root gives the far, dark scene its texture)"
+        )
+        self.notes = (*self.notes, note)
 
     def describe_streams(self) -> list[dict[str, Any]]:
         """Tracks of the file, with the role fuse4d gives them."""

@@ -186,6 +186,7 @@ class RosbagReader(SequentialReader):
         self._notes: list[str] = []
         self._quirk = False
         self._white: float | None = None
+        self._white_known = False  # frame 0's intensity seen: _white set (None for 8 bit)
         try:
             self._open_bag()
             self._setup(depth_topic, intensity_topic, intensity, depth_unit_mm, intrinsics)
@@ -682,6 +683,8 @@ class RosbagReader(SequentialReader):
     def _stream(self, k0: int, stop: int | None = None) -> Iterator[Frame]:
         """Decode frames ``k0, k0+1, ...`` in one pass over the bag."""
         stop = len(self) if stop is None else stop
+        if k0 > 0 and not self._white_known:  # the white level is frame 0's, whatever is read
+            self._set_white(self._intensity_image(0))
         dc, ic = self._depth.connection, self._inten.connection
         i_first = int(self._i_need[k0])
         start = int(min(self._bt_depth[self._d_ord[k0]], self._bt_inten[i_first]))
@@ -761,20 +764,46 @@ class RosbagReader(SequentialReader):
             )
         return Frame(k, depth, gray, timestamp=float(self.timestamps[k]))
 
+    def _intensity_image(self, k: int) -> np.ndarray:
+        """The intensity image of frame ``k`` as stored (grey), read on its own."""
+        ordinal = int(self._i_ord[k])
+        start = int(self._bt_inten[ordinal])
+        pos = int(np.searchsorted(self._bt_inten, start, side="left"))
+        gen = self._messages([self._inten.connection], start=start)
+        try:
+            for _, _, raw in gen:
+                if pos == ordinal:
+                    return self._image(raw, self._inten, k, gray=True)
+                pos += 1
+        finally:
+            gen.close()
+        raise InputFileError(
+            self.path,
+            f"intensity topic {self._inten.topic}: message missing (truncated bag?)",
+            frame=k,
+        )
+
+    def _set_white(self, first: np.ndarray) -> None:
+        """Fix the file's white level from frame 0's intensity image ``first`` (16 bit only)."""
+        self._white_known = True
+        if first.dtype != np.uint16:
+            return
+        self._white = white_level(first)
+        note = (
+            f"16-bit intensity scaled by 1/{self._white:g} (99.5th percentile of the "
+            "unsaturated pixels of frame 0, the same for every frame), clipped to 1"
+        )
+        if self.sensor == "tof":
+            note += "; a time-of-flight camera's IR then shown as its square root"
+        self._notes.append(note)
+        self.notes = tuple(self._notes)
+
     def _normalise(self, img: np.ndarray) -> np.ndarray:
-        """Intensity to float32 [0, 1]: 8 bit / 255; 16 bit / a fixed per-file white level
-        (its square root for a time-of-flight camera's IR, :func:`amplitude_to_gray`)."""
+        """Intensity to float32 [0, 1]: 8 bit / 255; 16 bit / a fixed per-file white level,
+        frame 0's (its square root for a time-of-flight camera's IR, :func:`amplitude_to_gray`)."""
         tof = img.dtype == np.uint16 and self.sensor == "tof"
-        if img.dtype == np.uint16 and self._white is None:
-            self._white = white_level(img)
-            note = (
-                f"16-bit intensity scaled by 1/{self._white:g} (99.5th percentile of the "
-                "unsaturated pixels of the first frame read), clipped to 1"
-            )
-            if tof:
-                note += "; a time-of-flight camera's IR then shown as its square root"
-            self._notes.append(note)
-            self.notes = tuple(self._notes)
+        if not self._white_known:  # frame 0: a pass from a later frame set it from frame 0
+            self._set_white(img)
         if tof:
             return amplitude_to_gray(img, self._white or 65535.0)
         return normalise_intensity(img, self._white)
