@@ -39,7 +39,7 @@ def bilateral_filter_points(
     points : (H, W, 3) ndarray
         Point map in mm (paper :math:`P^T`), NaN = invalid.
     intensity : (H, W) ndarray
-        Registered intensity in [0, 1] (integers are divided by their dtype maximum).
+        Registered intensity in [0, 1] (uint8/uint16 divided by 255/65535).
     radius : int
         Window radius r in px.
     sigma_distance : float

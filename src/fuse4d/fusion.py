@@ -493,7 +493,7 @@ class FusionEngine:
         depth : (H, W) ndarray
             Depth in mm, NaN (or 0) = invalid.
         intensity : (H, W) ndarray
-            Registered intensity, [0, 1] (integers are divided by their dtype maximum).
+            Registered intensity, [0, 1] (uint8/uint16 divided by 255/65535).
         points : (H, W, 3) ndarray, optional
             Use these 3D points (mm) instead of back-projecting ``depth`` (fusion iterations).
         pair_flow : (forward, backward), optional
@@ -1327,7 +1327,7 @@ def fuse_sequence(
     depth : (T, H, W) ndarray
         Depth in mm, NaN (or 0) = invalid.
     intensity : (T, H, W) ndarray
-        Registered intensity in [0, 1] (integers are divided by their dtype maximum).
+        Registered intensity in [0, 1] (uint8/uint16 divided by 255/65535).
     intrinsics : Intrinsics
         Pinhole camera (px).
     fusion : FusionParams, optional

@@ -49,7 +49,7 @@ def check_inputs(
     """Validate ``(T, H, W)`` depth (mm) / intensity ([0, 1]) against ``intrinsics``.
 
     Returns contiguous float32 arrays; depth values <= 0 or non-finite become NaN (copy).
-    Integer intensity is divided by its dtype's maximum and float intensity must lie in
+    uint8/uint16 intensity is divided by 255/65535 (other integer types are refused) and float intensity must lie in
     [0, 1], as for the fusion (a uint8 guide was taken as 0-255: every range weight ~0).
     ``guided_by``: the name of a method that needs the intensity; None intensity is then
     refused with a :class:`~fuse4d.errors.ParameterTypeError` naming it.

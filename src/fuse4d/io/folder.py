@@ -394,8 +394,8 @@ class FrameFolderWriter:
         depth : (H, W) ndarray
             Depth in mm; NaN, inf and values <= 0 are stored as 0 (invalid).
         intensity : (H, W) ndarray of float
-            Intensity in [0, 1] (values slightly outside are clipped; integers are divided by
-            their dtype maximum).
+            Intensity in [0, 1] (values slightly outside are clipped; uint8/uint16 are divided
+            by 255/65535).
         mask : (H, W) ndarray of bool, optional
             Object mask (all frames or none).
         timestamp : float, optional

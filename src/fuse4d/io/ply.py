@@ -39,7 +39,7 @@ def write_ply(
     path : str or PathLike
         Output ``.ply`` file.
     colors : (H, W) or (N,) ndarray, optional
-        Intensity in [0, 1] for each point (integers are divided by their dtype maximum),
+        Intensity in [0, 1] for each point (uint8/uint16 divided by 255/65535),
         stored as gray ``red = green = blue`` (uchar).
     overwrite : bool, optional
         Replace an existing file. Default False.

@@ -151,8 +151,8 @@ class DepthVideoWriter(StagedWriter):
         mask: np.ndarray | None = None,
         timestamp: float | None = None,
     ) -> None:
-        """Append one frame (depth mm, NaN/<=0 invalid; intensity [0, 1], integers divided by
-        their dtype maximum; mask ignored).
+        """Append one frame (depth mm, NaN/<=0 invalid; intensity [0, 1], uint8/uint16 divided
+        by 255/65535; mask ignored).
 
         The pts (ms) must increase strictly: a frame whose rounded pts is not after the
         previous frame's is stored 1 ms after it; where that moves frames by more than the

@@ -157,8 +157,8 @@ class ZarrWriter(StagedWriter):
         source: np.ndarray | None = None,
         confidence: np.ndarray | None = None,
     ) -> None:
-        """Append one frame (depth mm, NaN invalid; intensity [0, 1], integers divided by their
-        dtype maximum; mask ignored).
+        """Append one frame (depth mm, NaN invalid; intensity [0, 1], uint8/uint16 divided by
+        255/65535; mask ignored).
 
         ``source`` / ``confidence`` (both or neither, all frames or none): a fused frame's
         per-pixel flags (:attr:`fuse4d.FusedFrame.source` codes, confidence in [0, 1]),

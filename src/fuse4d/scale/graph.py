@@ -243,8 +243,8 @@ def _flow_chain(
     Parameters
     ----------
     frames : iterable of (H, W) arrays
-        Intensity frames as :meth:`fuse4d.FusionEngine.push` takes them ([0, 1] floats or
-        integers divided by their dtype maximum).
+        Intensity frames as :meth:`fuse4d.FusionEngine.push` takes them ([0, 1] floats, or
+        uint8/uint16 divided by 255/65535).
     method, params, roi, cache
         As in :func:`fuse4d.flow.estimate_flow_pair`.
     seed : (H, W, 2) float32 array, optional
@@ -329,7 +329,7 @@ def flows(
     Parameters
     ----------
     intensity : (T, H, W) numpy, dask or zarr array
-        Registered intensity, [0, 1] floats or integers (divided by the dtype maximum), exactly
+        Registered intensity, [0, 1] floats or uint8/uint16 (divided by 255/65535), exactly
         as :meth:`fuse4d.FusionEngine.push` takes it.
     flow : FlowConfig or str, optional
         Tracker, its parameters, cache folder and ROI (default: the "fast" preset, DIS).
@@ -577,7 +577,7 @@ def fuse(
     depth : (T, H, W) numpy, dask or zarr array
         Depth in mm, NaN (or 0) = invalid.
     intensity : (T, H, W) numpy, dask or zarr array
-        Registered intensity in [0, 1] (integers are divided by their dtype maximum).
+        Registered intensity in [0, 1] (uint8/uint16 divided by 255/65535).
     intrinsics : Intrinsics
         Pinhole camera (px).
     fusion : FusionParams, optional
