@@ -272,3 +272,60 @@ def test_console_script_prints_each_warning_once(tmp_path):
     assert res.returncode == 0, res.stderr
     assert res.stderr.count("only 0.0 % of depth pixels are valid") == 1
     assert f"fuse4d: warning: {tmp_path / 'empty.npz'}: only 0.0 %" in res.stderr  # names it
+
+
+def test_the_same_signal_twice_at_once_is_one_interrupt():
+    """GNU `timeout -s INT` sends SIGINT to the process, then to its group, a few ms apart:
+    the second KeyboardInterrupt cut into the clean-up of the first (staged outputs)."""
+    import signal
+    import time
+
+    import fuse4d.cli
+    from fuse4d import _signals
+
+    _signals.reset()
+    with pytest.raises(KeyboardInterrupt):
+        fuse4d.cli._terminate(signal.SIGINT, None)
+    assert _signals.INTERRUPTED.is_set()
+    try:
+        fuse4d.cli._terminate(signal.SIGINT, None)  # the echo: ignored
+        fuse4d.cli._terminate(signal.SIGINT, None)
+    except KeyboardInterrupt:
+        pytest.fail("the same signal delivered twice at once was a second interrupt")
+    time.sleep(_signals.ECHO_S + 0.05)
+    with pytest.raises(KeyboardInterrupt):  # a second Ctrl-C of a person
+        fuse4d.cli._terminate(signal.SIGINT, None)
+    with pytest.raises(KeyboardInterrupt):  # another signal at once is not an echo
+        fuse4d.cli._terminate(signal.SIGTERM, None)
+    _signals.reset()
+
+
+def test_ctrl_c_raised_where_python_drops_it_still_interrupts(npz_path, monkeypatch, capsys):
+    """The console script's SIGINT handler raised KeyboardInterrupt inside a weakref callback
+    (or a __del__): Python printed "Exception ignored in ..." with a traceback and the command
+    finished with exit 0."""
+    import os
+    import signal
+
+    import fuse4d.cli
+    import fuse4d.io
+
+    real_open_frames = fuse4d.io.open_frames
+
+    class _Dropped:
+        def __del__(self) -> None:
+            os.kill(os.getpid(), signal.SIGINT)  # the handler runs in here
+            for _ in range(1000):
+                pass
+
+    def open_frames(*args, **kwargs):
+        _Dropped()
+        return real_open_frames(*args, **kwargs)
+
+    monkeypatch.setattr(fuse4d.io, "open_frames", open_frames)
+    previous = signal.signal(signal.SIGINT, fuse4d.cli._terminate)  # the console script's
+    try:
+        assert main(["info", str(npz_path)]) == EXIT_INTERRUPTED
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert capsys.readouterr().err == "fuse4d: interrupted\n"  # one line, no traceback

@@ -12,12 +12,14 @@ import dataclasses
 import json
 import threading
 import time
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from fuse4d import FusionParams, Sequence, fuse_sequence
+from fuse4d._signals import ECHO_S
 from fuse4d.cli import main
 from fuse4d.errors import ParameterError
 from fuse4d.io import load_sequence, write_npz
@@ -34,6 +36,14 @@ from fuse4d.live import (
 from fuse4d.synthetic import make_scene
 
 CAUSAL3 = FusionParams(num_frames=3, causal=True)
+
+
+@pytest.fixture(autouse=True)
+def _no_earlier_signal():
+    """Each test's first signal counts (not as the echo of another test's, 0.2 s before)."""
+    from fuse4d import _signals
+
+    _signals.reset()
 
 
 @pytest.fixture(scope="module")
@@ -548,10 +558,35 @@ def test_ctrl_c_stops_the_run_with_what_was_fused(ball):
 
     def twice(captured, fused) -> None:
         os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(ECHO_S + 0.05)
         os.kill(os.getpid(), signal.SIGTERM)
 
     with pytest.raises(KeyboardInterrupt):
         run_live(_ListSource(seq, range(12), fps=30.0), fusion=CAUSAL3, sink=twice)
+    assert INTERRUPTED.is_set()  # (an interrupt even where Python drops it: a __del__)
+
+
+def test_the_same_signal_twice_at_once_is_one_stop(ball):
+    """GNU `timeout -s INT` sends SIGINT to the process and then to its group, ms apart: the
+    second read as a second Ctrl-C, and the run was thrown away."""
+    import os
+    import signal
+
+    _, seq = ball
+    sent = []
+
+    def echo(captured, fused) -> None:
+        sent.append(captured.index)
+        if len(sent) == 3:
+            os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), signal.SIGINT)
+
+    try:
+        stats = run_live(_ListSource(seq, range(12), fps=30.0), fusion=CAUSAL3, sink=echo)
+    except KeyboardInterrupt:
+        pytest.fail("the signal delivered twice at once aborted the run")
+    assert stats.interrupted
+    assert stats.frames_fused == 3
 
 
 def test_ctrl_c_before_the_first_frame_interrupts(ball):
@@ -725,3 +760,167 @@ def test_cli_live_reports_the_recordings_rate_and_the_playback_rate(
     # a source that says its own rate; one without timestamps played at --fps cannot say it
     assert _recorded_fps(SimpleNamespace(recorded_fps=25.0, fps=60.0), 60.0) == 25.0
     assert _recorded_fps(SimpleNamespace(fps=60.0, output_fps=60.0), 60.0) is None
+
+
+def _signal_while_finishing(monkeypatch, suffix: str, *gaps: float) -> None:
+    """Make the live output's finishing step (the .npz save, the zarr store's close) send
+    SIGINT to this process once, then again after each of ``gaps`` seconds."""
+    import os
+    import signal
+
+    import fuse4d.io
+    from fuse4d.io.zarrstore import ZarrWriter
+
+    def signals() -> None:
+        os.kill(os.getpid(), signal.SIGINT)
+        for gap in gaps:
+            time.sleep(gap)
+            os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)  # (a KeyboardInterrupt is raised by now, if one is)
+
+    if suffix == ".npz":
+        real_save = fuse4d.io.save_sequence
+
+        def save(*args, **kwargs):
+            signals()
+            return real_save(*args, **kwargs)
+
+        monkeypatch.setattr(fuse4d.io, "save_sequence", save)
+    else:
+        real_close = ZarrWriter.close
+
+        def close(self) -> None:
+            signals()
+            real_close(self)
+
+        monkeypatch.setattr(ZarrWriter, "close", close)
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".zarr"])
+@pytest.mark.parametrize("gaps", [(), (0.002,)], ids=["once", "echoed"])
+def test_ctrl_c_while_the_output_is_finished_keeps_it(
+    ball, tmp_path, capsys, monkeypatch, suffix, gaps
+):
+    """All frames fused, the .npz being saved (the zarr store closed): one Ctrl-C (or one
+    delivered twice at once, as by `timeout -s INT`) threw the whole run away (exit 130)."""
+    path, seq = ball
+    out = tmp_path / f"o{suffix}"
+    _signal_while_finishing(monkeypatch, suffix, *gaps)
+    assert main(["live", str(path), "--window", "3", "-o", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["interrupted"] is True
+    assert summary["frames_fused"] == 12
+    assert load_sequence(out).depth.shape == seq.depth.shape
+    assert sorted(p.name for p in tmp_path.iterdir()) == [out.name]
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".zarr"])
+def test_a_second_ctrl_c_while_finishing_aborts_and_leaves_nothing(
+    ball, tmp_path, capsys, monkeypatch, suffix
+):
+    path, _ = ball
+    out = tmp_path / f"o{suffix}"
+    _signal_while_finishing(monkeypatch, suffix, ECHO_S + 0.05)
+    assert main(["live", str(path), "--window", "3", "-o", str(out)]) == 130
+    assert capsys.readouterr().err.splitlines()[-1] == "fuse4d: interrupted"
+    assert list(tmp_path.iterdir()) == []  # no output, no staged temporary
+
+
+def test_a_recordings_stored_rate_labels_its_frames_whatever_the_playback_rate(tmp_path, ball):
+    """fps 30 and no timestamps, played at --fps 10: the frames were stamped 0.1 s apart and
+    the output stated fps 10."""
+    _, seq = ball
+    path = tmp_path / "fps30.npz"
+    write_npz(dataclasses.replace(seq, timestamps=None, fps=30.0), path)
+    source = RecordingSource(path, realtime=False, fps=10.0, frames="2:6")
+    try:
+        stamps = [(f.index, f.timestamp) for f in source]
+    finally:
+        source.close()
+    assert stamps == [(k, pytest.approx((k - 2) / 30.0)) for k in range(2, 6)]
+    assert (source.fps, source.recorded_fps, source.output_fps) == (10.0, 30.0, 30.0)
+
+
+def test_the_timestamps_give_the_playback_rate_and_a_pause_does_not_lower_it(tmp_path, ball):
+    """Timestamps at 10 Hz beside a stored fps of 30: playback_fps said 30 while it played at
+    10. Timestamps alone, 20 Hz with one 20 s pause: the recorded rate was (n - 1) / span,
+    0.5 fps here, and the output stated it."""
+    _, seq = ball
+    path = tmp_path / "ts10fps30.npz"
+    write_npz(dataclasses.replace(seq, timestamps=np.arange(12) / 10.0, fps=30.0), path)
+    source = RecordingSource(path, realtime=False)
+    source.close()
+    assert source.fps == pytest.approx(10.0)  # what the timestamps pace it at
+    assert source.recorded_fps == source.output_fps == 30.0  # what the recording says
+    ts = np.arange(12) / 20.0
+    ts[6:] += 20.0
+    write_npz(dataclasses.replace(seq, timestamps=ts, fps=None), path := tmp_path / "jump.npz")
+    source = RecordingSource(path, realtime=False)
+    source.close()
+    assert source.fps == source.recorded_fps == source.output_fps == pytest.approx(20.0)
+
+
+def test_cli_live_reports_the_rate_the_timestamps_play_at(tmp_path, ball, capsys):
+    _, seq = ball
+    path = tmp_path / "ts10fps30.npz"
+    write_npz(dataclasses.replace(seq, timestamps=np.arange(12) / 10.0, fps=30.0), path)
+    args = ["live", str(path), "--realtime", "--window", "3", "--frames", "3", "--json"]
+    assert main(args) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["playback_fps"] == pytest.approx(10.0)
+    assert summary["source_fps"] == 30.0
+
+
+REAL_DB3 = Path("/work/shared/data/sensor_recordings/rs2591_swdev_5f.db3")
+
+
+@pytest.mark.skipif(not REAL_DB3.exists(), reason=f"{REAL_DB3} not present")
+def test_a_real_recordings_timestamps_give_its_playback_rate():
+    """The real RealSense bag stores fps 30 and was recorded at about 19.8 Hz."""
+    source = RecordingSource(REAL_DB3, realtime=False)
+    source.close()
+    assert 19.0 < source.fps < 20.5
+    assert source.recorded_fps == 30.0
+
+
+def test_rates_that_cannot_be_measured_are_null_not_zero(ball, capsys):
+    """One frame: "fps": 0.0 and "0.0 fps fused" for rates that were not measured."""
+    path, _ = ball
+    assert main(["live", str(path), "--window", "3", "--frames", "1", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["frames_fused"] == 1
+    assert summary["fps"] is None
+    assert summary["input_fps"] is None
+    assert main(["live", str(path), "--window", "3", "--frames", "1"]) == 0
+    assert "n/a fps fused, n/a fps in" in capsys.readouterr().out
+
+
+def test_ctrl_c_while_the_writer_thread_finishes_leaves_no_staged_output(
+    ball, tmp_path, monkeypatch
+):
+    """A KeyboardInterrupt in the wait for the write-behind thread deleted the staged store
+    while a write was still under way, and zarr made its folders again."""
+    import os
+    import signal
+
+    from fuse4d.io import zarrstore
+
+    _, seq = ball
+    real_check = zarrstore.check_flags
+
+    def slow_check(*args, **kwargs):  # a write under way: its frame not yet appended
+        time.sleep(0.3)
+        return real_check(*args, **kwargs)
+
+    monkeypatch.setattr(zarrstore, "check_flags", slow_check)
+    timer = threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGINT))
+    with (  # noqa: PT012
+        pytest.raises(KeyboardInterrupt),
+        LiveWriter(tmp_path / "o.zarr", seq.intrinsics, behind=2) as writer,
+    ):
+        for k in range(2):
+            captured = CapturedFrame(k, seq.depth[k], seq.intensity[k], None, 0.0)
+            writer(captured, SimpleNamespace(depth=seq.depth[k], source=None))
+        timer.start()  # (the default handler: KeyboardInterrupt in the wait)
+    time.sleep(0.8)  # what a write still under way would have left by now
+    assert list(tmp_path.iterdir()) == []

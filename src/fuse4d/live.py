@@ -45,6 +45,7 @@ from typing import Any, Literal, Protocol, Self
 import numpy as np
 from numpy.typing import NDArray
 
+from . import _signals
 from ._background import LOWER_AFTER_FRAMES
 from .camera import Intrinsics
 from .config import FlowConfig, FusionParams, fusion_params
@@ -166,18 +167,19 @@ class RecordingSource:
         self._frames = frames
         timestamps = self._reader.timestamps
         self._timestamps = None if fps is not None else timestamps
-        recorded = self._reader.fps
-        if recorded is None and timestamps is not None and len(timestamps) > 1:
-            span = float(timestamps[-1] - timestamps[0])
-            recorded = (len(timestamps) - 1) / span if span > 0 else None
-        #: the playback rate (frames/s): ``fps``, else the recording's own
-        self.fps = fps if fps is not None else recorded
-        #: the recording's own rate (stored, or from its timestamps; None: unknown), whatever
-        #: the playback rate ``fps``
+        # (n - 1) / span made one 20 s pause in 20 frames at 20 Hz a rate of 0.9 fps
+        stamped = _timestamp_rate(timestamps)
+        recorded = self._reader.fps if self._reader.fps is not None else stamped
+        #: the playback rate (frames/s): ``fps``; else the rate the recorded timestamps pace
+        #: it at (1 / their median interval: a stored fps of 30 beside 10 Hz timestamps
+        #: was reported as the playback rate), else the recording's own
+        self.fps = fps if fps is not None else (stamped or recorded)
+        #: the recording's own rate (stored, else 1 / the median interval of its timestamps;
+        #: None: unknown), whatever the playback rate ``fps``
         self.recorded_fps = recorded
-        #: the rate an output states: the recording's own where its frames carry their
-        #: recorded times (``--fps 10`` wrote fps 10 beside 30 Hz timestamps), else ``fps``
-        self.output_fps = recorded if timestamps is not None else self.fps
+        #: the rate an output states: the recording's own (``--fps 10`` wrote fps 10 for a
+        #: 30 fps recording), else the playback rate ``fps``
+        self.output_fps = recorded if recorded is not None else self.fps
         #: how playback is paced, in words (the banner said "at 30 fps" while a recording
         #: with uneven timestamps played at 20)
         self.pace = (
@@ -222,9 +224,12 @@ class RecordingSource:
                 elif wait > 0:
                     time.sleep(wait)
             timestamp = frame.timestamp
-            if timestamp is None and self.fps is not None:
-                # the frame's time at the stated rate: an output of a run that dropped frames
-                # keeps the gaps (it stored fps alone, which says the frames are consecutive)
+            if timestamp is None and self.recorded_fps:
+                # the frame's time at the recording's own rate (not the playback rate: --fps
+                # 10 labelled a 30 fps recording's frames 0.1 s apart): an output of a run
+                # that dropped frames keeps the gaps (fps alone says they are consecutive)
+                timestamp = (frame.index - self._first) / self.recorded_fps
+            elif timestamp is None and self.fps is not None:  # its rate unknown: --fps's
                 timestamp = self._due(order, frame.index)
             yield CapturedFrame(
                 index=frame.index,
@@ -238,6 +243,17 @@ class RecordingSource:
     def close(self) -> None:
         """Close the reader."""
         self._reader.close()
+
+
+def _timestamp_rate(timestamps: NDArray[np.float64] | None) -> float | None:
+    """Frames per second that timestamps (s) give: 1 / the median interval between
+    consecutive frames (finite, > 0), so that a pause does not lower it; None when there is
+    no such interval."""
+    if timestamps is None:
+        return None
+    steps = np.diff(np.asarray(timestamps, dtype=np.float64))
+    steps = steps[np.isfinite(steps) & (steps > 0)]
+    return float(1.0 / np.median(steps)) if steps.size else None
 
 
 class DecimatedSource:
@@ -493,10 +509,12 @@ class LiveStats:
         Gaps tracked across as if consecutive (``on_gap="track"``).
     seconds : float
         Wall time from the first frame captured to the last frame output (s).
-    fps : float
-        Output rate: frames output per second between the first and the last output.
-    input_fps : float
-        Capture rate: frames captured per second between the first and the last capture.
+    fps : float or None
+        Output rate: frames output per second between the first and the last output (None:
+        fewer than two frames output, not measured).
+    input_fps : float or None
+        Capture rate: frames captured per second between the first and the last capture
+        (None: fewer than two frames captured).
     latency_ms : dict
         Capture-to-output latency, ``p50``, ``p95``, ``max`` and ``mean`` in ms.
     step_ms : dict
@@ -522,8 +540,8 @@ class LiveStats:
     restarts: int = 0
     tracked_gaps: int = 0
     seconds: float = 0.0
-    fps: float = 0.0
-    input_fps: float = 0.0
+    fps: float | None = None
+    input_fps: float | None = None
     latency_ms: dict[str, float] = field(default_factory=dict)
     step_ms: dict[str, float] = field(default_factory=dict)
     indices: list[int] = field(default_factory=list)
@@ -653,12 +671,12 @@ def run_live(
         finally:
             queue.close()
 
-    with _stop_on_signals(stop, stats) as armed:
-        if warmup:
+    with _stop_on_signals(stop, stats) as signals:
+        if warmup and not stats.interrupted:
             _warm_up(source.intrinsics, params, flow, overlap_flow)
-        if stats.interrupted:  # during the warm-up: nothing was captured
+        if stats.interrupted:  # before or during the warm-up: nothing was captured
             raise KeyboardInterrupt
-        armed.set()  # from now on a second signal interrupts at once
+        signals.armed.set()  # from now on a second signal interrupts at once
         _fuse_live(source, params, flow, overlap_flow, queue, capture, sink, on_gap, stop,
                    stats, steps, extra_delay_s)  # fmt: skip
     if stats.interrupted and stats.frames_fused == 0:  # before the first frame: nothing out
@@ -692,39 +710,110 @@ def run_live(
     return stats
 
 
+class _SignalStop:
+    """What Ctrl-C, SIGTERM and SIGHUP do while :func:`_stop_on_signals` is in force."""
+
+    def __init__(self) -> None:
+        #: set once the numba kernels are loaded: from then on a second signal interrupts
+        self.armed = threading.Event()
+        #: a signal came: the run stops as after q
+        self.interrupted = False
+        #: a second signal raised KeyboardInterrupt: later ones are ignored while it unwinds
+        #: (one in the writer's abort left its staged output behind)
+        self.aborted = False
+        self._stops: list[threading.Event] = []
+        self._stats: list[LiveStats] = []
+
+    def add(self, stop: threading.Event, stats: LiveStats | None) -> None:
+        """Set ``stop`` and ``stats.interrupted`` at a signal (at once if one came before)."""
+        self._stops.append(stop)
+        if stats is not None:
+            self._stats.append(stats)
+        if self.interrupted:
+            self._stop()
+
+    def remove(self, stop: threading.Event, stats: LiveStats | None) -> None:
+        """Undo :meth:`add`."""
+        self._stops.remove(stop)
+        if stats is not None:
+            self._stats.remove(stats)
+
+    def _stop(self) -> None:
+        self.interrupted = True
+        for stats in self._stats:
+            stats.interrupted = True
+        for stop in self._stops:
+            stop.set()
+
+    def handler(self, signum: int, frame: object) -> None:
+        """The signal handler."""
+        if self.aborted or _signals.is_echo(signum):  # (GNU timeout -s INT sends it twice)
+            return
+        if not self.armed.is_set():
+            # while the kernels load, numba may turn an interrupt into another error: the
+            # CLI reads that as the interrupt (later, a bug during the stop stays a bug)
+            _signals.INTERRUPTED.set()
+        elif self.interrupted:
+            self.aborted = True
+            _signals.INTERRUPTED.set()  # an interrupt even where Python drops it (a __del__)
+            raise KeyboardInterrupt
+        self._stop()
+
+
 @contextlib.contextmanager
-def _stop_on_signals(stop: threading.Event, stats: LiveStats) -> Iterator[threading.Event]:
+def _stop_on_signals(
+    stop: threading.Event, stats: LiveStats | None = None
+) -> Iterator[_SignalStop]:
     """Ctrl-C, SIGTERM and SIGHUP set ``stop`` (and ``stats.interrupted``) instead of raising:
     the run ends as after q, with the frames fused until then. Raised in the middle of
     loading the numba kernels, a KeyboardInterrupt was swallowed by a ctypes callback and the
-    run went on. Once the caller sets the event yielded (the kernels are loaded), a second
-    signal raises KeyboardInterrupt; before, it only stops (raised inside numba's compiler it
-    printed a ctypes traceback). Main thread only (elsewhere no signal is delivered)."""
-    armed = threading.Event()
-    if threading.current_thread() is not threading.main_thread():
-        yield armed
-        return
+    run went on. Once the caller sets the yielded guard's ``armed`` (the kernels are loaded),
+    a second signal raises KeyboardInterrupt (once; later ones are ignored while it unwinds);
+    before, it only stops (raised inside numba's compiler it printed a ctypes traceback). The
+    same signal again within :data:`fuse4d._signals.ECHO_S` is ignored (GNU ``timeout -s
+    INT`` delivers it twice).
 
-    def handler(signum: int, frame: object) -> None:
-        if not armed.is_set():
-            # while the kernels load, numba may turn an interrupt into another error: the
-            # CLI reads that as the interrupt (later, a bug during the stop stays a bug)
-            from ._signals import INTERRUPTED
-
-            INTERRUPTED.set()
-        if stats.interrupted and armed.is_set():
-            raise KeyboardInterrupt
-        stats.interrupted = True
-        stop.set()
-
+    Nested in another (``fuse4d live`` keeps one until its output is written: a Ctrl-C while
+    an .npz was saved threw the whole run away), it shares the outer guard: one signal before
+    stops both, and ``armed`` stays set after the inner one ends. Main thread only (elsewhere
+    no signal is delivered)."""
     names = ("SIGINT", "SIGTERM", "SIGHUP")
     sigs = [getattr(signal, n) for n in names if hasattr(signal, n)]
-    previous = {s: signal.signal(s, handler) for s in sigs}
+    if threading.current_thread() is not threading.main_thread():
+        yield _SignalStop()
+        return
+    outer = getattr(signal.getsignal(sigs[0]), "__self__", None)
+    guard = outer if isinstance(outer, _SignalStop) else _SignalStop()
+    guard.add(stop, stats)
+    previous = {} if guard is outer else {s: signal.signal(s, guard.handler) for s in sigs}
     try:
-        yield armed
+        yield guard
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
+        guard.remove(stop, stats)
+
+
+@contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    """Hold Ctrl-C, SIGTERM and SIGHUP back while the main thread waits for the writer
+    thread; one that came is handled when the wait is over. A KeyboardInterrupt in
+    ``Thread.join`` marks the thread as ended while it still runs (CPython 3.11): the
+    staged output was then deleted under a write still in progress, which made its folders
+    again (zarr), and a temporary was left. Main thread, POSIX only (elsewhere nothing is
+    held)."""
+    names = ("SIGINT", "SIGTERM", "SIGHUP")
+    sigs = {getattr(signal, n) for n in names if hasattr(signal, n)}
+    if threading.current_thread() is not threading.main_thread() or not hasattr(
+        signal, "pthread_sigmask"
+    ):
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def _fuse_live(
@@ -984,11 +1073,19 @@ class LiveWriter:
             sink, self._sink = self._sink, None
             if sink is not None:
                 try:
-                    sink.close(abort=exc[0] is not None)
+                    with _signals_held():
+                        sink.close(abort=exc[0] is not None)
                 except BaseException:
+                    with _signals_held():  # (close's error): the writes end first
+                        sink.close(abort=True)
                     self._writer.__exit__(*sys.exc_info())
                     raise
-            self._writer.__exit__(*exc)
+            try:
+                self._writer.__exit__(*exc)
+            except BaseException:
+                if exc[0] is None:  # (a Ctrl-C as it finished): discard the staged output
+                    self._writer.__exit__(*sys.exc_info())
+                raise
             return
         if exc[0] is not None:
             return

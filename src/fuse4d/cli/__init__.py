@@ -8,7 +8,9 @@ Error contract (see :mod:`fuse4d.errors`):
 * any other exception is a bug in fuse4d: one line says so, with the path of a crash report
   (traceback, versions, command, platform), exit code 70;
 * Ctrl-C (or SIGTERM) exits with code 130 (outputs are complete or absent; see
-  ``fuse4d run --resume``).
+  ``fuse4d run --resume``). The same signal again within 0.2 s is taken for the first one
+  delivered twice (GNU ``timeout -s INT`` sends it to the process, then to its group) and
+  ignored (:func:`fuse4d._signals.is_echo`).
 
 ``fuse4d --debug COMMAND`` (or ``FUSE4D_DEBUG=1``) shows the traceback instead. Warnings
 (e.g. a coarse output depth unit) print as one ``fuse4d: warning: ...`` line each.
@@ -16,16 +18,19 @@ Error contract (see :mod:`fuse4d.errors`):
 
 from __future__ import annotations
 
+import functools
 import inspect
 import os
 import signal
 import sys
 import threading
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import typer
 
+from .. import _signals
 from .._signals import INTERRUPTED as _INTERRUPTED
 from ..errors import Fuse4dError
 from ._app import STATE, app
@@ -56,7 +61,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     _tidy_help(command)
     args = list(sys.argv[1:] if argv is None else argv)
     STATE.debug = False
-    _INTERRUPTED.clear()
+    _signals.reset()  # the flag, and the time of the last signal
     if argv is None and threading.current_thread() is threading.main_thread():
         # console script: `kill` (SIGTERM) and a closed terminal or ssh session (SIGHUP) stop
         # as cleanly as Ctrl-C (complete outputs only; SIGHUP left staged files behind); each
@@ -67,9 +72,23 @@ def main(argv: Sequence[str] | None = None) -> int:
             signal.signal(signal.SIGHUP, _terminate)
         if not _debug():  # a warning reads as one line, not Python's file, line and source
             warnings.showwarning = _show_warning
+    unraisablehook = sys.unraisablehook
+    sys.unraisablehook = functools.partial(_drop_interrupt, unraisablehook)
+    try:
+        return _run(command, args, argv)
+    finally:
+        if argv is not None:  # (the console script keeps it: the shutdown runs __del__s too)
+            sys.unraisablehook = unraisablehook
+
+
+def _run(command: Any, args: list[str], argv: Sequence[str] | None) -> int:
+    """:func:`main` once the signal handlers are in place: the command, then its exit code."""
     try:
         result = command.main(args=args, prog_name="fuse4d", standalone_mode=False)
     except typer.Exit as exc:
+        if exc.exit_code == 0 and _INTERRUPTED.is_set():  # see below
+            print("fuse4d: interrupted", file=sys.stderr)
+            return _finish(EXIT_INTERRUPTED, argv)
         return _finish(exc.exit_code, argv)
     except (typer.Abort, KeyboardInterrupt):
         print("fuse4d: interrupted", file=sys.stderr)
@@ -100,6 +119,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         return _finish(EXIT_BUG, argv)
     code = result if isinstance(result, int) else 0
+    if _INTERRUPTED.is_set():
+        # the KeyboardInterrupt of a signal was raised inside a weakref callback or a
+        # __del__, where Python drops it (_drop_interrupt) and the command went on: still an
+        # interrupt (a command that takes a signal as a normal stop, as `fuse4d live` does,
+        # leaves the flag unset)
+        code = EXIT_INTERRUPTED
     if code == EXIT_INTERRUPTED:  # typer turned Ctrl-C into this exit code
         print("fuse4d: interrupted", file=sys.stderr)
     return _finish(code, argv)
@@ -112,8 +137,21 @@ EXIT_INTERRUPTED = 130
 
 
 def _terminate(signum: int, frame: object) -> None:
+    if _signals.is_echo(signum):  # the same signal delivered twice (GNU timeout -s INT)
+        return
     _INTERRUPTED.set()
     raise KeyboardInterrupt
+
+
+def _drop_interrupt(hook: Callable[[Any], object], unraisable: Any) -> None:
+    """``sys.unraisablehook`` while a command runs: a KeyboardInterrupt that a signal raised
+    inside a weakref callback or a ``__del__`` cannot propagate (Python printed "Exception
+    ignored in ..." with a traceback and the command went on, to exit 0); once the interrupt
+    is noted (:data:`fuse4d._signals.INTERRUPTED`) it is dropped silently, and :func:`main`
+    exits 130 when the command returns. Anything else goes to ``hook``, the previous one."""
+    if issubclass(unraisable.exc_type, KeyboardInterrupt) and _INTERRUPTED.is_set():
+        return
+    hook(unraisable)
 
 
 #: Warnings the console script has printed: each text once per command (a recording with

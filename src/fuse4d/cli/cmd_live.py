@@ -138,6 +138,7 @@ def live_command(
         LiveWriter,
         RealSenseSource,
         RecordingSource,
+        _stop_on_signals,
         display_problem,
         realsense_available,
         run_live,
@@ -199,7 +200,9 @@ def live_command(
             fail(f"{'camera' if input_path is None else input_path}: --decimate {decimate}: {exc}")
     sinks: list[Any] = []
     stop = threading.Event()
-    with contextlib.ExitStack() as stack:
+    # Ctrl-C stops the run (run_live) and then lets the output be finished: outside this
+    # guard, one while the .npz was saved (or a stream flushed) threw the whole run away
+    with _stop_on_signals(stop) as signals, contextlib.ExitStack() as stack:
         stack.callback(source.close)
         if output is not None:
             from ..io import check_output
@@ -252,6 +255,7 @@ def live_command(
             extra_delay_s=delay_ms / 1000.0,
             overlap_flow=overlap_flow,
         )
+    stats.interrupted = stats.interrupted or signals.interrupted  # (while finishing)
     summary = {
         "input": "camera" if input_path is None else str(input_path),
         "output": None if output is None else str(output),
@@ -303,7 +307,7 @@ def _overload_advice(s: dict[str, Any]) -> str | None:
         return None
     head = (
         f"fuse4d live: the fusion fell behind: {dropped} of {captured} frames dropped "
-        f"({s['fps']:.1f} fps fused of {s['input_fps']:.1f} in); each output fused "
+        f"({_rate(s['fps'])} fps fused of {_rate(s['input_fps'])} in); each output fused "
         f"{s['mean_window']:.1f} of up to {s['window']} frames on average"
     )
     lines = [head]
@@ -317,6 +321,11 @@ def _overload_advice(s: dict[str, Any]) -> str | None:
     if s["window"] > 3:
         lines.append(f"  a smaller --window (now {s['window']}) costs less per frame")
     return "\n".join(lines)
+
+
+def _rate(fps: float | None) -> str:
+    """A measured rate (frames/s) for the summary: "n/a" where it could not be measured."""
+    return "n/a" if fps is None or not math.isfinite(fps) else f"{fps:.1f}"
 
 
 def _window_sink(stop: Any) -> Any:
@@ -376,7 +385,7 @@ def _table(s: dict[str, Any]) -> Table:
         ),
         (
             "rate",
-            f"{s['fps']:.1f} fps fused, {s['input_fps']:.1f} fps in"
+            f"{_rate(s['fps'])} fps fused, {_rate(s['input_fps'])} fps in"
             + (f" (source {s['source_fps']:g} fps)" if s["source_fps"] else "")
             + (
                 f" (played at {s['playback_fps']:g} fps)"
