@@ -304,20 +304,25 @@ def test_dis_on_images_it_cannot_take(shape):
 
 def test_dis_runs_on_every_small_shape():
     """No shape up to 64 px crashes the process (run in a child process: a crash there is a
-    failed test here), with each preset and the finest scales / patch sizes around them."""
+    failed test here), with each preset and the finest scales / patch sizes around them; the
+    presets run on every shape, other settings where OpenCV would keep their patch size."""
     script = """
 import numpy as np
+from fuse4d.errors import ParameterError
 from fuse4d.flow.opencv import DISParams, dis_flow
-settings = [DISParams.from_preset(p) for p in ("ultrafast", "fast", "medium")]
-settings += [DISParams(finest_scale=f, patch_size=s, patch_stride=s // 2)
-             for f in (0, 3, 4) for s in (8, 12)]
+presets = [DISParams.from_preset(p) for p in ("ultrafast", "fast", "medium")]
+settings = presets + [DISParams(finest_scale=f, patch_size=s, patch_stride=s // 2)
+                      for f in (0, 3, 4) for s in (8, 12)]
 sizes = (2, 5, 8, 11, 12, 15, 16, 23, 24, 31, 32, 47, 64)
 for p in settings:
     for h in sizes:
         for w in sizes + (100, 300, 640):
             for a, b in ((h, w), (w, h)):
                 img = np.random.default_rng(a * 1000 + b).random((a, b), dtype=np.float32)
-                assert dis_flow(img, img, p, None).shape == (a, b, 2)
+                try:
+                    assert dis_flow(img, img, p, None).shape == (a, b, 2)
+                except ParameterError:
+                    assert p not in presets and p.finest_scale in (3, 4) and p.patch_size == 8
 print("ok")
 """
     done = subprocess.run(
@@ -720,3 +725,196 @@ def test_flow_parameters_far_past_any_use_are_refused(method, param, value):
 
     with pytest.raises(ParameterError, match=param):
         flow_params_from_mapping(method, {param: value})
+
+
+# ---------------------------------------------------------------------------------------------
+# DIS settings OpenCV would replace, NaN flows, parameter bounds, CLI outputs, bench-flow data
+# ---------------------------------------------------------------------------------------------
+
+
+def test_dis_never_hands_opencv_a_stride_above_the_patch_it_would_use():
+    """On an image too small for finest_scale OpenCV takes patch size 8 (or 12) but kept the
+    stride: patch_size=24 patch_stride=12 on 140 x 100 px aborted the process, 100/100 freed
+    memory twice. Run in a child process (a crash there is a failed test here): every such
+    setting is refused with a ParameterError that names what fits."""
+    script = """
+import itertools
+import numpy as np
+from fuse4d.errors import ParameterError
+from fuse4d.flow import DISParams, estimate_flow
+refused = 0
+for (h, w), ps, st, fs in itertools.product(
+    [(100, 140), (48, 64), (30, 200)], [8, 24, 64, 100], [1, 8, 24, 64, 100], [0, 2]
+):
+    if st > ps or (st == 1 and ps > 8):
+        continue
+    a = np.random.default_rng(0).random((h, w), dtype=np.float32)
+    try:
+        flow = estimate_flow(a, np.roll(a, 1, 1), method="dis",
+                             params=DISParams(patch_size=ps, patch_stride=st, finest_scale=fs))
+    except ParameterError as exc:
+        assert "it runs with" in str(exc), str(exc)
+        refused += 1
+    else:
+        assert np.isfinite(flow).all()
+print(refused)
+"""
+    done = subprocess.run(
+        [sys.executable, "-c", script], check=False, capture_output=True, text=True
+    )
+    assert done.returncode == 0, (done.returncode, done.stderr[-2000:])
+    assert int(done.stdout) > 0
+
+
+def test_dis_refuses_a_patch_size_opencv_would_replace():
+    """patch_size 16 at finest_scale 2 on 140 x 100 px gave the bytes of patch_size 8: OpenCV
+    replaced it without a word. Now refused, naming the finest_scale and patch_size that fit;
+    these run as asked."""
+    image = texture((100, 140))
+    moved = shifted(image, 1.0, 0.0)
+    with pytest.raises(ParameterError, match="patch_size=16") as info:
+        estimate_flow(image, moved, method="dis", params={"patch_size": 16})
+    message = str(info.value)
+    assert "140 x 100 px" in message
+    assert "OpenCV would replace patch_size by 8" in message
+    assert "it runs with finest_scale=1 or patch_size=12" in message
+    as_asked = estimate_flow(
+        image, moved, method="dis", params={"patch_size": 16, "finest_scale": 1}
+    )
+    other = estimate_flow(image, moved, method="dis", params={"patch_size": 8, "finest_scale": 1})
+    assert not np.array_equal(as_asked, other)
+
+
+def test_dis_refuses_padding_out_of_proportion():
+    """finest_scale 0 with patch_size 512 padded 140 x 100 px to 724 x 725 px (with stride 1 a
+    solve of many minutes that SIGTERM could not stop). Small crops are still padded for
+    OpenCV's own patch sizes."""
+    image = texture((100, 140))
+    params = {"finest_scale": 0, "patch_size": 512, "patch_stride": 512}
+    with pytest.raises(ParameterError, match=r"patch_size=512 is too large for a 140 x 100 px"):
+        estimate_flow(image, image, method="dis", params=params)
+    thin = texture((2, 640), sigma=1.0)
+    assert estimate_flow(thin, thin, method="dis").shape == (2, 640, 2)
+
+
+def test_dis_finest_scale_opencv_replaces_is_said(png_pair, tmp_path, capsys):
+    """finest_scale 9 on a 110 x 90 px pair solved what finest_scale 0 solves, silently; the
+    flow command now says which level OpenCV chose (and nothing when it keeps the value)."""
+    args = ["flow", str(png_pair[0]), str(png_pair[1]), "-o", str(tmp_path / "f.flo")]
+    assert main([*args, "-p", "finest_scale=9"]) == 0
+    err = capsys.readouterr().err
+    assert "too small for DIS finest_scale=9: OpenCV chose finest level 0 instead" in err
+    assert main([*args, "--force", "-p", "finest_scale=1"]) == 0
+    assert "note:" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("factory", "message"),
+    [
+        (lambda: DISParams(variational_refinement_epsilon=1e-30), "epsilon must be"),
+        (
+            lambda: TVL1Params(median_filtering=7),
+            r"median_filtering must be an integer in \[1, 5\]",
+        ),
+    ],
+)
+def test_params_opencv_cannot_take_are_refused(factory, message):
+    """epsilon 1e-30 underflows when OpenCV squares it (every flow vector NaN); a TV-L1
+    median of 7 was an OpenCV assertion (its float median takes 1, 3, 5): internal errors."""
+    with pytest.raises(ParameterError, match=message):
+        factory()
+    assert DISParams(variational_refinement_epsilon=1e-6).variational_refinement_epsilon == 1e-6
+    assert TVL1Params(median_filtering=3).median_filtering == 3
+
+
+def test_a_non_finite_flow_is_refused_before_it_is_used(monkeypatch):
+    """An all-NaN forward flow was written out (exit 0) or passed, negated, as DIS's backward
+    warm start (segmentation fault). Now every method's output is checked."""
+    calls = []
+
+    def nan_flow(image0, image1, params, init):
+        calls.append(init)
+        out = np.zeros((*image0.shape, 2), np.float32)
+        out[5, 7] = np.nan
+        return out
+
+    nan_method = FlowMethod("nanflow", nan_flow, DeepFlowParams, "", True, False)
+    monkeypatch.setitem(flow_mod._REGISTRY, "nanflow", nan_method)
+    image = texture()
+    with pytest.raises(ParameterError, match=r"'nanflow' returned NaN or inf at 1 of 10752 px"):
+        estimate_flow(image, image, method="nanflow")
+    with pytest.raises(ParameterError, match=r"image0 -> image1 \(forward\)"):
+        estimate_flow_pair(image, image, method="nanflow")
+    assert len(calls) == 2  # the backward solve never ran
+    video = np.stack([image, image, image])
+    with pytest.raises(ParameterError, match=r"^frame pair \(0, 1\): flow method 'nanflow'"):
+        estimate_sequence_flow(video, method="nanflow")
+
+
+def test_cli_flow_refuses_a_folder_or_a_non_png_vis_before_the_solve(png_pair, tmp_path, capsys):
+    """A folder as --vis or -o failed only after the solve (with the .flo already written);
+    --vis x.jpg / x.bmp / x wrote PNG bytes under that name."""
+    folder = tmp_path / "dd"
+    folder.mkdir()
+    out = tmp_path / "w.flo"
+    args = ["flow", str(png_pair[0]), str(png_pair[1]), "--force"]
+    assert main([*args, "-o", str(out), "--vis", str(folder)]) == 2
+    assert f"{folder}: is a folder" in capsys.readouterr().err
+    assert not out.exists()
+    assert main([*args, "-o", str(folder)]) == 2
+    assert f"{folder}: is a folder" in capsys.readouterr().err
+    for name in ("v.jpg", "v.bmp", "v"):
+        assert main([*args, "-o", str(out), "--vis", str(tmp_path / name)]) == 2
+        assert "name it *.png" in capsys.readouterr().err
+        assert not (tmp_path / name).exists()
+        assert not out.exists()
+    from fuse4d.flow.vis import write_flow_png
+
+    with pytest.raises(ParameterError, match="name it"):
+        write_flow_png(np.zeros((4, 4, 2), np.float32), tmp_path / "v.jpg")
+
+
+def _middlebury_copy(root, shape0=(20, 24), shape1=(20, 24), shape_gt=(20, 24)):
+    from fuse4d.flow import write_flo
+
+    frames, gt = root / "other-data" / "Venus", root / "other-gt-flow" / "Venus"
+    frames.mkdir(parents=True)
+    gt.mkdir(parents=True)
+    cv2.imwrite(str(frames / "frame10.png"), (texture(shape0) * 255).astype(np.uint8))
+    cv2.imwrite(str(frames / "frame11.png"), (texture(shape1) * 255).astype(np.uint8))
+    write_flo(np.zeros((*shape_gt, 2), np.float32), gt / "flow10.flo")
+    return frames, gt
+
+
+def test_middlebury_pairs_name_the_file_that_does_not_fit(tmp_path):
+    """Another sequence's flow10.flo or frame11.png failed as 'flow_test must have shape ...'
+    or 'image1 must have shape ...' without a file name; a missing frame10.png skipped the
+    sequence silently where a missing frame11.png was an error."""
+    from fuse4d.errors import InputFileError
+    from fuse4d.experiments.flow_accuracy import middlebury_pairs
+
+    pairs, reason = middlebury_pairs(_middlebury_copy(tmp_path / "ok")[0].parent.parent)
+    assert [p.name for p in pairs] == ["Venus"]
+    assert reason == ""
+    for name, shapes in (
+        ("flow10.flo", {"shape_gt": (18, 24)}),
+        ("frame11.png", {"shape1": (20, 22)}),
+    ):
+        root = tmp_path / name
+        _middlebury_copy(root, **shapes)
+        with pytest.raises(InputFileError, match=rf"{name}: .*Middlebury sequence Venus"):
+            middlebury_pairs(root)
+    for name in ("frame10.png", "frame11.png", "flow10.flo"):
+        root = tmp_path / f"no-{name}"
+        frames, gt = _middlebury_copy(root)
+        (frames / name if name.startswith("frame") else gt / name).unlink()
+        with pytest.raises(InputFileError, match=rf"{name}: file not found .*Venus is incomplete"):
+            middlebury_pairs(root)
+
+
+def test_bench_flow_methods_in_any_case():
+    """--methods DIS was refused while flow -m DIS was accepted."""
+    from fuse4d.experiments.flow_accuracy import default_bench_entries
+
+    labels = [e.label for e in default_bench_entries(["DIS", " Farneback", "DIS-Medium"])]
+    assert labels == ["dis-ultrafast", "dis-fast", "dis-medium", "farneback"]

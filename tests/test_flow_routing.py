@@ -101,6 +101,17 @@ def test_bad_flow_objects_give_clear_errors(ball):
         FusionEngine(ball.intrinsics, flow=np.zeros(3))
 
 
+def test_forward_flows_alone_are_a_fuse4d_error(ball):
+    """flow=<the forward array only> was a bare TypeError (reported by the CLI as an internal
+    error); now a ParameterTypeError naming the argument and the pair it wants."""
+    from fuse4d.errors import ParameterTypeError
+
+    forward = estimate_sequence_flow(ball.intensity, method="dis").forward
+    with pytest.raises(ParameterTypeError, match=r"^flow: .*\(forward, backward\) pair") as info:
+        fuse_sequence(ball.depth, ball.intensity, ball.intrinsics, flow=forward)
+    assert f"one array of shape {forward.shape} (pass the backward flows too)" in str(info.value)
+
+
 def test_cli_flow_cache_and_roi(ball, tmp_path, capsys):
     src = tmp_path / "ball.npz"
     assert main(["synth", "ball", "--small", "--frames", "4", "-o", str(src)]) == 0

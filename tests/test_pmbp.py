@@ -299,6 +299,19 @@ def test_deterministic_for_a_fixed_seed(schedule):
     assert not np.array_equal(first, other)
 
 
+def test_seed_beyond_int64_is_a_parameter_error():
+    """seed=2**63 was an OverflowError and 2**64 a numba TypingError inside the solve, both
+    reported as internal errors; the largest int64 seed runs."""
+    from fuse4d.errors import ParameterError
+
+    for seed in (2**63, 2**64):
+        with pytest.raises(ParameterError, match=r"PMBPParams\.seed must be an integer in"):
+            PMBPParams(seed=seed)
+    a, b = _pair(12, 14, (0.5, 0.0))
+    flow = pmbp_flow(a, b, dataclasses.replace(SMALL, seed=2**63 - 1, pyramid_levels=1))
+    assert np.isfinite(flow).all()
+
+
 def test_warm_start_is_used():
     d = (2.6, -1.3)
     a, b = _pair(40, 40, d)

@@ -26,6 +26,8 @@ def _check_out(path: Path, force: bool, inputs: tuple[Path, ...]) -> None:
         fail(f"{path}: output would overwrite an input; choose another path")
     if not resolved.parent.is_dir():
         fail(f"{path}: output folder {path.parent} does not exist")
+    if path.is_dir():
+        fail(f"{path}: is a folder; give the output file's name")
     if path.exists() and not force:
         fail(f"{path}: output exists; pass --force to replace it")
 
@@ -68,7 +70,7 @@ def flow_command(
     with user_values():
         m = get_flow_method(method.strip().lower())
         params = _parse_params(m.name, param or [])
-    if max_magnitude is not None:  # checked after the solve and the .flo were written
+    if max_magnitude is not None:  # every output check comes before the solve
         if vis is None:
             fail("--max-magnitude sets the --vis colour scale; give --vis too")
         if not (math.isfinite(max_magnitude) and max_magnitude > 0):
@@ -78,6 +80,8 @@ def flow_command(
         _check_out(vis, force, (image0, image1))
         if vis.resolve() == output.resolve():
             fail("--vis and --output must be different files")
+        if vis.suffix.lower() != ".png":
+            fail(f"--vis {vis}: the colour-wheel image is written as PNG; name it *.png")
     a = read_intensity_image(image0)
     b = read_intensity_image(image1)
     if a.shape != b.shape:
@@ -96,6 +100,12 @@ def flow_command(
         f"wrote {output}: {a.shape[1]}x{a.shape[0]} flow, method {m.name}{note}, "
         f"max |flow| {float((flow**2).sum(-1).max() ** 0.5):.2f} px"
     )
+    if m.name == "dis":
+        from ..flow.opencv import _dis_levels_note
+
+        levels = _dis_levels_note(*a.shape, params)  # type: ignore[arg-type]
+        if levels:
+            eprint(f"note: {levels}")
 
 
 def _data_root(data: Path | None) -> Path:

@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from ..errors import InputFileError
 from ..flow import DISParams, available_flow_methods, estimate_flow, read_flo, resolve_flow_params
 from ..io import read_intensity_image
 from ..metrics import flow_angular_error, flow_endpoint_error
@@ -109,8 +110,9 @@ class BenchResult:
 def default_bench_entries(methods: Iterable[str] | None = None) -> list[BenchEntry]:
     """One entry per registered method with default parameters; DIS as its three presets.
 
-    ``methods`` filters by label (``dis-medium``) or method name (``dis`` = all DIS presets);
-    an unknown name raises ``ValueError`` listing the valid ones.
+    ``methods`` filters by label (``dis-medium``) or method name (``dis`` = all DIS presets),
+    in any case (``DIS``), as ``fuse4d flow -m`` takes them; an unknown name raises
+    ``ValueError`` listing the valid ones.
     """
     entries: list[BenchEntry] = []
     for name in available_flow_methods():
@@ -123,7 +125,7 @@ def default_bench_entries(methods: Iterable[str] | None = None) -> list[BenchEnt
             entries.append(BenchEntry(name, name, resolve_flow_params(name)))
     if methods is None:
         return entries
-    wanted = [m.strip() for m in methods if m.strip()]
+    wanted = [m.strip().lower() for m in methods if m.strip()]
     valid = {e.label for e in entries} | {e.method for e in entries}
     unknown = [m for m in wanted if m not in valid]
     if unknown:
@@ -134,29 +136,45 @@ def default_bench_entries(methods: Iterable[str] | None = None) -> list[BenchEnt
 
 
 def middlebury_pairs(directory: str | Path) -> tuple[list[FlowPair], str]:
-    """The Middlebury pairs in ``directory`` (``middlebury_flow``), and a reason if none."""
+    """The Middlebury pairs in ``directory`` (``middlebury_flow``), and a reason if none.
+
+    A sequence none of whose three files (``other-data/<seq>/frame10.png``, ``frame11.png``,
+    ``other-gt-flow/<seq>/flow10.flo``) exists is left out.
+
+    Raises
+    ------
+    InputFileError
+        A sequence with only some of its files (naming the missing one), or whose frames and
+        ground truth differ in size (naming the file that does not match ``frame10.png``).
+    """
     root = Path(directory)
     if not root.is_dir():
         return [], f"{root} not found"
     pairs = []
     for seq in MIDDLEBURY_SEQUENCES:
         frames = root / "other-data" / seq
+        paths = (frames / "frame10.png", frames / "frame11.png")
         gt_path = root / "other-gt-flow" / seq / "flow10.flo"
-        if not (frames / "frame10.png").is_file() or not gt_path.is_file():
+        present = [p.is_file() for p in (*paths, gt_path)]
+        if not any(present):
             continue
+        if not all(present):
+            missing = [p for p, ok in zip((*paths, gt_path), present, strict=True) if not ok]
+            raise InputFileError(
+                missing[0], f"file not found (the Middlebury sequence {seq} is incomplete)"
+            )
+        image0, image1 = (read_intensity_image(p) for p in paths)
         gt = np.asarray(read_flo(gt_path), dtype=np.float32)
+        for path, shape in ((paths[1], image1.shape), (gt_path, gt.shape[:2])):
+            if shape != image0.shape:
+                raise InputFileError(
+                    path,
+                    f"{shape[1]}x{shape[0]} px, but {paths[0].name} of the Middlebury sequence "
+                    f"{seq} is {image0.shape[1]}x{image0.shape[0]} px: not from this sequence",
+                )
         known = np.all(np.isfinite(gt) & (np.abs(gt) <= UNKNOWN_FLOW), axis=-1)
         gt = np.where(known[..., None], gt, np.float32(0.0))
-        pairs.append(
-            FlowPair(
-                "middlebury",
-                seq,
-                read_intensity_image(frames / "frame10.png"),
-                read_intensity_image(frames / "frame11.png"),
-                gt,
-                known,
-            )
-        )
+        pairs.append(FlowPair("middlebury", seq, image0, image1, gt, known))
     return pairs, "" if pairs else f"no Middlebury pairs found under {root}"
 
 

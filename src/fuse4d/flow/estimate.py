@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from .._validation import as_float32, check_shape
 from .._version import __version__
-from ..errors import Fuse4dError, ParameterError, ShapeError
+from ..errors import Fuse4dError, ParameterError, ParameterTypeError, ShapeError
 from ..sequence import normalize_intensity
 from ._checks import check_flow_field, check_image, check_roi
 from ._registry import FlowMethod, Roi, get_flow_method, resolve_flow_params
@@ -52,9 +52,11 @@ def _run_cropped(
     params: Any,
     init: NDArray[np.float32] | None,
     roi: Roi | None,
+    directions: tuple[str, ...] = ("image0 -> image1",),
 ) -> list[NDArray[np.float32]]:
     """Call ``function`` (a method's single or pair function; inputs validated) on the ``roi``
-    crop, and return its flow field(s) checked and zero-padded to the full image."""
+    crop, and return its flow field(s) checked and zero-padded to the full image;
+    ``directions`` names each returned field in errors."""
     init = init if m.supports_init else None
     shape = image0.shape
     r0, r1, c0, c1 = roi if roi is not None else (0, shape[0], 0, shape[1])
@@ -65,7 +67,10 @@ def _run_cropped(
         init = None if init is None else np.ascontiguousarray(init[crop])
     result = function(image0, image1, params, init)
     fields = list(result) if isinstance(result, tuple) else [result]
-    fields = [_check_output(m, f, (r1 - r0, c1 - c0)) for f in fields]
+    fields = [
+        _check_output(m, f, (r1 - r0, c1 - c0), what)
+        for f, what in zip(fields, directions, strict=False)
+    ]
     if roi is None:
         return fields
     padded = []
@@ -83,18 +88,32 @@ def _run_method(
     params: Any,
     init: NDArray[np.float32] | None,
     roi: Roi | None,
+    direction: str = "image0 -> image1",
 ) -> NDArray[np.float32]:
     """One direction with ``m.function`` (see :func:`_run_cropped`)."""
-    return _run_cropped(m, m.function, image0, image1, params, init, roi)[0]
+    return _run_cropped(m, m.function, image0, image1, params, init, roi, (direction,))[0]
 
 
-def _check_output(m: FlowMethod, flow: Any, shape: tuple[int, ...]) -> NDArray[np.float32]:
+def _check_output(
+    m: FlowMethod, flow: Any, shape: tuple[int, ...], direction: str
+) -> NDArray[np.float32]:
+    """The method's flow as float32 ``(H, W, 2)``; a method bug (wrong shape) is a
+    RuntimeError, a non-finite flow (a parameter value the solver cannot take, such as a
+    vanishing epsilon) a :class:`ParameterError` naming the method and the direction, so that
+    it never reaches the fusion or another solve as a warm start."""
     arr = np.asarray(flow)
     if arr.shape != (*shape, 2):
         raise RuntimeError(
             f"flow method {m.name!r} returned shape {arr.shape}, expected {(*shape, 2)}"
         )
-    return np.ascontiguousarray(arr, dtype=np.float32)
+    arr = np.ascontiguousarray(arr, dtype=np.float32)
+    bad = ~np.isfinite(arr).all(axis=-1)
+    if bad.any():
+        raise ParameterError(
+            f"flow method {m.name!r} returned NaN or inf at {int(bad.sum())} of {bad.size} px "
+            f"of the flow {direction}; check its parameters"
+        )
+    return arr
 
 
 def estimate_flow(
@@ -232,11 +251,13 @@ def estimate_flow_pair(
         hit = cache.load(key)
         if hit is not None and hit.shape == (2, *a.shape, 2) and hit.dtype == np.float32:
             return hit[0], hit[1]
+    directions = ("image0 -> image1 (forward)", "image1 -> image0 (backward)")
     if m.pair_function is not None:
-        forward, backward = _run_cropped(m, m.pair_function, a, b, p, init, box)
+        forward, backward = _run_cropped(m, m.pair_function, a, b, p, init, box, directions)
     else:
-        forward = _run_method(m, a, b, p, init, box)
-        backward = _run_method(m, b, a, p, -forward if m.supports_init else None, box)
+        forward = _run_method(m, a, b, p, init, box, directions[0])
+        backward_init = -forward if m.supports_init else None
+        backward = _run_method(m, b, a, p, backward_init, box, directions[1])
     if cache is not None and key is not None:
         cache.store(key, np.stack([forward, backward]))
     return forward, backward
@@ -294,8 +315,8 @@ def as_sequence_flow(flow: Any, shape: tuple[int, int, int] | None = None) -> Se
 
     Raises
     ------
-    TypeError
-        If ``flow`` is none of the accepted forms.
+    ParameterTypeError
+        If ``flow`` is none of the accepted forms (also a :class:`TypeError`).
     ShapeError
         If an array does not fit ``shape``.
     """
@@ -306,9 +327,12 @@ def as_sequence_flow(flow: Any, shape: tuple[int, int, int] | None = None) -> Se
     elif hasattr(flow, "forward") and hasattr(flow, "backward"):
         result = SequenceFlow(np.asarray(flow.forward), np.asarray(flow.backward))
     else:
-        raise TypeError(
-            "precomputed flows must be a SequenceFlow or a (forward, backward) pair of "
-            f"(T-1, H, W, 2) arrays, got {type(flow).__name__}"
+        got = type(flow).__name__
+        if isinstance(flow, np.ndarray):
+            got = f"one array of shape {flow.shape} (pass the backward flows too)"
+        raise ParameterTypeError(
+            "flow: precomputed flows must be a SequenceFlow or a (forward, backward) pair of "
+            f"(T-1, H, W, 2) arrays, px, got {got}"
         )
     if shape is not None:
         n, h, w = shape

@@ -35,7 +35,7 @@ The DeepFlow variant of OpenCV exposes no parameters to Python (its C++ fields `
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Any, ClassVar, Literal
 
 import cv2
@@ -82,10 +82,22 @@ class DISParams:
     ----------
     finest_scale : int
         Finest pyramid level that is solved (0 = full resolution; the result is upsampled).
+        On an image too small for it (OpenCV's coarsest level, from the image size and
+        ``patch_size``, is below ``finest_scale``), OpenCV chooses the levels itself from the
+        image width: finest level ``max(floor(log2(2 W / (5 P))) - k, 0)`` with ``P`` its own
+        patch size (8; 12 for ``finest_scale`` 3 or 4) and ``k`` 2 (4 for 3, 5 for 4), so
+        ``finest_scale`` 9 solves the same levels as 0 on a 140 px wide image. ``fuse4d flow``
+        prints the finest level OpenCV chose.
     patch_size : int
-        Side of the square patches, px.
+        Side of the square patches, px. Where OpenCV would choose the levels itself (see
+        ``finest_scale``) it would also replace ``patch_size`` by its own ``P``; fuse4d
+        refuses that case (:class:`~fuse4d.errors.ParameterError` naming a ``finest_scale``
+        and a ``patch_size`` that run) instead of solving with another patch size. Images
+        too small for a patch are padded (edge replication), but a ``patch_size`` above 12 px
+        that needs more than 4 times the image's area is refused too.
     patch_stride : int
-        Distance between neighbouring patches, px (smaller = denser, slower).
+        Distance between neighbouring patches, px (smaller = denser, slower); at most
+        ``patch_size``.
     gradient_descent_iterations : int
         Inverse-search gradient-descent iterations per patch.
     variational_refinement_iterations : int
@@ -97,7 +109,8 @@ class DISParams:
     variational_refinement_delta : float
         Colour-constancy weight of the variational refinement.
     variational_refinement_epsilon : float
-        Charbonnier-penalty epsilon of the variational refinement.
+        Charbonnier-penalty epsilon of the variational refinement, >= 1e-6 (OpenCV squares it
+        in float32: below about 1e-22 that underflows and every flow vector becomes NaN).
     use_mean_normalization : bool
         Normalise patch means (robust to illumination change).
     use_spatial_propagation : bool
@@ -112,7 +125,7 @@ class DISParams:
     variational_refinement_alpha: float = param(20.0, ge=0)
     variational_refinement_gamma: float = param(10.0, ge=0)
     variational_refinement_delta: float = param(5.0, ge=0)
-    variational_refinement_epsilon: float = param(0.01, gt=0)
+    variational_refinement_epsilon: float = param(0.01, ge=1e-6)  # 1e-23: all-NaN flow
     use_mean_normalization: bool = True
     use_spatial_propagation: bool = True
 
@@ -182,10 +195,18 @@ def dis_flow(
     Images that OpenCV's DIS cannot take (under 12 px; short and wide ones such as 12 x 40 px,
     on which OpenCV 4.x-5.x crashes the process, see :func:`_dis_accepts`) are padded by edge
     replication to the nearest size it takes, and the flow of the original pixels is returned.
+
+    Raises
+    ------
+    ParameterError
+        Where OpenCV would replace ``patch_size`` by its own (an image too small for
+        ``finest_scale``; with ``patch_stride`` above OpenCV's patch it would crash), or
+        where a ``patch_size`` above 12 px needs the image padded to more than 4 times its
+        area (see :class:`DISParams`). The message names the values that fit.
     """
-    dis = _make_dis(params)
     h, w = image0.shape[:2]
-    need_h, need_w = _dis_padded_shape(h, w, params)
+    need_h, need_w = _dis_checked_shape(h, w, params)
+    dis = _make_dis(params)
     if (need_h, need_w) == (h, w):
         return dis.calc(to_uint8(image0), to_uint8(image1), _init_or_none(init))
 
@@ -214,14 +235,9 @@ def _dis_accepts(height: int, width: int, params: DISParams) -> bool:
     :func:`dis_flow` on every shape up to 64 px (and 640 px wide) in a child process.
     """
     patch, finest = int(params.patch_size), int(params.finest_scale)
-    short, long = min(height, width), max(height, width)
-    if short // patch < 1:
+    if min(height, width) // patch < 1:
         return False
-    # the same double expressions as OpenCV's (ln ratios, truncation toward zero)
-    ln2 = math.log(2.0)
-    coarsest = min(
-        int(math.log(long / (4.0 * patch)) / ln2 + 0.5), int(math.log(short // patch) / ln2)
-    )
+    coarsest = _dis_coarsest(height, width, patch)
     if coarsest < 0:
         return False
     if coarsest >= finest:
@@ -239,6 +255,94 @@ def _dis_padded_shape(height: int, width: int, params: DISParams) -> tuple[int, 
         else:
             width += 1
     return height, width
+
+
+#: A patch_size above OpenCV's own (12 px) may make DIS pad an image to at most this many
+#: times its area (the sizes of OpenCV's own pad tiny or thin crops to whatever they need).
+_DIS_MAX_PAD_FACTOR = 4
+_DIS_OWN_PATCH = 12
+
+
+def _dis_coarsest(height: int, width: int, patch: int) -> int:
+    """OpenCV's coarsest DIS pyramid level for a ``height x width`` image (an image that
+    :func:`_dis_accepts`, whose shorter side holds a patch)."""
+    short, long = min(height, width), max(height, width)
+    ln2 = math.log(2.0)  # the same double expressions as OpenCV's (truncation toward zero)
+    return min(int(math.log(long / (4.0 * patch)) / ln2 + 0.5), int(math.log(short // patch) / ln2))
+
+
+def _dis_auto_levels(height: int, width: int, params: DISParams) -> tuple[int, int] | None:
+    """``(patch size, finest level)`` that OpenCV's DIS chooses itself on a ``height x width``
+    image that :func:`_dis_accepts` (``autoSelectPatchSizeAndScales``: its coarsest level is
+    below ``finest_scale``), or None where it solves with ``params`` as given."""
+    finest = int(params.finest_scale)
+    if _dis_coarsest(height, width, int(params.patch_size)) >= finest:
+        return None
+    patch = 12 if finest in (3, 4) else 8
+    coarsest = max(0, math.floor(math.log2(2.0 * width / (5.0 * patch))))
+    return patch, max(coarsest - {3: 4, 4: 5}.get(finest, 2), 0)
+
+
+def _dis_problem(height: int, width: int, params: DISParams) -> tuple[str, tuple[int, int]]:
+    """Why DIS cannot solve a ``height x width`` image with ``params`` as asked ('' if it can),
+    and the shape it solves on (:func:`_dis_padded_shape`)."""
+    need_h, need_w = _dis_padded_shape(height, width, params)
+    if (
+        params.patch_size > _DIS_OWN_PATCH
+        and need_h * need_w > _DIS_MAX_PAD_FACTOR * height * width
+    ):
+        return (
+            f"DIS patch_size={params.patch_size} is too large for a {width} x {height} px "
+            f"image (it would have to be padded to {need_w} x {need_h} px)"
+        ), (need_h, need_w)
+    auto = _dis_auto_levels(need_h, need_w, params)
+    if auto is not None and auto[0] != params.patch_size:
+        coarsest = _dis_coarsest(need_h, need_w, int(params.patch_size))
+        crash = (
+            f", and crash with patch_stride={params.patch_stride} > {auto[0]}"
+            if params.patch_stride > auto[0]
+            else ""
+        )
+        return (
+            f"DIS finest_scale={params.finest_scale} with patch_size={params.patch_size} does "
+            f"not fit a {width} x {height} px image: its coarsest pyramid level is {coarsest}, "
+            f"and below finest_scale OpenCV would replace patch_size by {auto[0]}{crash}"
+        ), (need_h, need_w)
+    return "", (need_h, need_w)
+
+
+def _dis_checked_shape(height: int, width: int, params: DISParams) -> tuple[int, int]:
+    """The shape DIS solves a ``height x width`` image on (:func:`_dis_padded_shape`), or a
+    :class:`ParameterError` (see :func:`_dis_problem`) naming the largest smaller
+    ``finest_scale`` and ``patch_size`` (>= 8) that fit."""
+    problem, shape = _dis_problem(height, width, params)
+    if not problem:
+        return shape
+    hints = []
+    for finest in range(int(params.finest_scale) - 1, -1, -1):
+        if not _dis_problem(height, width, replace(params, finest_scale=finest))[0]:
+            hints.append(f"finest_scale={finest}")
+            break
+    for patch in range(min(int(params.patch_size) - 1, max(min(height, width), 8)), 7, -1):
+        smaller = replace(params, patch_size=patch, patch_stride=min(params.patch_stride, patch))
+        if not _dis_problem(height, width, smaller)[0]:
+            stride = f" (patch_stride <= {patch})" if params.patch_stride > patch else ""
+            hints.append(f"patch_size={patch}{stride}")
+            break
+    raise ParameterError(problem + ("; it runs with " + " or ".join(hints) if hints else ""))
+
+
+def _dis_levels_note(height: int, width: int, params: DISParams) -> str:
+    """What OpenCV's DIS solves instead of ``finest_scale`` on a ``height x width`` image (''
+    where it keeps it): for a user-facing note (``fuse4d flow``)."""
+    shape = _dis_checked_shape(height, width, params)
+    auto = _dis_auto_levels(*shape, params)
+    if auto is None:
+        return ""
+    return (
+        f"the {width} x {height} px image is too small for DIS finest_scale="
+        f"{params.finest_scale}: OpenCV chose finest level {auto[1]} instead"
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -342,7 +446,8 @@ class TVL1Params:
     gamma : float
         Weight of the illumination-change term (0 = off) [gamma].
     median_filtering : int
-        Median-filter size applied to the flow between warps (odd; 1 = off) [medianFiltering].
+        Median-filter size applied to the flow between warps: 1 (off), 3 or 5, the sizes
+        OpenCV's float median filter takes [medianFiltering].
     """
 
     tau: float = param(0.25, gt=0)
@@ -355,13 +460,14 @@ class TVL1Params:
     outer_iterations: int = param(10, ge=1)
     scale_step: float = param(0.8, gt=0, lt=1)
     gamma: float = param(0.0, ge=0)
-    median_filtering: int = param(5, ge=1)
+    median_filtering: int = param(5, ge=1, le=5)  # OpenCV's float median: 1, 3, 5 only
 
     def __post_init__(self) -> None:
         validate(self, finite=True)
         if self.median_filtering % 2 == 0:
             raise ParameterError(
-                f"TVL1Params.median_filtering must be odd, got {self.median_filtering!r}"
+                f"TVL1Params.median_filtering must be 1 (off), 3 or 5, got "
+                f"{self.median_filtering!r}"
             )
 
 

@@ -143,7 +143,14 @@ def write_flow_png(
     -------
     Path
         The written file.
+
+    Raises
+    ------
+    ParameterError
+        If ``path`` does not end in ``.png`` (PNG bytes under another name).
     """
+    if Path(path).suffix.lower() != ".png":
+        raise ParameterError(f"{path}: the flow colour image is written as PNG; name it *.png")
     rgb = flow_to_color(flow, max_magnitude=max_magnitude)
     with atomic_file(path, overwrite=overwrite) as tmp:
         encode_png(np.ascontiguousarray(rgb[..., ::-1]), tmp)  # OpenCV writes BGR
