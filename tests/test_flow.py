@@ -918,3 +918,15 @@ def test_bench_flow_methods_in_any_case():
 
     labels = [e.label for e in default_bench_entries(["DIS", " Farneback", "DIS-Medium"])]
     assert labels == ["dis-ultrafast", "dis-fast", "dis-medium", "farneback"]
+
+
+def test_integer_images_without_a_bit_depth_are_refused_naming_the_image():
+    """A list of 0-255 ints (int64) was divided by the int64 maximum: an all-zero flow."""
+    from fuse4d import ParameterTypeError
+    from fuse4d.flow import estimate_flow, estimate_sequence_flow
+
+    image = (np.random.default_rng(0).random((20, 30)) * 255).astype(np.int64)
+    with pytest.raises(ParameterTypeError, match=r"^image0 has integer dtype int64 \(values 0"):
+        estimate_flow(image.tolist(), image.tolist())
+    with pytest.raises(ParameterTypeError, match=r"^intensity has integer dtype int32"):
+        estimate_sequence_flow(np.stack([image, image]).astype(np.int32))

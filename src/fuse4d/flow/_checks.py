@@ -20,14 +20,15 @@ __all__ = ["check_flow_field", "check_image", "check_roi", "to_uint8"]
 def check_image(image: Any, name: str) -> NDArray[np.float32]:
     """One gray intensity frame as float32 ``(H, W)``, about [0, 1], at least 2 px a side.
 
-    Integers are divided by their dtype's maximum, as :class:`fuse4d.FusionEngine` does (a
-    ``cv2.imread`` uint8 frame was taken as 0-255 and saturated: a near-zero flow). Floats
+    uint8/uint16 are divided by 255/65535 and other integer types refused, as
+    :class:`fuse4d.FusionEngine` does (a ``cv2.imread`` uint8 frame was taken as 0-255 and
+    saturated: a near-zero flow). Floats
     must be finite and within ``sequence.UNIT_RANGE_SLACK`` of [0, 1] (0-255 floats were
     saturated the same way).
     """
     arr = np.asarray(image)
     if arr.dtype.kind in "uib":
-        arr = normalize_intensity(arr)
+        arr = normalize_intensity(arr, name=name)
     arr = as_float32(arr, name=name)
     check_shape(arr, ("H", "W"), name=name, hint="Pass one gray-scale intensity frame")
     if arr.shape[0] < 2 or arr.shape[1] < 2:

@@ -130,7 +130,7 @@ def estimate_flow(
     Parameters
     ----------
     image0, image1 : (H, W) ndarray
-        Intensity frames, float in [0, 1]; integers are divided by their dtype's maximum (a
+        Intensity frames, float in [0, 1]; uint8/uint16 are divided by 255/65535 (a
         ``cv2.imread`` uint8 frame by 255), as :class:`fuse4d.FusionEngine` does. Floats far
         outside [0, 1] (0-255) are refused.
     method : str or FlowMethod, optional
@@ -439,7 +439,7 @@ def estimate_sequence_flow(
     Parameters
     ----------
     intensity : (T, H, W) ndarray
-        Intensity frames, float in [0, 1] (integers are divided by their dtype maximum),
+        Intensity frames, float in [0, 1] (uint8/uint16 divided by 255/65535),
         T >= 2.
     method, params, roi, cache
         As in :func:`estimate_flow_pair` (``roi`` = (row0, row1, col0, col1), flow 0 outside).
@@ -455,8 +455,8 @@ def estimate_sequence_flow(
         ``.forward`` and ``.backward``, each ``(T-1, H, W, 2)`` float32 px.
     """
     video = np.asarray(intensity)
-    if video.dtype.kind in "uib":  # as check_image does per frame, with the dtype's maximum
-        video = normalize_intensity(video)
+    if video.dtype.kind in "uib":  # as check_image does per frame
+        video = normalize_intensity(video, name="intensity")
     video = as_float32(video, name="intensity")
     check_shape(video, ("T", "H", "W"), name="intensity")
     num_frames = video.shape[0]
