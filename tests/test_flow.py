@@ -922,7 +922,7 @@ def test_bench_flow_methods_in_any_case():
 
 def test_integer_images_without_a_bit_depth_are_refused_naming_the_image():
     """A list of 0-255 ints (int64) was divided by the int64 maximum: an all-zero flow."""
-    from fuse4d import ParameterTypeError
+    from fuse4d.errors import ParameterTypeError
     from fuse4d.flow import estimate_flow, estimate_sequence_flow
 
     image = (np.random.default_rng(0).random((20, 30)) * 255).astype(np.int64)
