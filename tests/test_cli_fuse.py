@@ -280,6 +280,47 @@ def test_demo_small_writes_figure_and_table(tmp_path, capsys):
     assert "report.html" in out.replace("\n", "")  # rich wraps long paths
 
 
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in folder.rglob("*")
+            if p.is_file()}  # fmt: skip
+
+
+def test_demo_replaces_only_its_own_files(tmp_path, monkeypatch, capsys):
+    """`demo --out DIR` replaced the user's metrics.json/.md, then failed on their report/
+    folder (a half-updated folder), and silently replaced an earlier demo; every output is
+    now checked before anything is written, and only --force replaces files. Plain
+    `fuse4d demo` reruns into its default folder, replacing its own unchanged files only."""
+    monkeypatch.chdir(tmp_path)
+    demo = ["demo", "--small", "--frames", "3"]
+    assert main(demo) == 0
+    own = tmp_path / "fuse4d-demo"
+    first = _snapshot(own)
+    assert main(demo) == 0  # the README's first command, run again
+    assert _snapshot(own).keys() == first.keys()
+    (own / "metrics.md").write_text("my notes\n")  # now a file of the user's
+    before = _snapshot(own)
+    capsys.readouterr()
+    assert main(demo) == 2
+    assert "metrics.md: output exists" in capsys.readouterr().err
+    assert main([*demo, "--out", str(own)]) == 2  # named: --force, as every command
+    assert "demo_before_after.png: output exists" in capsys.readouterr().err
+    assert _snapshot(own) == before
+    mine = tmp_path / "mine"
+    (mine / "report").mkdir(parents=True)
+    (mine / "metrics.json").write_text('{"my": 1}\n')
+    (mine / "metrics.md").write_text("notes\n")
+    (mine / "report" / "notes.txt").write_text("keep\n")
+    before = _snapshot(mine)
+    assert main([*demo, "--out", str(mine)]) == 2
+    assert "metrics.json: output exists" in capsys.readouterr().err
+    assert main([*demo, "--out", str(mine), "--force"]) == 2  # report/ is not fuse4d's
+    assert "report" in capsys.readouterr().err
+    assert _snapshot(mine) == before  # nothing replaced before the refusal
+    (mine / "report" / "notes.txt").unlink()
+    assert main([*demo, "--out", str(mine), "--force"]) == 0
+    assert json.loads((mine / "metrics.json").read_text())["frames"] == 3
+
+
 def _ball_folder(tmp_path, frames=5):
     return write_ball_folder(tmp_path / "rec", frames)
 

@@ -356,3 +356,112 @@ def test_a_worker_that_died_before_the_allocator_check_is_named():
     messages = [str(w.message) for w in caught]
     assert any("did not answer (tcp://c:1)" in m and "workers' logs" in m for m in messages)
     assert any(m.startswith("1 of 2 dask workers run with MALLOC_TRIM") for m in messages)
+
+
+def _interrupt(store, done: int) -> None:
+    """Turn the finished ``store`` into the staging store of a run interrupted after its
+    first ``done`` chunks (as a Ctrl-C leaves it)."""
+    import json
+    import shutil
+
+    partial = store.with_name(store.name + ".partial")
+    shutil.move(store, partial)
+    meta = json.loads((partial / "zarr.json").read_text())
+    meta["attributes"]["fuse4d"]["complete"] = False
+    (partial / "zarr.json").write_text(json.dumps(meta))
+    (partial / ".fuse4d-done").mkdir()
+    for k in range(done):
+        (partial / ".fuse4d-done" / f"chunk-{k:06d}").write_text("{}")
+
+
+def test_resume_compares_the_input_files_not_the_folder(ball, tmp_path):
+    """The input is identified by its files' fingerprint, as the stream engine's manifest
+    does: an input with a frame rewritten in place is refused (its folder's own size and
+    mtime stay the same: it was resumed, chunks of two recordings mixed, and a finished
+    store of it was 'already complete'); a moved copy, or a folder whose mtime changed with
+    no file changed, is the same input."""
+    import shutil
+
+    from fuse4d import OutputExistsError, ParameterError
+    from fuse4d.io import write_frame_folder
+
+    rec = write_frame_folder(ball, tmp_path / "rec", depth_unit_mm=0.1)
+    kwargs = {"fusion": FusionParams(), "flow": preset("fast").flow, "progress": False}
+    kwargs |= {"chunk_frames": 4, "scheduler": "sync"}
+    store = tmp_path / "o.zarr"
+    (first,) = run_dask([rec], store, **kwargs)
+    assert first.chunks == 5
+    ref = zarr.open_group(str(shutil.copytree(store, tmp_path / "ref.zarr")), mode="r")
+    moved = shutil.copytree(rec, tmp_path / "elsewhere" / "rec")  # mtimes kept (cp -a)
+    (moved / "x").touch()  # the folder's mtime changes, no file of the recording does
+    (moved / "x").unlink()
+    edited = shutil.copytree(rec, tmp_path / "edited" / "rec")
+    shutil.copyfile(edited / "depth" / "000015.png", edited / "depth" / "000010.png")
+    shutil.copyfile(edited / "intensity" / "000015.png", edited / "intensity" / "000010.png")
+    # a finished store: the same input (moved) is complete, an edited one is not
+    (done,) = run_dask([moved], store, resume=True, **kwargs)
+    assert (done.skipped, done.frames_fused) == (5, 0)
+    with pytest.raises(OutputExistsError):
+        run_dask([edited], store, resume=True, **kwargs)
+    _interrupt(store, 3)
+    with pytest.raises(ParameterError, match=r"differs in \['source'\]"):
+        run_dask([edited], store, resume=True, **kwargs)
+    (resumed,) = run_dask([moved], store, resume=True, **kwargs)
+    assert (resumed.skipped, resumed.frames_fused) == (3, 8)
+    out = zarr.open_group(str(store), mode="r")
+    for name in ("depth", "support", "filled", "source", "confidence"):
+        assert _same(out[name][:], ref[name][:]), name
+
+
+def test_a_read_only_output_folder_gives_one_clear_line(ball, tmp_path, monkeypatch, capsys):
+    """`--engine dask` into a read-only folder printed the bare "[Errno 30] Read-only file
+    system: .../x.zarr.partial"; now the one line of every other command (OutputWriteError).
+    Root ignores permission bits: the read-only mount is simulated."""
+    import errno
+    import pathlib
+
+    from fuse4d.cli import main
+
+    save_sequence(ball, tmp_path / "a.npz")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    real_mkdir = pathlib.Path.mkdir
+
+    def mkdir(self, *args, **kwargs):
+        if ro in pathlib.Path(self).absolute().parents:
+            raise OSError(errno.EROFS, "Read-only file system", str(self))
+        return real_mkdir(self, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "mkdir", mkdir)
+    run = ["run", str(tmp_path / "a.npz"), "--engine", "dask", "--workers", "1"]
+    for out in (ro / "x.zarr", ro / "folder" / "sub"):  # one store; a folder of stores
+        assert main([*run, "-o", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith(f"fuse4d: error: {out}: cannot write the output (Read-only"), err
+        assert "choose another output path" in err
+        assert len(err.splitlines()) == 1, err
+    assert list(ro.iterdir()) == []
+
+
+def test_the_report_of_a_resumed_run_is_not_given_this_sessions_time(
+    ball, tmp_path, monkeypatch, capsys
+):
+    """`--engine dask --resume --report`: the report divided this session's time by every
+    frame; the store does not record the earlier sessions' time, so it gets none."""
+    from fuse4d.cli import cmd_report, main
+
+    seen: list = []
+    monkeypatch.setattr(
+        cmd_report,
+        "make_report",
+        lambda input, output, report, **kw: seen.append(kw["fusion_seconds"]) or report,
+    )
+    save_sequence(ball, tmp_path / "a.npz")
+    store = tmp_path / "o.zarr"
+    args = ["run", str(tmp_path / "a.npz"), "-o", str(store), "--engine", "dask",
+            "--chunk-frames", "4", "--workers", "1", "--report", str(tmp_path / "rep")]  # fmt: skip
+    assert main(args) == 0
+    _interrupt(store, 3)
+    assert main([*args, "--resume"]) == 0
+    assert seen[0] > 0
+    assert seen[1] is None

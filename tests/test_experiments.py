@@ -357,3 +357,19 @@ def test_compute_total_counts_an_interrupted_call(tmp_path, monkeypatch):
     monkeypatch.setattr(paper, "run_units", real)
     payload = run_experiment("E1", tmp_path, profile="quick")
     assert payload["seconds_compute_total"] >= payload["seconds_this_call"] + 0.3 - 0.05
+
+
+def test_ctrl_c_prints_one_line_and_exits_130(tmp_path, monkeypatch, capsys):
+    """Ctrl-C printed the command's own 'interrupted during E1: ...' and then the CLI's
+    'fuse4d: interrupted'; one line now (the --log file records where it stopped)."""
+    from fuse4d.experiments import paper
+
+    def interrupted(name, *args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(paper, "run_experiment", interrupted)
+    log = tmp_path / "run.log"
+    code = main(["experiments", "E1", "--out", str(tmp_path / "run"), "--log", str(log)])
+    assert code == 130
+    assert capsys.readouterr().err.strip().splitlines() == ["fuse4d: interrupted"]
+    assert "interrupted during E1" in log.read_text()

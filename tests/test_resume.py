@@ -344,3 +344,55 @@ def test_sigterm_stops_as_cleanly_as_ctrl_c(recording, reference, tmp_path, sig)
     _check_partial(partial_path(out), _frames_done_after_signal(out, 5))
     assert main([*args, "--resume"]) == 0
     assert _contents(out) == _contents(reference)
+
+
+def test_a_resumed_run_times_and_scores_the_frames_it_fused(recording, tmp_path, monkeypatch,
+                                                          capsys):  # fmt: skip
+    """The summary of a resumed run divided this session's time by every frame, the resumed
+    ones too ('12 ms/frame' for 19.5), said 'scored on 32 of 200 frames' of the 128 fused
+    now, and its --report divided this session's time by the whole run; now the rates are
+    per frame fused now, the table says which frames were scored, the report reads the run's
+    time (all sessions) from the manifest."""
+    from rich.console import Console
+
+    from fuse4d import FusionParams
+    from fuse4d.cli import cmd_report
+    from fuse4d.cli.cmd_fuse import run_summary_table
+    from fuse4d.run import RunSummary
+
+    out = tmp_path / "out"
+    args = ["run", str(recording), "-o", str(out), *RUN_ARGS]
+    res = _child(12, "after", "SIGKILL", args)
+    assert res.returncode == -signal.SIGKILL, res.stderr[-2000:]
+    seen: dict = {}
+
+    def fake_report(input, output, report, **kwargs):  # the report itself: test_report.py
+        seen.update(kwargs)
+        return Path(report) / "report.html"
+
+    monkeypatch.setattr(cmd_report, "make_report", fake_report)
+    rep = ["--report", str(tmp_path / "rep"), "--summary-every", "2"]
+    assert main([*args, "--resume", "--json", *rep]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert (s["frames"], s["frames_resumed"], s["frames_fused"]) == (FRAMES, 13, 7)
+    assert s["ms_per_frame"] == pytest.approx(1000 * s["seconds"] / 7)
+    assert s["roughness_frames"] == 4  # frames 13, 15, 17, 19
+    assert seen["fusion_seconds"] is None  # make_report reads the manifest's run time
+    manifest = json.loads((out / MANIFEST_NAME).read_text())
+    assert manifest["seconds"] > s["seconds"]  # both sessions
+
+    summary = RunSummary(
+        input=recording, output=out, input_format="folder", output_format="folder",
+        frames=200, shape=(40, 56), flow_method="dis", params=FusionParams(), seconds=2.5,
+        frames_resumed=72, roughness_frames=32, timings={"flow": 1.28},
+    )  # fmt: skip
+    assert summary.frames_fused == 128
+    assert summary.ms_per_frame == pytest.approx(2500 / 128)
+    assert summary.to_dict()["timings_ms_per_frame"]["flow"] == pytest.approx(10.0)
+    console = Console(record=True, width=400)
+    console.print(run_summary_table(summary, FusionParams()))
+    text = console.export_text()
+    assert "20 ms/frame, start-up and I/O included (this session: 128 fused, 72 resumed)" in text
+    assert "scored on 32 of 128 frames" in text
+    assert "72-199" in text
+    assert "frames 0-71, written by the interrupted run, were not scored" in text

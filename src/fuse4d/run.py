@@ -64,6 +64,8 @@ class RunSummary:
     input, output : Path
     input_format, output_format : str
     frames : int
+        Frames of the output (all of them, those of an interrupted run continued with
+        ``resume`` included).
     shape : (int, int)
     flow_method : str
     params : FusionParams
@@ -84,7 +86,10 @@ class RunSummary:
         Pixels the roughness (summed over frames) and the flicker were scored on.
     roughness_frames : int
         Frames the roughness and the residual were scored on: one in ``summary_every``
-        (:data:`SUMMARY_EVERY` by default), from frame 0; the flicker uses every frame.
+        (:data:`SUMMARY_EVERY` by default), from the first frame fused now; the flicker uses
+        every frame fused now. The quality figures cover the frames fused in this session
+        (:attr:`frames_fused`): those of the interrupted run a ``resume`` continued are not
+        read back.
     support_fraction : float
         Fraction of valid pixels tracked into at least one other frame.
     filled_fraction : float
@@ -101,7 +106,12 @@ class RunSummary:
         Fraction of the holes inside the field of view filled from other frames along the
         track (A26) / in space from one side of the depth edges (A27).
     seconds : float
-        Wall time of the whole run (I/O included).
+        Wall time of this call (I/O included): of this session only where ``resume``
+        continued an interrupted run (the manifest's ``seconds`` add the sessions up,
+        :func:`fuse4d.io.resume.run_seconds`).
+    frames_resumed : int
+        Frames already written by the interrupted run that ``resume`` continued (not fused
+        now; all of them where :attr:`already_complete`); 0 for a run from the start.
     already_complete : bool
         ``resume`` found the output finished by an earlier run of the same input, options and
         versions: nothing was fused now (the quality figures are NaN).
@@ -117,7 +127,7 @@ class RunSummary:
         start-up, which dominates a short clip (10 frames of a 640x480 recording: about 1 s
         of start-up on 2 cores).
     timings : dict
-        Seconds per pipeline stage.
+        Seconds per pipeline stage (of this session).
     """
 
     input: Path
@@ -146,15 +156,25 @@ class RunSummary:
     hole_time_fraction: float = float("nan")
     hole_space_fraction: float = float("nan")
     seconds: float = 0.0
+    frames_resumed: int = 0
     already_complete: bool = False
     first_output_seconds: float = float("nan")
     steady_ms_per_frame: float = float("nan")
     timings: dict[str, float] = field(default_factory=dict)
 
     @property
+    def frames_fused(self) -> int:
+        """Frames fused and written in this session: :attr:`frames` less
+        :attr:`frames_resumed`."""
+        return self.frames - self.frames_resumed
+
+    @property
     def ms_per_frame(self) -> float:
-        """Wall time per frame in ms, start-up included (see :attr:`steady_ms_per_frame`)."""
-        return 1000.0 * self.seconds / max(self.frames, 1)
+        """Wall time per frame fused in this session in ms, start-up included (see
+        :attr:`steady_ms_per_frame`); NaN where none was (:attr:`already_complete`)."""
+        if self.frames_fused <= 0:
+            return float("nan")
+        return 1000.0 * self.seconds / self.frames_fused
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly form."""
@@ -185,12 +205,16 @@ class RunSummary:
             "hole_time_fraction": self.hole_time_fraction,
             "hole_space_fraction": self.hole_space_fraction,
             "seconds": self.seconds,
+            "frames_fused": self.frames_fused,
+            "frames_resumed": self.frames_resumed,
             "already_complete": self.already_complete,
             "ms_per_frame": self.ms_per_frame,
             "first_output_seconds": self.first_output_seconds,
             "steady_ms_per_frame": self.steady_ms_per_frame,
+            # per frame fused now: the resumed frames took none of this session's time
             "timings_ms_per_frame": {
-                k: 1000.0 * v / max(self.frames, 1) for k, v in self.timings.items()
+                k: 1000.0 * v / self.frames_fused if self.frames_fused > 0 else float("nan")
+                for k, v in self.timings.items()
             },
         }
 
@@ -702,7 +726,6 @@ def _fuse_streaming(
             params=params,
             timings=timings,
         )
-        tally = _QualityTally(summary_every, total) if quality else None
         unit = reader.depth_unit_mm or 1.0  # float-depth inputs (32FC1 bags, zarr): 1 mm steps
         # written back in the input's own unit: no "coarse unit" warning (the input already
         # had that precision; the smoothed output is less noisy than it on near surfaces)
@@ -740,6 +763,7 @@ def _fuse_streaming(
             )
         if resumable and writer.already_complete:  # --resume of a finished run: nothing to do
             summary.already_complete = True
+            summary.frames_resumed = total
             return summary
         with writer:
             # Resume = restart the (deterministic) engine `past` frames before the checkpoint,
@@ -776,6 +800,9 @@ def _fuse_streaming(
             stores_flags = writer.stores_flags
             # frames handed to the writer (the writer thread's `frames_done` lags behind it)
             queued = writer.frames_done if resumable else 0
+            summary.frames_resumed = queued  # on disk already: neither fused nor scored now
+            # the summary scores the frames fused now (the resumed ones are not read back)
+            tally = _QualityTally(summary_every, total - queued) if quality else None
 
             def emit(fused: list[FusedFrame]) -> None:
                 nonlocal written, queued

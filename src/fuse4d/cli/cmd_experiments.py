@@ -96,10 +96,12 @@ def experiments_command(
         try:
             result = run_experiment(n, out, profile=prof, jobs=jobs, console=err_console, log=log)
         except KeyboardInterrupt:
-            eprint(
+            # on stderr, main's one "fuse4d: interrupted" line (exit 130): a line of our own
+            # came before it (two lines); that a rerun resumes is in --help
+            log(
                 f"interrupted during {n}: finished units are kept; rerun the same command to resume"
             )
-            raise typer.Exit(130) from None
+            raise
         msg = (
             f"{n}: {result['units']} units, {result['rows']} rows, "
             f"{time.perf_counter() - t0:.0f} s -> {out / n}"

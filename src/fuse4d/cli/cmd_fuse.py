@@ -309,7 +309,9 @@ def run_command(
                 done[0].output,
                 report,
                 params=None,
-                fusion_seconds=done[0].seconds,
+                # a resumed (or already complete) store: this session's time is not the run's,
+                # and the store does not record the earlier sessions'
+                fusion_seconds=None if done[0].skipped else done[0].seconds,
                 overwrite=force,
                 reader_options=all_options,
             )
@@ -349,8 +351,9 @@ def run_command(
             output,
             report,
             params=params,
-            # (a finished run found by --resume: the report reads its time from the manifest)
-            fusion_seconds=None if summary.already_complete else summary.seconds,
+            # a finished run found by --resume, or a resumed one (this session's time is not
+            # the run's): the report reads the run's time from the manifest (all sessions)
+            fusion_seconds=None if summary.frames_resumed else summary.seconds,
             fusion_steady_ms=summary.steady_ms_per_frame,
             overwrite=force,
             reader_options=all_options,
@@ -385,14 +388,20 @@ def print_json(data: Any) -> None:
 
 def _time_note(summary: Any) -> str:
     """The summary's time row: the steady rate apart from the start-up, which dominates the
-    average of a short clip (too few frames for a steady rate: the average alone)."""
+    average of a short clip (too few frames for a steady rate: the average alone). After
+    ``--resume``: of this session, per frame fused in it."""
     steady = summary.steady_ms_per_frame
+    session = (
+        f" (this session: {summary.frames_fused} fused, {summary.frames_resumed} resumed)"
+        if summary.frames_resumed
+        else ""
+    )
     if not math.isfinite(steady):
-        return f"{summary.ms_per_frame:.0f} ms/frame, start-up and I/O included"
+        return f"{summary.ms_per_frame:.0f} ms/frame, start-up and I/O included" + session
     return (
         f"{steady:.0f} ms/frame once running, I/O included; the first frame came after "
         f"{summary.first_output_seconds:.1f} s (start-up: input opened, kernels loaded, the "
-        f"first window); {summary.ms_per_frame:.0f} ms/frame on average"
+        f"first window); {summary.ms_per_frame:.0f} ms/frame on average" + session
     )
 
 
@@ -478,8 +487,8 @@ def run_summary_table(summary: Any, fusion: Any, *, scored: bool = True) -> Tabl
                 f"{summary.roughness_pixels} pixels (x frames) for both: raw windows free of "
                 "depth edges by the noise model's step limit"
                 + (
-                    f"; scored on {summary.roughness_frames} of {summary.frames} frames"
-                    if 0 < summary.roughness_frames < summary.frames
+                    f"; scored on {summary.roughness_frames} of {summary.frames_fused} frames"
+                    if 0 < summary.roughness_frames < summary.frames_fused
                     else ""
                 )
             ),
@@ -509,6 +518,19 @@ def run_summary_table(summary: Any, fusion: Any, *, scored: bool = True) -> Tabl
         ),
     ]
     hole_rows = [("sensor holes filled", *holes)]
+    if summary.frames_resumed:  # --resume: the frames of the interrupted run are not read back
+        quality_rows.insert(
+            0,
+            (
+                "scored frames",
+                f"{summary.frames_resumed}-{summary.frames - 1}",
+                (
+                    f"the rows below cover the {summary.frames_fused} frames fused in this "
+                    f"session; frames 0-{summary.frames_resumed - 1}, written by the "
+                    "interrupted run, were not scored"
+                ),
+            ),
+        )
     if not scored:
         quality_rows = [
             (
@@ -651,10 +673,21 @@ def bench_command(
 
 @app.command("demo")
 def demo_command(
-    out: Annotated[Path, typer.Option("--out", help="Output folder.")] = Path("fuse4d-demo"),
+    ctx: typer.Context,
+    out: Annotated[
+        Path,
+        typer.Option(
+            "--out",
+            help="Output folder. The default one is rerun in place (the demo's own files, "
+            "unchanged since it wrote them, are replaced); other existing files need --force.",
+        ),
+    ] = Path("fuse4d-demo"),
     small: Annotated[bool, typer.Option("--small", help="150x150 quick scene.")] = False,
     num_frames: Annotated[int, typer.Option("--frames", help="Frames of the ball.")] = 18,
     preset_name: PresetOpt = "fast",
+    force: Annotated[
+        bool, typer.Option("--force", help="Replace existing output files of the same names.")
+    ] = False,
 ) -> None:
     """Fuse the built-in synthetic falling ball and write figures and a metrics table."""
     from ..experiments.demo import run_demo
@@ -666,6 +699,9 @@ def demo_command(
             small=small,
             num_frames=num_frames,
             preset=preset_name,
+            overwrite=force,
+            # plain `fuse4d demo` (the README's first command) reruns into its own folder
+            replace_own="out" not in _given(ctx, "out"),
             progress=progress_callback(progress),
         )
     table = Table(

@@ -7,6 +7,7 @@ truth, and writes a before/after figure, roughness maps and a metrics table.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 from collections.abc import Callable
@@ -19,14 +20,21 @@ import numpy as np
 
 from ..baselines.temporal import temporal_mean
 from ..config import preset as get_preset
+from ..errors import OutputExistsError
 from ..fusion import fuse_sequence
-from ..io._atomic import atomic_file
+from ..io._atomic import atomic_file, check_output
 from ..metrics import ball_roi, roughness_maps
 from ..report import write_report
 from ..synthetic import make_falling_ball
 from .quality import MethodScore, score_on_ball, self_guided
 
 __all__ = ["DemoResult", "run_demo"]
+
+#: What the demo writes into its folder (files, and the report folder).
+_OUTPUTS = ("demo_before_after.png", "metrics.json", "metrics.md", "report")
+#: The record of the files the demo wrote (SHA-256 by path inside the folder), so that a rerun
+#: with ``replace_own`` knows which existing files are its own, unchanged since.
+_RECORD = ".fuse4d-demo.json"
 
 
 @dataclass
@@ -62,7 +70,8 @@ def run_demo(
     small: bool = False,
     num_frames: int = 18,
     preset: str = "fast",
-    overwrite: bool = True,
+    overwrite: bool = False,
+    replace_own: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> DemoResult:
     """Run the demo and write its outputs into ``out_dir``.
@@ -79,13 +88,30 @@ def run_demo(
         Frames synthesised and fused (9-frame windows).
     preset : {"fast", "paper"}
     overwrite : bool
-        Replace earlier demo files in ``out_dir``.
+        Replace existing files of those names in ``out_dir`` (CLI ``--force``); never a
+        ``report`` folder that fuse4d did not write (:func:`fuse4d.io.check_output`).
+    replace_own : bool
+        Without ``overwrite``: replace the files an earlier demo wrote into ``out_dir`` and
+        nothing changed since (its record ``.fuse4d-demo.json`` holds their SHA-256; the
+        report folder only if it holds no other file); any other existing output is refused.
+        ``fuse4d demo`` does this in its default folder ``fuse4d-demo``.
     progress : callable, optional
         ``progress(done, total)`` per fused frame.
+
+    Raises
+    ------
+    OutputExistsError
+        If an output exists and neither ``overwrite`` nor ``replace_own`` (of an unchanged
+        file of an earlier demo) allows replacing it; checked before anything is computed or
+        written, so a refused run changes nothing.
+    ParameterError
+        With ``overwrite``, if ``report`` is a folder that fuse4d did not write.
     """
     from ..plot import save_figure
 
     out = Path(out_dir)
+    _check_outputs(out, overwrite=overwrite, replace_own=replace_own)
+    overwrite = True  # every existing output was checked above
     out.mkdir(parents=True, exist_ok=True)
     chosen = get_preset(preset)
     seq = make_falling_ball(
@@ -126,6 +152,7 @@ def run_demo(
     )
     fig = _before_after_figure(seq, result.points, temporal_mean(seq.depth, None, seq.intrinsics))
     demo.files.append(save_figure(fig, out / "demo_before_after.png", overwrite=overwrite))
+    _record(out, "demo_before_after.png")
     payload: dict[str, Any] = {
         "scene": "falling ball, 0.2 mm depth noise, 2 % intensity noise, seed 0",
         "frames": num_frames,
@@ -145,6 +172,7 @@ def run_demo(
         with atomic_file(out / name, overwrite=overwrite) as tmp:
             tmp.write_text(text, encoding="utf-8")
         demo.files.append(out / name)
+        _record(out, name)
     # the result the way people judge depth: video, x-t slices, flicker, roughness, clouds
     demo.files.append(
         write_report(
@@ -157,7 +185,71 @@ def run_demo(
             overwrite=overwrite,
         )
     )
+    _record(out, "report")
     return demo
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with path.open("rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _files(out: Path, name: str) -> list[Path]:
+    """The files of output ``name`` of the folder ``out``: itself, or every file under it
+    (links and other non-regular entries included, so that they count as not the demo's)."""
+    target = out / name
+    if target.is_dir() and not target.is_symlink():
+        return sorted(p for p in target.rglob("*") if not p.is_dir() or p.is_symlink())
+    return [target]
+
+
+def _read_record(out: Path) -> dict[str, str]:
+    try:
+        data = json.loads((out / _RECORD).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return {k: v for k, v in data.items() if isinstance(v, str)} if isinstance(data, dict) else {}
+
+
+def _is_own(out: Path, name: str, record: dict[str, str]) -> bool:
+    """Whether output ``name`` of ``out`` is what an earlier demo wrote, unchanged: every
+    file of it in the record with the same SHA-256 (nothing added, nothing edited)."""
+    for path in _files(out, name):
+        if path.is_symlink() or not path.is_file():
+            return False
+        if record.get(path.relative_to(out).as_posix()) != _sha256(path):
+            return False
+    return True
+
+
+def _check_outputs(out: Path, *, overwrite: bool, replace_own: bool) -> None:
+    """Refuse, before anything is written, every existing output that may not be replaced
+    (see :func:`run_demo`): an error about the report after the metrics were replaced left
+    a half-updated folder."""
+    if not out.is_dir():
+        return  # a new folder (or not a folder: mkdir says so)
+    record = _read_record(out) if replace_own and not overwrite else {}
+    for name in _OUTPUTS:
+        target = out / name
+        if not (target.exists() or target.is_symlink()):
+            continue
+        if overwrite:
+            check_output(target, overwrite=True)
+        elif not _is_own(out, name, record):
+            raise OutputExistsError(target)
+
+
+def _record(out: Path, name: str) -> None:
+    """Add the files of output ``name`` (just written) to the folder's record."""
+    record = _read_record(out)
+    prefix = f"{name}/"
+    record = {k: v for k, v in record.items() if k != name and not k.startswith(prefix)}
+    record.update({p.relative_to(out).as_posix(): _sha256(p) for p in _files(out, name)})
+    with atomic_file(out / _RECORD, overwrite=True) as tmp:
+        tmp.write_text(json.dumps(record, indent=1, sort_keys=True), encoding="utf-8")
 
 
 def _before_after_figure(seq, fused_points: np.ndarray, mean_depth: np.ndarray):

@@ -18,6 +18,7 @@ from typing import Any
 from ..config import FlowConfig, FusionParams
 from ..errors import ParameterError
 from ..flying_pixels import resolve_flying_pixels
+from ..io._atomic import write_errors
 from .cluster import SCHEDULER_ADDRESS_SCHEMES, _connect, check_scheduler, open_compute
 from .graph import even_chunk_frames, fuse, release_engines
 from .inputs import open_lazy
@@ -155,8 +156,13 @@ def _worker_pool(scheduler: str, workers: int | None) -> tuple[int, int]:
 
 
 def _source(path: Path) -> dict[str, Any]:
-    st = path.stat()
-    return {"path": str(path.resolve()), "size": st.st_size, "mtime_ns": st.st_mtime_ns}
+    """What the store records of its input: the path (for the reader; not compared on
+    ``--resume``, so a moved input resumes) and the fingerprint of its files
+    (:func:`fuse4d.io.resume.fingerprint_input`, as the stream engine's manifest: names, sizes,
+    modification times of every file of a folder), which ``--resume`` compares."""
+    from ..io.resume import fingerprint_input
+
+    return {"path": str(path.resolve()), "fingerprint": fingerprint_input(path)}
 
 
 #: Default ``chunk_frames`` of :func:`run_dask` (``fuse4d run --engine dask --chunk-frames``).
@@ -239,7 +245,8 @@ def run_dask(
     # the first one's staging store, and the next run then asked for --resume
     recs = [open_lazy(src, frames_per_task=chunk_frames, **reader_options) for src in inputs]
     if len(targets) > 1 or targets[0] != output:
-        output.mkdir(parents=True, exist_ok=True)
+        with write_errors(output):  # a read-only folder: one line naming the output
+            output.mkdir(parents=True, exist_ok=True)
     # every output checked before any is written: a refused second one (exists, interrupted)
     # left the first one's new staging store, and the next run then asked for --resume
     plans = []

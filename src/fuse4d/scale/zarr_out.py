@@ -40,6 +40,7 @@ from .._version import __version__
 from ..camera import Intrinsics
 from ..errors import OutputExistsError, ParameterError
 from ..io import check_output
+from ..io._atomic import reports_write_errors
 from ..io.zarrstore import codec
 from .graph import DaskFusion, chunk_bounds, delayed_blocks
 
@@ -196,10 +197,17 @@ class ZarrOutput:
         if not defer:
             self.prepare()
 
+    @reports_write_errors
     def prepare(self) -> None:
         """Write the staging store ``OUT.zarr.partial`` (discarding a stale one with
         ``overwrite``); the constructor does this unless ``defer``. Nothing to do where the
-        output is complete or a partial run is resumed, or on a second call."""
+        output is complete or a partial run is resumed, or on a second call.
+
+        Raises
+        ------
+        OutputWriteError
+            A read-only folder, a full disk, ... (naming ``OUT.zarr``).
+        """
         if self.already_complete or self._resumed or self._prepared:
             return
         if self._discard:
@@ -256,7 +264,13 @@ class ZarrOutput:
         (self.staging / _MARKERS).mkdir()
 
     def _comparable(self, meta: dict[str, Any]) -> dict[str, Any]:
-        return {k: v for k, v in meta.items() if k != "complete"}
+        """``meta`` less what a resumed or finished run may differ in: ``complete``, and the
+        input's path (``source.path``; a moved input is the same input, its fingerprint
+        says whether its files changed)."""
+        out = {k: v for k, v in meta.items() if k != "complete"}
+        if isinstance(out.get("source"), dict):
+            out["source"] = {k: v for k, v in out["source"].items() if k != "path"}
+        return out
 
     def _is_complete(self, path: Path) -> bool:
         try:
@@ -339,8 +353,15 @@ class ZarrOutput:
             if k not in done
         ]
 
+    @reports_write_errors
     def finalize(self) -> Path:
-        """Check every chunk is written, mark complete and move into place; return the path."""
+        """Check every chunk is written, mark complete and move into place; return the path.
+
+        Raises
+        ------
+        OutputWriteError
+            A read-only folder, a full disk, ... (naming ``OUT.zarr``).
+        """
         if self.already_complete:
             return self.path
         missing = sorted(set(range(len(self.bounds))) - self.done_chunks())
