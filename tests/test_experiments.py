@@ -361,7 +361,8 @@ def test_compute_total_counts_an_interrupted_call(tmp_path, monkeypatch):
 
 def test_ctrl_c_prints_one_line_and_exits_130(tmp_path, monkeypatch, capsys):
     """Ctrl-C printed the command's own 'interrupted during E1: ...' and then the CLI's
-    'fuse4d: interrupted'; one line now (the --log file records where it stopped)."""
+    'fuse4d: interrupted'; one line now, that still says how to go on (the --log file records
+    where it stopped)."""
     from fuse4d.experiments import paper
 
     def interrupted(name, *args, **kwargs):
@@ -371,5 +372,7 @@ def test_ctrl_c_prints_one_line_and_exits_130(tmp_path, monkeypatch, capsys):
     log = tmp_path / "run.log"
     code = main(["experiments", "E1", "--out", str(tmp_path / "run"), "--log", str(log)])
     assert code == 130
-    assert capsys.readouterr().err.strip().splitlines() == ["fuse4d: interrupted"]
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "fuse4d: interrupted during E1: finished units are kept; rerun the same command to resume"
+    ]
     assert "interrupted during E1" in log.read_text()

@@ -61,6 +61,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     _tidy_help(command)
     args = list(sys.argv[1:] if argv is None else argv)
     STATE.debug = False
+    STATE.interrupt_note = ""
     _signals.reset()  # the flag, and the time of the last signal
     if argv is None and threading.current_thread() is threading.main_thread():
         # console script: `kill` (SIGTERM) and a closed terminal or ssh session (SIGHUP) stop
@@ -87,11 +88,11 @@ def _run(command: Any, args: list[str], argv: Sequence[str] | None) -> int:
         result = command.main(args=args, prog_name="fuse4d", standalone_mode=False)
     except typer.Exit as exc:
         if exc.exit_code == 0 and _INTERRUPTED.is_set():  # see below
-            print("fuse4d: interrupted", file=sys.stderr)
+            _say_interrupted()
             return _finish(EXIT_INTERRUPTED, argv)
         return _finish(exc.exit_code, argv)
     except (typer.Abort, KeyboardInterrupt):
-        print("fuse4d: interrupted", file=sys.stderr)
+        _say_interrupted()
         return _finish(EXIT_INTERRUPTED, argv)
     except _ClickException as exc:
         exc.show(file=sys.stderr)
@@ -105,7 +106,7 @@ def _run(command: Any, args: list[str], argv: Sequence[str] | None) -> int:
         if _INTERRUPTED.is_set():
             # Ctrl-C inside numba's compiler (a ctypes callback) surfaced as "RuntimeError: no
             # compiled object yet for <Library ...>": an interrupt, not a bug
-            print("fuse4d: interrupted", file=sys.stderr)
+            _say_interrupted()
             return _finish(EXIT_INTERRUPTED, argv)
         if _debug():
             raise
@@ -126,8 +127,14 @@ def _run(command: Any, args: list[str], argv: Sequence[str] | None) -> int:
         # leaves the flag unset)
         code = EXIT_INTERRUPTED
     if code == EXIT_INTERRUPTED:  # typer turned Ctrl-C into this exit code
-        print("fuse4d: interrupted", file=sys.stderr)
+        _say_interrupted()
     return _finish(code, argv)
+
+
+def _say_interrupted() -> None:
+    """The one line of an interrupted command, with what the command said it leaves."""
+    note = STATE.interrupt_note
+    print("fuse4d: interrupted" + (f" {note}" if note else ""), file=sys.stderr)
 
 
 #: Exit codes: bad input/options/environment, internal bug (BSD EX_SOFTWARE), Ctrl-C.

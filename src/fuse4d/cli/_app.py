@@ -42,6 +42,9 @@ class _State:
     """Options of the ``fuse4d`` group itself (set by :func:`_root`)."""
 
     debug = False
+    #: what an interrupt of the running command leaves, said on main's one line
+    #: ("fuse4d: interrupted <note>"); set by a command just before it lets the interrupt go
+    interrupt_note = ""
 
 
 STATE = _State()

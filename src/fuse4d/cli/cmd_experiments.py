@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from ._app import app, eprint, err_console, fail
+from ._app import STATE, app, eprint, err_console, fail
 
 _NAMES = ("E1", "E2", "E3", "E4", "E5", "E6", "real", "all", "verdicts")
 
@@ -96,11 +96,11 @@ def experiments_command(
         try:
             result = run_experiment(n, out, profile=prof, jobs=jobs, console=err_console, log=log)
         except KeyboardInterrupt:
-            # on stderr, main's one "fuse4d: interrupted" line (exit 130): a line of our own
-            # came before it (two lines); that a rerun resumes is in --help
-            log(
-                f"interrupted during {n}: finished units are kept; rerun the same command to resume"
+            # main prints it as its one line: "fuse4d: interrupted during E1: ..." (exit 130)
+            STATE.interrupt_note = (
+                f"during {n}: finished units are kept; rerun the same command to resume"
             )
+            log(f"interrupted {STATE.interrupt_note}")
             raise
         msg = (
             f"{n}: {result['units']} units, {result['rows']} rows, "
