@@ -193,3 +193,25 @@ def test_live_writer_lowers_its_thread_once_two_frames_are_fused(tmp_path, monke
             lowered.append(writer._sink._worker.lowered)
     assert lowered == [False, True, True]
     assert load_sequence(tmp_path / "out").num_frames == 3
+
+
+def test_ctrl_c_in_the_final_wait_comes_after_the_writes_end():
+    """A KeyboardInterrupt in the join of the write-behind thread marked it as ended while a
+    write still ran (CPython 3.11), and the caller's abort deleted the staged output under
+    it; the signal is now held until the writes are done, then raised."""
+    import signal
+
+    done = []
+
+    def write(i):
+        time.sleep(0.3)
+        done.append(i)
+
+    sink = run_module._WriteBehind(write, 2, _timings())
+    sink.submit(0)
+    sink.submit(1)
+    timer = threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGINT))
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        sink.close()
+    assert done == [0, 1]  # both writes had ended when the interrupt was raised

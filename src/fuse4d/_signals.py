@@ -7,8 +7,11 @@ the CLI tells it from a bug by this flag.
 
 from __future__ import annotations
 
+import contextlib
+import signal
 import threading
 import time
+from collections.abc import Iterator
 
 __all__ = ["INTERRUPTED"]
 
@@ -45,3 +48,25 @@ def reset() -> None:
     global _last
     _last = None
     INTERRUPTED.clear()
+
+
+@contextlib.contextmanager
+def held() -> Iterator[None]:
+    """Hold Ctrl-C, SIGTERM and SIGHUP back while the main thread waits for a writer
+    thread (``fuse4d live``'s, ``fuse4d run``'s write-behind); one that came is handled when
+    the wait is over. A KeyboardInterrupt in ``Thread.join`` marks the thread as ended while
+    it still runs (CPython 3.11): the staged output was then deleted under a write still in
+    progress, which made its folders again (zarr), and a temporary was left. Main thread,
+    POSIX only (elsewhere nothing is held)."""
+    names = ("SIGINT", "SIGTERM", "SIGHUP")
+    sigs = {getattr(signal, n) for n in names if hasattr(signal, n)}
+    if threading.current_thread() is not threading.main_thread() or not hasattr(
+        signal, "pthread_sigmask"
+    ):
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)

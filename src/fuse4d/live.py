@@ -794,28 +794,6 @@ def _stop_on_signals(
         guard.remove(stop, stats)
 
 
-@contextlib.contextmanager
-def _signals_held() -> Iterator[None]:
-    """Hold Ctrl-C, SIGTERM and SIGHUP back while the main thread waits for the writer
-    thread; one that came is handled when the wait is over. A KeyboardInterrupt in
-    ``Thread.join`` marks the thread as ended while it still runs (CPython 3.11): the
-    staged output was then deleted under a write still in progress, which made its folders
-    again (zarr), and a temporary was left. Main thread, POSIX only (elsewhere nothing is
-    held)."""
-    names = ("SIGINT", "SIGTERM", "SIGHUP")
-    sigs = {getattr(signal, n) for n in names if hasattr(signal, n)}
-    if threading.current_thread() is not threading.main_thread() or not hasattr(
-        signal, "pthread_sigmask"
-    ):
-        yield
-        return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
-
-
 def _fuse_live(
     source: FrameSource,
     params: FusionParams,
@@ -1073,10 +1051,10 @@ class LiveWriter:
             sink, self._sink = self._sink, None
             if sink is not None:
                 try:
-                    with _signals_held():
+                    with _signals.held():
                         sink.close(abort=exc[0] is not None)
                 except BaseException:
-                    with _signals_held():  # (close's error): the writes end first
+                    with _signals.held():  # (close's error): the writes end first
                         sink.close(abort=True)
                     self._writer.__exit__(*sys.exc_info())
                     raise

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from . import _signals
 from ._background import LOWER_AFTER_FRAMES, BackgroundLoop
 from .camera import depth_to_points
 from .config import FlowConfig, FusionParams, fusion_params, preset
@@ -636,7 +637,8 @@ class _WriteBehind:
         """
         self._abort = abort
         self._put(None)
-        self._worker.join()
+        with _signals.held():  # an interrupted join let the abort delete under a write
+            self._worker.join()
         if self._error is not None and not abort:
             raise self._error
 
