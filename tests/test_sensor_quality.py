@@ -277,7 +277,9 @@ def test_cli_synth_sensor_writes_a_range_scene_with_ground_truth(tmp_path, capsy
     np.testing.assert_array_equal(seq.depth, expected.depth)
     np.testing.assert_allclose(seq.ground_truth.depth, expected.ground_truth.depth)
     assert seq.ground_truth.extra["sensor"] == "kinect"
-    assert "sensor kinect" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "sensor kinect" in err
+    assert "2 frames 160x120" in err  # W x H, as its help and `fuse4d info` (was 120x160)
     assert main(["synth", "plane", "--sensor", "tof", "-o", str(tmp_path / "p.npz")]) == 2
     assert "no range version" in capsys.readouterr().err
     assert main(["synth", "room", "-o", str(tmp_path / "r.npz")]) == 2
@@ -299,8 +301,16 @@ def test_cli_synth_sensor_writes_a_range_scene_with_ground_truth(tmp_path, capsy
     ("args", "says"),
     [
         (["-o", "s.png"], "s.png: synth writes an .npz"),  # was an .npz called s.png
-        (["--seed", "-1", "-o", "s.npz"], "--seed must be >= 0, got -1"),  # was a crash
+        (["--seed", "-1", "-o", "s.npz"], "--seed must be >= 0 and < 2**64"),  # was a crash
+        # rendered, then "ground_truth.extra['seed'] cannot be stored in .npz"
+        (["--seed", str(2**64), "-o", "s.npz"], f"< 2**64 (what an .npz holds), got {2**64}"),
+        (["--sensor", "tof", "--seed", str(2**64), "-o", "s.npz"], "--seed must be >= 0"),
         (["--frames", "1", "-o", "s.npz"], "--frames must be >= 2"),
+        # numpy's "Maximum allowed size exceeded"; a MemoryError; a range scene rendered
+        # frame after frame until killed
+        (["--frames", "9" * 20, "-o", "s.npz"], f"--frames {'9' * 20}: the falling ball"),
+        (["--frames", str(10**9), "-o", "s.npz"], "GiB of memory"),
+        (["--sensor", "kinect", "--frames", str(10**9), "-o", "s.npz"], "the ball range scene"),
     ],
 )
 def test_cli_synth_bad_options_are_one_line(tmp_path, monkeypatch, capsys, args, says):
@@ -310,5 +320,23 @@ def test_cli_synth_bad_options_are_one_line(tmp_path, monkeypatch, capsys, args,
     assert main(["synth", "ball", "--small", *args]) == 2
     err = capsys.readouterr().err
     assert says in err
+    assert "internal error" not in err
+    assert len(err.strip().splitlines()) == 1
+    assert not list(tmp_path.iterdir())
+
+
+def test_cli_synth_out_of_memory_is_one_line(tmp_path, monkeypatch, capsys):
+    """A MemoryError the estimate did not foresee names --frames, not an internal error."""
+    from fuse4d import synthetic
+    from fuse4d.cli import main
+
+    def no_memory(name, **kwargs):
+        raise MemoryError
+
+    monkeypatch.setattr(synthetic, "make_scene", no_memory)
+    monkeypatch.chdir(tmp_path)
+    assert main(["synth", "ball", "--small", "--frames", "5", "-o", "s.npz"]) == 2
+    err = capsys.readouterr().err
+    assert "--frames 5: the ball scene does not fit in memory" in err
     assert "internal error" not in err
     assert not list(tmp_path.iterdir())

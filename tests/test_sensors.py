@@ -118,10 +118,77 @@ def test_range_scene_arguments_are_checked():
     gen = make_range_scene("room", small=True, num_frames=2, rng=np.random.default_rng(0))
     assert np.isfinite(gen.depth).any()
     with pytest.raises(TypeError, match="rng must be a non-negative int seed"):
-        make_range_scene("room", small=True, num_frames=2, rng=-1)
+        make_range_scene("room", small=True, num_frames=2, rng="0")
+    for seed in (-1, 2**64):  # 2**64 was accepted silently (no .npz holds it)
+        with pytest.raises(ParameterError, match=r"rng must be a seed in \[0, 2\*\*64\)"):
+            make_range_scene("room", small=True, num_frames=2, rng=seed)
     for noise in (float("inf"), float("nan"), -0.5, 5.0):
         with pytest.raises(ParameterError, match="intensity_noise"):
             make_range_scene("room", small=True, num_frames=2, intensity_noise=noise)
+
+
+def test_a_range_scene_larger_than_the_memory_is_refused_before_rendering(monkeypatch):
+    """It rendered frame after frame into a list until the system killed it."""
+    from fuse4d import synthetic
+    from fuse4d.errors import ParameterError
+    from fuse4d.range_scenes import RANGE_SCENE_BYTES
+
+    with pytest.raises(ParameterError, match=r"num_frames=1000000000: the ball range scene"):
+        make_range_scene("ball", small=True, num_frames=10**9)
+    room = int(3.5 * 160 * 120 * RANGE_SCENE_BYTES)  # 3 frames fit, 4 do not
+    monkeypatch.setattr(synthetic, "_available_memory", lambda: room)
+    with pytest.raises(ParameterError, match=r"num_frames=4: .* GiB of memory"):
+        make_range_scene("room", small=True, num_frames=4)
+    assert make_range_scene("room", small=True, num_frames=3).num_frames == 3
+
+
+def test_range_scenes_give_the_sensor_the_unshaded_albedo(monkeypatch):
+    """The incidence angle was counted twice: the shaded intensity albedo (0.3 + 0.7 cos)
+    went to apply_sensor with normal_z, which multiplies by cos again (dark dropouts on the
+    floor 13.6 % instead of 3.5 %, ToF noise up by 1 / sqrt(0.3 + 0.7 cos))."""
+    import fuse4d.range_scenes as rs
+
+    seen = {}
+
+    def spy(depth, intensity, intrinsics, model, *, normal_z=None, rng=None):
+        seen.update(reflectance=np.asarray(intensity), cos=-np.asarray(normal_z))
+        return apply_sensor(depth, intensity, intrinsics, model, normal_z=normal_z, rng=rng)
+
+    monkeypatch.setattr(rs, "apply_sensor", spy)
+    seq = make_range_scene("room", small=True, num_frames=2, intensity_noise=0.0, rng=0)
+    cos, reflectance = seen["cos"], seen["reflectance"]
+    grazing = cos < 0.5  # the far floor
+    assert grazing.mean() > 0.1
+    # the registered image is shaded once; the sensor's reflectance is not shaded at all
+    np.testing.assert_allclose(reflectance * (0.3 + 0.7 * cos), seq.intensity, atol=2e-6)
+    assert np.all((reflectance >= 0.05) & (reflectance <= 0.95))
+
+
+def test_tof_dark_dropout_follows_the_amplitude_with_distance():
+    """ToF drops pixels whose amplitude albedo cos / z^2 is too low (the module docstring;
+    the code tested albedo cos alone): a dark surface is kept at 1 m, lost at 5 m."""
+    quiet = TOF.__class__(**{**TOF.__dict__, "dropout": 0.0})
+    for z, albedo, lost in ((1000.0, 0.1, False), (5000.0, 0.1, True), (5000.0, 0.9, False)):
+        out = apply_sensor(_plane(z), _plane(albedo), K, quiet, rng=0)
+        assert out.dropout.all() == lost, (z, albedo)
+        assert np.isnan(out.depth).all() == lost
+        assert (~out.dropout).all() == (not lost)
+
+
+@pytest.mark.parametrize("model", [KINECT_V1, D435, TOF])
+@pytest.mark.parametrize("z", [3000.0, 5500.0, 20000.0, 1e6])
+def test_every_sensor_hole_is_in_a_hole_mask(model, z):
+    """A disparity quantised to <= 0 (a surface far beyond the range) gave NaN depth that
+    neither ``shadow`` nor ``dropout`` held (55 % of the pixels at 1e6 mm, Kinect)."""
+    depth = _plane(z, t=2)
+    depth[:, :, :10] = np.nan  # no surface: not a sensor hole
+    out = apply_sensor(depth, _plane(0.6, t=2), K, model, rng=0)
+    holes = np.isnan(out.depth) & np.isfinite(depth)
+    np.testing.assert_array_equal(holes, out.shadow | out.dropout)
+    assert not (out.shadow & out.dropout).any()
+    assert not out.dropout[:, :, :10].any()
+    if z >= 20000.0:
+        assert out.dropout[:, :, 10:].all()
 
 
 @pytest.mark.parametrize("scene", ["ball", "body", "room"])

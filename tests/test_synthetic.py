@@ -191,8 +191,16 @@ def test_bad_arguments(kwargs, message):
 
 
 def test_bad_rng_and_scene():
-    with pytest.raises(TypeError, match="rng must be a non-negative int seed"):
-        make_falling_ball(small=True, rng=-1)
+    from fuse4d.errors import ParameterError, ParameterTypeError
+
+    with pytest.raises(ParameterTypeError, match="rng must be a non-negative int seed"):
+        make_falling_ball(small=True, rng=1.5)
+    # out of the range an .npz holds: refused before rendering, in every scene (2**64 was
+    # rendered, then refused by write_npz as an object array)
+    for seed in (-1, 2**64):
+        for factory in (make_falling_ball, make_static_plane, make_deforming_sheet):
+            with pytest.raises(ParameterError, match=r"rng must be a seed in \[0, 2\*\*64\)"):
+                factory(small=True, num_frames=2, rng=seed)
     with pytest.raises(ValueError, match="unknown scene 'cube'; choose one of ball, plane, sheet"):
         make_scene("cube")
 
@@ -201,6 +209,34 @@ def test_generator_rng_recorded():
     seq = make_static_plane(small=True, num_frames=2, rng=np.random.default_rng(5))
     again = make_static_plane(small=True, num_frames=2, rng=seq.ground_truth.extra["seed"])
     np.testing.assert_array_equal(seq.depth, again.depth)
+
+
+def test_the_largest_seed_round_trips_through_npz(tmp_path):
+    from fuse4d.io import write_npz
+
+    seq = make_falling_ball(small=True, num_frames=2, rng=2**64 - 1)
+    write_npz(seq, tmp_path / "s.npz")
+    seed = load_sequence(tmp_path / "s.npz").ground_truth.extra["seed"]
+    assert seed == 2**64 - 1
+    again = make_falling_ball(small=True, num_frames=2, rng=seed)
+    np.testing.assert_array_equal(again.depth, seq.depth)
+
+
+def test_a_scene_larger_than_the_memory_is_refused_before_rendering(monkeypatch):
+    """--frames 99999999999999999999 was numpy's "Maximum allowed size exceeded", 10**9 a
+    MemoryError: both are estimated (every array kept) and refused naming num_frames."""
+    from fuse4d import synthetic
+    from fuse4d.errors import ParameterError
+
+    assert synthetic._available_memory() > 0  # Linux: MemAvailable and the limits are read
+    for factory in (make_falling_ball, make_static_plane, make_deforming_sheet):
+        with pytest.raises(ParameterError, match=r"num_frames=10{20}: .* GiB of memory, "):
+            factory(small=True, num_frames=10**20)
+    room = int(11.5 * 150 * 150 * synthetic.PAPER_SCENE_BYTES)  # 11 frames fit, 12 do not
+    monkeypatch.setattr(synthetic, "_available_memory", lambda: room)
+    with pytest.raises(ParameterError, match=r"num_frames=12: the static plane .* 0.0 GiB is"):
+        make_static_plane(small=True, num_frames=12)
+    assert make_static_plane(small=True, num_frames=11).num_frames == 11
 
 
 @pytest.mark.slow
@@ -233,3 +269,45 @@ def test_cli_synth_round_trip(tmp_path, capsys):
         == 2
     )
     assert "depth_noise must be a finite number >= 0" in capsys.readouterr().err
+
+
+def test_cli_synth_prints_the_depth_noise_there_is(tmp_path, capsys):
+    """The plane's noise is depth_noise x (2 - albedo) plus a fixed pattern: synth printed
+    "depth noise 0.2 mm" where depth - truth had a std of 0.304 mm."""
+    import re
+
+    out = tmp_path / "p.npz"
+    args = ["synth", "plane", "--small", "--frames", "4", "--depth-noise", "0.2", "-o", str(out)]
+    assert main(args) == 0
+    err = " ".join(capsys.readouterr().err.split())
+    printed = float(re.search(r"depth noise std ([0-9.]+) mm", err).group(1))
+    seq = load_sequence(out)
+    measured = float(np.nanstd(seq.depth - seq.ground_truth.depth))
+    assert printed == pytest.approx(measured, rel=0.01)
+    assert printed > 0.25  # not the 0.2 mm base
+    assert "--depth-noise 0.2 mm, x1-2 on dark texture, + 0.02 mm fixed pattern" in err
+    assert "150x150" in err
+
+
+def test_cli_synth_help_gives_the_scenes_distances_and_defaults():
+    """The help said the paper scenes were at 1 m with 0.2 mm noise: the defaults and
+    distances of the code."""
+    import inspect
+
+    from fuse4d.cli.cmd_eval import synth_command
+    from fuse4d.synthetic import BALL_CENTER_Z_MM, SCENES
+
+    params = inspect.signature(synth_command, eval_str=True).parameters
+    scene_help = params["scene"].annotation.__metadata__[0].help
+    noise_help = params["depth_noise"].annotation.__metadata__[0].help
+    assert "1 m, 0.2 mm" not in scene_help
+    assert f"ball centre at {BALL_CENTER_Z_MM / 1000:g} m" in scene_help
+    plane = make_static_plane(small=True, num_frames=2).ground_truth.scene
+    assert f"plane at {plane.center_mm[2] / 1000:g} m" in scene_help
+    sheet = make_deforming_sheet(small=True, num_frames=2).ground_truth.scene
+    assert f"sheet at {sheet.sheet_z_mm / 1000:g} m" in scene_help
+    for name, factory in SCENES.items():
+        default = inspect.signature(factory).parameters["depth_noise"].default
+        assert f"{name} {default:g}" in noise_help
+    structural = inspect.signature(make_static_plane).parameters["structural_noise"].default
+    assert f"{structural:g} mm fixed pattern" in noise_help

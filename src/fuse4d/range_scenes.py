@@ -38,7 +38,7 @@ from .camera import Intrinsics
 from .errors import ParameterError
 from .sensors import SensorModel, apply_sensor, get_sensor
 from .sequence import GroundTruth, Sequence
-from .synthetic import _check_intensity_noise, _seed_of, _Texture
+from .synthetic import _check_fits_in_memory, _check_intensity_noise, _seed_of, _Texture
 
 __all__ = ["RANGE_SCENES", "make_range_scene", "range_intrinsics"]
 
@@ -46,6 +46,10 @@ __all__ = ["RANGE_SCENES", "make_range_scene", "range_intrinsics"]
 FPS = 30.0
 #: Camera height above the floor, mm (image y points down, so the floor is the plane Y = +1000).
 CAMERA_HEIGHT_MM = 1000.0
+#: Peak bytes per pixel and frame that rendering a range scene holds (the frames' renders, the
+#: true and sensor depth, the sensor model's float64 work arrays; measured 90-94 with
+#: tracemalloc, plus margin).
+RANGE_SCENE_BYTES = 110
 
 
 def range_intrinsics(*, small: bool = False) -> Intrinsics:
@@ -213,7 +217,8 @@ RANGE_SCENES: dict[str, Callable[[list[np.random.Generator], int], list[_Primiti
 @dataclass
 class _Render:
     depth: NDArray[np.float64]  # (H, W) mm, inf = nothing
-    intensity: NDArray[np.float32]
+    intensity: NDArray[np.float32]  # shaded: albedo * (0.3 + 0.7 cos), the registered image
+    albedo: NDArray[np.float32]  # unshaded reflectance (the sensor model applies cos itself)
     normal_z: NDArray[np.float64]
     moving: NDArray[np.bool_]
     flow: NDArray[np.float32] | None  # (H, W, 2) px to the next frame
@@ -233,6 +238,7 @@ def _render(
         which[closer] = i
     points = rays * best[:, None]
     intensity = np.full(n, 0.1, np.float32)
+    albedo = np.full(n, 0.1, np.float32)
     normal_z = np.full(n, -1.0)
     flow = np.zeros((n, 2), np.float32) if with_flow else None
     for i, (p, pose) in enumerate(zip(prims, poses, strict=True)):
@@ -252,7 +258,8 @@ def _render(
         cos_incidence = np.maximum(0.0, -np.einsum("ij,ij->i", normal, view))
         normal_z[sel] = -cos_incidence  # "normal_z" of apply_sensor: -cos of the incidence
         shade = 0.3 + 0.7 * cos_incidence
-        intensity[sel] = (p.texture.albedo(material) * shade).astype(np.float32)
+        albedo[sel] = p.texture.albedo(material)
+        intensity[sel] = (albedo[sel] * shade).astype(np.float32)
         if with_flow and p.pose is not None:
             nxt = p.pose(t + 1.0)
             moved = material @ nxt.rotation.T + nxt.centre
@@ -266,6 +273,7 @@ def _render(
     return _Render(
         depth=best.reshape(shape),
         intensity=intensity.reshape(shape),
+        albedo=albedo.reshape(shape),
         normal_z=normal_z.reshape(shape),
         moving=moving.reshape(shape),
         flow=None if flow is None else flow.reshape((*shape, 2)),
@@ -314,10 +322,11 @@ def make_range_scene(
         raise ParameterError(f"num_frames must be an integer >= 2, got {num_frames!r}")
     _check_intensity_noise(intensity_noise)
     model = get_sensor(sensor)
+    k = range_intrinsics(small=small)
+    _check_fits_in_memory(num_frames, k.width * k.height, RANGE_SCENE_BYTES, f"{name} range scene")
     seeds = np.random.SeedSequence(_seed_of(rng)).spawn(3)  # an int seed: the same scene
     texture_streams = [np.random.default_rng(s) for s in seeds[0].spawn(12)]
     prims = RANGE_SCENES[name](texture_streams, int(num_frames))
-    k = range_intrinsics(small=small)
     xn = (np.arange(k.width) - k.cx) / k.fx
     yn = (np.arange(k.height) - k.cy) / k.fy
     gx, gy = np.meshgrid(xn, yn, indexing="xy")
@@ -326,9 +335,11 @@ def make_range_scene(
     truth = np.stack([r.depth for r in renders]).astype(np.float32)
     truth[~np.isfinite(truth)] = np.nan
     true_intensity = np.stack([r.intensity for r in renders])
+    # the sensor's IR return is albedo * cos (apply_sensor applies the cos of normal_z); the
+    # shaded intensity, which already holds a cos, is only the registered image
     sensed = apply_sensor(
         truth,
-        true_intensity,
+        np.stack([r.albedo for r in renders]),
         k,
         model,
         normal_z=np.stack([r.normal_z for r in renders]),

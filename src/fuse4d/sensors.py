@@ -95,7 +95,10 @@ class SensorModel:
     dropout : float
         Fraction of valid pixels dropped at random (speckle decorrelation, saturation).
     dark_dropout : float
-        Pixels whose IR return (albedo · cos θ) is below this value drop out.
+        Pixels whose IR return is below this value drop out: albedo · cos θ for a disparity
+        sensor (the pattern's contrast), the amplitude albedo · cos θ / z² (z in m) for ToF
+        (the camera's own light falls off with distance; its depth engine invalidates pixels
+        of too weak a signal, so a dark surface drops out far away, not near).
     tof_noise_mm : float
         ToF only: depth noise (mm) at amplitude 1 (albedo 1, facing, at 1 m); grows as
         1 / sqrt(amplitude).
@@ -193,7 +196,8 @@ D435 = SensorModel(
     notes="RealSense D4xx active stereo",
 )
 #: Azure Kinect / Orbbec Femto-class ToF (≈ 1 mm noise at 1 m on bright surfaces, flying
-#: pixels at edges).
+#: pixels at edges). Dark dropout at amplitude 0.005: the Azure Kinect's operating range
+#: (NFOV binned, to 5.46 m) holds for 15-95 % reflectance, and 0.15 / 5.46² ≈ 0.005.
 TOF = SensorModel(
     name="tof",
     kind="tof",
@@ -203,7 +207,7 @@ TOF = SensorModel(
     correlation_px=1,
     shadows=False,
     dropout=0.002,
-    dark_dropout=0.02,
+    dark_dropout=0.005,
     tof_noise_mm=0.6,
     flying_pixels=0.5,
     min_range_mm=250.0,
@@ -289,9 +293,9 @@ def apply_sensor(
     depth : (T, H, W) ndarray
         True depth, mm (NaN = no surface).
     intensity : (T, H, W) ndarray
-        Albedo-like IR reflectance in [0, 1] (the registered intensity of the scene; integers
-        are divided by their dtype maximum): dark pixels drop out, and ToF noise grows as it
-        falls.
+        Albedo-like IR reflectance in [0, 1], unshaded (integers are divided by their dtype
+        maximum): dark pixels drop out, and ToF noise grows as it falls. The incidence angle
+        is ``normal_z``'s: an image already shaded by it would count it twice.
     intrinsics : Intrinsics
         The depth camera; its ``fx`` sets the disparity scale.
     model : SensorModel or str
@@ -341,16 +345,20 @@ def apply_sensor(
     for k in range(t):
         zk = z[k]
         valid = np.isfinite(zk) & (zk > 0)
+        returned = albedo[k] * cos[k]  # the surface's IR return, albedo · cos θ
         if m.kind == "tof":
-            dk, fly = _tof_frame(zk, valid, albedo[k] * cos[k], m, gen)
+            dk, fly = _tof_frame(zk, valid, returned, m, gen)
             flying[k] = fly
+            # the camera's own light falls off as 1/z² (z in m): the amplitude decides
+            returned = returned / np.where(valid, zk / 1000.0, 1.0) ** 2
         else:
             dk, shadow[k] = _disparity_frame(zk, valid, f, m, gen, fixed)
-        returned = albedo[k] * cos[k]
         lost = (returned < m.dark_dropout) | (gen.random((h, w)) < m.dropout)
         with np.errstate(invalid="ignore"):
             lost |= ~((dk >= m.min_range_mm) & (dk <= m.max_range_mm))
-        lost &= np.isfinite(dk)
+        # holes only where there is a surface: a NaN depth there (a disparity quantised to
+        # <= 0, beyond the range a disparity can measure) is a range-limit hole too
+        lost &= valid
         drop[k] = lost & ~shadow[k]
         dk = np.where(lost | shadow[k], np.nan, np.round(dk))
         out[k] = dk.astype(np.float32)

@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .camera import Intrinsics
-from .errors import ParameterError
+from .errors import ParameterError, ParameterTypeError
 from .sequence import BallTruth, GroundTruth, PlaneTruth, Sequence, SheetTruth
 
 __all__ = [
@@ -89,10 +89,29 @@ def scene_intrinsics(*, small: bool = False) -> Intrinsics:
     return Intrinsics(fx=1000.0, fy=1000.0, cx=299.5, cy=299.5, width=600, height=600)
 
 
+#: Integer seeds are ``0 <= seed < SEED_LIMIT``: the largest that ``extra["seed"]`` can hold in
+#: an .npz (uint64; a larger int became an object array that :func:`fuse4d.io.write_npz`
+#: refused, after the whole scene was rendered).
+SEED_LIMIT = 2**64
+
+
+def _pixels(small: bool) -> int:
+    """Pixels of one frame of the synthetic camera."""
+    k = scene_intrinsics(small=small)
+    return k.width * k.height
+
+
 def _seed_of(rng: int | np.random.Generator | np.random.SeedSequence | None) -> int:
     """An integer seed (recorded in ``extra["seed"]``) from the ``rng`` argument.
 
     ``None`` draws fresh OS entropy; a ``Generator`` contributes one draw.
+
+    Raises
+    ------
+    ParameterTypeError
+        ``rng`` is neither an int, a Generator, a SeedSequence nor None.
+    ParameterError
+        An int seed outside ``[0, 2**64)`` (:data:`SEED_LIMIT`).
     """
     if rng is None:
         return int(np.random.SeedSequence().entropy % (2**63))  # type: ignore[operator]
@@ -100,9 +119,88 @@ def _seed_of(rng: int | np.random.Generator | np.random.SeedSequence | None) -> 
         return int(rng.integers(0, 2**63 - 1))
     if isinstance(rng, np.random.SeedSequence):
         return int(rng.generate_state(2, np.uint64)[0] % (2**63))
-    if isinstance(rng, bool) or not isinstance(rng, int | np.integer) or int(rng) < 0:
-        raise TypeError(f"rng must be a non-negative int seed, a Generator or None, got {rng!r}")
+    if isinstance(rng, bool) or not isinstance(rng, int | np.integer):
+        raise ParameterTypeError(
+            f"rng must be a non-negative int seed, a Generator or None, got {rng!r}"
+        )
+    if not 0 <= int(rng) < SEED_LIMIT:
+        raise ParameterError(f"rng must be a seed in [0, 2**64), got {int(rng)}")
     return int(rng)
+
+
+#: Peak bytes per pixel and frame that rendering a paper scene holds (noisy and true depth and
+#: intensity, mask, flow and the temporaries; measured 34-37 with tracemalloc, plus margin).
+PAPER_SCENE_BYTES = 40
+
+
+class _SceneTooLarge(ParameterError):
+    """A scene of ``num_frames`` frames does not fit in memory (``detail`` says why; the CLI
+    names its ``--frames`` option with it)."""
+
+    def __init__(self, num_frames: int, detail: str) -> None:
+        super().__init__(f"num_frames={num_frames}: {detail}")
+        self.num_frames = num_frames
+        self.detail = detail
+
+
+def _available_memory() -> int | None:
+    """Bytes this process can still allocate, as far as the system says (Linux): the smallest
+    of MemAvailable + SwapFree, the address-space limit (``ulimit -v``) less what the process
+    maps, and the cgroup's ``memory.max`` less ``memory.current``. None where none is known."""
+    import os
+    from pathlib import Path
+
+    def read(path: str) -> str | None:
+        try:
+            return Path(path).read_text()
+        except OSError:
+            return None
+
+    def field_kib(text: str | None, name: str) -> int | None:
+        for line in (text or "").splitlines():
+            if line.startswith(name + ":"):
+                return int(line.split()[1]) * 1024
+        return None
+
+    known: list[int] = []
+    meminfo = read("/proc/meminfo")
+    available = field_kib(meminfo, "MemAvailable")
+    if available is not None:
+        known.append(available + (field_kib(meminfo, "SwapFree") or 0))
+    try:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+        mapped = field_kib(read(f"/proc/{os.getpid()}/status"), "VmSize")
+        if soft != resource.RLIM_INFINITY and mapped is not None:
+            known.append(soft - mapped)
+    except (ImportError, OSError, ValueError):
+        pass
+    limit, used = read("/sys/fs/cgroup/memory.max"), read("/sys/fs/cgroup/memory.current")
+    if limit is not None and used is not None and limit.strip().isdigit():
+        known.append(int(limit) - int(used))
+    return max(min(known), 0) if known else None
+
+
+def _check_fits_in_memory(num_frames: int, pixels: int, bytes_per_pixel: int, what: str) -> None:
+    """Refuse a scene whose ``num_frames * pixels * bytes_per_pixel`` bytes (every array kept
+    while it is rendered) exceed the memory available (:func:`_available_memory`): it was a
+    MemoryError, numpy's "Maximum allowed size exceeded" or, for the range scenes, frames
+    rendered one by one until the system killed the process.
+
+    Raises
+    ------
+    ParameterError
+        (:class:`_SceneTooLarge`) naming ``num_frames``, the bytes needed and available.
+    """
+    need = int(num_frames) * int(pixels) * int(bytes_per_pixel)
+    available = _available_memory()
+    if available is not None and need > available:
+        raise _SceneTooLarge(
+            int(num_frames),
+            f"the {what} of that many frames needs about {need / 2**30:,.1f} GiB of memory, "
+            f"{available / 2**30:,.1f} GiB is available; render fewer frames",
+        )
 
 
 @dataclass(frozen=True)
@@ -303,6 +401,7 @@ def make_falling_ball(
     """
     num_frames = (12 if small else 50) if num_frames is None else num_frames
     _check_common(depth_noise, intensity_noise, structural_noise, num_frames, background)
+    _check_fits_in_memory(num_frames, _pixels(small), PAPER_SCENE_BYTES, "falling ball")
     seed = _seed_of(rng)
     streams = _Streams.from_seed(seed)
     k = scene_intrinsics(small=small)
@@ -432,6 +531,7 @@ def make_static_plane(
     """
     num_frames = (12 if small else 50) if num_frames is None else num_frames
     _check_common(depth_noise, intensity_noise, structural_noise, num_frames, background)
+    _check_fits_in_memory(num_frames, _pixels(small), PAPER_SCENE_BYTES, "static plane")
     seed = _seed_of(rng)
     streams = _Streams.from_seed(seed)
     k = scene_intrinsics(small=small)
@@ -554,6 +654,7 @@ def make_deforming_sheet(
     """
     num_frames = (12 if small else 50) if num_frames is None else num_frames
     _check_common(depth_noise, intensity_noise, structural_noise, num_frames, background)
+    _check_fits_in_memory(num_frames, _pixels(small), PAPER_SCENE_BYTES, "deforming sheet")
     seed = _seed_of(rng)
     streams = _Streams.from_seed(seed)
     k = scene_intrinsics(small=small)

@@ -52,15 +52,30 @@ def _render_and_write(
     what: str, make: Callable[..., Sequence], scene: str, output: Path, force: bool, **options: Any
 ) -> Sequence:
     """``make(scene, **options)`` written to ``output`` (.npz), with status lines; options that
-    are None are left out (the scene maker's defaults apply). Returns the sequence."""
+    are None are left out (the scene maker's defaults apply). Returns the sequence.
+
+    A scene too large for the memory (estimated before rendering, or a MemoryError while
+    rendering or writing it) is one error naming ``--frames``."""
     from ..io import write_npz
+    from ..synthetic import _SceneTooLarge
 
     given = {k: v for k, v in options.items() if v is not None}
-    with err_console.status(f"rendering {what}"):
-        seq = make(scene, **given)
-    with err_console.status(f"writing {output}"):
-        write_npz(seq, output, overwrite=force)
-    return seq
+    frames = given.get("num_frames")
+    try:
+        with err_console.status(f"rendering {what}"):
+            seq = make(scene, **given)
+        with err_console.status(f"writing {output}"):
+            write_npz(seq, output, overwrite=force)
+        return seq
+    except _SceneTooLarge as exc:
+        problem = f"--frames {exc.num_frames}: {exc.detail}"
+    except MemoryError:  # outside the estimate: the arrays are freed before failing
+        problem = (
+            f"--frames {'(default)' if frames is None else frames}: {what} does not fit in "
+            "memory; render fewer frames"
+        )
+    fail(problem)
+    raise AssertionError  # unreachable
 
 
 @app.command("synth")
@@ -68,8 +83,9 @@ def synth_command(
     scene: Annotated[
         SceneName,
         typer.Argument(
-            help="Scene: ball, plane or sheet (the paper's, 1 m, 0.2 mm noise); with --sensor: "
-            "ball, body or room at 1-5 m."
+            help="Scene: ball, plane or sheet (the paper's: ball centre at 0.7 m, plane at "
+            "0.5 m, sheet at 0.55 m, before a wall at 1 m); with --sensor: ball, body or room "
+            "at 1-5 m."
         ),
     ],
     output: Annotated[Path, typer.Option("-o", "--output", help="Output .npz file.")],
@@ -82,7 +98,11 @@ def synth_command(
         ),
     ] = None,
     depth_noise: Annotated[
-        float | None, typer.Option(help="Depth-noise std in mm (scene default if omitted).")
+        float | None,
+        typer.Option(
+            help="Depth-noise std in mm; defaults: ball 0.2, plane 0.05 (its base: x1-2 on "
+            "dark texture, plus a 0.02 mm fixed pattern), sheet 0.1."
+        ),
     ] = None,
     intensity_noise: Annotated[
         float | None,
@@ -100,8 +120,9 @@ def synth_command(
 ) -> None:
     """Render a synthetic scene with ground truth (depth, mask, flow) into an .npz file.
 
-    Without --sensor: the paper's scenes (ball, plane, sheet) at 1 m with Gaussian depth
-    noise (--depth-noise). With --sensor kinect|d435|tof: the range scenes (ball, body, room)
+    Without --sensor: the paper's scenes (ball, plane, sheet) at 0.5-0.7 m before a wall at
+    1 m, with Gaussian depth noise (--depth-noise; the printed std is measured on depth -
+    truth, the plane's texture and fixed pattern included). With --sensor kinect|d435|tof: the range scenes (ball, body, room)
     at 1-5 m through that sensor model (disparity quantisation, correlated noise, shadow
     holes, flying pixels; see docs/sensors.md); --depth-noise does not apply there.
     """
@@ -111,8 +132,10 @@ def synth_command(
         fail(f"{output}: output exists; pass --force to replace it")
     if frames is not None and frames < 2:
         fail(f"--frames must be >= 2 (a scene moves between frames), got {frames}")
-    if seed < 0:
-        fail(f"--seed must be >= 0, got {seed}")
+    from ..synthetic import SEED_LIMIT
+
+    if not 0 <= seed < SEED_LIMIT:
+        fail(f"--seed must be >= 0 and < 2**64 (what an .npz holds), got {seed}")
     if sensor is not None:
         from ..range_scenes import make_range_scene
 
@@ -134,7 +157,7 @@ def synth_command(
         valid = 100.0 * float(np.isfinite(seq.depth).mean())
         err_console.print(
             f"wrote {output}: {scene.value} at range, sensor {sensor.value}, {t} frames "
-            f"{h}x{w}, {valid:.1f} % valid depth, seed {seed}"
+            f"{w}x{h}, {valid:.1f} % valid depth, seed {seed}"
         )
         return
     from ..synthetic import make_scene
@@ -151,10 +174,31 @@ def synth_command(
     t, (h, w) = seq.num_frames, seq.shape
     extra = seq.ground_truth.extra if seq.ground_truth else {}
     err_console.print(
-        f"wrote {output}: {scene.value}, {t} frames {h}x{w}, depth noise "
-        f"{extra.get('depth_noise')} mm, intensity noise {extra.get('intensity_noise')}, "
-        f"seed {seed}"
+        f"wrote {output}: {scene.value}, {t} frames {w}x{h}, depth noise {_depth_noise(seq)}, "
+        f"intensity noise {extra.get('intensity_noise')}, seed {seed}"
     )
+
+
+def _depth_noise(seq: Sequence) -> str:
+    """The depth noise of a paper scene as ``synth`` prints it: the std of depth - truth
+    (mm, measured on the valid pixels) and the settings it comes from."""
+    import numpy as np
+
+    gt = seq.ground_truth
+    assert gt is not None
+    assert gt.depth is not None
+    n, total, squares = 0, 0.0, 0.0
+    for depth, truth in zip(seq.depth, gt.depth, strict=True):  # frame by frame: no T copy
+        err = (depth.astype(np.float64) - truth)[np.isfinite(depth) & np.isfinite(truth)]
+        n, total, squares = n + err.size, total + err.sum(), squares + (err**2).sum()
+    std = math.sqrt(max(squares / n - (total / n) ** 2, 0.0)) if n else float("nan")
+    extra = gt.extra
+    parts = [f"--depth-noise {extra.get('depth_noise')} mm"]
+    if extra.get("texture_correlated"):
+        parts.append("x1-2 on dark texture")
+    if extra.get("structural_noise"):
+        parts.append(f"+ {extra['structural_noise']} mm fixed pattern")
+    return f"std {std:.3g} mm (measured on depth - truth: {', '.join(parts)})"
 
 
 def _box(text: str) -> tuple[int, int, int, int] | None:
