@@ -215,3 +215,28 @@ def test_ctrl_c_in_the_final_wait_comes_after_the_writes_end():
     with pytest.raises(KeyboardInterrupt):
         sink.close()
     assert done == [0, 1]  # both writes had ended when the interrupt was raised
+
+
+def test_an_interrupt_as_the_signals_are_held_still_waits_and_unblocks(monkeypatch):
+    """pthread_sigmask runs the handlers of signals that came just before it: a Ctrl-C there
+    raised out of held() with the signals left blocked for good and the wait skipped."""
+    import signal
+
+    from fuse4d import _signals
+
+    real = signal.pthread_sigmask
+    before = real(signal.SIG_BLOCK, ())
+
+    def sigmask(how, sigs):
+        previous = real(how, sigs)
+        if how == signal.SIG_BLOCK and sigs:  # the blocking call, after it blocked
+            raise KeyboardInterrupt
+        return previous
+
+    monkeypatch.setattr(signal, "pthread_sigmask", sigmask)
+    ran = []
+    with pytest.raises(KeyboardInterrupt), _signals.held():
+        ran.append(True)
+    monkeypatch.setattr(signal, "pthread_sigmask", real)
+    assert ran == [True]  # the wait it protects was done
+    assert real(signal.SIG_BLOCK, ()) == before  # nothing left blocked

@@ -65,8 +65,17 @@ def held() -> Iterator[None]:
     ):
         yield
         return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, ())  # the mask now, unchanged
+    pending: KeyboardInterrupt | None = None
     try:
+        try:
+            # (the call runs the Python handlers of signals that came just before it: an
+            # interrupt raised here would skip the wait; it is raised after it instead)
+            signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
+        except KeyboardInterrupt as exc:
+            pending = exc
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+    if pending is not None:
+        raise pending

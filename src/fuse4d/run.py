@@ -350,8 +350,9 @@ def fuse_file(
     src = Path(input)
     dst = Path(output)
     fmt = detect_format(src)
-    check_output(dst, overwrite=overwrite or resume, inputs=[src])
-    check_output(partial_path(dst), overwrite=True, inputs=[src])
+    # (a --resume of a finished run writes nothing: its folder is not tried)
+    check_output(dst, overwrite=overwrite or resume, inputs=[src], probe=not resume)
+    check_output(partial_path(dst), overwrite=True, inputs=[src], probe=not resume)
     layout = output_layout(dst)  # refuses a file suffix fuse4d does not write (out.mp4)
     if fmt == "npz" and layout != "npz":
         raise ParameterError(f"{dst}: npz input is written as .npz; give an output ending in .npz")

@@ -21,6 +21,8 @@ def _parse_params(method: str, items: list[str]) -> object:
 
 
 def _check_out(path: Path, force: bool, inputs: tuple[Path, ...]) -> None:
+    from ..io import check_output
+
     resolved = path.resolve()
     if any(resolved == p.resolve() for p in inputs):
         fail(f"{path}: output would overwrite an input; choose another path")
@@ -30,6 +32,7 @@ def _check_out(path: Path, force: bool, inputs: tuple[Path, ...]) -> None:
         fail(f"{path}: is a folder; give the output file's name")
     if path.exists() and not force:
         fail(f"{path}: output exists; pass --force to replace it")
+    check_output(path, overwrite=force)  # the folder tried before the solve (read-only)
 
 
 @app.command("flow")

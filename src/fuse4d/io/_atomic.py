@@ -15,7 +15,9 @@ import os
 import re
 import secrets
 import shutil
+import socket
 import warnings
+import zlib
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from os import PathLike
@@ -48,6 +50,7 @@ def check_output(
     *,
     overwrite: bool = False,
     inputs: Iterable[str | PathLike[str]] = (),
+    probe: bool = True,
 ) -> Path:
     """Validate an output path before anything is written.
 
@@ -60,6 +63,11 @@ def check_output(
     inputs : iterable of path, optional
         Paths the caller reads from; writing onto any of them (or into a folder input) is
         refused even with ``overwrite=True``.
+    probe : bool, optional
+        Try the folder now (a file created and removed: a read-only folder fails before any
+        work; default True), and remove the temporaries a killed fuse4d process left for this
+        output (:func:`_sweep_dead_temporaries`). False where nothing may be written (a
+        ``--resume`` of a finished run) or the caller creates its temporary at once.
 
     Returns
     -------
@@ -70,6 +78,8 @@ def check_output(
     ------
     OutputExistsError
         If ``path`` exists and ``overwrite`` is False.
+    OutputWriteError
+        ``probe`` and the folder takes no new files (read-only, full, not ours).
     ValueError
         If ``path`` is one of ``inputs`` or lies inside an input folder, if its parent folder
         does not exist or is not a folder, or if ``overwrite`` would replace a non-empty
@@ -86,9 +96,11 @@ def check_output(
         raise OutputExistsError(out)
     if overwrite and out.is_dir() and not out.is_symlink():
         _check_replaceable_folder(out)
-    # a folder that takes no new files (read-only, full, not ours) fails now, before the work:
-    # a run wrote its fused output, then failed on its --report folder and a rerun was refused
-    _create_temp(out, directory=False).unlink(missing_ok=True)
+    if probe:
+        # a folder that takes no new files (read-only, full, not ours) fails now, before the
+        # work: a run wrote its output, then failed on its --report folder (rerun: "exists")
+        _sweep_dead_temporaries(out)
+        _create_temp(out, directory=False).unlink(missing_ok=True)
     return out
 
 
@@ -153,13 +165,21 @@ def reports_write_errors(
     return wrapper
 
 
-#: A staged temporary or a replaced folder's old copy: ``.NAME.tmp-PID-HEX`` /
-#: ``.NAME.old-PID-HEX`` next to the output NAME, PID the writing process.
-_STAGED = re.compile(r"^\.(?P<name>.+)\.(?:tmp|old)-(?P<pid>\d+)-[0-9a-f]{8}$")
+#: A staged temporary or a replaced folder's old copy: ``.NAME.tmp-HOST-PID-HEX`` /
+#: ``.NAME.old-HOST-PID-HEX`` next to the output NAME; HOST (8 hex digits of the host name's
+#: hash) and PID name the writing process.
+_STAGED = re.compile(
+    r"^\.(?P<name>.+)\.(?:tmp|old)-(?P<host>[0-9a-f]{8})-(?P<pid>\d+)-[0-9a-f]{8}$"
+)
+
+
+def _host_tag() -> str:
+    return f"{zlib.crc32(socket.gethostname().encode()):08x}"
 
 
 def _staged_name(dest: Path, kind: str) -> Path:
-    return dest.parent / f".{dest.name}.{kind}-{os.getpid()}-{secrets.token_hex(4)}"
+    tag = f"{_host_tag()}-{os.getpid()}-{secrets.token_hex(4)}"
+    return dest.parent / f".{dest.name}.{kind}-{tag}"
 
 
 def _process_alive(pid: int) -> bool:
@@ -176,31 +196,36 @@ def _process_alive(pid: int) -> bool:
 
 def _sweep_dead_temporaries(dest: Path) -> None:
     """Delete the temporaries and old copies of ``dest`` that a killed fuse4d process left
-    (``SIGKILL``, a power cut: no cleanup ran): those whose process no longer exists on this
-    machine. A live writer's are kept, and so are names without a process id, and an old copy
-    while ``dest`` is missing (a kill between the two renames of :func:`_replace_existing`
-    left the previous output only there)."""
+    (``SIGKILL``, a power cut: no cleanup ran): those written on this host whose process no
+    longer exists. Kept: those of a live process, of another host (a shared folder), names
+    without host and process, and an old copy while ``dest`` is missing (a kill between the
+    two renames of :func:`_replace_existing` left the previous output only there). Best
+    effort: one that cannot be removed (another user's) stays. Once per output
+    (:func:`check_output`), never per file written into it."""
     try:
         candidates = list(dest.parent.glob(f".{glob.escape(dest.name)}.*-*"))
     except OSError:
         return
+    host = _host_tag()
     for path in candidates:
         m = _STAGED.match(path.name)
-        if m is None or m["name"] != dest.name or _process_alive(int(m["pid"])):
+        if m is None or m["name"] != dest.name or m["host"] != host:
+            continue
+        if _process_alive(int(m["pid"])):
             continue
         if ".old-" in path.name[len(dest.name) + 1 :] and not dest.exists():
             continue
-        if path.is_dir() and not path.is_symlink():
-            shutil.rmtree(path, ignore_errors=True)
-        else:
-            path.unlink(missing_ok=True)
+        try:
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
+        except OSError:
+            pass
 
 
 def _create_temp(dest: Path, *, directory: bool) -> Path:
-    """A new, empty file or folder ``.NAME.tmp-PID-XXXXXXXX`` next to ``dest``.
-
-    Those of processes that no longer exist are deleted first (:func:`_sweep_dead_temporaries`):
-    a killed run left its hidden temporaries behind, and disk space leaked silently.
+    """A new, empty file or folder ``.NAME.tmp-HOST-PID-XXXXXXXX`` next to ``dest``.
 
     Created with the modes of an ordinary new file or folder (0666 / 0777, less the umask,
     which the system applies), so the output needs no chmod. ``tempfile.mkstemp`` creates
@@ -211,7 +236,6 @@ def _create_temp(dest: Path, *, directory: bool) -> Path:
     takes no new files (e.g. ``/proc``: ENOENT, which named the temporary name): an
     :class:`~fuse4d.OutputWriteError` naming ``dest``.
     """
-    _sweep_dead_temporaries(dest)
     for _ in range(100):
         tmp = _staged_name(dest, "tmp")
         try:
@@ -236,7 +260,8 @@ def atomic_file(path: str | PathLike[str], *, overwrite: bool = False) -> Iterat
     OutputExistsError
         If ``path`` exists and ``overwrite`` is False (checked before and after writing).
     """
-    dest = check_output(path, overwrite=overwrite)
+    dest = check_output(path, overwrite=overwrite, probe=False)  # the temporary is the try
+    _sweep_dead_temporaries(dest)
     with write_errors(dest):
         tmp = _create_temp(dest, directory=False)
     try:
@@ -262,7 +287,8 @@ def atomic_dir(path: str | PathLike[str], *, overwrite: bool = False) -> Iterato
     destination is first renamed aside, the new folder renamed into place, then the old one
     deleted; if the second rename fails the old folder is moved back.
     """
-    dest = check_output(path, overwrite=overwrite)
+    dest = check_output(path, overwrite=overwrite, probe=False)  # the temporary is the try
+    _sweep_dead_temporaries(dest)
     with write_errors(dest):
         tmp = _create_temp(dest, directory=True)
     try:

@@ -299,7 +299,7 @@ class ResumableFolderWriter:
             if not (resume and self._finished_here()):
                 raise OutputExistsError(self.path)
             self.already_complete = True
-        check_output(self.path, overwrite=True)
+        check_output(self.path, overwrite=True, probe=not self.already_complete)
         self.partial = partial_path(self.path)
         self.intrinsics = intrinsics
         self.depth_unit_mm = float(depth_unit_mm)
