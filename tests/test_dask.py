@@ -730,9 +730,9 @@ def test_fuse_refuses_intrinsics_and_fusion_of_another_type():
         fd.fuse(depth, intensity, k, fusion={"num_frames": 3})
 
 
-@pytest.mark.parametrize("iterations", [1, 2])
+@pytest.mark.parametrize(("iterations", "chunk_frames"), [(1, 5), (2, 5), (1, 2)])
 def test_dark_intensity_warned_once_with_the_recordings_frame_numbers(
-    ball, iterations, monkeypatch
+    ball, iterations, chunk_frames, monkeypatch
 ):
     """Every chunk engine (and every iteration) warned 'intensity (frames 0-7) is dark',
     each numbering its own frames from 0; now only the chunk that starts the recording
@@ -743,7 +743,7 @@ def test_dark_intensity_warned_once_with_the_recordings_frame_numbers(
     with warnings.catch_warnings(record=True) as rec:
         warnings.simplefilter("always")
         res = fd.fuse(
-            ball.depth, dark, ball.intrinsics, chunk_frames=5,
+            ball.depth, dark, ball.intrinsics, chunk_frames=chunk_frames,
             fusion=FusionParams(iterations=iterations),
         )  # fmt: skip
         # a new engine per chunk, as concurrent tasks or worker processes have
@@ -751,4 +751,5 @@ def test_dark_intensity_warned_once_with_the_recordings_frame_numbers(
         res.depth.compute(scheduler="synchronous")
     messages = [str(w.message) for w in rec if "is dark" in str(w.message)]
     assert len(messages) == 1
-    assert messages[0].startswith("intensity (frames 0-7) is dark")
+    seen = min(8, chunk_frames + 4)  # the first chunk and its look-ahead halo (window 9)
+    assert messages[0].startswith(f"intensity (frames 0-{seen - 1}) is dark")

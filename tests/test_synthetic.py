@@ -311,3 +311,26 @@ def test_cli_synth_help_gives_the_scenes_distances_and_defaults():
         assert f"{name} {default:g}" in noise_help
     structural = inspect.signature(make_static_plane).parameters["structural_noise"].default
     assert f"{structural:g} mm fixed pattern" in noise_help
+
+
+def test_a_containers_file_cache_counts_as_available_memory(monkeypatch):
+    """memory.current of a cgroup counts the file cache the kernel gives back on demand: a
+    container that had read a few GB refused a 0.7 GiB scene ('0.1 GiB is available')."""
+    import pathlib
+
+    from fuse4d import synthetic
+
+    gib = 1 << 30
+    fake = {
+        "/sys/fs/cgroup/memory.max": str(8 * gib),
+        "/sys/fs/cgroup/memory.current": str(int(7.9 * gib)),
+        "/sys/fs/cgroup/memory.stat": f"anon {int(0.9 * gib)}\nfile {7 * gib}\n"
+        f"inactive_file {6 * gib}\n",
+        "/proc/meminfo": "MemTotal: 100000000 kB\nMemAvailable: 90000000 kB\nSwapFree: 0 kB\n",
+    }
+    real = pathlib.Path.read_text
+    monkeypatch.setattr(
+        pathlib.Path, "read_text", lambda self, *a, **k: fake.get(str(self)) or real(self, *a, **k)
+    )
+    available = synthetic._available_memory()
+    assert 6 * gib <= available <= 6.2 * gib

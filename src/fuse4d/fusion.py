@@ -434,6 +434,11 @@ class FusionEngine:
         self._dark = _DarkIntensityCheck()
         self._dark.done = not on
 
+    def _end_dark_check(self) -> None:
+        """Warn now if every frame pushed so far was dark (a chunk shorter than
+        :data:`DARK_CHECK_FRAMES` frames ends before the check would)."""
+        self._dark.finish()
+
     def set_output_range(self, first: int = 0, stop: int | None = None) -> None:
         """Emit only the frames ``first <= t < stop`` of this stream (None: to its end).
 

@@ -293,8 +293,8 @@ def apply_sensor(
     depth : (T, H, W) ndarray
         True depth, mm (NaN = no surface).
     intensity : (T, H, W) ndarray
-        Albedo-like IR reflectance in [0, 1], unshaded (integers are divided by their dtype
-        maximum): dark pixels drop out, and ToF noise grows as it falls. The incidence angle
+        Albedo-like IR reflectance in [0, 1], unshaded (uint8/uint16 divided by 255/65535;
+        other integer types refused): dark pixels drop out, and ToF noise grows as it falls. The incidence angle
         is ``normal_z``'s: an image already shaded by it would count it twice.
     intrinsics : Intrinsics
         The depth camera; its ``fx`` sets the disparity scale.
@@ -322,7 +322,7 @@ def apply_sensor(
         raise ShapeError(
             "depth", ("T", *intrinsics.shape), z.shape, "The intrinsics' height x width"
         )
-    # integers divided by their maximum (a uint8 albedo was clipped to 1 everywhere)
+    # uint8/uint16 divided by 255/65535 (a uint8 albedo was clipped to 1 everywhere)
     albedo = as_unit_intensity(np.asarray(intensity)).astype(np.float64)
     check_same_shape(z, albedo, names=("depth", "intensity"))
     if normal_z is None:

@@ -146,7 +146,8 @@ class _SceneTooLarge(ParameterError):
 def _available_memory() -> int | None:
     """Bytes this process can still allocate, as far as the system says (Linux): the smallest
     of MemAvailable + SwapFree, the address-space limit (``ulimit -v``) less what the process
-    maps, and the cgroup's ``memory.max`` less ``memory.current``. None where none is known."""
+    maps, and the cgroup's ``memory.max`` less ``memory.current`` plus its reclaimable
+    (inactive) file cache. None where none is known."""
     import os
     from pathlib import Path
 
@@ -178,7 +179,14 @@ def _available_memory() -> int | None:
         pass
     limit, used = read("/sys/fs/cgroup/memory.max"), read("/sys/fs/cgroup/memory.current")
     if limit is not None and used is not None and limit.strip().isdigit():
-        known.append(int(limit) - int(used))
+        # memory.current counts the file cache, which the kernel gives back on demand (a
+        # container that had read a few GB looked full): add back its inactive part
+        cache = 0
+        for line in (read("/sys/fs/cgroup/memory.stat") or "").splitlines():
+            name, _, value = line.partition(" ")
+            if name == "inactive_file" and value.strip().isdigit():
+                cache = int(value)
+        known.append(int(limit) - int(used) + cache)
     return max(min(known), 0) if known else None
 
 

@@ -486,9 +486,10 @@ def chunk_engine(
     ``keep = (a, b)`` emitted (the halo frames before ``a`` and from ``b`` on are sources
     only: not tracked, not fused, and no composed tracks (A31) built for them).
 
-    ``stream_start``: the chunk's first frame is the recording's frame 0 (and this is the
-    first fusion pass), so the engine warns of dark intensity as a whole-stream engine does,
-    with the same frame numbers; the other chunks do not check (every chunk warned, each
+    ``stream_start``: the chunk emits the recording's frame 0 (and this is the first fusion
+    pass), so the engine warns of dark intensity as a whole-stream engine does, with the same
+    frame numbers (over the frames the chunk holds, look-ahead halo included, where they are
+    fewer than the check takes); the other chunks do not check (every chunk warned, each
     numbering its own frames from 0).
 
     The engine comes from this process's :class:`_EnginePool` (reset) or is built; it goes
@@ -498,6 +499,7 @@ def chunk_engine(
     engine.set_output_range(a, b if b < frames else None)
     engine._check_dark_intensity(stream_start)
     yield engine  # an exception leaves the engine to the garbage collector
+    engine._end_dark_check()  # (a chunk of fewer frames than the check takes)
     _ENGINES.give_back(intrinsics, params, engine)
 
 
@@ -660,7 +662,7 @@ def fuse(
                 params,
                 (s - lo, e - lo),
                 hi == total,
-                lo == 0 and iteration == 0,
+                s == 0 and iteration == 0,
             )
             n = e - s
             pieces.append(

@@ -397,7 +397,7 @@ def _fuse_task(
                 source_codes[fr.index - a] = fr.source
                 confidence[fr.index - a] = fr.confidence
 
-    with chunk_engine(intrinsics, params, (a, b), hi - lo, stream_start=lo == 0) as engine:
+    with chunk_engine(intrinsics, params, (a, b), hi - lo, stream_start=s == 0) as engine:
         for t in range(lo, hi):
             depth_t, intensity_t = source.frame(t)
             pair = None
