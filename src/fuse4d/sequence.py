@@ -97,10 +97,7 @@ def normalize_intensity(intensity: ArrayLike, *, name: str = "intensity") -> NDA
     out = as_float32(arr, name=name)
     if not out.size:
         return out
-    lo, hi = float(out.min()), float(out.max())
-    if not (np.isfinite(lo) and np.isfinite(hi)):  # NaN or inf present: the finite values
-        finite = out[np.isfinite(out)]
-        lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+    lo, hi = _finite_range(out)
     if lo < 0.0:
         span = hi - lo
         out = (out - np.float32(lo)) / np.float32(span) if span > 0 else out - np.float32(lo)
@@ -193,12 +190,18 @@ def as_storable_intensity(intensity: ArrayLike, *, name: str = "intensity") -> N
     arr = as_float32(arr, name=name)
     if not arr.size:
         return arr
+    lo, hi = _finite_range(arr)
+    check_unit_slack(lo, hi, name=name)
+    return arr
+
+
+def _finite_range(arr: NDArray[np.float32]) -> tuple[float, float]:
+    """Smallest and largest finite value of a non-empty array ((0, 0) where none is)."""
     lo, hi = float(arr.min()), float(arr.max())
     if not (np.isfinite(lo) and np.isfinite(hi)):  # NaN or inf present: the finite values
         finite = arr[np.isfinite(arr)]
         lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
-    check_unit_slack(lo, hi, name=name)
-    return arr
+    return lo, hi
 
 
 def check_unit_slack(lo: float, hi: float, *, name: str) -> None:
