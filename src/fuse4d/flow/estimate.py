@@ -107,6 +107,8 @@ def _check_output(
             f"flow method {m.name!r} returned shape {arr.shape}, expected {(*shape, 2)}"
         )
     arr = np.ascontiguousarray(arr, dtype=np.float32)
+    if np.isfinite(arr).all():  # (0.1 ms a 600 x 600 field; the count below is 4 ms)
+        return arr
     bad = ~np.isfinite(arr).all(axis=-1)
     if bad.any():
         raise ParameterError(
