@@ -508,7 +508,7 @@ def run_summary_table(summary: Any, fusion: Any, *, scored: bool = True) -> Tabl
             ),
             (
                 f"mean frame-to-frame |change| on {summary.static_pixels} static pixels "
-                "(detected in the raw video)"
+                "(detected in the raw video, with output depth in every frame)"
             ),
         ),
         (
