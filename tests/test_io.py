@@ -173,6 +173,25 @@ def test_npz_frame_selection_slices_ground_truth(tmp_path, small_sequence, rng):
     np.testing.assert_array_equal(part.timestamps, seq.timestamps[1:3])
 
 
+def test_npz_convert_cuts_per_pair_extra_arrays(tmp_path, small_sequence, rng):
+    """A user array of length T - 1 (per pair) was kept whole in a 2-frame output (3 pairs)
+    while flow_gt was cut; per-frame arrays are cut to the frames, others kept whole."""
+    seq = _sequence_with_gt(small_sequence, rng)
+    pairs, per_frame, other = np.arange(15.0).reshape(3, 5), np.arange(4.0), np.arange(7.0)
+    path = write_npz(
+        seq, tmp_path / "ex.npz", extra={"pairs": pairs, "per_frame": per_frame, "other": other}
+    )
+    out = tmp_path / "exc.npz"
+    from fuse4d.io import convert_recording
+
+    convert_recording(path, out, frames="1:3")  # `fuse4d convert ex.npz exc.npz --frames 1:3`
+    extra = read_npz_extra(out)
+    np.testing.assert_array_equal(extra["pairs"], pairs[1:2])
+    np.testing.assert_array_equal(extra["per_frame"], per_frame[1:3])
+    np.testing.assert_array_equal(extra["other"], other)
+    assert read_npz(out).ground_truth.flow.shape[0] == 1
+
+
 def test_npz_streaming_memmaps_uncompressed_and_matches_compressed(tmp_path, small_sequence):
     plain = write_npz(small_sequence, tmp_path / "a.npz")
     packed = write_npz(small_sequence, tmp_path / "b.npz", compress=True)

@@ -312,6 +312,26 @@ def test_npz_bad_intrinsics_and_values(tmp_path, small_sequence):
         load_sequence(path)
 
 
+def test_npz_frames_refuse_integer_intensity_of_unknown_depth(tmp_path, small_sequence):
+    """Frame by frame, uint32 0-248 was divided by 2**32 - 1 (black) while the whole-sequence
+    read refused it; now both refuse, the frame reader naming the frame."""
+    path = tmp_path / "s.npz"
+    gray = np.round(small_sequence.intensity * 248).astype(np.uint32)
+    np.savez(path, depth=small_sequence.depth, intensity=gray,
+             intrinsics=small_sequence.intrinsics.as_array())  # fmt: skip
+    with (
+        open_frames(path) as reader,
+        pytest.raises(
+            InputFileError, match=rf"^{path} \(frame 2\): key 'intensity' has integer dtype uint32"
+        ),
+    ):
+        reader[2]
+    np.savez(path, depth=small_sequence.depth, intensity=gray.astype(np.uint16),
+             intrinsics=small_sequence.intrinsics.as_array())  # fmt: skip
+    with open_frames(path) as reader:
+        np.testing.assert_allclose(reader[2].intensity, gray[2] / 65535, atol=1e-7)
+
+
 def test_npz_truncated_member_detected(tmp_path, small_sequence):
     """A member whose bytes are cut (zip directory intact) is reported, not memory-mapped."""
     path = write_npz(small_sequence, tmp_path / "s.npz")

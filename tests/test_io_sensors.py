@@ -222,10 +222,10 @@ def test_tof_bag_ir_is_square_rooted(tmp_path):
     path = write_generic_bag(tmp_path / "a.bag", "ros1")
     img = np.array([[0, 100, 400, 1600, 2000]], dtype=np.uint16)
     with open_frames(path) as reader:
-        linear = reader._normalise(img)
+        linear = reader._normalise(img, 0)
     with open_frames(path) as reader:
         reader.sensor = "tof"
-        tof = reader._normalise(img)
+        tof = reader._normalise(img, 0)
         assert any("square root" in n for n in reader.notes)
     np.testing.assert_allclose(tof, np.sqrt(linear), atol=1e-7)
     assert linear[0, 2] < 0.3 < tof[0, 2]
@@ -447,6 +447,49 @@ def test_16bit_bag_ir_white_level_is_frame_0s_whatever_is_read(tmp_path, capsys,
     out = tmp_path / "part.npz"
     assert main(["convert", str(path), str(out), "--frames", "4:6"]) == 0
     np.testing.assert_array_equal(load_sequence(out).intensity, whole[4:])
+
+
+def _float_ir_bag(path: Path, ir: np.ndarray) -> Path:
+    """A ROS 1 bag of 16UC1 depth and 32FC1 IR ``ir`` (T, 24, 32)."""
+    from rosbag_factory import INFO_TOPIC, BagWriter
+
+    d, t0, period = depth_frames(len(ir)), 10**18, 33_333_333
+    with BagWriter(path, "ros1") as bag:
+        for k in range(len(ir)):
+            t = t0 + k * period
+            bag.write(DEPTH_TOPIC, bag.image(d[k], "16UC1", t), t)
+            bag.write(INFO_TOPIC, bag.camera_info(32, 24, t), t)
+            bag.write(IR_TOPIC, bag.image(ir[k].astype(np.float32), "32FC1", t + 1000), t + 1000)
+    return path
+
+
+def test_float_bag_ir_is_not_clipped_silently(tmp_path):
+    """32FC1 IR in sensor units (0-255 floats) read as 99.6 % exactly 1: it is scaled by frame
+    0's white level like 16-bit IR, with a note; NaN (no return) reads as 0; values left
+    outside [0, 1] are refused naming the topic and frame."""
+    ir = ir_frames(3).astype(np.float32)
+    ir[1, 0, :2] = np.nan
+    path = _float_ir_bag(tmp_path / "raw.bag", ir)
+    white = float(np.percentile(ir[0][ir[0] > 0], 99.5))
+    with open_frames(path) as reader:
+        got = np.stack([f.intensity for f in reader])
+        assert f"float intensity outside [0, 1] scaled by 1/{white:g}" in "".join(reader.notes)
+    np.testing.assert_allclose(got, np.minimum(np.nan_to_num(ir) / white, 1), atol=1e-6)
+    assert (got == 1).mean() < 0.05
+    assert (got[1, 0, :2] == 0).all()
+
+    unit = ir_frames(3).astype(np.float32) / 255  # already intensity: kept as is
+    unit[2, 3, 4] = 1.5
+    path = _float_ir_bag(tmp_path / "unit.bag", unit)
+    with open_frames(path) as reader:
+        np.testing.assert_allclose(reader[1].intensity, unit[1], atol=1e-7)
+        assert "float intensity" not in "".join(reader.notes)
+        with pytest.raises(
+            InputFileError,
+            match=rf"unit\.bag \(frame 2\): intensity topic {IR_TOPIC} must hold finite values "
+            r"in \[0, 1\] \(1 above 1, up to 1\.5 found",
+        ):
+            reader[2]
 
 
 def test_random_access_matches_streaming(tmp_path):
@@ -764,6 +807,80 @@ def test_zarr_without_intrinsics_says_so_once(tmp_path, float_sequence):
     with pytest.raises(InputFileError) as exc:
         open_frames(path)
     assert str(exc.value) == f"{path}: no 'intrinsics' attribute; pass --intrinsics"
+
+
+def test_zarr_intrinsics_attribute_size_and_list(tmp_path, float_sequence):
+    """A camera for another image size was read as is (principal point outside the 32x24
+    image); a [fx, fy, cx, cy] list was taken for a missing attribute."""
+    path = save_sequence(float_sequence, tmp_path / "s.zarr")
+    group = zarr.open_group(str(path), mode="r+")
+    cam = {"fx": 525, "fy": 525, "cx": 319.5, "cy": 239.5, "width": 640, "height": 480}
+    group.attrs["intrinsics"] = cam
+    with pytest.raises(
+        InputFileError,
+        match=r"s\.zarr: attribute 'intrinsics': camera size 640x480 does not match the 32x24 "
+        r"frames \(WxH\)",
+    ):
+        open_frames(path)
+    group.attrs["intrinsics"] = {**cam, "width": 32, "height": 24}
+    with open_frames(path) as reader:
+        assert reader.intrinsics == Intrinsics(525, 525, 319.5, 239.5, width=32, height=24)
+    group.attrs["intrinsics"] = [50.0, 51.0, 15.5, 11.5]
+    with open_frames(path) as reader:
+        assert reader.intrinsics == Intrinsics(50.0, 51.0, 15.5, 11.5, width=32, height=24)
+    group.attrs["intrinsics"] = [50.0, 51.0, 15.5]
+    with pytest.raises(InputFileError, match=r"bad 'intrinsics' attribute \(.*4 numbers.*\); "):
+        open_frames(path)
+    group.attrs["intrinsics"] = {"fx": 50.0}
+    with pytest.raises(InputFileError) as exc:
+        open_frames(path)
+    assert str(exc.value).endswith(
+        "bad 'intrinsics' attribute ('fy'); it must be {fx, fy, cx, cy, width, height} (px; "
+        "width and height optional) or [fx, fy, cx, cy]"
+    )
+
+
+def test_zarr_v2_store_is_read(tmp_path, float_sequence):
+    """A zarr v2 group (.zgroup, no zarr.json) was 'no depth frames found'."""
+    seq = float_sequence
+    path = tmp_path / "v2.zarr"
+    group = zarr.open_group(str(path), mode="w", zarr_format=2)
+    group.create_array("depth", data=seq.depth, chunks=(1, 24, 32))
+    group.create_array("intensity", data=seq.intensity, chunks=(1, 24, 32))
+    group.attrs.update({"intrinsics": seq.intrinsics.to_dict(), "fps": 30.0})
+    assert detect_format(path) == "zarr"
+    back = load_sequence(path)
+    np.testing.assert_array_equal(back.depth, seq.depth)
+    np.testing.assert_array_equal(back.intensity, seq.intensity)
+    assert back.intrinsics == seq.intrinsics
+    with open_frames(path) as reader:
+        assert reader.notes[0].startswith("zarr v2 store")
+    lone = tmp_path / "lone.zarr"  # an array, not a group
+    zarr.open_array(str(lone), mode="w", shape=(3,), dtype="f4", zarr_format=2)
+    with pytest.raises(InputFileError, match=r"lone\.zarr: cannot open the zarr store"):
+        open_frames(lone)
+
+
+@pytest.mark.parametrize(
+    ("dtype", "values"), [("uint32", (0, 248)), ("int16", (-3, 200)), ("int8", (0, 100))]
+)
+def test_zarr_integer_intensity_other_than_uint8_uint16_is_refused(
+    tmp_path, float_sequence, dtype, values
+):
+    """uint32 0-248 was divided by 2**32-1 (black); int16 with negative values was refused by a
+    later check naming no frame."""
+    path = save_sequence(float_sequence, tmp_path / "s.zarr")
+    group = zarr.open_group(str(path), mode="r+")
+    gray = np.full(float_sequence.intensity.shape, values[1], dtype=dtype)
+    gray[1, 0, 0] = values[0]
+    group.create_array("intensity", data=gray, chunks=(1, 24, 32), overwrite=True)
+    with pytest.raises(
+        InputFileError,
+        match=rf"s\.zarr \(frame 0\): 'intensity' has integer dtype {dtype}, .*store uint8",
+    ):
+        load_sequence(path)
+    group.create_array("intensity", data=gray.astype(bool), chunks=(1, 24, 32), overwrite=True)
+    assert load_sequence(path).intensity.max() == 1.0
 
 
 def test_zarr_reader_sanitises_depth_and_checks_intensity(tmp_path, float_sequence):

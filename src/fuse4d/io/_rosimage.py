@@ -22,6 +22,7 @@ __all__ = [
     "amplitude_to_gray",
     "decode_compressed",
     "decode_image_msg",
+    "float_white_level",
     "image_kind",
     "normalise_intensity",
     "white_level",
@@ -165,18 +166,39 @@ def white_level(image: np.ndarray) -> float:
     return max(float(np.percentile(body, 99.5)) if body.size else 65535.0, 1.0)
 
 
-def normalise_intensity(image: np.ndarray, white: float | None) -> np.ndarray:
-    """Single-channel image to float32 [0, 1]: uint8 / 255, uint16 / ``white``, float clipped.
+def float_white_level(image: np.ndarray) -> float | None:
+    """The value mapped to intensity 1 for a float (``32FC1``) intensity image, or None.
 
-    Values above ``white`` (and saturated pixels) become 1.
+    None when the image's finite values lie in [0, 1] (it is intensity already, kept as is).
+    Else (IR amplitude in sensor units, e.g. 0-255 floats of ifm/pmd drivers) the 99.5th
+    percentile of its finite pixels > 0, as :func:`white_level` for 16-bit images (>= 1).
+    Taken once per file, on frame 0.
+    """
+    values = image[np.isfinite(image)]
+    if not values.size or (values.min() >= 0 and values.max() <= 1):
+        return None
+    body = values[values > 0]
+    return max(float(np.percentile(body, 99.5)) if body.size else 1.0, 1.0)
+
+
+def normalise_intensity(image: np.ndarray, white: float | None) -> np.ndarray:
+    """Single-channel image to float32 [0, 1]: uint8 / 255, uint16 / ``white``, float / ``white``
+    where given (:func:`float_white_level`), else as is.
+
+    Values above ``white`` (and saturated pixels) become 1. Float NaN (no return) becomes 0;
+    other float values are not clipped: the caller refuses those outside [0, 1] (negative,
+    -inf, or above 1 without ``white``).
     """
     if image.dtype == np.uint8:
         return image.astype(np.float32) * np.float32(1.0 / 255.0)
     if image.dtype == np.uint16:
         scale = np.float32(1.0 / (white if white else 65535.0))
         return np.minimum(image.astype(np.float32) * scale, np.float32(1.0))
-    out = np.nan_to_num(image.astype(np.float32), nan=0.0, posinf=1.0, neginf=0.0)
-    return np.clip(out, 0.0, 1.0)
+    out = np.array(image, dtype=np.float32)
+    out[np.isnan(out)] = 0.0
+    if white:
+        out = np.minimum(out * np.float32(1.0 / white), np.float32(1.0))
+    return out
 
 
 def amplitude_to_gray(image: np.ndarray, white: float) -> np.ndarray:

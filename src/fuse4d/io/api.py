@@ -73,7 +73,7 @@ def detect_format(path: str | PathLike[str]) -> str:
     with a ``depth/`` subfolder → ``folder``; a folder with ``NNNN_depth.png`` next to
     ``NNNN_camera.xml`` → ``cv2-xml``. Camera recordings first, by their magic bytes: ROS 1
     bag, ROS 2 SQLite/MCAP (or a rosbag2 folder) → ``rosbag``; Matroska → ``mkv``; a zarr v3
-    store → ``zarr`` (see :mod:`fuse4d.io.sensors`).
+    (``zarr.json``) or v2 (``.zgroup``) store → ``zarr`` (see :mod:`fuse4d.io.sensors`).
 
     Raises
     ------

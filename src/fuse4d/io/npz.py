@@ -300,8 +300,18 @@ class NpzReader(FrameReader):
         return np.array(self._array("source")[start:stop], dtype=np.uint8)
 
     def _checked_intensity(self, k: int) -> NDArray[np.float32]:
-        """Frame ``k``'s intensity as float32, released from the map, checked to lie in [0, 1]."""
-        intensity = _intensity_frame(self._array("intensity")[k])
+        """Frame ``k``'s intensity as float32, released from the map, checked to lie in [0, 1]
+        (uint8 and uint16 divided by 255 and 65535; other integer types refused, as
+        :func:`fuse4d.sequence.normalize_intensity` refuses them)."""
+        raw = self._array("intensity")[k]
+        if raw.dtype.kind == "i" or (raw.dtype.kind == "u" and raw.dtype.itemsize > 2):
+            raise InputFileError(
+                self.path,
+                f"key 'intensity' has integer dtype {raw.dtype}, which does not say its bit "
+                "depth; store uint8 (0-255), uint16 (0-65535) or float in [0, 1]",
+                frame=k,
+            )
+        intensity = _intensity_frame(raw)
         self._release("intensity", k)
         check_stored_intensity(intensity, self.path, k, what="key 'intensity'")
         return intensity
@@ -363,7 +373,9 @@ class NpzReader(FrameReader):
         )
 
     def read_extra(self, frames: FrameSelection = None) -> dict[str, np.ndarray]:
-        """The non-reserved arrays (leading axis of length T sliced to ``frames``)."""
+        """The non-reserved arrays: a leading axis of length T (per frame) sliced to
+        ``frames``, one of length T - 1 (per pair of consecutive frames, as ``flow_gt``) to the
+        pairs between them; other arrays whole."""
         sel = resolve_frames(frames, self._t)
         out = {}
         for key in self._members:
@@ -372,6 +384,8 @@ class NpzReader(FrameReader):
             value = np.array(self._array(key))
             if value.ndim >= 1 and value.shape[0] == self._t:
                 value = value[sel.start : sel.stop]
+            elif value.ndim >= 1 and self._t > 1 and value.shape[0] == self._t - 1:
+                value = value[sel.start : sel.stop - 1]
             out[key] = value
         return out
 

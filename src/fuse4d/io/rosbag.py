@@ -32,6 +32,7 @@ from ._base import (
     IntrinsicsLike,
     SequentialReader,
     check_increasing_times,
+    check_stored_intensity,
     depth_unit,
     resolve_intrinsics,
 )
@@ -48,6 +49,7 @@ from ._rosimage import (
     amplitude_to_gray,
     decode_compressed,
     decode_image_msg,
+    float_white_level,
     image_kind,
     normalise_intensity,
     white_level,
@@ -744,7 +746,7 @@ class RosbagReader(SequentialReader):
         depth = d.astype(np.float32) * np.float32(self._unit)
         depth[~(np.isfinite(depth) & (depth > 0))] = np.nan
         img = self._image(inten_raw, self._inten, k, gray=True)
-        gray = self._normalise(img)
+        gray = self._normalise(img, k)
         if self._align is not None:
             cam, rot, trans = self._align
             if gray.shape != cam.shape:
@@ -784,8 +786,19 @@ class RosbagReader(SequentialReader):
         )
 
     def _set_white(self, first: np.ndarray) -> None:
-        """Fix the file's white level from frame 0's intensity image ``first`` (16 bit only)."""
+        """Fix the file's white level from frame 0's intensity image ``first`` (16 bit, and
+        float outside [0, 1])."""
         self._white_known = True
+        if first.dtype.kind == "f":
+            self._white = float_white_level(first)
+            if self._white is not None:
+                self._notes.append(
+                    f"float intensity outside [0, 1] scaled by 1/{self._white:g} (99.5th "
+                    "percentile of the positive pixels of frame 0, the same for every frame), "
+                    "clipped to 1"
+                )
+                self.notes = tuple(self._notes)
+            return
         if first.dtype != np.uint16:
             return
         self._white = white_level(first)
@@ -798,15 +811,27 @@ class RosbagReader(SequentialReader):
         self._notes.append(note)
         self.notes = tuple(self._notes)
 
-    def _normalise(self, img: np.ndarray) -> np.ndarray:
-        """Intensity to float32 [0, 1]: 8 bit / 255; 16 bit / a fixed per-file white level,
-        frame 0's (its square root for a time-of-flight camera's IR, :func:`amplitude_to_gray`)."""
+    def _normalise(self, img: np.ndarray, k: int) -> np.ndarray:
+        """Frame ``k``'s intensity to float32 [0, 1]: 8 bit / 255; 16 bit / a fixed per-file
+        white level, frame 0's (its square root for a time-of-flight camera's IR,
+        :func:`amplitude_to_gray`); float (``32FC1``) as is where frame 0 lies in [0, 1], else
+        / frame 0's white level (:func:`float_white_level`), NaN (no return) as 0.
+
+        Raises
+        ------
+        InputFileError
+            Float intensity left outside [0, 1] (negative, -inf, above 1 in a file whose frame
+            0 lies in [0, 1]), naming the topic and frame.
+        """
         tof = img.dtype == np.uint16 and self.sensor == "tof"
         if not self._white_known:  # frame 0: a pass from a later frame set it from frame 0
             self._set_white(img)
         if tof:
             return amplitude_to_gray(img, self._white or 65535.0)
-        return normalise_intensity(img, self._white)
+        gray = normalise_intensity(img, self._white)
+        if img.dtype.kind == "f":
+            check_stored_intensity(gray, self.path, k, what=f"intensity topic {self._inten.topic}")
+        return gray
 
     # ------------------------------------------------------------------ info / close
     def describe_streams(self) -> list[dict[str, Any]]:

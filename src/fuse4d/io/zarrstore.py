@@ -64,9 +64,10 @@ def codec() -> Any:
 
 
 def is_zarr_store(path: str | PathLike[str]) -> bool:
-    """Whether ``path`` is a folder holding a zarr v3 group (``zarr.json``)."""
+    """Whether ``path`` is a folder holding a zarr store: v3 (``zarr.json``) or v2
+    (``.zgroup``, or ``.zarray`` for a lone array, which :class:`ZarrReader` refuses by name)."""
     p = Path(path)
-    return p.is_dir() and (p / "zarr.json").is_file()
+    return p.is_dir() and any((p / name).is_file() for name in ("zarr.json", ".zgroup", ".zarray"))
 
 
 class ZarrWriter(StagedWriter):
@@ -230,7 +231,12 @@ _READ_ERRORS = (OSError, ValueError, TypeError, LookupError, RuntimeError)
 
 
 class ZarrReader(FrameReader):
-    """Frame reader for a zarr v3 store written by :class:`ZarrWriter` (or laid out alike)."""
+    """Frame reader for a zarr v3 store written by :class:`ZarrWriter` (or laid out alike; a
+    zarr v2 group of the same layout is read too).
+
+    The ``intrinsics`` attribute is ``{fx, fy, cx, cy, width, height}`` (px; ``width`` and
+    ``height`` optional, refused when they differ from the arrays') or ``[fx, fy, cx, cy]``.
+    """
 
     format = "zarr"
 
@@ -278,15 +284,24 @@ class ZarrReader(FrameReader):
             if intrinsics is not None:
                 self.intrinsics = resolve_intrinsics(intrinsics, width=w, height=h)
             elif isinstance(cam, dict):
+                self._check_camera_size(cam, int(w), int(h))
                 self.intrinsics = Intrinsics(
                     cam["fx"], cam["fy"], cam["cx"], cam["cy"], width=w, height=h
                 )
-            else:
+            elif isinstance(cam, list):  # [fx, fy, cx, cy], as in an .npz
+                self.intrinsics = Intrinsics.from_array(cam, width=w, height=h)
+            elif cam is None:
                 raise InputFileError(self.path, "no 'intrinsics' attribute; pass --intrinsics")
+            else:
+                raise TypeError(f"got {type(cam).__name__} {cam!r}")
         except InputFileError:
             raise
         except (KeyError, TypeError, ValueError) as exc:
-            raise InputFileError(self.path, f"bad 'intrinsics' attribute ({exc})") from None
+            raise InputFileError(
+                self.path,
+                f"bad 'intrinsics' attribute ({exc}); it must be {{fx, fy, cx, cy, width, "
+                "height} (px; width and height optional) or [fx, fy, cx, cy]",
+            ) from None
         self.fps = self._checked_fps(attrs.get("fps"))
         self.sensor = check_sensor_kind(attrs.get("sensor"), self.path, "attribute 'sensor'")
         if "timestamps" in group:
@@ -294,7 +309,18 @@ class ZarrReader(FrameReader):
         source = group.get("source")  # a fused output's per-pixel flags
         self._source = source if source is not None and source.shape == (t, h, w) else None
         self._t = int(t)
-        self.notes = ("zarr v3 store, float32 depth in mm",)
+        self.notes = (f"zarr v{group.metadata.zarr_format} store, float32 depth in mm",)
+
+    def _check_camera_size(self, cam: dict[str, Any], width: int, height: int) -> None:
+        """Refuse an ``intrinsics`` attribute whose ``width`` / ``height`` (px, optional)
+        differ from the arrays' (its cx, cy would be another image's)."""
+        w, h = (None if cam.get(key) is None else int(cam[key]) for key in ("width", "height"))
+        if (w is not None and w != width) or (h is not None and h != height):
+            raise InputFileError(
+                self.path,
+                f"attribute 'intrinsics': camera size {w}x{h} does not match the "
+                f"{width}x{height} frames (WxH) of 'depth'",
+            )
 
     def _checked_fps(self, value: Any) -> float | None:
         """The ``fps`` attribute: a number > 0 (frames/s), or None where absent."""
@@ -341,7 +367,8 @@ class ZarrReader(FrameReader):
 
     def read_intensity(self, index: int) -> NDArray[np.float32]:
         """Frame ``index``'s intensity alone (the depth chunk is not read), float32 in [0, 1]
-        (integers scaled by their type's maximum).
+        (uint8 and uint16 divided by 255 and 65535, bool 0 and 1, as
+        :func:`fuse4d.sequence.normalize_intensity` does).
 
         NaN reads as 0: what :class:`ZarrWriter` stores for unknown intensity (its earlier
         versions stored the NaN itself, which no reader took).
@@ -349,7 +376,9 @@ class ZarrReader(FrameReader):
         Raises
         ------
         InputFileError
-            Damaged chunk, or float values outside [0, 1] (inf included).
+            Damaged chunk, float values outside [0, 1] (inf included), or an integer type
+            other than uint8 and uint16 (int16, uint32, ...: its range says nothing of the
+            image's white level).
         """
         k = self._index(index)
         try:
@@ -357,6 +386,13 @@ class ZarrReader(FrameReader):
         except _READ_ERRORS as exc:
             raise InputFileError(self.path, f"cannot read chunk ({exc})", frame=k) from None
         if raw.dtype.kind in "ui":
+            if raw.dtype.kind == "i" or raw.dtype.itemsize > 2:
+                raise InputFileError(
+                    self.path,
+                    f"'intensity' has integer dtype {raw.dtype}, which does not say its bit "
+                    "depth; store uint8 (0-255), uint16 (0-65535) or float in [0, 1]",
+                    frame=k,
+                )
             return raw.astype(np.float32) / np.float32(np.iinfo(raw.dtype).max)
         inten = raw.astype(np.float32)
         unknown = np.isnan(inten)
