@@ -40,7 +40,7 @@ def detect_sensor_format(path: str | PathLike[str]) -> str | None:
 
     Files are recognised by their first bytes (``#ROSBAG V2.0``, ``SQLite format 3``,
     ``\\x89MCAP``, the EBML signature of Matroska), whatever their extension; folders by a
-    rosbag2 ``metadata.yaml`` or a zarr v3 ``zarr.json``.
+    rosbag2 ``metadata.yaml`` or a zarr store (v3 ``zarr.json``, v2 ``.zgroup``).
     """
     p = Path(path)
     if bag_kind(p) is not None:
