@@ -761,3 +761,91 @@ def test_an_npz_output_records_the_runs_parameters(ball_npz, tmp_path, capsys):
     again = tmp_path / "again.npz"  # an output fused again records its own run
     assert main(["run", str(out), "-o", str(again), "--window", "5", "--no-summary"]) == 0
     assert json.loads(str(read_npz_extra(again)[NPZ_PARAMS_KEY]))["fusion"]["num_frames"] == 5
+
+
+def test_bench_setup_is_apart_from_the_steady_rate_in_both_modes(tmp_path, monkeypatch):
+    """Building the engine (and, for a recording, opening reader and writer) is one-off
+    setup, apart from ``ms_per_frame`` in both modes: ``--input`` had it in its total and no
+    row showed it, while the synthetic bench built its engine before the clock."""
+    import time
+    from types import SimpleNamespace
+
+    import fuse4d.run as run_module
+    from fuse4d.experiments import speed
+
+    class Slow(speed.FusionEngine):
+        def __init__(self, *args, **kwargs):
+            time.sleep(0.3)  # the committed ring buffers of a large window
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(speed, "FusionEngine", Slow)
+    synthetic = speed.benchmark_pipeline("fast", small=True, num_frames=3, window=3)
+    assert synthetic.setup_ms >= 300
+    assert synthetic.wall_ms_per_frame == pytest.approx(
+        synthetic.ms_per_frame + synthetic.setup_ms / 3
+    )
+    covers = synthetic.to_dict()["covers"]
+    assert "setup excluded" in covers["ms_per_frame"]
+
+    def streaming(**kwargs):  # 0.4 s of setup (recorded), 0.1 s of frames
+        time.sleep(0.5)
+        timings = {"flow": 0.05, "read": 0.02, "setup": 0.4}
+        return SimpleNamespace(frames=2, flow_method="dis", shape=(4, 4), timings=timings)
+
+    monkeypatch.setattr(run_module, "_fuse_streaming", streaming)
+    src = _ball_folder(tmp_path, frames=3)
+    recording = speed.benchmark_recording(src, num_frames=2, window=2)
+    assert recording.setup_ms == pytest.approx(400)
+    assert 50 <= recording.ms_per_frame < 150  # 0.1 s over 2 frames, not 250 ms
+    assert "setup" not in recording.stage_ms
+    assert recording.stage_ms["flow"] == pytest.approx(25)
+    assert recording.wall_ms_per_frame >= 250
+
+
+def test_bench_engine_out_of_memory_is_a_parameter_error(monkeypatch, capsys):
+    """A MemoryError building the engine (a large --window) was an internal error."""
+    from fuse4d.experiments import speed
+
+    class Huge(speed.FusionEngine):
+        def __init__(self, *args, **kwargs):
+            raise MemoryError
+
+    monkeypatch.setattr(speed, "FusionEngine", Huge)
+    with pytest.raises(ParameterError, match=r"window=3 \(--window\).* 150x150 px"):
+        speed.benchmark_pipeline("fast", small=True, num_frames=3, window=3)
+    assert main(["bench", "--small", "--frames", "3", "--window", "3"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("fuse4d: error:") == 1
+    assert "--window" in err
+    assert "internal error" not in err
+
+
+def test_bench_warns_of_a_window_longer_than_the_frames_timed(tmp_path):
+    """`bench --small --window 30` on 18 frames headed '30-frame window' and never reached
+    it; both modes now say so."""
+    from fuse4d.experiments import speed
+
+    with pytest.warns(UserWarning, match="window 4 is longer than the 3 frames timed"):
+        speed.benchmark_pipeline("fast", small=True, num_frames=3, window=4)
+    src = _ball_folder(tmp_path, frames=3)
+    with pytest.warns(UserWarning, match="window 5 is longer than the 3 frames timed"):
+        speed.benchmark_recording(src, num_frames=10, window=5, summary=False)
+
+
+def test_a_streaming_run_records_its_setup_apart_from_the_frames(tmp_path, capsys):
+    """The streaming run times its one-off setup (reader, writer, engine; closing) as
+    timings['setup']: --json gives it as setup_ms, not as a per-frame stage, and bench
+    --input takes it out of its steady rate (it was hidden in the total)."""
+    import json
+
+    from fuse4d.experiments import speed
+
+    src = _ball_folder(tmp_path, frames=4)
+    assert main(["run", str(src), "-o", str(tmp_path / "o"), "--window", "3", "--json"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record["setup_ms"] > 0
+    assert "setup" not in record["timings_ms_per_frame"]
+    bench = speed.benchmark_recording(src, num_frames=4, window=3)
+    assert math.isfinite(bench.setup_ms)
+    assert bench.setup_ms > 0
+    assert bench.wall_ms_per_frame > bench.ms_per_frame

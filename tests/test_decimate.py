@@ -160,3 +160,31 @@ def test_cli_live_decimate_larger_than_the_image_is_one_error_line(tmp_path, cap
     assert err.count("fuse4d: error:") == 1
     assert f"{path}: --decimate 8" in err
     assert "smaller than one 8 x 8 block" in err
+
+
+@pytest.mark.parametrize("factor", [1, 2, 4])
+def test_depth_zero_negative_and_inf_are_invalid_like_nan(factor):
+    """0 (a 16-bit file's invalid), negative and inf depths are no measurement: never the
+    block's median nor part of its mean (they were: a half-empty uint16 block gave 0 mm)."""
+    assert decimate_depth(np.array([[0, 0], [1000, 1002]], np.uint16), 2).tolist() == [[1000.0]]
+    depth = np.full((4, 4), 1000.0, np.float32)
+    depth[:2] = [[0, -5, np.inf, -np.inf], [0, 0, 0, 0]]
+    expected = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan)
+    out = decimate_depth(depth, factor)
+    np.testing.assert_array_equal(out, _oracle(expected, factor) if factor > 1 else expected)
+    if factor == 4:
+        assert out.tolist() == [[1000.0]]  # the mean of the valid half, not 500 mm or inf
+    empty = decimate_depth(np.zeros((4, 4), np.uint16), factor)
+    assert np.isnan(empty).all()
+
+
+def test_integer_intensity_is_scaled_to_unit_range():
+    """uint8 intensity is value / 255 here as everywhere (it came out as 0-255 floats)."""
+    u8 = np.array([[0, 255], [255, 255]], np.uint8)
+    assert decimate_intensity(u8, 2).tolist() == [[0.75]]
+    u16 = np.array([[0, 65535], [65535, 65535]], np.uint16)
+    assert decimate_intensity(u16, 2).tolist() == [[0.75]]
+    floats = np.array([[0.0, 0.5], [0.5, 1.0]], np.float32)  # floats kept as they are
+    assert decimate_intensity(floats, 2).tolist() == [[0.5]]
+    with pytest.raises(TypeError, match="does not say its bit depth"):
+        decimate_intensity(np.ones((2, 2), np.int32), 2)

@@ -11,11 +11,17 @@ for about a quarter of the work. Like the SDK's filter, each f x f block of dept
 * for f >= 4, their **mean**;
 * invalid (NaN) where the block has no valid depth.
 
+Depth 0 (a 16-bit file's "no measurement"), negative and infinite values are invalid as NaN
+is, as everywhere in fuse4d (:func:`fuse4d.sequence.sanitize_depth`): never averaged into a
+block.
+
 Tested against ``rs.decimation_filter`` (``tests/test_decimate.py``: equal for f = 2, within
 its integer truncation for f = 4). Two deliberate differences from the SDK: the output is
 ``(H // f, W // f)`` (the SDK pads width and height up to a multiple of 4), and the principal
 point keeps the pixel-centre convention of :meth:`Intrinsics.scaled`, ``(c + 0.5) / f - 0.5``,
-where the SDK reports ``c / f`` (0.25 px apart at f = 2). The intensity is the block mean.
+where the SDK reports ``c / f`` (0.25 px apart at f = 2). The intensity is the block mean,
+in [0, 1] (uint8 and uint16 intensity are scaled as :func:`fuse4d.sequence.normalize_intensity`
+does).
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ from ._kernels.decimate import _decimate_depth_kernel
 from ._validation import as_float32
 from .camera import Intrinsics
 from .errors import ParameterError
+from .sequence import normalize_intensity
 
 __all__ = [
     "MAX_DECIMATION",
@@ -66,9 +73,10 @@ def decimate_depth(depth: ArrayLike, factor: int) -> NDArray[np.float32]:
     Parameters
     ----------
     depth : (H, W) array
-        Depth in mm, NaN = invalid.
+        Depth in mm; NaN, 0 (a 16-bit file's invalid), negative and infinite values are
+        invalid.
     factor : int
-        Block side f, 1-8 (1 returns a float32 copy).
+        Block side f, 1-8 (1 returns a float32 copy, the invalid values NaN).
 
     Returns
     -------
@@ -86,16 +94,33 @@ def decimate_depth(depth: ArrayLike, factor: int) -> NDArray[np.float32]:
     d = as_float32(depth, name="depth")
     _check_size(d.shape, f, "depth")
     if f == 1:
-        return d.copy()
+        return np.where(np.isfinite(d) & (d > 0), d, np.float32(np.nan))
     out = np.empty((d.shape[0] // f, d.shape[1] // f), np.float32)
     _decimate_depth_kernel(np.ascontiguousarray(d), f, f <= 3, out)
     return out
 
 
 def decimate_intensity(intensity: ArrayLike, factor: int) -> NDArray[np.float32]:
-    """Mean of each ``factor`` x ``factor`` block of a (H, W) intensity image (float32)."""
+    """Mean of each ``factor`` x ``factor`` block of a (H, W) intensity image (float32).
+
+    Parameters
+    ----------
+    intensity : (H, W) array
+        Float intensity in [0, 1] (kept as it is), or uint8 / uint16 / bool (divided by 255 /
+        65535, as :func:`fuse4d.sequence.normalize_intensity`; other integer types refused).
+    factor : int
+        Block side f, 1-8.
+
+    Returns
+    -------
+    (H // f, W // f) ndarray of float32
+        The block means, in the input's [0, 1] scale.
+    """
     f = _check_factor(factor)
-    i = as_float32(intensity, name="intensity")
+    i = np.asarray(intensity)
+    # integers are scaled as everywhere else (uint8 / 255); floats are taken as they are,
+    # frame by frame (no per-frame rescaling of out-of-range floats)
+    i = normalize_intensity(i) if i.dtype.kind in "biu" else as_float32(i, name="intensity")
     _check_size(i.shape, f, "intensity")
     h, w = i.shape[0] // f, i.shape[1] // f
     if f == 1:

@@ -15,7 +15,7 @@ __all__ = ["_decimate_depth_kernel"]
 
 @njit
 def _decimate_depth_kernel(depth, factor, use_median, out):  # pragma: no cover - compiled
-    """``out[v, u]`` from the valid (finite) depths of block ``depth[f v : f v + f, f u :
+    """``out[v, u]`` from the valid (finite, > 0) depths of block ``depth[f v : f v + f, f u :
     f u + f]`` (f = ``factor``): their lower median (``use_median``; the ((n - 1) // 2)-th of
     the n sorted values, a measured depth) or their mean; NaN when the block has none.
 
@@ -31,7 +31,7 @@ def _decimate_depth_kernel(depth, factor, use_median, out):  # pragma: no cover 
                 row = v * factor + dv
                 for du in range(factor):
                     d = depth[row, u * factor + du]
-                    if not np.isnan(d):
+                    if d > 0.0 and d < np.inf:  # False for NaN, 0, negative, inf
                         if use_median:  # insertion into the sorted prefix
                             j = n
                             while j > 0 and values[j - 1] > d:

@@ -661,9 +661,22 @@ def bench_command(
         table.add_column("ms/frame", justify="right")
         for stage, ms in r.stage_ms.items():
             table.add_row(stage, f"{ms:.1f}")
-        table.add_row("[bold]total (wall)", f"[bold]{r.ms_per_frame:.1f}")
+        table.add_row("[bold]steady (wall)", f"[bold]{r.ms_per_frame:.1f}")
+        if math.isfinite(r.setup_ms):
+            table.add_row("setup (once)", f"{r.setup_ms:.0f} ms")
+            table.add_row("total (wall, setup spread)", f"{r.wall_ms_per_frame:.1f}")
         table.add_row("per pixel", f"{r.us_per_pixel:.3f} µs")
         out_console.print(table)
+        out_console.print(
+            "steady: from the engine built to the last frame out; setup: the engine (and a "
+            "recording's reader and writer) opened and closed, once"
+            + (
+                "; read/write overlap the fusion, and flow is the wait for its worker thread"
+                if r.input
+                else ""
+            ),
+            soft_wrap=True,
+        )
         held = f", {r.input_mb:.0f} MiB of it the frames held in memory" if r.input_mb else ""
         out_console.print(
             f"warm-up {r.warmup_s:.1f} s, peak RSS {r.peak_rss_mb:.0f} MiB during the timed "

@@ -8,22 +8,31 @@ resident memory of the process; or
 ``fuse4d run``'s streaming path, reading, writing and the summary included as stages. Both
 time the centred engine or, with ``causal=True`` (``fuse4d bench --causal``), the causal one
 (every frame fused with its n - 1 predecessors, as ``fuse4d live``), stage by stage alike.
+
+One rule for both: :attr:`BenchResult.ms_per_frame` is the steady cost per frame, the
+one-off set-up and tear-down (building the engine's buffers and closing it; for a recording
+also opening the reader and the writer and closing them) apart in
+:attr:`BenchResult.setup_ms`.
 """
 
 from __future__ import annotations
 
 import contextlib
 import gc
+import math
 import resource
 import sys
 import tempfile
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..camera import Intrinsics
+from ..config import FlowConfig, FusionParams
 from ..config import preset as get_preset
 from ..errors import ParameterError
 from ..flying_pixels import resolve_flying_pixels
@@ -46,16 +55,24 @@ class BenchResult:
     frames : int
         Frames timed (after the warm-up).
     window : int
-        Frames fused per output frame.
+        Frames fused per output frame (configured; with fewer ``frames`` than it no output
+        fuses more than ``frames``, and the benchmark warns).
     causal : bool
         The causal engine (no look-ahead) instead of the centred one.
     ms_per_frame : float
-        Wall time per output frame, end to end (flows included; I/O included only for a
-        recording).
+        Steady wall time per output frame, ms: from the engine built to the last frame out
+        (flows included; for a recording also the I/O and the summary), the one-off
+        ``setup_ms`` excluded in both modes.
     stage_ms : dict
         ms per frame of each stage. For a recording also ``read`` / ``write`` (decode and
         encode, in their own threads, overlapping the fusion), ``summary`` (before/after
-        tally) and ``io_wait`` (fusion waiting on I/O).
+        tally) and ``io_wait`` (fusion waiting on I/O). With the flow overlapped (a
+        recording), ``flow`` is only the fusion's wait for the flow worker thread.
+    setup_ms : float
+        One-off set-up and tear-down, ms in all (not per frame): building the engine (its
+        ring buffers) and closing it; for a recording also opening the reader and the writer
+        and closing them. NaN where the run did not measure it (``ms_per_frame`` then
+        includes it).
     warmup_s : float
         Wall time of the warm-up run (numba compilation or cache load included).
     peak_rss_mb : float
@@ -79,11 +96,19 @@ class BenchResult:
     input: str = ""
     input_mb: float = 0.0
     causal: bool = False
+    setup_ms: float = 0.0
 
     @property
     def us_per_pixel(self) -> float:
         """Wall time per output pixel (µs): compares frame sizes."""
         return 1000.0 * self.ms_per_frame / (self.size[0] * self.size[1])
+
+    @property
+    def wall_ms_per_frame(self) -> float:
+        """Wall time per output frame with the one-off ``setup_ms`` spread over the frames
+        (ms): the whole run's."""
+        setup = self.setup_ms if math.isfinite(self.setup_ms) else 0.0
+        return self.ms_per_frame + setup / max(self.frames, 1)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly form."""
@@ -95,13 +120,28 @@ class BenchResult:
             "window": self.window,
             "causal": self.causal,
             "ms_per_frame": self.ms_per_frame,
+            "setup_ms": self.setup_ms,
+            "wall_ms_per_frame": self.wall_ms_per_frame,
             "stage_ms": self.stage_ms,
             "warmup_s": self.warmup_s,
             "peak_rss_mb": self.peak_rss_mb,
             "input_mb": self.input_mb,
             "input": self.input,
             "us_per_pixel": self.us_per_pixel,
+            "covers": FIGURES,
         }
+
+
+#: What each figure of :meth:`BenchResult.to_dict` covers (``fuse4d bench --json``).
+FIGURES = {
+    "ms_per_frame": "steady wall ms per frame: engine built to last frame out, setup excluded",
+    "setup_ms": "one-off ms in all: engine built and closed (a recording: reader and writer "
+    "opened and closed too)",
+    "wall_ms_per_frame": "ms_per_frame + setup_ms / frames: the whole run per frame",
+    "stage_ms": "ms per frame of each stage, setup excluded; read/write overlap the fusion in "
+    "their own threads; with the flow overlapped (--input) flow is the wait for its worker",
+    "us_per_pixel": "ms_per_frame per pixel, microseconds",
+}
 
 
 def _peak_rss_mb() -> float:
@@ -124,6 +164,35 @@ def _reset_peak_rss() -> None:
         Path("/proc/self/clear_refs").write_text("5")
 
 
+def _window_warning(window: int, frames: int) -> None:
+    """Warn that a run of ``frames`` frames never reaches a ``window``-frame window."""
+    if frames < window:
+        warnings.warn(
+            f"window {window} is longer than the {frames} frames timed: no output fuses more "
+            f"than {frames} frames; time at least {window} frames (--frames) for the steady "
+            f"state of a {window}-frame window",
+            stacklevel=3,
+        )
+
+
+def _engine(
+    intrinsics: Intrinsics,
+    fusion: FusionParams,
+    flow: FlowConfig,
+    timings: dict[str, float] | None = None,
+) -> FusionEngine:
+    """The engine of the synthetic bench; its buffers not fitting in memory are a
+    :class:`ParameterError` naming the window and the frame size."""
+    try:
+        return FusionEngine(intrinsics, fusion=fusion, flow=flow, timings=timings)
+    except MemoryError:
+        raise ParameterError(
+            f"window={fusion.num_frames} (--window): the engine's buffers for a "
+            f"{fusion.num_frames}-frame window of {intrinsics.width}x{intrinsics.height} px "
+            "frames do not fit in memory; use a smaller window"
+        ) from None
+
+
 def benchmark_pipeline(
     preset: str = "fast",
     *,
@@ -141,7 +210,8 @@ def benchmark_pipeline(
     small : bool
         Use the 150x150 CI scene instead of 600x600.
     num_frames : int
-        Frames pushed through the engine in the timed run (>= window for steady state).
+        Frames pushed through the engine in the timed run (>= window for steady state; a
+        warning otherwise).
     window : int
         ``num_frames`` of the fusion (frames fused per output).
     causal : bool
@@ -151,6 +221,17 @@ def benchmark_pipeline(
         Frames to time instead of the ball (its first ``num_frames``; ``small`` is ignored):
         a loaded recording's compute alone, without the reading and writing of
         :func:`benchmark_recording`.
+
+    Returns
+    -------
+    BenchResult
+        ``ms_per_frame`` from the engine built to its flush; building and closing the engine
+        in ``setup_ms``.
+
+    Raises
+    ------
+    ParameterError
+        No frame to time, or the ball or the engine's buffers do not fit in memory.
     """
     chosen = get_preset(preset)
     try:
@@ -176,26 +257,34 @@ def benchmark_pipeline(
     if not frames:
         raise ParameterError("benchmark_pipeline: the sequence has no frame to time")
 
-    def run_once() -> tuple[float, dict[str, float]]:
+    _window_warning(window, len(frames))
+
+    def run_once() -> tuple[float, float, dict[str, float]]:
+        """(steady seconds, setup seconds, stage seconds) of one timed run."""
         timings = dict.fromkeys(STAGES, 0.0)
-        engine = FusionEngine(intrinsics, fusion=fusion, flow=chosen.flow, timings=timings)
+        setup_start = time.perf_counter()
+        engine = _engine(intrinsics, fusion, chosen.flow, timings)
         start = time.perf_counter()
         emitted = 0
         for depth, intensity in frames:
             emitted += len(engine.push(depth, intensity))
         emitted += len(engine.flush())
-        return time.perf_counter() - start, timings
+        end = time.perf_counter()
+        engine.close()
+        setup = (start - setup_start) + (time.perf_counter() - end)
+        return end - start, setup, timings
 
     warm_start = time.perf_counter()
-    engine = FusionEngine(intrinsics, fusion=fusion, flow=chosen.flow)
+    engine = _engine(intrinsics, fusion, chosen.flow)
     for d, i in frames[: min(3, len(frames))]:
         engine.push(d, i)
     engine.flush()
+    engine.close()
     del engine  # (its ring buffers are not part of the timed run's memory)
     warmup = time.perf_counter() - warm_start
     gc.collect()
     _reset_peak_rss()
-    seconds, timings = run_once()
+    seconds, setup, timings = run_once()
     n = len(frames)
     return BenchResult(
         preset=preset,
@@ -209,6 +298,7 @@ def benchmark_pipeline(
         peak_rss_mb=_peak_rss_mb(),
         causal=causal,
         input_mb=(depth.nbytes + intensity.nbytes) / 2**20,
+        setup_ms=1000.0 * setup,
     )
 
 
@@ -243,6 +333,13 @@ def benchmark_recording(
         Passed to :func:`~fuse4d.io.open_frames`.
     causal : bool
         Time the causal engine (``fuse4d run --causal``) instead of the centred one.
+
+    Returns
+    -------
+    BenchResult
+        ``ms_per_frame`` without the one-off ``setup_ms`` (opening the reader and the writer,
+        building the engine, closing them: ``timings["setup"]`` of the streaming run), as
+        :func:`benchmark_pipeline`'s.
     """
     from ..io import detect_format
     from ..run import _fuse_streaming
@@ -278,14 +375,21 @@ def benchmark_recording(
         run = _fuse_streaming(**common, dst=Path(tmp) / "out", limit=num_frames)
         seconds = time.perf_counter() - start
     n = max(run.frames, 1)
+    _window_warning(window, run.frames)
+    timings = dict(run.timings)
+    # the one-off set-up and tear-down, where the streaming run measured it (NaN: not
+    # measured, and left in ms_per_frame)
+    setup = timings.pop("setup", math.nan)
+    steady = seconds - setup if math.isfinite(setup) else seconds
     return BenchResult(
         preset=preset,
         flow_method=run.flow_method,
         size=run.shape,
         frames=run.frames,
         window=window,
-        ms_per_frame=1000.0 * seconds / n,
-        stage_ms={k: 1000.0 * v / n for k, v in run.timings.items()},
+        ms_per_frame=1000.0 * steady / n,
+        setup_ms=1000.0 * setup,
+        stage_ms={k: 1000.0 * v / n for k, v in timings.items()},
         warmup_s=warmup,
         peak_rss_mb=_peak_rss_mb(),
         input=str(src),
