@@ -753,3 +753,21 @@ def test_dark_intensity_warned_once_with_the_recordings_frame_numbers(
     assert len(messages) == 1
     seen = min(8, chunk_frames + 4)  # the first chunk and its look-ahead halo (window 9)
     assert messages[0].startswith(f"intensity (frames 0-{seen - 1}) is dark")
+
+
+@pytest.mark.parametrize("iterations", [2, 3])
+def test_filled_flags_are_the_last_passs_chunked_as_in_memory(iterations):
+    """With iterations > 1 the chunked ``filled`` (Eq. 6) was ORed over the passes while
+    support and source were the last pass's: flagged pixels had support > 0 and were fused."""
+    from fuse4d.holes import SOURCE_MEASURED
+    from fuse4d.range_scenes import make_range_scene
+
+    seq = make_range_scene("ball", sensor="tof", small=True, num_frames=6, rng=0)
+    fusion = FusionParams(num_frames=3, fill_holes=True, iterations=iterations, flying_pixels="on")
+    ref = fuse_sequence(seq.depth, seq.intensity, seq.intrinsics, fusion=fusion)
+    res = fd.fuse(seq.depth, seq.intensity, seq.intrinsics, fusion=fusion, chunk_frames=2)
+    support, filled, source = dask.compute(res.support, res.filled, res.source, scheduler="sync")
+    assert _same(filled, ref.filled)
+    assert filled.any()
+    assert (support[filled] == 0).all()  # filled: no temporal support (Eq. 6)
+    assert (source[filled] == SOURCE_MEASURED).all()

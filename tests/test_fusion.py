@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 
 import numpy as np
 import pytest
@@ -1719,3 +1720,121 @@ def test_composed_tracks_do_not_depend_on_where_the_engine_started(rng):
     for t in range(start + params.past_frames, 9 - params.future_frames):
         np.testing.assert_array_equal(late.points[t - start], full.points[t])
         np.testing.assert_array_equal(late.support[t - start], full.support[t])
+
+
+def test_engine_buffer_estimate_is_what_the_engine_allocates():
+    """The memory check's estimate (``_engine_buffer_bytes``) follows the buffers the
+    engine allocates, composed tracks (A31) or exact."""
+    import tracemalloc
+
+    from fuse4d.fusion import _engine_buffer_bytes
+
+    FusionEngine(K).close()  # imports and caches outside the measurement
+    for params in (FusionParams(), FusionParams(num_frames=16, tracks="exact", causal=True)):
+        tracemalloc.start()
+        try:
+            engine = FusionEngine(K, fusion=params)
+            held = tracemalloc.get_traced_memory()[0]
+        finally:
+            tracemalloc.stop()
+        estimate = _engine_buffer_bytes(params, H, W, engine.ring)
+        assert estimate <= held < 1.05 * estimate
+
+
+def test_engine_refuses_a_window_whose_buffers_do_not_fit(monkeypatch):
+    """--window 64 at 640x480 under a 4 GB address-space limit was an internal MemoryError
+    (33 x 63 composed-track tables); without a limit n = 256 needed ~50 GB (the OOM killer).
+    The engine refuses it up front, naming the window, the frame size, the memory and the
+    ways out, and turns a MemoryError of its allocations into the same error."""
+    import fuse4d.fusion as fusion_module
+    import fuse4d.motion as motion_module
+    from fuse4d.errors import ParameterError
+    from fuse4d.fusion import _engine_buffer_bytes
+
+    params = FusionParams(num_frames=64)
+    need = _engine_buffer_bytes(params, H, W, 64)
+    exact = _engine_buffer_bytes(params.replace(tracks="exact"), H, W, 64)
+    assert exact < need / 3  # the composed tables grow with the square of the window
+    monkeypatch.setattr(fusion_module, "available_memory", lambda: exact + 1)
+    message = (
+        r"num_frames=64 frames at 48x40 px needs about [\d.]+ MiB of fusion buffers, {}: "
+        r"use a smaller window"
+    )
+    fits = message.format(r"[\d.]+ MiB is available")
+    with pytest.raises(ParameterError, match=fits + r".*tracks='exact'"):
+        FusionEngine(K, fusion=params)
+    frames = [(np.full((H, W), 500.0), np.full((H, W), 0.5))] * 2
+    with pytest.raises(ParameterError, match=fits):  # the streaming face, at its start
+        next(fuse_stream(frames, K, fusion=params))
+    FusionEngine(K, fusion=params.replace(tracks="exact")).close()  # fits
+    monkeypatch.setattr(fusion_module, "available_memory", lambda: None)  # unknown: not checked
+
+    def failing(shape, dtype, value=0):
+        raise MemoryError(f"Unable to allocate an array with shape {shape}")
+
+    monkeypatch.setattr(motion_module, "committed", failing)
+    with pytest.raises(ParameterError, match=message.format("the allocation failed")):
+        FusionEngine(K, fusion=params)
+
+
+@pytest.mark.parametrize("iterations", [2, 3])
+def test_filled_flags_are_the_last_passs_with_iterations(iterations):
+    """``filled`` (Eq. 6) was ORed over the passes while support and source were the last
+    pass's: on a ToF ball 256 of 410 pixels flagged filled had support > 0 and were fused."""
+    from fuse4d.holes import SOURCE_MEASURED
+    from fuse4d.range_scenes import make_range_scene
+
+    seq = make_range_scene("ball", sensor="tof", small=True, num_frames=6, rng=0)
+    params = FusionParams(num_frames=3, fill_holes=True, iterations=iterations)
+    res = fuse_sequence(seq.depth, seq.intensity, seq.intrinsics, fusion=params, sensor="tof")
+    assert res.filled.any()
+    assert (res.support[res.filled] == 0).all()  # filled: no temporal support (Eq. 6)
+    assert (res.source[res.filled] == SOURCE_MEASURED).all()
+
+
+def test_fuse_stream_applies_flying_pixels_auto_for_the_sensor():
+    """fuse_stream had no sensor=: a ToF recording's frames were fused with flying-pixel
+    removal off ("auto" read as "off") where fuse4d run removed them."""
+    from fuse4d.holes import SOURCE_REJECTED
+    from fuse4d.range_scenes import make_range_scene
+
+    seq = make_range_scene("body", sensor="tof", small=True, num_frames=3, rng=0)
+    params = FusionParams(num_frames=3)
+    frames = list(zip(seq.depth, seq.intensity, strict=True))
+    streamed = list(fuse_stream(frames, seq.intrinsics, fusion=params, sensor="tof"))
+    ref = fuse_sequence(seq.depth, seq.intensity, seq.intrinsics, fusion=params, sensor="tof")
+    assert (ref.source == SOURCE_REJECTED).any()
+    for f in streamed:
+        np.testing.assert_array_equal(f.source, ref.source[f.index])
+        np.testing.assert_array_equal(f.points, ref.points[f.index])
+    plain = list(fuse_stream(frames, seq.intrinsics, fusion=params))  # unknown sensor: off
+    assert not any((f.source == SOURCE_REJECTED).any() for f in plain)
+
+
+def test_overlapped_flow_is_timed_in_its_worker(monkeypatch):
+    """With overlap_flow the ``flow`` stage is only the wait for the worker; the flow's own
+    seconds (2-19 ms/frame waited for 40-48 ms/frame of DIS in ``fuse4d bench --input``)
+    are ``timings["flow_worker"]``."""
+    from fuse4d.fusion import FLOW_WORKER, STAGES
+
+    pause = 0.03
+    flow_pair = FusionEngine._flow_pair
+
+    def slow_flow_pair(self, index, intensity=None):
+        time.sleep(pause)
+        return flow_pair(self, index, intensity)
+
+    monkeypatch.setattr(FusionEngine, "_flow_pair", slow_flow_pair)
+    depth, inten, _fwd, _bwd = _translating(4)
+    timings = dict.fromkeys(STAGES, 0.0)
+    with FusionEngine(
+        K, fusion=FusionParams(num_frames=3), timings=timings, overlap_flow=True
+    ) as e:
+        for t in range(4):
+            e.push(depth[t], inten[t])
+        e.flush()
+    assert timings[FLOW_WORKER] >= 3 * pause  # three pairs, each timed in the worker
+    serial = dict.fromkeys(STAGES, 0.0)
+    with FusionEngine(K, fusion=FusionParams(num_frames=3), timings=serial) as e:
+        e.push(depth[0], inten[0])
+    assert FLOW_WORKER not in serial  # no worker, no key (bench rows, summed stages)

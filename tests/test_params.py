@@ -531,3 +531,20 @@ def test_fusion_params_round_trip_through_to_dict():
     assert FusionParams.from_dict({"num_frames": "5"}) == FusionParams(num_frames=5)
     with pytest.raises(ParameterError, match="unknown parameter"):
         FusionParams.from_dict({"radius": 3})
+
+
+def test_min_temporal_support_above_the_windows_other_frames_is_refused(tiny, tmp_path, capsys):
+    """``--window 3 --set min_temporal_support=9`` was accepted and turned temporal fusion off
+    ('temporal support 0.0 %'): a pixel has at most num_frames - 1 other frames."""
+    with pytest.raises(ParameterError, match=r"min_temporal_support=9 with num_frames=3"):
+        FusionParams(num_frames=3, min_temporal_support=9)
+    with pytest.raises(ParameterError, match=r"min_temporal_support=3 with num_frames=3"):
+        FusionParams(min_temporal_support=3).replace(num_frames=3)
+    assert FusionParams(num_frames=3, min_temporal_support=2).min_temporal_support == 2
+    assert FusionParams(num_frames=1).min_temporal_support == 1  # one frame: no other anyway
+    src = save_sequence(tiny, tmp_path / "in.npz")
+    args = ["run", str(src), "-o", str(tmp_path / "out.npz"), "--window", "3"]
+    assert main([*args, "--set", "min_temporal_support=5"]) == 2
+    err = capsys.readouterr().err
+    assert "min_temporal_support=5 with num_frames=3" in err
+    assert "internal error" not in err

@@ -231,7 +231,8 @@ class FusionParams:
     min_temporal_support : int
         Pixels with fewer valid tracked frames (other than t) have no temporal support: they
         keep their bilateral-only value B^t (``fill_fallback``), or Eq. 6 fills them
-        (``fill_holes``).
+        (``fill_holes``). At most ``num_frames`` - 1 (ParameterError otherwise) where
+        ``num_frames`` > 1.
     fill_holes : bool
         Run the paper's gradient-directed hole filling (Eq. 6) on the pixels without temporal
         support. Off by default (our A35): its first-order extrapolation from the fused
@@ -316,6 +317,14 @@ class FusionParams:
 
     def __post_init__(self) -> None:
         validate(self)
+        # a pixel has at most num_frames - 1 other frames: a larger minimum turned temporal
+        # fusion off without a word (a window of one frame has none whatever the minimum)
+        if self.num_frames > 1 and self.min_temporal_support > self.num_frames - 1:
+            raise ParameterError(
+                f"FusionParams.min_temporal_support must be <= num_frames - 1 (the other frames "
+                f"of the window), got min_temporal_support={self.min_temporal_support} with "
+                f"num_frames={self.num_frames}: no pixel could be fused"
+            )
 
     @property
     def past_frames(self) -> int:

@@ -28,7 +28,7 @@ from ._kernels.fusion import _fuse_kernel, _project_to_rays_kernel, _static_smoo
 from ._kernels.holes import _put_on_rays_kernel, _source_confidence_kernel
 from ._kernels.noise import _finite_median32
 from ._kernels.smooth_base import _smooth_base_cols_kernel, _smooth_base_rows_kernel
-from ._memory import committed
+from ._memory import available_memory, committed
 from ._validation import as_float32, check_shape
 from .bilateral import _residual_bilateral, bilateral_filter_points
 from .camera import Intrinsics, check_intrinsics, depth_to_points
@@ -132,6 +132,11 @@ def curvature_f_critical(max_df: int, level: float = CURVATURE_TEST_LEVEL) -> ND
 #: the engine's timed stages (``timings`` keys, seconds); ``motion_reference`` includes the
 #: frame's noise model (A22: q, the median depth, sigma0)
 STAGES = ("flow", "bilateral", "motion_reference", "tracking", "fusion", "fill")
+#: seconds the flows took in the worker thread of ``overlap_flow`` (``timings`` key, present
+#: only with it): spent beside the :data:`STAGES` (during ``bilateral`` and
+#: ``motion_reference``), not in addition to them, so not part of a sum of the stages; the
+#: ``flow`` stage is then the wait for the worker only
+FLOW_WORKER = "flow_worker"
 
 
 @dataclass
@@ -243,7 +248,8 @@ class FusionEngine:
     on_pair : callable, optional
         ``on_pair(pair)`` receives each pair's flows, 3D motion and FB error as computed.
     timings : dict, optional
-        Accumulates seconds per stage (keys ``STAGES``).
+        Accumulates seconds per stage (keys ``STAGES``; with ``overlap_flow`` also
+        :data:`FLOW_WORKER`).
     initial_flow : (H, W, 2) ndarray, optional
         Resuming a stream: the forward flow of the pair just before the first pushed frame
         (see :meth:`forward_flow`), the warm start of the first pair, so that the frames
@@ -253,13 +259,20 @@ class FusionEngine:
         frame's motion reference and bilateral filter (OpenCV and the numba kernels release
         the GIL), instead of after them; while the worker runs, those kernels use one numba
         thread (the worker holds a core). The same flows and output bit for bit; the ``flow``
-        timing is then only the wait for the worker. ``fuse4d live``, :func:`fuse_sequence`
-        and :func:`fuse_stream` use it (on ``uva_cv2_person_turning``, centred 9, the engine
-        alone in six alternating pairs: median 65.8 -> 61.0 ms a frame, stop 39); ``fuse4d
-        run`` on a streamed recording and ``fuse4d bench`` do not: the first's read and write
-        threads already use the core the fusion leaves idle (0-2 ms a frame either way, within
-        noise), and the bench's flow stage is the flow's own time. Call :meth:`close` (or use
-        the engine as a context manager) to stop the worker.
+        timing is then only the wait for the worker, and ``timings["flow_worker"]``
+        (:data:`FLOW_WORKER`) the seconds the flows took in the worker thread. ``fuse4d
+        live``, :func:`fuse_sequence`, :func:`fuse_stream` and ``fuse4d run`` on a streamed
+        recording with its I/O threads (``io_queue`` > 0, also ``fuse4d bench --input``) use
+        it (on ``uva_cv2_person_turning``, centred 9, the engine alone in six alternating
+        pairs: median 65.8 -> 61.0 ms a frame, stop 39); ``fuse4d bench`` on a synthetic
+        scene does not: its flow stage is the flow's own time. Call :meth:`close` (or use the
+        engine as a context manager) to stop the worker.
+
+    Raises
+    ------
+    ParameterError
+        If the engine's buffers, all allocated here (the composed tracks of a large window
+        grow with its square), need more memory than is available to the process.
     """
 
     def __init__(
@@ -316,60 +329,72 @@ class FusionEngine:
                 "(num_frames=1) or give larger frames",
             )
         s = self.ring
-        # every ring buffer is written now (committed), not during the first frames
-        self._depth = committed((s, h, w), np.float32, np.nan)
-        # A36: the flying pixels removed from each frame's raw depth (None: "off" / "auto")
-        self._rejected = committed((s, h, w), np.bool_, False) if p.flying_pixels == "on" else None
-        # A38: first and last valid pixel of each row / column of each frame (its part of the
-        # sensor's field of view), computed once per frame
-        self._row_extent = committed((s, h, 2), np.int32, 0)
-        self._col_extent = committed((s, w, 2), np.int32, 0)
-        # (x_n, y_n, 1) of every pixel: depth z on the pixel's ray is z * ray (filled holes)
-        self._rays = depth_to_points(np.ones((h, w), np.float32), intrinsics)
-        # per-frame depth-noise model sigma(z) = max(sigma0, quad z^2) (A22) and median depth z_med
-        # (mm, for the gate and delta_d): (sigma0, quad, z_med)
-        self._noise = np.zeros((s, 3), np.float64)
-        self._input_quad = np.full(s, np.nan)  # q of each frame's depth as pushed
-        self._intensity = committed((s, h, w), np.float32, 0.0)
-        self._bilateral = committed((s, h, w, 3), np.float32, np.nan)
-        # the residual bilateral's planar inputs, rebuilt every frame (_residual_bilateral)
-        self._bilateral_scratch = (
-            committed((2, 3, h, w), np.float32, 0.0) if p.bilateral == "residual" else None
-        )
-        # local reference surface (A17, A18) and motion reference P~ (A3)
-        self._smooth = committed((s, h, w, 3), np.float32, np.nan)
-        # with motion_sigma == reference_sigma (the default) D~ and the local reference are the
-        # same surface: one buffer, computed once per frame
-        self._shared_reference = p.motion_depth == "smoothed" and (
-            p.motion_sigma == p.reference_sigma
-        )
-        self._reference = (
-            self._smooth if self._shared_reference else committed((s, h, w, 3), np.float32, np.nan)
-        )
-        self._fwd = committed((s, h, w, 2), np.float32, 0.0)
-        self._bwd = committed((s, h, w, 2), np.float32, 0.0)
-        # the tracks of the frame being emitted (landing row, column, validity per other
-        # frame of the window): one set of buffers, refilled for every output frame
-        k = self.past + self.future
-        # A31: tracks composed as the pairs arrive (None: each output frame chains its own)
-        composed = p.tracks == "composed" and p.quantize == "final" and k > 0
-        self._composed = _ComposedTracks(h, w, self.past, self.future) if composed else None
-        kt = 0 if composed else k
-        self._tracks = (
-            committed((kt, h, w), np.int32, 0),
-            committed((kt, h, w), np.int32, 0),
-            committed((kt, h, w), np.bool_, False),
-        )
-        # the holes that the tracking pass fills from time (A26, :meth:`_time_fill`) and its
-        # output, refilled for every output frame; not with quantize="per_step" (the fill's
-        # chains take bilinear flow samples where those tracks round every step)
-        chained_fill = p.fill_from_time and not composed and k > 0 and p.quantize == "final"
-        hf, wf = (h, w) if chained_fill else (0, 0)
-        self._fill_target = committed((hf, wf), np.bool_, False)
-        self._fill_samples = (
-            committed((hf, wf, 3), np.float32, np.nan),
-            committed((hf, wf), np.uint8, 0),
-        )
+        # the buffers below are all allocated now: refuse a window whose buffers cannot fit
+        # (the composed tracks grow with the square of the window) with a ParameterError
+        # instead of a MemoryError or the system's OOM killer
+        available = available_memory()
+        _check_engine_memory(p, h, w, s, available)
+        try:
+            # every ring buffer is written now (committed), not during the first frames
+            self._depth = committed((s, h, w), np.float32, np.nan)
+            # A36: the flying pixels removed from each frame's raw depth (None: "off" / "auto")
+            self._rejected = (
+                committed((s, h, w), np.bool_, False) if p.flying_pixels == "on" else None
+            )
+            # A38: first and last valid pixel of each row / column of each frame (its part of the
+            # sensor's field of view), computed once per frame
+            self._row_extent = committed((s, h, 2), np.int32, 0)
+            self._col_extent = committed((s, w, 2), np.int32, 0)
+            # (x_n, y_n, 1) of every pixel: depth z on the pixel's ray is z * ray (filled holes)
+            self._rays = depth_to_points(np.ones((h, w), np.float32), intrinsics)
+            # per-frame depth-noise model sigma(z) = max(sigma0, quad z^2) (A22) and median
+            # depth z_med (mm, for the gate and delta_d): (sigma0, quad, z_med)
+            self._noise = np.zeros((s, 3), np.float64)
+            self._input_quad = np.full(s, np.nan)  # q of each frame's depth as pushed
+            self._intensity = committed((s, h, w), np.float32, 0.0)
+            self._bilateral = committed((s, h, w, 3), np.float32, np.nan)
+            # the residual bilateral's planar inputs, rebuilt every frame (_residual_bilateral)
+            self._bilateral_scratch = (
+                committed((2, 3, h, w), np.float32, 0.0) if p.bilateral == "residual" else None
+            )
+            # local reference surface (A17, A18) and motion reference P~ (A3)
+            self._smooth = committed((s, h, w, 3), np.float32, np.nan)
+            # with motion_sigma == reference_sigma (the default) D~ and the local reference are the
+            # same surface: one buffer, computed once per frame
+            self._shared_reference = p.motion_depth == "smoothed" and (
+                p.motion_sigma == p.reference_sigma
+            )
+            self._reference = (
+                self._smooth
+                if self._shared_reference
+                else committed((s, h, w, 3), np.float32, np.nan)
+            )
+            self._fwd = committed((s, h, w, 2), np.float32, 0.0)
+            self._bwd = committed((s, h, w, 2), np.float32, 0.0)
+            # the tracks of the frame being emitted (landing row, column, validity per other
+            # frame of the window): one set of buffers, refilled for every output frame
+            k = self.past + self.future
+            # A31: tracks composed as the pairs arrive (None: each output frame chains its own)
+            composed = p.tracks == "composed" and p.quantize == "final" and k > 0
+            self._composed = _ComposedTracks(h, w, self.past, self.future) if composed else None
+            kt = 0 if composed else k
+            self._tracks = (
+                committed((kt, h, w), np.int32, 0),
+                committed((kt, h, w), np.int32, 0),
+                committed((kt, h, w), np.bool_, False),
+            )
+            # the holes that the tracking pass fills from time (A26, :meth:`_time_fill`) and its
+            # output, refilled for every output frame; not with quantize="per_step" (the fill's
+            # chains take bilinear flow samples where those tracks round every step)
+            chained_fill = p.fill_from_time and not composed and k > 0 and p.quantize == "final"
+            hf, wf = (h, w) if chained_fill else (0, 0)
+            self._fill_target = committed((hf, wf), np.bool_, False)
+            self._fill_samples = (
+                committed((hf, wf, 3), np.float32, np.nan),
+                committed((hf, wf), np.uint8, 0),
+            )
+        except MemoryError as exc:  # the estimate fit, the allocation did not
+            raise ParameterError(_engine_memory_message(p, h, w, s, available)) from exc
         tw = np.arange(max(self.past, self.future) + 1, dtype=np.float64)
         # sigma_temporal = inf: factor 0, equal weights
         self._temporal_weight = np.exp(-(tw**2) * gauss_factor(p.sigma_temporal))
@@ -389,6 +414,8 @@ class FusionEngine:
         self._closed = False
         # overlap_flow: one worker thread, created on the first pair
         self.overlap_flow = bool(overlap_flow)
+        if self.overlap_flow:
+            self.timings.setdefault(FLOW_WORKER, 0.0)
         self._flow_worker: Any = None
         self._pending_flow: Any = None
         self._flow_state: Any = None
@@ -766,7 +793,16 @@ class FusionEngine:
             self._flow_worker = ThreadPoolExecutor(1, thread_name_prefix="fuse4d-flow")
         est = self._flow_estimator  # its warm-start state, restored if the push fails
         self._flow_state = None if est is None else (est._last_image1, est._last_forward)
-        self._pending_flow = self._flow_worker.submit(self._flow_pair, index, intensity)
+        self._pending_flow = self._flow_worker.submit(self._timed_flow_pair, index, intensity)
+
+    def _timed_flow_pair(
+        self, index: int, intensity: NDArray[np.float32]
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """:meth:`_flow_pair` in the worker thread, with the seconds it took (added to
+        ``timings["flow_worker"]`` by :meth:`_add_pair`, in the pushing thread)."""
+        t0 = time.perf_counter()
+        fwd, bwd = self._flow_pair(index, intensity)
+        return fwd, bwd, time.perf_counter() - t0
 
     def _flow_pair(
         self, index: int, intensity: NDArray[np.float32] | None = None
@@ -812,7 +848,8 @@ class FusionEngine:
             fwd, bwd = pair_flow
         elif self._pending_flow is not None:  # overlap_flow: computed during the prep
             pending, self._pending_flow = self._pending_flow, None
-            fwd, bwd = pending.result()
+            fwd, bwd, worker_s = pending.result()
+            self.timings[FLOW_WORKER] += worker_s
         else:
             fwd, bwd = self._flow_pair(index)
         fwd = as_float32(fwd, name="forward flow")
@@ -1115,6 +1152,71 @@ class FusionEngine:
         return source, confidence
 
 
+def _engine_buffer_bytes(params: FusionParams, height: int, width: int, ring: int) -> int:
+    """Bytes of the buffers :class:`FusionEngine` allocates at construction (``ring`` frames
+    of ``height`` x ``width`` px): the ring buffers (48-61 B per pixel and frame), the
+    composed-track tables (A31, :meth:`fuse4d.motion._ComposedTracks.buffer_bytes`, quadratic
+    in the window) or the one output frame's tracks (``tracks="exact"``: 9 B per pixel and
+    other frame), and the per-frame scratch buffers."""
+    p = params
+    pixels = int(height) * int(width)
+    k = p.past_frames + p.future_frames
+    composed = p.tracks == "composed" and p.quantize == "final" and k > 0
+    shared = p.motion_depth == "smoothed" and p.motion_sigma == p.reference_sigma
+    # depth 4, intensity 4, bilateral 12, local reference 12, forward and backward flow 8 + 8;
+    # the motion reference 12 unless shared, the flying-pixel mask 1
+    per_frame = 48 + (0 if shared else 12) + (1 if p.flying_pixels == "on" else 0)
+    ring_bytes = ring * (pixels * per_frame + (height + width) * 8)  # + the A38 extents
+    # rays 12, no-static mask 1, the residual bilateral's scratch 24, the A26 fill's 14
+    fixed = 13 + (24 if p.bilateral == "residual" else 0)
+    if p.fill_from_time and not composed and k > 0 and p.quantize == "final":
+        fixed += 14
+    if composed:
+        tracks = _ComposedTracks.buffer_bytes(height, width, p.past_frames, p.future_frames)
+    else:
+        tracks = k * pixels * 9
+    return ring_bytes + fixed * pixels + tracks
+
+
+def _engine_memory_message(
+    params: FusionParams, height: int, width: int, ring: int, available: int | None
+) -> str:
+    """Why an engine's buffers do not fit, and the ways out (:func:`_check_engine_memory`)."""
+
+    def size(n: int) -> str:
+        return f"{n / 2**30:,.1f} GiB" if n >= 2**30 // 10 else f"{n / 2**20:,.1f} MiB"
+
+    need = _engine_buffer_bytes(params, height, width, ring)
+    room = "the allocation failed" if available is None else f"{size(available)} is available"
+    text = (
+        f"a window of num_frames={params.num_frames} frames at {width}x{height} px needs about "
+        f"{size(need)} of fusion buffers, {room}: use a smaller window (num_frames, --window)"
+    )
+    if params.tracks == "composed":
+        exact = _engine_buffer_bytes(params.replace(tracks="exact"), height, width, ring)
+        if exact < need:
+            text += (
+                f" or tracks='exact' (no composed-track tables: about {size(exact)}, slower "
+                "tracking)"
+            )
+    return text
+
+
+def _check_engine_memory(
+    params: FusionParams, height: int, width: int, ring: int, available: int | None
+) -> None:
+    """Refuse an engine whose buffers (:func:`_engine_buffer_bytes`) exceed ``available``
+    bytes (None: unknown, not checked).
+
+    Raises
+    ------
+    ParameterError
+        Naming the window, the frame size, the memory needed and available and the way out.
+    """
+    if available is not None and _engine_buffer_bytes(params, height, width, ring) > available:
+        raise ParameterError(_engine_memory_message(params, height, width, ring, available))
+
+
 def _check_state(state: FrameState, shape: tuple[int, int], index: int, *, separate: bool) -> None:
     """ShapeError / ValueError where ``state`` cannot be frame ``index``'s of this engine."""
     h, w = shape
@@ -1363,7 +1465,8 @@ def fuse_sequence(
     -----
     Each pair's flow is computed in a worker thread while the frame is filtered
     (:class:`FusionEngine` ``overlap_flow``): the same result bit for bit, the flow stage of
-    ``timings`` only the wait for it. A frame without any valid depth is allowed: its pixels
+    ``timings`` only the wait for it (the flow's own seconds are ``timings["flow_worker"]``,
+    spent beside the other stages). A frame without any valid depth is allowed: its pixels
     are sensor holes, which the fill from other frames (A26) may reach.
 
     Examples
@@ -1452,7 +1555,7 @@ def fuse_sequence(
             for fr in pushed_frames():
                 out_points[fr.index] = fr.points
                 support[fr.index] = fr.support
-                filled[fr.index] |= fr.filled
+                filled[fr.index] = fr.filled  # the last pass's, as support and source
                 source[fr.index] = fr.source
                 confidence[fr.index] = fr.confidence
                 done += 1
@@ -1484,13 +1587,19 @@ def fuse_stream(
     fusion: FusionParams | None = None,
     flow: FlowConfig | str | SequenceFlow | tuple | None = None,
     timings: dict[str, float] | None = None,
+    sensor: str | None = None,
 ) -> Iterator[FusedFrame]:
     """Fuse a stream of ``(depth, intensity)`` frames with bounded memory.
 
     Yields :class:`FusedFrame` objects in frame order, each as soon as its window is complete
-    (``fusion.future_frames`` frames of latency; zero with ``causal=True``). Memory holds
-    ``num_frames`` frames whatever the stream length. ``iterations`` > 1 is not supported in
-    streaming (use :func:`fuse_sequence`).
+    (``fusion.future_frames`` frames of latency; zero with ``causal=True``). Memory does not
+    grow with the stream length: the engine's buffers, allocated when the stream starts, hold
+    ``num_frames`` frames (48-61 B per pixel each) plus the composed tracks of
+    ``tracks="composed"`` (A31), which grow with the square of the window
+    ((future + 1) x (num_frames - 1) x 5 B per pixel: 60 MB at 640x480 and n = 9, 47 GiB at
+    n = 256); a window whose buffers do not fit in the memory available raises
+    :class:`~fuse4d.errors.ParameterError`. ``iterations`` > 1 is not supported in streaming
+    (use :func:`fuse_sequence`).
 
     Parameters
     ----------
@@ -1507,11 +1616,22 @@ def fuse_stream(
         :class:`FusionEngine`.
     timings : dict, optional
         Accumulates seconds per pipeline stage.
+    sensor : str, optional
+        The kind of depth camera (:attr:`fuse4d.Sequence.sensor`, e.g. ``"tof"``; the
+        ``sensor`` of the reader's recording): decides ``flying_pixels="auto"`` (A36,
+        :func:`fuse4d.flying_pixels.resolve_flying_pixels`), as in :func:`fuse_sequence`;
+        None = unknown ("auto" is off). The frames of :func:`fuse4d.io.iter_frames` do not
+        carry it: pass ``sensor="tof"`` for an Azure Kinect recording.
 
     Yields
     ------
     FusedFrame
         Fused points (mm), support and fill masks of frame ``index``.
+
+    Raises
+    ------
+    ParameterError
+        ``iterations`` > 1, or a window whose buffers do not fit in memory.
 
     Examples
     --------
@@ -1521,7 +1641,7 @@ def fuse_stream(
     >>> [f.index for f in fuse_stream(frames, seq.intrinsics, fusion=FusionParams(num_frames=3))]
     [0, 1, 2, 3]
     """
-    params = fusion_params(fusion)
+    params = resolve_flying_pixels(fusion_params(fusion), sensor)
     if params.iterations != 1:
         raise ParameterError("fuse_stream supports iterations=1 only; use fuse_sequence for more")
     engine = FusionEngine(intrinsics, fusion=params, flow=flow, timings=timings, overlap_flow=True)

@@ -371,6 +371,17 @@ class _ComposedTracks:
         self._ahead = (maps(1), maps(1)) if future > 0 else None
         self._back = (maps(past), maps(past)) if past > 0 else None
 
+    @staticmethod
+    def buffer_bytes(height: int, width: int, past: int, future: int) -> int:
+        """Bytes that ``_ComposedTracks(height, width, past, future)`` allocates: the track
+        tables, quadratic in the window ((future + 1) x (past + future) x H x W x 5 B: 47 GiB
+        at 640 x 480 and n = 256), and the step maps (9 B per pixel each)."""
+        pixels = int(height) * int(width)
+        index = 2 if max(height, width) <= np.iinfo(np.int16).max else 4
+        tables = (future + 1) * (past + future) * pixels * (2 * index + 1)
+        maps = future + (2 if future > 0 else 0) + 2 * past
+        return tables + maps * pixels * 9
+
     def add_frame(
         self,
         index: int,

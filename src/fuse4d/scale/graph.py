@@ -676,8 +676,7 @@ def fuse(
             )
         points = da.concatenate([p[0] for p in pieces])
         support = da.concatenate([p[1] for p in pieces])
-        new_filled = da.concatenate([p[2] for p in pieces])
-        filled = new_filled if filled is None else filled | new_filled
+        filled = da.concatenate([p[2] for p in pieces])  # the last pass's, as support
         source = da.concatenate([p[3] for p in pieces])  # the last pass's
         confidence = da.concatenate([p[4] for p in pieces])
     assert points is not None
