@@ -849,3 +849,16 @@ def test_a_streaming_run_records_its_setup_apart_from_the_frames(tmp_path, capsy
     assert math.isfinite(bench.setup_ms)
     assert bench.setup_ms > 0
     assert bench.wall_ms_per_frame > bench.ms_per_frame
+
+
+def test_window_and_set_are_checked_together(tmp_path, capsys):
+    """--window 16 --set min_temporal_support=12 was refused against the preset's 9 frames
+    (--set applied before --window)."""
+    src = _ball_folder(tmp_path, frames=3)
+    args = ["run", str(src), "-o", str(tmp_path / "o"), "--no-summary"]
+    assert main([*args, "--window", "16", "--set", "min_temporal_support=12"]) == 0
+    capsys.readouterr()
+    assert main([*args, "--window", "3", "--set", "min_temporal_support=9", "--force"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("fuse4d: error: --set, --window 3: ")
+    assert "num_frames=3" in " ".join(err.split())

@@ -48,6 +48,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from ._memory import available_memory as _available_memory
 from .camera import Intrinsics
 from .errors import ParameterError, ParameterTypeError
 from .sequence import BallTruth, GroundTruth, PlaneTruth, Sequence, SheetTruth
@@ -141,53 +142,6 @@ class _SceneTooLarge(ParameterError):
         super().__init__(f"num_frames={num_frames}: {detail}")
         self.num_frames = num_frames
         self.detail = detail
-
-
-def _available_memory() -> int | None:
-    """Bytes this process can still allocate, as far as the system says (Linux): the smallest
-    of MemAvailable + SwapFree, the address-space limit (``ulimit -v``) less what the process
-    maps, and the cgroup's ``memory.max`` less ``memory.current`` plus its reclaimable
-    (inactive) file cache. None where none is known."""
-    import os
-    from pathlib import Path
-
-    def read(path: str) -> str | None:
-        try:
-            return Path(path).read_text()
-        except OSError:
-            return None
-
-    def field_kib(text: str | None, name: str) -> int | None:
-        for line in (text or "").splitlines():
-            if line.startswith(name + ":"):
-                return int(line.split()[1]) * 1024
-        return None
-
-    known: list[int] = []
-    meminfo = read("/proc/meminfo")
-    available = field_kib(meminfo, "MemAvailable")
-    if available is not None:
-        known.append(available + (field_kib(meminfo, "SwapFree") or 0))
-    try:
-        import resource
-
-        soft = resource.getrlimit(resource.RLIMIT_AS)[0]
-        mapped = field_kib(read(f"/proc/{os.getpid()}/status"), "VmSize")
-        if soft != resource.RLIM_INFINITY and mapped is not None:
-            known.append(soft - mapped)
-    except (ImportError, OSError, ValueError):
-        pass
-    limit, used = read("/sys/fs/cgroup/memory.max"), read("/sys/fs/cgroup/memory.current")
-    if limit is not None and used is not None and limit.strip().isdigit():
-        # memory.current counts the file cache, which the kernel gives back on demand (a
-        # container that had read a few GB looked full): add back its inactive part
-        cache = 0
-        for line in (read("/sys/fs/cgroup/memory.stat") or "").splitlines():
-            name, _, value = line.partition(" ")
-            if name == "inactive_file" and value.strip().isdigit():
-                cache = int(value)
-        known.append(int(limit) - int(used) + cache)
-    return max(min(known), 0) if known else None
 
 
 def _check_fits_in_memory(num_frames: int, pixels: int, bytes_per_pixel: int, what: str) -> None:

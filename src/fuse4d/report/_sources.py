@@ -135,7 +135,9 @@ class FusedSource:
             self._filled = data.filled if self._filled is None else self._filled
             self._source = data.source
             self.params = {**data.params.to_dict(), "flow_method": data.flow_method}
-            self.seconds = float(sum(data.timings.values())) if data.timings else None
+            # the stages' seconds; flow_worker is the overlapped flow's own time, beside them
+            stages = {k: v for k, v in data.timings.items() if k not in ("flow_worker", "setup")}
+            self.seconds = float(sum(stages.values())) if stages else None
         elif isinstance(data, Sequence):
             self._depth = data.depth
             self.name = data.name or self.name
