@@ -64,7 +64,7 @@ def source_tree(spec: str | None) -> Iterator[Path]:
     if spec is None:
         yield REPO / "src"
         return
-    folder = Path(spec)
+    folder = Path(spec).resolve()  # the child runs elsewhere (cwd: the temp folder)
     if (folder / "src" / "fuse4d").is_dir():
         yield folder / "src"
         return
@@ -129,7 +129,7 @@ def paired_summary(base: list[float], new: list[float], seed: int = 0) -> dict[s
     }
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("base", help="git revision or folder with src/fuse4d")
     parser.add_argument("--new", default=None, help="git revision or folder (default: here)")
@@ -141,7 +141,10 @@ def main() -> None:
     parser.add_argument("--pairs", type=int, default=10, help="pairs of processes")
     parser.add_argument("--runs", type=int, default=2, help="timed runs per process (best)")
     parser.add_argument("--json", action="store_true", help="print JSON")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    for name in ("window", "frames", "pairs", "runs"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name} must be >= 1, got {getattr(args, name)}")
     if args.ball:
         rec = "-"
     else:
@@ -151,7 +154,7 @@ def main() -> None:
             args.input = data_dir() / RECORDINGS["person"]
         if not args.input.exists():
             raise SystemExit(f"{args.input}: no such recording (give --input, or --ball)")
-        rec = str(args.input)
+        rec = str(args.input.resolve())  # the child runs in the temp folder
     base_ms: list[float] = []
     new_ms: list[float] = []
     base_stages: list[dict[str, float]] = []

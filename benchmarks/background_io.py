@@ -123,7 +123,7 @@ def compare(rec: Path, args: argparse.Namespace, echo: bool = True) -> dict:
     }
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--input", type=Path, default=None, help="recording (default: uva)")
     parser.add_argument("--frames", type=int, default=30, help="frames timed per run")
@@ -132,7 +132,12 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=4, help="rounds of the two modes")
     parser.add_argument("--load", type=int, default=0, help="busy loops beside the runs")
     parser.add_argument("--json", action="store_true", help="print JSON")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    for name in ("frames", "window", "rounds"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name} must be >= 1, got {getattr(args, name)}")
+    if args.load < 0:
+        parser.error(f"--load must be >= 0, got {args.load}")
     rec = args.input or data_dir() / RECORDINGS["person"]
     if not rec.exists():
         raise SystemExit(f"{rec}: no such recording (give --input or set FUSE4D_DATA)")

@@ -73,15 +73,23 @@ def read_all(path: Path) -> dict[str, float]:
     return {"open_s": t1 - t0, "decode_s": t2 - t1, "frames": n, "peak_rss_mib": rss}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--frames", type=int, default=200, help="640x480 frames for the speed")
     parser.add_argument("--short", type=int, default=250, help="short bag (memory), 160x120")
     parser.add_argument("--long", type=int, default=2000, help="long bag (memory), 160x120")
-    parser.add_argument("--kind", default="ros2", help="ros2 (.db3), ros1 (.bag) or mcap")
+    parser.add_argument(
+        "--kind",
+        default="ros2",
+        choices=("ros2", "ros1", "mcap"),
+        help="ros2 (.db3), ros1 (.bag) or mcap",
+    )
     parser.add_argument("--tmp", type=Path, default=None, help="folder for the temporary bags")
     parser.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    for name in ("frames", "short", "long"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name} must be >= 1, got {getattr(args, name)}")
     if args.child is not None:  # subprocess: read one bag, print JSON
         print(json.dumps(read_all(args.child)))
         return
@@ -96,8 +104,8 @@ def main() -> None:
         print(f"  open (topic choice + index pass): {r['open_s']:.2f} s")
         print(f"  decode: {fps:.0f} frames/s ({1000 / fps:.2f} ms/frame), target >= 200")
         rows = []
-        for n in (args.short, args.long):
-            bag = write_bag(root / f"small{n}", n, 120, 160, args.kind)
+        for label, n in (("short", args.short), ("long", args.long)):  # distinct names
+            bag = write_bag(root / f"small_{label}{n}", n, 120, 160, args.kind)
             out = subprocess.run(
                 [sys.executable, __file__, "--child", str(bag)],
                 check=True,

@@ -53,7 +53,7 @@ def _over_synthetic(runs: dict[str, BenchResult], kind: str) -> float:
     return runs[kind].us_per_pixel / runs["synthetic"].us_per_pixel
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--input", type=Path, default=None, help="recording (default: uva)")
     parser.add_argument("--frames", type=int, default=18, help="frames timed per run")
@@ -61,9 +61,13 @@ def main() -> None:
     parser.add_argument("--causal", action="store_true", help="the causal engine")
     parser.add_argument("--repeats", type=int, default=3, help="rounds of the three runs")
     parser.add_argument("--json", action="store_true", help="print JSON")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1, got {args.repeats}")
+    if args.frames < 2:  # the synthetic bench renders at least 2 frames
+        parser.error(f"--frames must be >= 2, got {args.frames}")
+    if args.window < 1:
+        parser.error(f"--window must be >= 1, got {args.window}")
     rec = args.input or data_dir() / RECORDINGS["person"]
     if not rec.exists():
         raise SystemExit(f"{rec}: no such recording (give --input or set FUSE4D_DATA)")

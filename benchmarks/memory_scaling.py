@@ -50,11 +50,13 @@ def peak_rss_of_run(folder: Path, out: Path) -> tuple[float, float]:
     return info["peak_mib"], info["seconds"]
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, nargs="+", default=[60, 300])
     parser.add_argument("--workdir", type=Path, default=None)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    if min(args.frames) < 1:
+        parser.error(f"--frames must be >= 1 each, got {' '.join(map(str, args.frames))}")
     work = args.workdir or Path(tempfile.mkdtemp(prefix="fuse4d-mem-"))
     work.mkdir(parents=True, exist_ok=True)
     clip = make_falling_ball(num_frames=60)

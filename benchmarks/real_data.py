@@ -20,7 +20,10 @@
 
 Every figure comes from :func:`fuse4d.metrics.evaluate`, raw and fused on the same pixels.
 
-Usage: python benchmarks/real_data.py [--data ../shared/data] [--preset fast] [--json]
+Usage: python benchmarks/real_data.py [--data ../shared/data] [--preset fast]
+
+Prints the results as JSON (the recordings found in the data folder; an error naming the
+folder when it holds neither).
 """
 
 from __future__ import annotations
@@ -278,18 +281,22 @@ def person(path: Path, chosen) -> dict:
     }
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     here = Path(__file__).resolve().parents[1]
     parser.add_argument("--data", type=Path, default=here.parent / "shared" / "data")
     parser.add_argument("--preset", default="fast")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    room = args.data / "static_room_rgbd"
+    person_dir = args.data / "uva_cv2_person_turning"
+    if not (room.is_dir() or person_dir.is_dir()):
+        parser.error(
+            f"--data {args.data}: holds neither static_room_rgbd nor uva_cv2_person_turning"
+        )
     chosen = preset(args.preset)
     out = {"preset": args.preset, "flow": chosen.flow.method}
-    room = args.data / "static_room_rgbd"
     if room.is_dir():
         out["static_room_rgbd"] = static_room(room, chosen)
-    person_dir = args.data / "uva_cv2_person_turning"
     if person_dir.is_dir():
         out["uva_cv2_person_turning"] = person(person_dir, chosen)
     print(json.dumps(out, indent=2, default=float))

@@ -51,17 +51,26 @@ from typing import Any
 
 import numpy as np
 
+#: Side of the full falling ball's frames (px), the largest ``--size``.
+FULL_SIZE = 600
 
-def _make_recording(path: Path, frames: int, full: bool, size: int | None = None) -> None:
-    """The falling ball (600x600 with ``full``, else 150x150), optionally its central
-    ``size`` x ``size`` px (cheaper runs with the same motion)."""
+
+def _make_recording(
+    path: Path, frames: int, full: bool, size: int | None = None
+) -> tuple[int, int]:
+    """The falling ball (600x600 with ``full``, else 150x150), or with ``size`` the central
+    ``size`` x ``size`` px of the 600x600 ball (cheaper runs with the same motion).
+
+    Returns the frames' (height, width) in px."""
     from fuse4d import Intrinsics
     from fuse4d.io import save_sequence
     from fuse4d.sequence import Sequence
     from fuse4d.synthetic import make_falling_ball
 
-    seq = make_falling_ball(small=not full, num_frames=frames, rng=0)
+    seq = make_falling_ball(small=not (full or size is not None), num_frames=frames, rng=0)
     h, w = seq.depth.shape[1:]
+    if size is not None and size > min(h, w):
+        raise ValueError(f"--size {size} exceeds the {w}x{h} frames")
     if size is not None and size < min(h, w):
         r, c = (h - size) // 2, (w - size) // 2
         k = seq.intrinsics
@@ -69,6 +78,7 @@ def _make_recording(path: Path, frames: int, full: bool, size: int | None = None
         box = (slice(None), slice(r, r + size), slice(c, c + size))
         seq = Sequence(seq.depth[box].copy(), seq.intensity[box].copy(), cam)
     save_sequence(seq, path)
+    return seq.depth.shape[1], seq.depth.shape[2]
 
 
 def _peak_rss_mib() -> float:
@@ -290,7 +300,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=96, help="recording length (frames)")
     parser.add_argument("--full", action="store_true", help="600x600 instead of 150x150")
-    parser.add_argument("--size", type=int, help="crop the frames to SIZE x SIZE px (centre)")
+    parser.add_argument(
+        "--size",
+        type=int,
+        help=f"the central SIZE x SIZE px of the {FULL_SIZE}x{FULL_SIZE} ball (1..{FULL_SIZE})",
+    )
     parser.add_argument(
         "--graph",
         choices=("streamed", "memory"),
@@ -307,7 +321,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--tracks",
         help="FusionParams.tracks of both engines (default: FusionParams' own); "
-        "'composed,exact' alternates both in the --repeats runs (the first for the others)",
+        "'composed,exact' alternates both in the --repeats runs (the first for the others; "
+        "several settings need --repeats)",
     )
     parser.add_argument(
         "--length-factor",
@@ -319,9 +334,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--repeats",
         type=int,
-        default=1,
+        default=0,
         help="also alternate streaming / dask-1-worker runs this many times on one 1-worker "
-        "cluster and report the overhead of the minima (robust to a drifting load)",
+        "cluster and report the overhead of the minima (robust to a drifting load; default 0: "
+        "no alternation)",
     )
     parser.add_argument(
         "--ceiling",
@@ -331,7 +347,25 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
-    counts = [int(v) for v in args.workers.split(",")]
+    try:
+        counts = [int(v) for v in args.workers.split(",")]
+    except ValueError:
+        parser.error(f"--workers must be comma-separated integers, got {args.workers!r}")
+    if min(counts) < 1:
+        parser.error(f"--workers must be >= 1 each, got {args.workers!r}")
+    if args.frames < 1:
+        parser.error(f"--frames must be >= 1, got {args.frames}")
+    if args.size is not None and not 1 <= args.size <= FULL_SIZE:
+        parser.error(f"--size must be 1..{FULL_SIZE} (the full ball's frames), got {args.size}")
+    if args.repeats < 0:
+        parser.error(f"--repeats must be >= 0, got {args.repeats}")
+    if args.length_factor < 1:
+        parser.error(f"--length-factor must be >= 1, got {args.length_factor}")
+    if args.tracks is not None and "," in args.tracks and args.repeats < 1:
+        parser.error(
+            f"--tracks {args.tracks} compares several settings only in the alternating runs: "
+            "give --repeats R (R >= 1)"
+        )
     from fuse4d import FusionParams
 
     settings = [{}] if args.tracks is None else [{"tracks": t} for t in args.tracks.split(",")]
@@ -344,9 +378,7 @@ def main(argv: list[str] | None = None) -> int:
         default_of = run_dask if args.graph == "streamed" else fd.fuse
         args.chunk_frames = inspect.signature(default_of).parameters["chunk_frames"].default
     report: dict[str, Any] = {
-        "size": f"{args.size}x{args.size}"
-        if args.size
-        else ("600x600" if args.full else "150x150"),
+        "size": None,  # the rendered frames' (below)
         "graph": args.graph,
         "frames": args.frames,
         "chunk_frames": args.chunk_frames,
@@ -358,7 +390,8 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="fuse4d-scale-") as tmp:
         folder = Path(tmp)
         rec = folder / "rec.npz"
-        _make_recording(rec, args.frames, args.full, args.size)
+        height, width = _make_recording(rec, args.frames, args.full, args.size)
+        report["size"] = f"{width}x{height}"
         seconds, rss, cpu, _ = _with_cluster(
             1, lambda c: c.submit(_stream_task, str(rec), fusion, pure=False).result()
         )
@@ -376,7 +409,7 @@ def main(argv: list[str] | None = None) -> int:
             report[f"dask_{n}_cpu_s"] = cpu
             report[f"dask_{n}_rss_mib"] = rss
             report[f"dask_{n}_halo_states_taken"] = taken
-        if args.repeats > 1:
+        if args.repeats > 0:
             report.update(_alternating(rec, folder, args, fusions))
         if args.ceiling and max(counts) > 1:
             report.update(_ceiling(rec, max(counts), fusion))

@@ -376,3 +376,14 @@ def test_ctrl_c_prints_one_line_and_exits_130(tmp_path, monkeypatch, capsys):
         "fuse4d: interrupted during E1: finished units are kept; rerun the same command to resume"
     ]
     assert "interrupted during E1" in log.read_text()
+
+
+def test_e4_rows_are_labelled_with_their_own_frame_count(tmp_path):
+    """Every E4 row said 'Ours (9 frames)', those of Ours fusing 1..8 frames too."""
+    profile = get_profile("quick")
+    rows = e4.unit(profile, tmp_path, "plane", 3, profile.seeds[0])
+    assert rows
+    assert {r["label"] for r in rows} == {"Ours (3 frames)"}
+    assert {r["n_frames"] for r in rows} == {3}
+    assert e4.ours_label(1) == "Ours (1 frame)"
+    assert e4.ours_label(9) == "Ours (9 frames)"

@@ -930,3 +930,34 @@ def test_integer_images_without_a_bit_depth_are_refused_naming_the_image():
         estimate_flow(image.tolist(), image.tolist())
     with pytest.raises(ParameterTypeError, match=r"^intensity has integer dtype int32"):
         estimate_sequence_flow(np.stack([image, image]).astype(np.int32))
+
+
+def test_middlebury_pair_without_known_ground_truth_is_refused_naming_the_file(tmp_path, capsys):
+    """A flow10.flo whose vectors are all unknown (1e10) made the pair's EPE NaN, and the
+    dataset's mean EPE with it, with exit 0 and nothing in 'skipped'."""
+    from fuse4d.errors import InputFileError
+    from fuse4d.experiments.flow_accuracy import middlebury_pairs
+    from fuse4d.flow import write_flo
+
+    _frames, gt = _middlebury_copy(tmp_path)
+    write_flo(np.full((20, 24, 2), 1e10, np.float32), gt / "flow10.flo", overwrite=True)
+    with pytest.raises(InputFileError, match=r"flow10\.flo: no known flow vector .*Venus"):
+        middlebury_pairs(tmp_path)
+    code = main(["bench-flow", "--data", str(tmp_path), "--no-ball", "--methods", "dis-ultrafast"])
+    assert code == 2
+    assert "flow10.flo: no known flow vector" in capsys.readouterr().err
+
+
+def test_cli_bench_flow_default_data_folder_is_the_experiments_one(tmp_path, monkeypatch):
+    """bench-flow looked for ../shared/data from the working folder, fuse4d experiments beside
+    the source checkout: run from any other folder, bench-flow found no Middlebury pairs."""
+    from fuse4d.cli.cmd_flow import _data_root
+    from fuse4d.experiments.paper.real import data_dir
+
+    monkeypatch.delenv("FUSE4D_DATA", raising=False)
+    monkeypatch.chdir(tmp_path)
+    assert _data_root(None) == data_dir()
+    assert _data_root(None).is_absolute()
+    monkeypatch.setenv("FUSE4D_DATA", str(tmp_path / "d"))
+    assert _data_root(None) == tmp_path / "d"
+    assert _data_root(tmp_path / "x") == tmp_path / "x"

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 from typing import Annotated
 
@@ -112,10 +111,13 @@ def flow_command(
 
 
 def _data_root(data: Path | None) -> Path:
+    """``data``, else the data folder of ``fuse4d experiments`` (``$FUSE4D_DATA``, else the
+    ``shared/data`` beside the source checkout), whatever the working folder."""
     if data is not None:
         return data
-    env = os.environ.get("FUSE4D_DATA")
-    return Path(env) if env else Path("..") / "shared" / "data"
+    from ..experiments.paper.real import data_dir
+
+    return data_dir()
 
 
 def _middlebury_dir(root: Path) -> Path:
@@ -136,7 +138,8 @@ def bench_flow_command(
         typer.Option(
             "--data",
             help="Shared data folder holding middlebury_flow/ (or that folder itself). "
-            "Default: $FUSE4D_DATA, else ../shared/data.",
+            "Default: $FUSE4D_DATA, else the shared/data beside the fuse4d checkout "
+            "(as fuse4d experiments).",
         ),
     ] = None,
     json_output: Annotated[

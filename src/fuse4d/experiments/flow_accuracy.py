@@ -145,7 +145,9 @@ def middlebury_pairs(directory: str | Path) -> tuple[list[FlowPair], str]:
     ------
     InputFileError
         A sequence with only some of its files (naming the missing one), or whose frames and
-        ground truth differ in size (naming the file that does not match ``frame10.png``).
+        ground truth differ in size (naming the file that does not match ``frame10.png``), or
+        whose ground truth holds no known flow vector (naming ``flow10.flo``: its EPE would be
+        NaN, and the dataset mean with it).
     """
     root = Path(directory)
     if not root.is_dir():
@@ -173,6 +175,12 @@ def middlebury_pairs(directory: str | Path) -> tuple[list[FlowPair], str]:
                     f"{seq} is {image0.shape[1]}x{image0.shape[0]} px: not from this sequence",
                 )
         known = np.all(np.isfinite(gt) & (np.abs(gt) <= UNKNOWN_FLOW), axis=-1)
+        if not known.any():
+            raise InputFileError(
+                gt_path,
+                f"no known flow vector (every one is unknown, |flow| > {UNKNOWN_FLOW:g} px, or "
+                f"not finite): no ground truth for the Middlebury sequence {seq}",
+            )
         gt = np.where(known[..., None], gt, np.float32(0.0))
         pairs.append(FlowPair("middlebury", seq, image0, image1, gt, known))
     return pairs, "" if pairs else f"no Middlebury pairs found under {root}"

@@ -49,6 +49,11 @@ def e4_frames(profile: Profile) -> int:
     return int(profile.extra.get("e4_num_frames", profile.num_frames))
 
 
+def ours_label(n: int) -> str:
+    """The label of Ours fusing ``n`` frames, e.g. ``"Ours (5 frames)"``."""
+    return f"Ours ({n} frame{'' if n == 1 else 's'})"
+
+
 def unit(profile: Profile, cache_dir: Path, scene_name: str, n: int, seed: int) -> list[dict]:
     """Rows of Ours with ``n`` fused frames on one scene."""
     seq = make(profile, scene_name, seed)
@@ -62,6 +67,7 @@ def unit(profile: Profile, cache_dir: Path, scene_name: str, n: int, seed: int) 
         seed,
         scored,
         seq.num_frames,
+        label=ours_label(n),  # not LABELS' "Ours (9 frames)": n varies here
         n_frames=n,
         sigma_d=SIGMA,
         sigma_struct=SIGMA_STRUCT,
