@@ -10,8 +10,7 @@ import sys
 
 import pytest
 
-from conftest import REPO_ROOT, load_benchmark
-
+from conftest import load_benchmark
 
 
 def _load(name: str):
