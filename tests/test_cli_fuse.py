@@ -862,3 +862,18 @@ def test_window_and_set_are_checked_together(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("fuse4d: error: --set, --window 3: ")
     assert "num_frames=3" in " ".join(err.split())
+
+
+def test_a_config_files_fusion_is_checked_with_the_window_given(tmp_path, capsys):
+    """A config file's min_temporal_support = 12 with --window 16 was checked against the
+    preset's 9 frames before --window applied (the file was blamed)."""
+    src = _ball_folder(tmp_path, frames=3)
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[fusion]\nmin_temporal_support = 12\n")
+    args = ["run", str(src), "-o", str(tmp_path / "o"), "--no-summary", "--config", str(cfg)]
+    assert main([*args, "--window", "16"]) == 0
+    capsys.readouterr()
+    assert main([*args, "--force"]) == 2  # the preset's 9 frames: the file's value is refused
+    err = " ".join(capsys.readouterr().err.split())
+    assert err.startswith(f"fuse4d: error: {cfg}: ")
+    assert "min_temporal_support" in err

@@ -1775,6 +1775,11 @@ def test_engine_refuses_a_window_whose_buffers_do_not_fit(monkeypatch):
     monkeypatch.setattr(motion_module, "committed", failing)
     with pytest.raises(ParameterError, match=message.format("the allocation failed")):
         FusionEngine(K, fusion=params)
+    # the estimate fit, the allocation failed: not "needs 1 MiB, 20 GiB is available"
+    monkeypatch.setattr(fusion_module, "available_memory", lambda: 100 * need)
+    failed = message.format(r"the allocation failed although about [\d.]+ .iB appeared available")
+    with pytest.raises(ParameterError, match=failed):
+        FusionEngine(K, fusion=params)
 
 
 @pytest.mark.parametrize("iterations", [2, 3])

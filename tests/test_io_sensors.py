@@ -1100,3 +1100,30 @@ def test_realsense_sensor_kind_by_product_line():
     assert realsense_sensor_kind("Intel RealSense L515") == "tof"
     assert realsense_sensor_kind("Intel RealSense SR305") == "structured-light"
     assert realsense_sensor_kind("Software-Device") is None
+
+
+def test_float_bag_ir_dark_first_frame_and_saturated_returns(tmp_path):
+    """A float IR stream whose frame 0 has no return (an emitter warming up) took frame 0 as
+    'intensity already in [0, 1]' and refused the 0-255 frames after it; a saturated +inf
+    return in a [0, 1] stream was refused (it read as 1 before). The level is the first
+    frame with a return, the same for a part read; +inf is 1; after an error the next
+    frame reads."""
+    ir = ir_frames(4).astype(np.float32)
+    ir[0] = 0.0
+    dark = _float_ir_bag(tmp_path / "dark.bag", ir)
+    with open_frames(dark) as reader:
+        whole = [reader[k].intensity for k in range(4)]
+    with open_frames(dark, frames="2:4") as reader:
+        part = [f.intensity for f in reader]
+    assert whole[1].max() == 1.0
+    assert np.array_equal(whole[2], part[0])
+    assert np.array_equal(whole[3], part[1])
+    unit = ir_frames(4).astype(np.float32) / 255
+    unit[1, 0, 0] = np.inf
+    unit[2, 0, 0] = -0.5  # still refused, naming the frame
+    saturated = _float_ir_bag(tmp_path / "inf.bag", unit)
+    with open_frames(saturated) as reader:
+        assert reader[1].intensity[0, 0] == 1.0
+        with pytest.raises(InputFileError, match=r"\(frame 2\)"):
+            reader[2]
+        assert reader[3].intensity.max() <= 1.0  # not 'message missing'

@@ -64,11 +64,15 @@ def available_memory() -> int | None:
     limit, used = read("/sys/fs/cgroup/memory.max"), read("/sys/fs/cgroup/memory.current")
     if limit is not None and used is not None and limit.strip().isdigit():
         # memory.current counts the file cache, which the kernel gives back on demand (a
-        # container that had read a few GB looked full): add back its inactive part
-        cache = 0
+        # container that had read a few GB looked full): add back its clean part, active
+        # and inactive (the kernel keeps inactive_file at a fraction of the cache)
+        stat: dict[str, int] = {}
         for line in (read("/sys/fs/cgroup/memory.stat") or "").splitlines():
             name, _, value = line.partition(" ")
-            if name == "inactive_file" and value.strip().isdigit():
-                cache = int(value)
+            if value.strip().isdigit():
+                stat[name] = int(value)
+        cache = max(
+            stat.get("file", 0) - stat.get("file_dirty", 0) - stat.get("file_writeback", 0), 0
+        )
         known.append(int(limit) - int(used) + cache)
     return max(min(known), 0) if known else None

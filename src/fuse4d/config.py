@@ -469,7 +469,11 @@ def fusion_params(fusion: FusionParams | None) -> FusionParams:
 
 
 def load_config(
-    path: str | PathLike[str], *, base: str | None = None, override_preset: bool = False
+    path: str | PathLike[str],
+    *,
+    base: str | None = None,
+    override_preset: bool = False,
+    fusion_changes: dict[str, Any] | None = None,
 ) -> Preset:
     """Read a TOML configuration file (format in the module docstring).
 
@@ -482,6 +486,11 @@ def load_config(
     override_preset : bool, optional
         Start from ``base`` even where the file names a preset (a ``--preset`` given on the
         command line wins over the file, as ``--set`` does). Default False.
+    fusion_changes : dict, optional
+        Fusion fields given on top of the file's (``--set``, ``--window``: they win), applied
+        in the same step, so that the checks between fields see them together (a file's
+        ``min_temporal_support = 12`` with ``--window 16`` was checked against the preset's
+        9 frames).
 
     Returns
     -------
@@ -521,7 +530,12 @@ def load_config(
         fusion_data = coerce_fields(
             FusionParams, dict(data.get("fusion", {})), owner="[fusion] of the config file"
         )
-        fusion = start.fusion.replace(**fusion_data)
+        try:
+            fusion = start.fusion.replace(**{**fusion_data, **(fusion_changes or {})})
+        except (TypeError, ValueError) as exc:
+            if not fusion_changes:
+                raise
+            raise ParameterError(f"{exc} (with the command line's --set/--window)") from None
         flow_data = coerce_fields(
             FlowConfig, dict(data.get("flow", {})), owner="[flow] of the config file"
         )

@@ -394,7 +394,9 @@ class FusionEngine:
                 committed((hf, wf), np.uint8, 0),
             )
         except MemoryError as exc:  # the estimate fit, the allocation did not
-            raise ParameterError(_engine_memory_message(p, h, w, s, available)) from exc
+            raise ParameterError(
+                _engine_memory_message(p, h, w, s, available, failed=True)
+            ) from exc
         tw = np.arange(max(self.past, self.future) + 1, dtype=np.float64)
         # sigma_temporal = inf: factor 0, equal weights
         self._temporal_weight = np.exp(-(tw**2) * gauss_factor(p.sigma_temporal))
@@ -1179,15 +1181,26 @@ def _engine_buffer_bytes(params: FusionParams, height: int, width: int, ring: in
 
 
 def _engine_memory_message(
-    params: FusionParams, height: int, width: int, ring: int, available: int | None
+    params: FusionParams,
+    height: int,
+    width: int,
+    ring: int,
+    available: int | None,
+    failed: bool = False,
 ) -> str:
-    """Why an engine's buffers do not fit, and the ways out (:func:`_check_engine_memory`)."""
+    """Why an engine's buffers do not fit, and the ways out (:func:`_check_engine_memory`);
+    ``failed``: the estimate fit ``available`` but the allocation failed."""
 
     def size(n: int) -> str:
         return f"{n / 2**30:,.1f} GiB" if n >= 2**30 // 10 else f"{n / 2**20:,.1f} MiB"
 
     need = _engine_buffer_bytes(params, height, width, ring)
-    room = "the allocation failed" if available is None else f"{size(available)} is available"
+    if failed or available is None:
+        room = "the allocation failed" + (
+            f" although about {size(available)} appeared available" if available else ""
+        )
+    else:
+        room = f"{size(available)} is available"
     text = (
         f"a window of num_frames={params.num_frames} frames at {width}x{height} px needs about "
         f"{size(need)} of fusion buffers, {room}: use a smaller window (num_frames, --window)"
@@ -1196,8 +1209,8 @@ def _engine_memory_message(
         exact = _engine_buffer_bytes(params.replace(tracks="exact"), height, width, ring)
         if exact < need:
             text += (
-                f" or tracks='exact' (no composed-track tables: about {size(exact)}, slower "
-                "tracking)"
+                f" or tracks='exact' (--set tracks=exact; no composed-track tables: about "
+                f"{size(exact)}, slower tracking)"
             )
     return text
 

@@ -130,7 +130,9 @@ class RunSummary:
     timings : dict
         Seconds per pipeline stage (of this session); ``"setup"`` (streaming runs) is the
         one-off time of opening the reader and the writer, building and closing the engine
-        and closing the writer, not a per-frame stage.
+        and closing the writer, not a per-frame stage; ``"flow_worker"`` (the flow overlapped
+        in its own thread) is the flow's own time there, beside ``"flow"`` (the wait for it):
+        not additive with the other stages.
     """
 
     input: Path

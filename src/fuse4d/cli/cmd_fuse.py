@@ -61,25 +61,28 @@ def _resolve(
     from .._params import coerce_fields, parse_assignments
     from ..config import FlowConfig, FusionParams, load_config, preset
 
-    with user_values():
-        chosen = (
-            load_config(config, base=preset_name, override_preset=preset_given)
-            if config
-            else preset(preset_name)
-        )
-    fusion = chosen.fusion
     changes = coerce_fields(
         FusionParams,
         parse_assignments(sets, what="--set"),
         owner="the fusion (--set, FusionParams)",
     )
-    # one replace, so that the cross-field checks see --set, --window and --causal together
-    # (--window 16 --set min_temporal_support=12 was refused against the preset's 9 frames)
+    # one replace, so that the cross-field checks see the config file, --set, --window and
+    # --causal together (--window 16 with min_temporal_support=12 was refused against the
+    # preset's 9 frames)
     if window is not None:
         changes["num_frames"] = window
     if causal:
         changes["causal"] = True
-    if changes:
+    with user_values():
+        chosen = (
+            load_config(
+                config, base=preset_name, override_preset=preset_given, fusion_changes=changes
+            )
+            if config
+            else preset(preset_name)
+        )
+    fusion = chosen.fusion
+    if changes and not config:
         given = (["--set"] if set(changes) - {"num_frames", "causal"} else []) + (
             [f"--window {window}"] if window is not None else []
         )

@@ -139,7 +139,8 @@ FIGURES = {
     "opened and closed too)",
     "wall_ms_per_frame": "ms_per_frame + setup_ms / frames: the whole run per frame",
     "stage_ms": "ms per frame of each stage, setup excluded; read/write overlap the fusion in "
-    "their own threads; with the flow overlapped (--input) flow is the wait for its worker",
+    "their own threads; with the flow overlapped (--input) flow is the wait for its worker "
+    "and flow_worker the flow's own time in that thread (beside the others: not additive)",
     "us_per_pixel": "ms_per_frame per pixel, microseconds",
 }
 

@@ -262,6 +262,9 @@ class SequentialReader(FrameReader):
         except StopIteration:
             self._pass = None
             raise InputFileError(self.path, self._missing_frame_text(), frame=k) from None
+        except BaseException:
+            self._pass = None  # a generator that raised is finished: the next read starts anew
+            raise
 
     def iter_frames(self, frames: FrameSelection = None) -> Iterator[Frame]:
         sel = resolve_frames(frames, len(self))

@@ -185,9 +185,9 @@ def normalise_intensity(image: np.ndarray, white: float | None) -> np.ndarray:
     """Single-channel image to float32 [0, 1]: uint8 / 255, uint16 / ``white``, float / ``white``
     where given (:func:`float_white_level`), else as is.
 
-    Values above ``white`` (and saturated pixels) become 1. Float NaN (no return) becomes 0;
-    other float values are not clipped: the caller refuses those outside [0, 1] (negative,
-    -inf, or above 1 without ``white``).
+    Values above ``white`` (and saturated pixels, float +inf) become 1. Float NaN (no return)
+    becomes 0; other float values are not clipped: the caller refuses those outside [0, 1]
+    (negative, -inf, or above 1 without ``white``).
     """
     if image.dtype == np.uint8:
         return image.astype(np.float32) * np.float32(1.0 / 255.0)
@@ -196,6 +196,7 @@ def normalise_intensity(image: np.ndarray, white: float | None) -> np.ndarray:
         return np.minimum(image.astype(np.float32) * scale, np.float32(1.0))
     out = np.array(image, dtype=np.float32)
     out[np.isnan(out)] = 0.0
+    out[out == np.inf] = 1.0  # a saturated return
     if white:
         out = np.minimum(out * np.float32(1.0 / white), np.float32(1.0))
     return out

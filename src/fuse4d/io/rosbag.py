@@ -685,8 +685,12 @@ class RosbagReader(SequentialReader):
     def _stream(self, k0: int, stop: int | None = None) -> Iterator[Frame]:
         """Decode frames ``k0, k0+1, ...`` in one pass over the bag."""
         stop = len(self) if stop is None else stop
-        if k0 > 0 and not self._white_known:  # the white level is frame 0's, whatever is read
-            self._set_white(self._intensity_image(0))
+        # the white level is frame 0's (float IR: the first frame with a return), whatever
+        # is read
+        for j in range(k0):
+            if self._white_known:
+                break
+            self._set_white(self._intensity_image(j))
         dc, ic = self._depth.connection, self._inten.connection
         i_first = int(self._i_need[k0])
         start = int(min(self._bt_depth[self._d_ord[k0]], self._bt_inten[i_first]))
@@ -787,9 +791,13 @@ class RosbagReader(SequentialReader):
 
     def _set_white(self, first: np.ndarray) -> None:
         """Fix the file's white level from frame 0's intensity image ``first`` (16 bit, and
-        float outside [0, 1])."""
-        self._white_known = True
+        float outside [0, 1]). A float frame without any return (no finite value > 0: an
+        emitter warming up) fixes nothing: the level is then the first such frame's."""
         if first.dtype.kind == "f":
+            finite = first[np.isfinite(first)]
+            if not (finite > 0).any():
+                return
+            self._white_known = True
             self._white = float_white_level(first)
             if self._white is not None:
                 self._notes.append(
@@ -799,6 +807,7 @@ class RosbagReader(SequentialReader):
                 )
                 self.notes = tuple(self._notes)
             return
+        self._white_known = True
         if first.dtype != np.uint16:
             return
         self._white = white_level(first)
