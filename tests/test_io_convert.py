@@ -145,3 +145,27 @@ def test_source_confidence_kernel_matches_numpy():
     bufs = (np.empty((3, 4), np.uint8), np.empty((3, 4), np.float32), np.empty((3, 4), bool))
     full_points = np.ones((3, 4, 3), np.float32)
     assert not _source_confidence_kernel(full, full_points, np.zeros((3, 4), np.uint8), 9.0, *bufs)
+
+
+@pytest.mark.parametrize("step", ["report", "moved_pts"])
+def test_mkv_close_interrupted_before_the_rename_leaves_no_file(tmp_path, monkeypatch, step):
+    """A Ctrl-C in close's warnings (after ``_stack`` was cleared) left the staged .mkv."""
+    pytest.importorskip("av")
+    from fuse4d.camera import Intrinsics
+    from fuse4d.io import DepthVideoWriter
+
+    def interrupt(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    if step == "report":
+        monkeypatch.setattr(QuantizationReport, "warn", interrupt)
+    else:
+        monkeypatch.setattr(DepthVideoWriter, "_warn_moved_pts", interrupt)
+    k = Intrinsics(20.0, 20.0, 7.5, 5.5, width=16, height=12)
+    out = tmp_path / "v.mkv"
+    with pytest.raises(KeyboardInterrupt) as caught, DepthVideoWriter(out, k) as writer:
+        writer.write(np.full(k.shape, 500.0, np.float32), np.full(k.shape, 0.5, np.float32))
+    # while the interrupt is still held (its traceback keeps close's frame alive, so garbage
+    # collection has not yet closed the atomic context): neither the temporary nor the output
+    assert caught.traceback
+    assert list(tmp_path.iterdir()) == []

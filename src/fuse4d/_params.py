@@ -455,7 +455,8 @@ def check_int(
     ok = ok and (minimum is None or value >= minimum) and (maximum is None or value <= maximum)
     if not ok:
         raise ParameterError(
-            f"{owner}.{name} must be an integer{_range(minimum, maximum, '[', ']')}, got {value!r}"
+            f"{owner}.{name} must be an integer"
+            f"{_range(minimum, maximum, '[', ']', integer=True)}, got {value!r}"
         )
     return int(value)
 
@@ -518,13 +519,21 @@ def _range(
     right: str,
     lo_open: bool = False,
     hi_open: bool = False,
+    *,
+    integer: bool = False,
 ) -> str:
+    """The bounds' text for a message; ``integer`` (an int field's) prints them exactly, where
+    ``:g`` would round 2**63 - 1 to 9.22337e+18."""
+
+    def text(bound: float) -> str:
+        return str(int(bound)) if integer else f"{bound:g}"
+
     if lo is not None and hi is not None:
-        return f" in {left}{lo:g}, {hi:g}{right}"
+        return f" in {left}{text(lo)}, {text(hi)}{right}"
     if lo is not None:
-        return f" {'>' if lo_open else '>='} {lo:g}"
+        return f" {'>' if lo_open else '>='} {text(lo)}"
     if hi is not None:
-        return f" {'<' if hi_open else '<='} {hi:g}"
+        return f" {'<' if hi_open else '<='} {text(hi)}"
     return ""
 
 

@@ -222,19 +222,18 @@ class DepthVideoWriter(StagedWriter):
         if self.num_written == 0:
             self.abort()
             raise ParameterError(f"{self.path}: no frame was written")
-        stack, self._stack = self._stack, None
-        try:
+        try:  # _stack stays set until the rename, so that anything before it discards the stage
             for stream in self._streams or ():
                 for packet in stream.encode():
                     self._container.mux(packet)
             self._container.close()
-        except BaseException:
-            self._stack = stack
+            self._report.warn(str(self.path), stacklevel=5)  # (through @reports_write_errors)
+            self._warn_moved_pts()
+        except BaseException:  # a Ctrl-C or an error-promoted warning too
             self.abort()
             raise
-        self._report.warn(str(self.path), stacklevel=5)  # (through @reports_write_errors)
-        self._warn_moved_pts()
-        stack.close()
+        stack, self._stack = self._stack, None
+        stack.close()  # moves the file into place (or deletes the temporary if that fails)
 
     def abort(self) -> None:
         """Discard the partial output."""
