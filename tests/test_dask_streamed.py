@@ -443,6 +443,51 @@ def test_a_read_only_output_folder_gives_one_clear_line(ball, tmp_path, monkeypa
     assert list(ro.iterdir()) == []
 
 
+@pytest.mark.parametrize(
+    ("where", "scheduler"),
+    [
+        ("/depth/c/", "threads"),  # a zarr shard of write_chunk
+        ("/.fuse4d-flows/forward-", "threads"),  # a scratch flow of a flow task
+        ("/.fuse4d-flows/flows-", "sync"),  # a flow task's marker
+    ],
+)
+def test_a_full_disk_during_the_tasks_gives_one_clear_line(
+    ball, tmp_path, monkeypatch, capsys, where, scheduler
+):
+    """A full disk while a task wrote a chunk or a scratch flow printed "fuse4d: error:
+    [Errno 28] ..." naming a temporary (or an internal error); now the one line of
+    OutputWriteError naming the output, and --resume finishes the run once there is space."""
+    import errno
+    import pathlib
+
+    from fuse4d.cli import main
+
+    save_sequence(ball, tmp_path / "a.npz")
+    out = tmp_path / "x.zarr"
+    real_open = pathlib.Path.open
+    full = [True]
+
+    def open_(self, mode="r", *args, **kwargs):
+        if full[0] and "w" in mode and where in pathlib.Path(self).absolute().as_posix():
+            raise OSError(errno.ENOSPC, "No space left on device", str(self))
+        return real_open(self, mode, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "open", open_)
+    run = ["run", str(tmp_path / "a.npz"), "-o", str(out), "--engine", "dask"]
+    run += ["--scheduler", scheduler, "--workers", "1", "--chunk-frames", "7"]
+    assert main(run) == 2
+    err = capsys.readouterr().err.strip()  # the progress bar, then the error
+    line = err.splitlines()[-1]
+    assert line.startswith(f"fuse4d: error: {out}: cannot write the output (No space left"), err
+    assert "free some disk space" in line
+    assert "Traceback" not in err, err
+    assert "internal error" not in err, err
+    assert not out.exists()
+    full[0] = False
+    assert main([*run, "--resume"]) == 0
+    assert zarr.open_group(str(out), mode="r").attrs["fuse4d"]["complete"] is True
+
+
 def test_the_report_of_a_resumed_run_is_not_given_this_sessions_time(
     ball, tmp_path, monkeypatch, capsys
 ):
@@ -465,3 +510,38 @@ def test_the_report_of_a_resumed_run_is_not_given_this_sessions_time(
     assert main([*args, "--resume"]) == 0
     assert seen[0] > 0
     assert seen[1] is None
+
+
+@pytest.mark.parametrize("layout", ["npz", "folder"])
+def test_a_rewritten_input_is_read_anew_in_the_same_process(ball, tmp_path, layout):
+    """The tasks and this process's readers were keyed on the input's own mtime (a folder's
+    stays when a frame file is rewritten in place) or not at all (the reader cache): a second
+    run in the same process (a notebook, a cluster's long-lived workers) read the old frames."""
+    import numpy as np
+
+    from fuse4d.scale import open_lazy
+
+    path = tmp_path / ("in.npz" if layout == "npz" else "in")
+    other = tmp_path / ("other.npz" if layout == "npz" else "other")
+    brighter = dataclasses.replace(ball, intensity=np.clip(ball.intensity + 0.25, 0, 1))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # the folder layout's lossy notes
+        save_sequence(ball, path)
+        save_sequence(brighter, other)
+    before = open_lazy(path).intensity[:].compute()
+    source = streamed.source_of(path, "npz" if layout == "npz" else "folder", ball.depth.shape[0])
+    first = source.intensity(0)
+    mtime = path.stat().st_mtime_ns
+    for f in sorted(p for p in other.rglob("*") if p.is_file()) if path.is_dir() else [other]:
+        target = path / f.relative_to(other) if path.is_dir() else path
+        target.write_bytes(f.read_bytes())  # in place: the folder's mtime stays
+    if path.is_dir():
+        os.utime(path, ns=(mtime, mtime))
+    after = open_lazy(path).intensity[:].compute()
+    assert not np.array_equal(after, before)
+    assert np.array_equal(after, open_lazy(other).intensity[:].compute())
+    rewritten = streamed.source_of(
+        path, "npz" if layout == "npz" else "folder", ball.depth.shape[0]
+    )
+    assert rewritten.stamp != source.stamp
+    assert not np.array_equal(rewritten.intensity(0), first)

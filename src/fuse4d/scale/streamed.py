@@ -42,6 +42,7 @@ import json
 import os
 import threading
 from collections import OrderedDict
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -56,9 +57,11 @@ from ..config import FlowConfig, FusionParams
 from ..errors import ParameterError
 from ..flow import FlowCache, estimate_flow, get_flow_method
 from ..fusion import FrameState
+from ..io._atomic import write_errors
+from ..io.resume import fingerprint_input
 from .graph import _flow_chain, _intensity_frame, chunk_bounds, chunk_engine
 from .inputs import read_frame, read_intensity
-from .zarr_out import ZarrOutput, _marker, write_chunk
+from .zarr_out import ZarrOutput, _marker, _output_of, write_chunk
 
 __all__ = ["RecordingSource", "flow_scratch", "recording_tasks", "source_of"]
 
@@ -79,8 +82,9 @@ class RecordingSource:
         Absolute path of the ``.npz`` file or folder.
     format : str
         Layout name for :func:`fuse4d.io.open_frames`.
-    stamp : int
-        The input's mtime (ns): a rewritten input gets new task keys.
+    stamp : str
+        The input's :func:`fuse4d.io.resume.fingerprint_input` (its files' names, sizes and
+        mtimes): a rewritten input gets new task keys, readers and frame-state keys.
     options : tuple of (str, value)
         Keyword arguments of :func:`fuse4d.io.open_frames`.
     frames : int
@@ -89,23 +93,30 @@ class RecordingSource:
 
     path: str
     format: str
-    stamp: int
+    stamp: str
     options: tuple[tuple[str, Any], ...]
     frames: int
 
     def frame(self, index: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         """(H, W) float32 depth (mm, NaN = invalid) and intensity of frame ``index``, the
         values :func:`fuse4d.scale.inputs.read_frames` gives the in-memory graph."""
-        return read_frame(self.path, self.format, index, self.options)
+        return read_frame(self.path, self.format, index, self.options, self.stamp)
 
     def intensity(self, index: int) -> NDArray[np.float32]:
         """(H, W) float32 intensity of frame ``index`` (the flow tasks read nothing else)."""
-        return read_intensity(self.path, self.format, index, self.options)
+        return read_intensity(self.path, self.format, index, self.options, self.stamp)
 
 
 def flow_scratch(staging: Path) -> Path:
     """The scratch folder of the pair flows inside an output's staging folder."""
     return Path(staging) / _FLOWS
+
+
+def _scratch_errors(scratch: str | Path) -> AbstractContextManager[None]:
+    """Report a full disk, a read-only folder, ... while writing the scratch folder
+    ``scratch`` (``OUT.zarr.partial/.fuse4d-flows``) as an OutputWriteError naming
+    ``OUT.zarr``: one line from the CLI, whichever worker ran the task."""
+    return write_errors(_output_of(Path(scratch).parent))
 
 
 def _pair_files(scratch: str, j: int) -> tuple[Path, Path]:
@@ -175,14 +186,15 @@ def _save_state(path: Path, state: FrameState, key: str) -> None:
     """Save atomically: the key, then the arrays one after the other in one ``.npy`` stream
     (no zip, no checksum). Two tasks may save the same frame at once, with the same bits."""
     tmp = path.with_name(f"{path.name}.{os.getpid()}-{threading.get_ident()}.tmp")
-    with tmp.open("wb") as f:
-        np.save(f, np.asarray(key), allow_pickle=False)
-        np.save(f, np.asarray(state.reference is not None), allow_pickle=False)
-        for array in (state.noise, state.smooth, state.bilateral):
-            np.save(f, array, allow_pickle=False)
-        if state.reference is not None:
-            np.save(f, state.reference, allow_pickle=False)
-    tmp.replace(path)
+    with _scratch_errors(path.parent):
+        with tmp.open("wb") as f:
+            np.save(f, np.asarray(key), allow_pickle=False)
+            np.save(f, np.asarray(state.reference is not None), allow_pickle=False)
+            for array in (state.noise, state.smooth, state.bilateral):
+                np.save(f, array, allow_pickle=False)
+            if state.reference is not None:
+                np.save(f, state.reference, allow_pickle=False)
+        tmp.replace(path)
 
 
 def _load_state(path: Path, key: str) -> FrameState | None:
@@ -202,15 +214,17 @@ def _load_state(path: Path, key: str) -> FrameState | None:
 
 def _save(path: Path, array: NDArray[Any]) -> None:
     tmp = path.with_name(path.name + ".tmp")
-    with tmp.open("wb") as f:
-        np.save(f, array, allow_pickle=False)
-    tmp.replace(path)
+    with _scratch_errors(path.parent):
+        with tmp.open("wb") as f:
+            np.save(f, array, allow_pickle=False)
+        tmp.replace(path)
 
 
 def _touch(path: Path, info: dict[str, Any]) -> None:
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(info))
-    tmp.replace(path)
+    with _scratch_errors(path.parent):
+        tmp.write_text(json.dumps(info))
+        tmp.replace(path)
 
 
 # ------------------------------------------------------------------------------------ tasks
@@ -223,8 +237,9 @@ def _splits(config: FlowConfig) -> bool:
 def _store_flows(staging: str | None, name: str, a: int, flows: list[NDArray[Any]]) -> None:
     """The output's shard of these pairs' flows (``save_flows``), written at once."""
     if staging is not None and flows:
-        root = zarr.open_group(staging, mode="r+")
-        root[name][a : a + len(flows)] = np.stack(flows)  # type: ignore[index]
+        with write_errors(_output_of(staging)):
+            root = zarr.open_group(staging, mode="r+")
+            root[name][a : a + len(flows)] = np.stack(flows)  # type: ignore[index]
 
 
 def _flow_task(
@@ -429,12 +444,13 @@ def _fuse_task(
 def _drop_task(scratch: str, k: int, bounds: tuple[int, int], *after: Any) -> int:
     """Delete chunk k's pair files and its frames' saved states (their readers are done);
     its seed stays."""
-    _flow_marker(scratch, k).unlink(missing_ok=True)  # first: no marker = must recompute
-    for j in range(*bounds):
-        for path in _pair_files(scratch, j):
-            path.unlink(missing_ok=True)
-    for t in range(bounds[0], bounds[1] + 1):  # the pairs' frames
-        _state_file(scratch, t).unlink(missing_ok=True)
+    with _scratch_errors(scratch):
+        _flow_marker(scratch, k).unlink(missing_ok=True)  # first: no marker = must recompute
+        for j in range(*bounds):
+            for path in _pair_files(scratch, j):
+                path.unlink(missing_ok=True)
+        for t in range(bounds[0], bounds[1] + 1):  # the pairs' frames
+            _state_file(scratch, t).unlink(missing_ok=True)
     return k
 
 
@@ -493,7 +509,8 @@ def recording_tasks(
     if not missing:
         return []
     scratch = flow_scratch(out.staging)
-    scratch.mkdir(exist_ok=True)
+    with _scratch_errors(scratch):
+        scratch.mkdir(exist_ok=True)
     pairs = chunk_bounds(max(total - 1, 0), chunk_frames)
     past, future = fusion.past_frames, fusion.future_frames
 
@@ -603,5 +620,5 @@ def source_of(
     ``reader_options``, a ``frames`` range among them)."""
     src = Path(path).resolve()
     return RecordingSource(
-        str(src), fmt, src.stat().st_mtime_ns, tuple(sorted(reader_options.items())), num_frames
+        str(src), fmt, fingerprint_input(src), tuple(sorted(reader_options.items())), num_frames
     )

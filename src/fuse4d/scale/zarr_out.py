@@ -40,7 +40,7 @@ from .._version import __version__
 from ..camera import Intrinsics
 from ..errors import OutputExistsError, ParameterError
 from ..io import check_output
-from ..io._atomic import reports_write_errors
+from ..io._atomic import reports_write_errors, write_errors
 from ..io.zarrstore import codec
 from .graph import DaskFusion, chunk_bounds, delayed_blocks
 
@@ -70,6 +70,13 @@ def _marker(staging: Path, k: int) -> Path:
     return staging / _MARKERS / f"chunk-{k:06d}"
 
 
+def _output_of(staging: str | Path) -> Path:
+    """The output ``OUT.zarr`` whose staging folder is ``staging`` (``OUT.zarr.partial``):
+    what a write error in a task names."""
+    staging = Path(staging)
+    return staging.with_name(staging.name.removesuffix(".partial"))
+
+
 def write_chunk(
     staging: str,
     k: int,
@@ -84,7 +91,31 @@ def write_chunk(
 ) -> int:
     """Write time chunk ``k`` (frames ``[start, start + len(depth))``, and the pairs starting
     there when flows are saved) into the store at ``staging``, then its done marker; runs on a
-    worker. Returns ``k``."""
+    worker. Returns ``k``.
+
+    Raises
+    ------
+    OutputWriteError
+        A full disk, a read-only folder, ... (naming ``OUT.zarr``).
+    """
+    with write_errors(_output_of(staging)):
+        return _write_chunk(
+            staging, k, start, depth, support, filled, forward, backward, source, confidence
+        )
+
+
+def _write_chunk(
+    staging: str,
+    k: int,
+    start: int,
+    depth: NDArray[np.float32],
+    support: NDArray[np.uint8],
+    filled: NDArray[np.bool_],
+    forward: NDArray[np.float32] | None,
+    backward: NDArray[np.float32] | None,
+    source: NDArray[np.uint8] | None,
+    confidence: NDArray[np.float32] | None,
+) -> int:
     root = zarr.open_group(staging, mode="r+")
     stop = start + depth.shape[0]
     blocks = [("depth", depth), ("support", support), ("filled", filled)]
