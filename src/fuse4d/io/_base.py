@@ -423,6 +423,36 @@ def checked_timestamp(
     return t
 
 
+def stored_unit_intensity(
+    raw: np.ndarray, path: Path, frame: int, *, what: str, nan_as_zero: bool = False
+) -> NDArray[np.float32]:
+    """A stored intensity frame as float32 in [0, 1], the rule of every array layout (.npz,
+    .zarr): uint8 and uint16 divided by 255 and 65535, bool as 0 and 1, other integer types
+    refused (their range says nothing of the white level, as
+    :func:`fuse4d.sequence.normalize_intensity` refuses them), floats checked
+    (:func:`check_stored_intensity`); ``nan_as_zero``: NaN is unknown intensity, read as 0.
+
+    Raises
+    ------
+    InputFileError
+        An integer type other than uint8/uint16, or float values outside [0, 1].
+    """
+    if raw.dtype.kind in "ui":
+        if raw.dtype.kind == "i" or raw.dtype.itemsize > 2:
+            raise InputFileError(
+                path,
+                f"{what} has integer dtype {raw.dtype}, which does not say its bit depth; "
+                "store uint8 (0-255), uint16 (0-65535) or float in [0, 1]",
+                frame=frame,
+            )
+        return raw.astype(np.float32) / np.float32(np.iinfo(raw.dtype).max)
+    out = np.array(raw, dtype=np.float32)
+    if nan_as_zero:
+        out[np.isnan(out)] = 0.0
+    check_stored_intensity(out, path, frame, what=what)
+    return out
+
+
 def check_stored_intensity(
     intensity: NDArray[np.float32], path: Path, frame: int, *, what: str
 ) -> None:

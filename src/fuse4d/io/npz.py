@@ -48,9 +48,9 @@ from ._base import (
     FrameSelection,
     ProgressCallback,
     check_sensor_kind,
-    check_stored_intensity,
     file_sequence,
     resolve_frames,
+    stored_unit_intensity,
 )
 
 __all__ = ["RESERVED_NPZ_KEYS", "NpzReader", "read_npz", "read_npz_extra", "write_npz"]
@@ -303,17 +303,10 @@ class NpzReader(FrameReader):
         """Frame ``k``'s intensity as float32, released from the map, checked to lie in [0, 1]
         (uint8 and uint16 divided by 255 and 65535; other integer types refused, as
         :func:`fuse4d.sequence.normalize_intensity` refuses them)."""
-        raw = self._array("intensity")[k]
-        if raw.dtype.kind == "i" or (raw.dtype.kind == "u" and raw.dtype.itemsize > 2):
-            raise InputFileError(
-                self.path,
-                f"key 'intensity' has integer dtype {raw.dtype}, which does not say its bit "
-                "depth; store uint8 (0-255), uint16 (0-65535) or float in [0, 1]",
-                frame=k,
-            )
-        intensity = _intensity_frame(raw)
+        intensity = stored_unit_intensity(
+            self._array("intensity")[k], self.path, k, what="key 'intensity'"
+        )
         self._release("intensity", k)
-        check_stored_intensity(intensity, self.path, k, what="key 'intensity'")
         return intensity
 
     def read_sequence(
@@ -428,12 +421,6 @@ def _read_npy_header(f: Any) -> Any:
     if version == (2, 0):
         return np.lib.format.read_array_header_2_0(f)
     return None
-
-
-def _intensity_frame(frame: np.ndarray) -> NDArray[np.float32]:
-    if frame.dtype.kind in "ui":
-        return frame.astype(np.float32) / np.float32(np.iinfo(frame.dtype).max)
-    return np.array(frame, dtype=np.float32)
 
 
 def read_npz(

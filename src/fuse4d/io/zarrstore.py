@@ -41,10 +41,10 @@ from ._base import (
     check_flags,
     check_frame_shapes,
     check_sensor_kind,
-    check_stored_intensity,
     checked_timestamp,
     float_or_nan,
     resolve_intrinsics,
+    stored_unit_intensity,
 )
 from ._extras import require
 
@@ -385,21 +385,7 @@ class ZarrReader(FrameReader):
             raw = np.asarray(self._inten[k])
         except _READ_ERRORS as exc:
             raise InputFileError(self.path, f"cannot read chunk ({exc})", frame=k) from None
-        if raw.dtype.kind in "ui":
-            if raw.dtype.kind == "i" or raw.dtype.itemsize > 2:
-                raise InputFileError(
-                    self.path,
-                    f"'intensity' has integer dtype {raw.dtype}, which does not say its bit "
-                    "depth; store uint8 (0-255), uint16 (0-65535) or float in [0, 1]",
-                    frame=k,
-                )
-            return raw.astype(np.float32) / np.float32(np.iinfo(raw.dtype).max)
-        inten = raw.astype(np.float32)
-        unknown = np.isnan(inten)
-        if unknown.any():
-            inten[unknown] = 0.0
-        check_stored_intensity(inten, self.path, k, what="'intensity'")
-        return inten
+        return stored_unit_intensity(raw, self.path, k, what="'intensity'", nan_as_zero=True)
 
     def read_source(self, start: int, stop: int) -> NDArray[np.uint8] | None:
         """The ``source`` array's frames ``start:stop`` (see :meth:`FrameReader.read_source`)."""

@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..camera import Intrinsics
 from ..errors import InputFileError, ParameterError, ShapeError
-from ..fusion import FusionResult
+from ..fusion import STAGES, FusionResult
 from ..io.resume import run_parameters, run_seconds, run_steady_ms
 from ..sequence import Sequence
 
@@ -135,9 +135,9 @@ class FusedSource:
             self._filled = data.filled if self._filled is None else self._filled
             self._source = data.source
             self.params = {**data.params.to_dict(), "flow_method": data.flow_method}
-            # the stages' seconds; flow_worker is the overlapped flow's own time, beside them
-            stages = {k: v for k, v in data.timings.items() if k not in ("flow_worker", "setup")}
-            self.seconds = float(sum(stages.values())) if stages else None
+            # the pipeline stages' seconds (not flow_worker: the overlapped flow, beside them)
+            stages = [data.timings[k] for k in STAGES if k in data.timings]
+            self.seconds = float(sum(stages)) if stages else None
         elif isinstance(data, Sequence):
             self._depth = data.depth
             self.name = data.name or self.name

@@ -99,38 +99,21 @@ def write_chunk(
         A full disk, a read-only folder, ... (naming ``OUT.zarr``).
     """
     with write_errors(_output_of(staging)):
-        return _write_chunk(
-            staging, k, start, depth, support, filled, forward, backward, source, confidence
-        )
-
-
-def _write_chunk(
-    staging: str,
-    k: int,
-    start: int,
-    depth: NDArray[np.float32],
-    support: NDArray[np.uint8],
-    filled: NDArray[np.bool_],
-    forward: NDArray[np.float32] | None,
-    backward: NDArray[np.float32] | None,
-    source: NDArray[np.uint8] | None,
-    confidence: NDArray[np.float32] | None,
-) -> int:
-    root = zarr.open_group(staging, mode="r+")
-    stop = start + depth.shape[0]
-    blocks = [("depth", depth), ("support", support), ("filled", filled)]
-    if source is not None and confidence is not None:
-        blocks += [("source", source), ("confidence", confidence)]
-    if forward is not None and backward is not None and len(forward):
-        blocks += [("flow_forward", forward), ("flow_backward", backward)]
-    for name, block in blocks:
-        root[name][start : start + block.shape[0]] = block  # type: ignore[index]
-    marker = _marker(Path(staging), k)
-    marker.parent.mkdir(exist_ok=True)
-    tmp = marker.with_suffix(".tmp")
-    tmp.write_text(json.dumps({"start": start, "stop": stop}))
-    tmp.replace(marker)
-    return k
+        root = zarr.open_group(staging, mode="r+")
+        stop = start + depth.shape[0]
+        blocks = [("depth", depth), ("support", support), ("filled", filled)]
+        if source is not None and confidence is not None:
+            blocks += [("source", source), ("confidence", confidence)]
+        if forward is not None and backward is not None and len(forward):
+            blocks += [("flow_forward", forward), ("flow_backward", backward)]
+        for name, block in blocks:
+            root[name][start : start + block.shape[0]] = block  # type: ignore[index]
+        marker = _marker(Path(staging), k)
+        marker.parent.mkdir(exist_ok=True)
+        tmp = marker.with_suffix(".tmp")
+        tmp.write_text(json.dumps({"start": start, "stop": stop}))
+        tmp.replace(marker)
+        return k
 
 
 class ZarrOutput:
